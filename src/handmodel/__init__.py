@@ -1,0 +1,1 @@
+"""Kinematic hand model, geometry and the shared damped Gauss-Newton IK solver."""

@@ -1,0 +1,81 @@
+"""Atomic, non-clobbering file output and lookup of shipped resources."""
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+_SHARE = Path("share") / "synergistic-hand-tracking"
+
+
+def resource_dir(kind: str) -> Path:
+    """Folder of a shipped resource kind (``models``, ``data_schema``).
+
+    Looks in the source checkout first (``<repo>/models``), then in the installed data
+    files (``<prefix>/share/synergistic-hand-tracking/<kind>``).
+    """
+    checkout = Path(__file__).resolve().parents[2] / kind
+    if checkout.is_dir():
+        return checkout
+    for prefix in (sys.prefix, sys.base_prefix):
+        cand = Path(prefix) / _SHARE / kind
+        if cand.is_dir():
+            return cand
+    return checkout
+
+
+def models_dir() -> Path:
+    return resource_dir("models")
+
+
+def schema_path(name: str) -> Path:
+    """Path of ``data_schema/<name>.schema.json``."""
+    return resource_dir("data_schema") / f"{name}.schema.json"
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
+    """Write ``data`` to ``path`` through a temporary file and a rename.
+
+    With ``overwrite=False`` an existing file is never replaced (``FileExistsError``);
+    the final step then uses a hard link, which fails atomically if the name exists.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not overwrite and path.exists():
+        raise FileExistsError(f"{path}: exists and is never overwritten")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise FileExistsError(f"{path}: exists and is never overwritten") from None
+            os.unlink(tmp)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = True) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"), overwrite=overwrite)
+
+
+def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while True:
+            b = fh.read(chunk)
+            if not b:
+                break
+            h.update(b)
+    return h.hexdigest()

@@ -1,0 +1,1 @@
+"""Hand synergies from motion capture."""

@@ -1,0 +1,1 @@
+"""Synergistic hand tracking in depth images."""
