@@ -1,0 +1,411 @@
+"""The kinematic hand model: loading, validation, mirroring and batched forward kinematics.
+
+A model is a tree of joints with rest transforms (metres) and a table of degrees of freedom (DoF)
+in parameter-vector order. The local matrix of a joint is ``rest . E(d1) . E(d2) ...`` where the
+``E`` are elementary rotations/translations of the joint's DoFs in the order the joint lists them
+(for the default hand: ``rest . Rx(flex) . Rz(abd)`` as in the original code). The root joint carries
+the global pose ``T . Rx . Ry . Rz``.
+
+Examples
+--------
+>>> import numpy as np
+>>> hand = HandModel.load()
+>>> hand.n_dofs, len(hand.keypoint_names)
+(26, 21)
+>>> hand.keypoints(np.zeros(26)).shape
+(21, 3)
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from .errors import HandModelError
+from .fileio import models_dir, schema_path
+
+ROTATION, TRANSLATION = 0, 1
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0),
+         "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
+_MIRROR = np.diag([-1.0, 1.0, 1.0])
+
+
+def _load_yaml(path: Path):
+    import yaml
+
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise HandModelError(path, f"cannot read: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise HandModelError(path, f"not valid YAML: {str(exc).splitlines()[0]}") from None
+
+
+def _validate_schema(doc, path: Path) -> None:
+    import jsonschema
+
+    schema = json.loads(schema_path("hand-model").read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if errors:
+        e = errors[0]
+        where = "/".join(str(p) for p in e.absolute_path) or "(top level)"
+        raise HandModelError(path, f"field {where}: {e.message}")
+
+
+@dataclass(frozen=True, eq=False)
+class Segment:
+    """A rigid surface primitive riding on one joint, along the joint's local +y axis."""
+
+    joint: int
+    shape: str  # "capsule" (round cone) or "slab" (rounded trapezoid)
+    length: float
+    radius: tuple[float, float]  # capsule: radii at base/far end; slab: half-widths
+    half_thickness: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class HandModel:
+    """A kinematic hand model. Use :meth:`load`; arrays are read-only.
+
+    Attributes
+    ----------
+    node_names : list of str
+        All joints including end points (fingertips), parents first; these are the keypoints.
+    joint_names : list of str
+        The joints that have children (16 for the default hand): :meth:`joint_frames` order.
+    dof_names : list of str
+        Parameter-vector order (26 for the default hand: pose, then thumb…pinky).
+    limits : ndarray (n_dofs, 2)
+        Default limits in radians/metres, ±inf where unlimited.
+    """
+
+    name: str
+    path: str
+    sha256: str
+    handedness: str
+    node_names: list
+    parents: np.ndarray
+    rest: np.ndarray
+    dof_names: list
+    dof_types: np.ndarray
+    dof_axes: np.ndarray
+    limits: np.ndarray
+    dof_ptr: np.ndarray
+    dof_idx: np.ndarray
+    segments: tuple
+    mesh_settings: dict = field(default_factory=dict)
+    description: str = ""
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, name_or_path: str | Path = "default", *, right: bool = False) -> "HandModel":
+        """Load a model by name (``models/hands/<name>.yaml``) or path; ``right=True`` mirrors it.
+
+        A right hand is the mirror image of the left one for the same θ (x → −x in the hand frame);
+        the global pose is not mirrored.
+        """
+        p = Path(name_or_path)
+        if p.suffix not in (".yaml", ".yml"):
+            cand = models_dir() / "hands" / f"{name_or_path}.yaml"
+            if not cand.exists():
+                known = sorted(q.stem for q in (models_dir() / "hands").glob("*.yaml"))
+                raise HandModelError(name_or_path, f"no such hand model (known: {', '.join(known) or 'none'})")
+            p = cand
+        if not p.exists():
+            raise HandModelError(p, "file not found")
+        doc = _load_yaml(p)
+        model = cls.from_dict(doc, where=p)
+        if right != (model.handedness == "right"):
+            model = model.mirrored()
+        return model
+
+    @classmethod
+    def from_dict(cls, doc, *, where: str | Path = "<dict>") -> "HandModel":
+        """Build and validate a model from its parsed YAML document."""
+        where = Path(where) if not isinstance(where, Path) else where
+        if not isinstance(doc, dict):
+            raise HandModelError(where, "top level must be a mapping")
+        _validate_schema(doc, where)
+        joints = doc["joints"]
+        names = [j["name"] for j in joints]
+        seen = set()
+        for i, n in enumerate(names):
+            if n in seen:
+                raise HandModelError(where, f"field joints/{i}/name: duplicate joint {n!r}")
+            seen.add(n)
+        index = {n: i for i, n in enumerate(names)}
+        roots = [j["name"] for j in joints if j["parent"] is None]
+        if len(roots) != 1:
+            raise HandModelError(where, f"field joints: exactly one root joint (parent: null) is required, found {roots}")
+        if joints[0]["parent"] is not None:
+            raise HandModelError(where, "field joints/0/parent: the root joint must come first")
+        parents = np.full(len(joints), -1, dtype=np.int64)
+        for i, j in enumerate(joints):
+            par = j["parent"]
+            if par is None:
+                continue
+            if par not in index:
+                raise HandModelError(where, f"field joints/{i}/parent: unknown joint {par!r} (missing joint?)")
+            parents[i] = index[par]
+        # cycles: walking up from every joint must reach the root within n steps
+        for i in range(len(joints)):
+            k, steps = i, 0
+            while parents[k] >= 0:
+                k = parents[k]
+                steps += 1
+                if steps > len(joints):
+                    raise HandModelError(where, f"field joints/{i}/parent: cyclic parents involving {names[i]!r}")
+        # parents first, so one pass down the list computes the forward kinematics
+        order = _topological_order(parents)
+        if list(order) != list(range(len(joints))):
+            joints = [joints[i] for i in order]
+            return cls.from_dict({**doc, "joints": joints}, where=where)
+
+        rest = np.zeros((len(joints), 4, 4))
+        for i, j in enumerate(joints):
+            R = np.asarray(j["rest"]["rotation"], float)
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+                raise HandModelError(where, f"field joints/{i}/rest/rotation: not a proper rotation matrix")
+            rest[i, :3, :3] = R
+            rest[i, :3, 3] = j["rest"]["translation"]
+            rest[i, 3, 3] = 1.0
+
+        dofs = doc["dofs"]
+        dof_names = [d["name"] for d in dofs]
+        if len(set(dof_names)) != len(dof_names):
+            raise HandModelError(where, "field dofs: duplicate DoF names")
+        dindex = {n: i for i, n in enumerate(dof_names)}
+        types = np.array([ROTATION if d["type"] == "rotation" else TRANSLATION for d in dofs], dtype=np.int64)
+        axes = np.zeros((len(dofs), 3))
+        limits = np.zeros((len(dofs), 2))
+        for i, d in enumerate(dofs):
+            a = _AXES[d["axis"]] if isinstance(d["axis"], str) else d["axis"]
+            a = np.asarray(a, float)
+            nrm = np.linalg.norm(a)
+            if nrm < 1e-9:
+                raise HandModelError(where, f"field dofs/{i}/axis: zero axis")
+            axes[i] = a / nrm
+            lo, hi = d["limits"]
+            if not lo < hi:
+                raise HandModelError(where, f"field dofs/{i}/limits: lower limit {lo} is not below upper {hi}")
+            limits[i] = (lo, hi)
+        ptr = [0]
+        idx = []
+        used = {}
+        for i, j in enumerate(joints):
+            for dn in j["dofs"]:
+                if dn not in dindex:
+                    raise HandModelError(where, f"field joints/{i}/dofs: unknown DoF {dn!r}")
+                if dn in used:
+                    raise HandModelError(where, f"field joints/{i}/dofs: DoF {dn!r} already used by joint {used[dn]!r}")
+                used[dn] = j["name"]
+                idx.append(dindex[dn])
+            ptr.append(len(idx))
+        unused = [n for n in dof_names if n not in used]
+        if unused:
+            raise HandModelError(where, f"field dofs: DoFs not attached to any joint: {unused}")
+        n_expected = doc.get("n_dofs")
+        if n_expected is not None and n_expected != len(dofs):
+            raise HandModelError(where, f"field dofs: {len(dofs)} DoFs, expected {n_expected}")
+
+        segs = []
+        for i, s in enumerate(doc["segments"]):
+            if s["joint"] not in index:
+                raise HandModelError(where, f"field segments/{i}/joint: unknown joint {s['joint']!r}")
+            if s["shape"] == "capsule":
+                segs.append(Segment(index[s["joint"]], "capsule", float(s["length"]), tuple(map(float, s["radius"]))))
+            else:
+                segs.append(Segment(index[s["joint"]], "slab", float(s["length"]),
+                                    tuple(map(float, s["half_width"])), float(s["half_thickness"])))
+        canon = json.dumps(doc, sort_keys=True, default=str).encode()
+        return cls(
+            name=doc["name"], path=str(where), sha256=hashlib.sha256(canon).hexdigest(),
+            handedness=doc["handedness"], node_names=names, parents=_ro(parents), rest=_ro(rest),
+            dof_names=dof_names, dof_types=_ro(types), dof_axes=_ro(axes), limits=_ro(limits),
+            dof_ptr=_ro(np.asarray(ptr, np.int64)), dof_idx=_ro(np.asarray(idx, np.int64)),
+            segments=tuple(segs), mesh_settings=dict(doc.get("mesh") or {}), description=doc.get("description", ""),
+        )
+
+    def mirrored(self) -> "HandModel":
+        """The mirror-image hand (left ↔ right) for the same parameter vector.
+
+        Every joint below the root is conjugated by ``S = diag(-1, 1, 1)`` and each rotation axis
+        ``a`` becomes ``-S a`` (so ``S R_a(q) S = R_{-Sa}(q)``); the root's global pose is unchanged.
+        """
+        S = _MIRROR
+        rest = self.rest.copy()
+        rest[1:, :3, :3] = S @ rest[1:, :3, :3] @ S
+        rest[1:, :3, 3] = rest[1:, :3, 3] @ S
+        axes = self.dof_axes.copy()
+        root_dofs = set(self.dof_idx[self.dof_ptr[0]:self.dof_ptr[1]].tolist())
+        for d in range(self.n_dofs):
+            if d in root_dofs:
+                continue
+            axes[d] = -(S @ axes[d]) if self.dof_types[d] == ROTATION else S @ axes[d]
+        hand = "right" if self.handedness == "left" else "left"
+        return HandModel(
+            name=self.name, path=self.path, sha256=self.sha256, handedness=hand, node_names=self.node_names,
+            parents=self.parents, rest=_ro(rest), dof_names=self.dof_names, dof_types=self.dof_types,
+            dof_axes=_ro(axes), limits=self.limits, dof_ptr=self.dof_ptr, dof_idx=self.dof_idx,
+            segments=self.segments, mesh_settings=self.mesh_settings, description=self.description,
+        )
+
+    # ------------------------------------------------------------------ names and masks
+    @property
+    def n_dofs(self) -> int:
+        return len(self.dof_names)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.node_names)
+
+    @property
+    def keypoint_names(self) -> list:
+        return list(self.node_names)
+
+    @cached_property
+    def joint_indices(self) -> np.ndarray:
+        has_child = np.zeros(self.n_nodes, bool)
+        has_child[self.parents[self.parents >= 0]] = True
+        return _ro(np.flatnonzero(has_child))
+
+    @property
+    def joint_names(self) -> list:
+        return [self.node_names[i] for i in self.joint_indices]
+
+    @cached_property
+    def pose_mask(self) -> np.ndarray:
+        """True for the DoFs of the root joint (the global pose)."""
+        m = np.zeros(self.n_dofs, bool)
+        m[self.dof_idx[self.dof_ptr[0]:self.dof_ptr[1]]] = True
+        return _ro(m)
+
+    @property
+    def posture_names(self) -> list:
+        return [n for n, p in zip(self.dof_names, self.pose_mask) if not p]
+
+    def node_index(self, name: str) -> int:
+        try:
+            return self.node_names.index(name)
+        except ValueError:
+            raise HandModelError(self.path, f"no joint named {name!r}") from None
+
+    def dof_index(self, name: str) -> int:
+        try:
+            return self.dof_names.index(name)
+        except ValueError:
+            raise HandModelError(self.path, f"no DoF named {name!r}") from None
+
+    def segment_of_node(self) -> np.ndarray:
+        """Segment index per node (-1 where the node has none)."""
+        out = np.full(self.n_nodes, -1, np.int64)
+        for i, s in enumerate(self.segments):
+            out[s.joint] = i
+        return out
+
+    # ------------------------------------------------------------------ kinematics
+    def check_theta(self, theta) -> np.ndarray:
+        """Return θ as a float64 array of shape (..., n_dofs), or raise :class:`HandModelError`."""
+        try:
+            th = np.asarray(theta, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise HandModelError("theta", "not a numeric array") from None
+        if th.ndim == 0 or th.shape[-1] != self.n_dofs:
+            raise HandModelError("theta", f"shape {th.shape}: the last axis must have {self.n_dofs} entries")
+        if not np.all(np.isfinite(th)):
+            raise HandModelError("theta", "contains NaN or infinite values")
+        return th
+
+    def node_frames(self, theta) -> np.ndarray:
+        """Global 4×4 frames of every node, ``(..., n_nodes, 4, 4)``."""
+        from . import kinematics
+
+        th = self.check_theta(theta)
+        flat = th.reshape(-1, self.n_dofs)
+        G = kinematics.fk_batch(flat, self.parents, self.rest, self.dof_ptr, self.dof_idx, self.dof_types, self.dof_axes)
+        return G.reshape(th.shape[:-1] + (self.n_nodes, 4, 4))
+
+    def joint_frames(self, theta) -> np.ndarray:
+        """Global frames of the joints that have children, ``(..., 16, 4, 4)`` for the default hand."""
+        return self.node_frames(theta)[..., self.joint_indices, :, :]
+
+    def keypoints(self, theta) -> np.ndarray:
+        """Keypoint positions in metres, ``(..., 21, 3)``: wrist, then each finger base → tip."""
+        return self.node_frames(theta)[..., :3, 3]
+
+    def points(self, theta, nodes, local) -> np.ndarray:
+        """World positions of points rigidly attached to nodes (``local`` in the node frames)."""
+        G = self.node_frames(theta)
+        nodes = np.asarray(nodes, np.int64)
+        local = np.asarray(local, float)
+        Gs = G[..., nodes, :, :]
+        return np.einsum("...pij,pj->...pi", Gs[..., :3, :3], local) + Gs[..., :3, 3]
+
+    def jacobian(self, theta, nodes=None, local=None) -> np.ndarray:
+        """Analytic Jacobian ∂p/∂θ (paper eq. 5) of attached points, ``(..., P, 3, n_dofs)``.
+
+        Without ``nodes`` the points are the keypoints. A rotation column is ``a_w × (p − o)`` with
+        ``a_w`` the DoF's axis in world coordinates and ``o`` its joint origin; a translation
+        column is ``a_w``.
+        """
+        from . import kinematics
+
+        th = self.check_theta(theta)
+        if nodes is None:
+            nodes = np.arange(self.n_nodes)
+            local = np.zeros((self.n_nodes, 3))
+        nodes = np.asarray(nodes, np.int64)
+        local = np.zeros((len(nodes), 3)) if local is None else np.asarray(local, float).reshape(len(nodes), 3)
+        flat = th.reshape(-1, self.n_dofs)
+        J = kinematics.jacobian_batch(flat, nodes, local, self.parents, self.rest, self.dof_ptr, self.dof_idx,
+                                      self.dof_types, self.dof_axes)
+        return J.reshape(th.shape[:-1] + (len(nodes), 3, self.n_dofs))
+
+    def kernel_args(self):
+        """The arrays the numba kernels take, in their order."""
+        return (self.parents, self.rest, self.dof_ptr, self.dof_idx, self.dof_types, self.dof_axes)
+
+    def zero(self) -> np.ndarray:
+        """The zero parameter vector (flat hand at the origin)."""
+        return np.zeros(self.n_dofs)
+
+    # ------------------------------------------------------------------ geometry shortcuts
+    @cached_property
+    def capsules(self):
+        from .geometry import Capsules
+
+        return Capsules.from_model(self)
+
+    def mesh(self):
+        """The procedurally generated rest mesh with skinning weights (:class:`handmodel.geometry.SkinnedMesh`)."""
+        from .geometry import build_mesh
+
+        return build_mesh(self)
+
+    def __repr__(self) -> str:
+        return f"HandModel({self.name!r}, {self.handedness}, {self.n_nodes} nodes, {self.n_dofs} DoF)"
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+def _topological_order(parents: np.ndarray) -> list:
+    n = len(parents)
+    children = [[] for _ in range(n)]
+    root = int(np.flatnonzero(parents < 0)[0])
+    for i, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(i)
+    out, stack = [], [root]
+    while stack:
+        k = stack.pop()
+        out.append(k)
+        stack.extend(reversed(children[k]))
+    return out
