@@ -1,0 +1,79 @@
+"""Rigid registration (Horn 1987, closed-form unit quaternions) and XYZ Euler angles (R = Rx·Ry·Rz)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def horn(src, dst, weights=None):
+    """Rotation ``R`` and translation ``t`` minimising Σ w‖R·src + t − dst‖² (Horn's quaternion method).
+
+    Parameters
+    ----------
+    src, dst : array (P, 3)
+    weights : array (P,), optional
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> R0 = euler_to_matrix([0.3, -0.2, 1.0]); p = np.random.default_rng(0).normal(size=(5, 3))
+    >>> R, t = horn(p, p @ R0.T + [1, 2, 3])
+    >>> bool(np.allclose(R, R0) and np.allclose(t, [1, 2, 3]))
+    True
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    ws = w.sum()
+    cs = (w[:, None] * src).sum(0) / ws
+    cd = (w[:, None] * dst).sum(0) / ws
+    S = ((src - cs) * w[:, None]).T @ (dst - cd)
+    Sxx, Sxy, Sxz = S[0]
+    Syx, Syy, Syz = S[1]
+    Szx, Szy, Szz = S[2]
+    N = np.array([
+        [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+        [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+        [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+        [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
+    ])
+    vals, vecs = np.linalg.eigh(N)
+    q = vecs[:, -1]
+    R = quat_to_matrix(q)
+    return R, cd - R @ cs
+
+
+def quat_to_matrix(q):
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def euler_to_matrix(angles):
+    """R = Rx(a)·Ry(b)·Rz(c), batched over leading axes."""
+    a = np.asarray(angles, float)
+    ca, sa = np.cos(a[..., 0]), np.sin(a[..., 0])
+    cb, sb = np.cos(a[..., 1]), np.sin(a[..., 1])
+    cc, sc = np.cos(a[..., 2]), np.sin(a[..., 2])
+    R = np.empty(a.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cb * cc
+    R[..., 0, 1] = -cb * sc
+    R[..., 0, 2] = sb
+    R[..., 1, 0] = ca * sc + sa * sb * cc
+    R[..., 1, 1] = ca * cc - sa * sb * sc
+    R[..., 1, 2] = -sa * cb
+    R[..., 2, 0] = sa * sc - ca * sb * cc
+    R[..., 2, 1] = sa * cc + ca * sb * sc
+    R[..., 2, 2] = ca * cb
+    return R
+
+
+def matrix_to_euler(R):
+    """Angles (a, b, c) with R = Rx(a)·Ry(b)·Rz(c), b in [−π/2, π/2]."""
+    R = np.asarray(R, float)
+    b = np.arcsin(np.clip(R[..., 0, 2], -1.0, 1.0))
+    a = np.arctan2(-R[..., 1, 2], R[..., 2, 2])
+    c = np.arctan2(-R[..., 0, 1], R[..., 0, 0])
+    return np.stack([a, b, c], axis=-1)

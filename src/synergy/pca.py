@@ -1,0 +1,448 @@
+"""Exact covariance PCA of hand postures from mergeable sufficient statistics.
+
+The statistics of a chunk are its row count, mean, centred scatter matrix and per-DoF
+min/max. Chunks merge with Chan et al.'s parallel update, so the fitted model does not
+depend on how the data were split (files, processes, Dask partitions), and no raw
+``Σxxᵀ`` is ever formed (it loses precision when the mean is large against the spread).
+
+Examples
+--------
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> X = rng.normal(size=(500, 4)) @ np.diag([3.0, 2.0, 1.0, 0.5])
+>>> a = SynergyModel(n_components=2).fit(X)
+>>> s = SufficientStats.from_array(X[:123]).merge(SufficientStats.from_array(X[123:]))
+>>> b = s.finalize(n_components=2).update_limits(X[:123]).update_limits(X[123:])
+>>> bool(np.allclose(a.components_, b.components_) and np.allclose(a.pc_max_, b.pc_max_))
+True
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from numbers import Integral, Real
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
+from sklearn.utils.validation import check_is_fitted
+
+from synergy.errors import SynergyError
+
+try:
+    from sklearn.utils.validation import validate_data as _sk_validate_data
+except ImportError:  # scikit-learn < 1.6
+
+    def _sk_validate_data(est, X, **kw):
+        return est._validate_data(X, **kw)
+
+
+#: The 20 posture DoF in the paper's (= fingerfist) order. Single source until the hand
+#: model takes over; re-point this constant then.
+POSTURE_DOF_NAMES: tuple[str, ...] = tuple(
+    f"{finger}{part}"
+    for finger in ("thumb", "index", "middle", "ring", "pinky")
+    for part in ("1_abd", "1_flex", "2_flex", "3_flex")
+)
+#: The 6 global pose DoF that precede the posture in θ.
+POSE_DOF_NAMES: tuple[str, ...] = ("tx", "ty", "tz", "rx", "ry", "rz")
+
+_CHUNK_ROWS = 1 << 16  # bounds the temporary centred copy to a few MB
+
+
+# ----------------------------------------------------------------------------- statistics
+@dataclass(frozen=True)
+class SufficientStats:
+    """Mergeable statistics of a set of postures; plain numpy arrays only.
+
+    Attributes
+    ----------
+    n : int
+        Number of rows.
+    mean : ndarray (D,)
+    scatter : ndarray (D, D)
+        Centred scatter ``Σ (x - mean)(x - mean)ᵀ``.
+    min, max : ndarray (D,)
+        Per-DoF extremes (``+inf``/``-inf`` when ``n == 0``).
+    """
+
+    n: int
+    mean: np.ndarray
+    scatter: np.ndarray
+    min: np.ndarray
+    max: np.ndarray
+
+    @property
+    def n_features(self) -> int:
+        return self.mean.shape[0]
+
+    @classmethod
+    def empty(cls, n_features: int) -> "SufficientStats":
+        """Identity element of :meth:`merge`."""
+        d = int(n_features)
+        return cls(0, np.zeros(d), np.zeros((d, d)), np.full(d, np.inf), np.full(d, -np.inf))
+
+    @classmethod
+    def from_array(cls, X, chunk_rows: int = _CHUNK_ROWS) -> "SufficientStats":
+        """Statistics of the rows of ``X`` (N × D, finite)."""
+        X = _as_2d_finite(X, "SufficientStats.from_array")
+        out = cls.empty(X.shape[1])
+        for i in range(0, X.shape[0], chunk_rows):
+            out = out.merge(cls._from_chunk(X[i : i + chunk_rows]))
+        return out
+
+    @classmethod
+    def _from_chunk(cls, X: np.ndarray) -> "SufficientStats":
+        m = X.mean(axis=0)
+        Xc = X - m
+        # One refinement step removes the rounding error of the first mean (two-pass, Higham).
+        corr = Xc.mean(axis=0)
+        m = m + corr
+        Xc -= corr
+        return cls(X.shape[0], m, Xc.T @ Xc, X.min(axis=0), X.max(axis=0))
+
+    def merge(self, other: "SufficientStats") -> "SufficientStats":
+        """Statistics of the union of both row sets (Chan, Golub & LeVeque 1979)."""
+        if self.n_features != other.n_features:
+            raise SynergyError(
+                "SufficientStats.merge", f"{self.n_features} vs {other.n_features} DoF"
+            )
+        if other.n == 0:
+            return self
+        if self.n == 0:
+            return other
+        n = self.n + other.n
+        delta = other.mean - self.mean
+        mean = self.mean + delta * (other.n / n)
+        scatter = self.scatter + other.scatter + np.outer(delta, delta) * (self.n * other.n / n)
+        scatter = 0.5 * (scatter + scatter.T)
+        return SufficientStats(
+            n, mean, scatter, np.minimum(self.min, other.min), np.maximum(self.max, other.max)
+        )
+
+    @staticmethod
+    def merge_all(stats: Iterable["SufficientStats"]) -> "SufficientStats":
+        """Merge any number of statistics (at least one)."""
+        it = iter(stats)
+        try:
+            acc = next(it)
+        except StopIteration:
+            raise SynergyError("SufficientStats.merge_all", "nothing to merge") from None
+        for s in it:
+            acc = acc.merge(s)
+        return acc
+
+    def covariance(self, ddof: int = 1) -> np.ndarray:
+        """Covariance ``scatter / (n - ddof)``."""
+        if self.n - ddof <= 0:
+            raise SynergyError("SufficientStats", f"needs more than {ddof} sample(s), got {self.n}")
+        return self.scatter / (self.n - ddof)
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        """Plain arrays (e.g. for ``np.savez`` or another process)."""
+        return {
+            "n": np.asarray(self.n, dtype=np.int64),
+            "mean": self.mean,
+            "scatter": self.scatter,
+            "min": self.min,
+            "max": self.max,
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> "SufficientStats":
+        """Inverse of :meth:`as_arrays`."""
+        return cls(
+            int(arrays["n"]),
+            np.asarray(arrays["mean"], dtype=float),
+            np.asarray(arrays["scatter"], dtype=float),
+            np.asarray(arrays["min"], dtype=float),
+            np.asarray(arrays["max"], dtype=float),
+        )
+
+    def finalize(self, n_components=None) -> "SynergyModel":
+        """A fitted :class:`SynergyModel`; PC limits stay empty until :meth:`SynergyModel.update_limits`."""
+        model = SynergyModel(n_components=n_components)
+        model._set_from_stats(self)
+        model.n_features_in_ = self.n_features
+        return model
+
+
+def _as_2d_finite(X, where: str) -> np.ndarray:
+    X = np.asarray(X, dtype=np.float64)
+    if X.ndim != 2:
+        raise SynergyError(where, f"expected a 2-D array (samples × DoF), got shape {X.shape}")
+    if not np.isfinite(X).all():
+        raise SynergyError(where, "Input contains NaN or infinity")
+    return X
+
+
+# ----------------------------------------------------------------------------- the model
+class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstimator):
+    """Covariance PCA of posture angles (radians, centred, not scaled).
+
+    Parameters
+    ----------
+    n_components : None, int or float in (0, 1)
+        Number of PCs used by :meth:`transform`; a float picks the fewest PCs whose
+        cumulative variance ratio reaches it; ``None`` keeps ``min(n_samples, D)``.
+        The full spectrum is always kept (``all_components_``).
+
+    Attributes
+    ----------
+    components_ : ndarray (n_components_, D)
+        Rows are PCs; the largest-magnitude entry of each is positive.
+    mean_, joint_min_, joint_max_ : ndarray (D,)
+    explained_variance_, explained_variance_ratio_ : ndarray (n_components_,)
+        Variances with ``ddof=1`` (as scikit-learn) and their fractions of the total.
+    all_components_ : ndarray (D, D)
+    all_explained_variance_, all_explained_variance_ratio_ : ndarray (D,)
+    pc_min_, pc_max_ : ndarray (D,)
+        Min/max of the training projections on *all* components (``±inf`` until seen).
+    n_components_, n_samples_, n_features_in_ : int
+    """
+
+    def __init__(self, n_components=None):
+        self.n_components = n_components
+
+    # -- fitting
+    def fit(self, X, y=None):
+        """Fit components and limits from ``X`` (N × D) in two passes."""
+        X = self._validate(X, reset=True, where="SynergyModel.fit")
+        self._set_from_stats(SufficientStats.from_array(X))
+        return self.update_limits(X)
+
+    def partial_fit(self, X, y=None):
+        """Add rows to the statistics and refit.
+
+        The components change, so PC limits are reset; call :meth:`update_limits` on
+        every chunk once all chunks have been added.
+        """
+        first = not hasattr(self, "stats_")
+        X = self._validate(X, reset=first, where="SynergyModel.partial_fit", min_samples=1)
+        stats = SufficientStats.from_array(X)
+        stats = stats if first else self.stats_.merge(stats)
+        if stats.n >= 2:
+            self._set_from_stats(stats)
+        else:  # one row so far: nothing to decompose yet
+            self.stats_ = stats
+        return self
+
+    def update_limits(self, X):
+        """Widen ``pc_min_``/``pc_max_`` (all components) by the projections of ``X``."""
+        check_is_fitted(self, "all_components_")
+        X = self._validate(X, reset=False, where="SynergyModel.update_limits", min_samples=1)
+        for i in range(0, X.shape[0], _CHUNK_ROWS):
+            Z = (X[i : i + _CHUNK_ROWS] - self.mean_) @ self.all_components_.T
+            self.pc_min_ = np.minimum(self.pc_min_, Z.min(axis=0))
+            self.pc_max_ = np.maximum(self.pc_max_, Z.max(axis=0))
+        return self
+
+    def _validate(self, X, *, reset, where, min_samples=2):
+        try:
+            return _sk_validate_data(
+                self, X, reset=reset, dtype=np.float64, ensure_min_samples=min_samples
+            )
+        except ValueError as err:
+            if isinstance(err, SynergyError):
+                raise
+            raise SynergyError(where, str(err)) from err
+
+    def _set_from_stats(self, stats: SufficientStats) -> None:
+        if stats.n < 2:
+            raise SynergyError("SynergyModel", f"needs at least 2 samples, got {stats.n} sample(s)")
+        cov = stats.covariance(ddof=1)
+        evals, evecs = np.linalg.eigh(cov)
+        order = np.argsort(evals)[::-1]
+        evals = np.clip(evals[order], 0.0, None)
+        comps = _orient(evecs[:, order].T)
+        total = float(np.trace(cov))
+        self.stats_ = stats
+        self.mean_ = stats.mean.copy()
+        self.joint_min_ = stats.min.copy()
+        self.joint_max_ = stats.max.copy()
+        self.n_samples_ = int(stats.n)
+        self.all_components_ = comps
+        self.all_explained_variance_ = evals
+        self.all_explained_variance_ratio_ = evals / total if total > 0 else np.zeros_like(evals)
+        d = stats.n_features
+        self.pc_min_ = np.full(d, np.inf)
+        self.pc_max_ = np.full(d, -np.inf)
+        self._select(self.n_components)
+
+    def _select(self, n_components) -> None:
+        self.n_components_ = self.n_components_for(n_components)
+        k = self.n_components_
+        self.components_ = self.all_components_[:k]
+        self.explained_variance_ = self.all_explained_variance_[:k]
+        self.explained_variance_ratio_ = self.all_explained_variance_ratio_[:k]
+
+    # -- choosing the number of PCs without refitting
+    def n_components_for(self, n_components) -> int:
+        """Number of PCs meant by ``n_components`` (None, int or variance fraction in (0, 1))."""
+        d = self.all_components_.shape[0]
+        if n_components is None:
+            return min(self.n_samples_, d)
+        if isinstance(n_components, (bool, np.bool_)):
+            raise SynergyError("n_components", f"must be an int or a fraction, got {n_components!r}")
+        if isinstance(n_components, Integral):
+            if not 1 <= n_components <= d:
+                raise SynergyError("n_components", f"must be in 1..{d}, got {n_components}")
+            return int(n_components)
+        if isinstance(n_components, Real) and 0.0 < n_components < 1.0:
+            cum = np.cumsum(self.all_explained_variance_ratio_)
+            # Tolerance so that a fraction reached up to rounding counts as reached.
+            return int(min(np.searchsorted(cum, n_components - 1e-12, side="left") + 1, d))
+        raise SynergyError(
+            "n_components", f"must be None, an int 1..{d} or a float in (0, 1), got {n_components!r}"
+        )
+
+    def with_n_components(self, n_components) -> "SynergyModel":
+        """A copy using ``n_components`` PCs (no refit: the full spectrum is kept)."""
+        check_is_fitted(self, "all_components_")
+        out = SynergyModel(n_components=n_components)
+        out.__dict__.update({k: v for k, v in self.__dict__.items() if k.endswith("_")})
+        out._select(n_components)
+        return out
+
+    @classmethod
+    def from_arrays(
+        cls, *, components, mean, explained_variance, explained_variance_ratio,
+        pc_min, pc_max, joint_min, joint_max, n_samples, n_components=None,
+    ) -> "SynergyModel":
+        """A fitted model from stored arrays (full spectrum, as in a bundle)."""
+        model = cls(n_components=n_components)
+        model.all_components_ = np.asarray(components, dtype=float)
+        model.mean_ = np.asarray(mean, dtype=float)
+        model.all_explained_variance_ = np.asarray(explained_variance, dtype=float)
+        model.all_explained_variance_ratio_ = np.asarray(explained_variance_ratio, dtype=float)
+        model.pc_min_ = np.asarray(pc_min, dtype=float)
+        model.pc_max_ = np.asarray(pc_max, dtype=float)
+        model.joint_min_ = np.asarray(joint_min, dtype=float)
+        model.joint_max_ = np.asarray(joint_max, dtype=float)
+        model.n_samples_ = int(n_samples)
+        model.n_features_in_ = model.mean_.shape[0]
+        model._select(n_components)
+        return model
+
+    # -- using the model
+    def transform(self, X):
+        """PC coordinates ``(X - mean_) @ components_.T`` (N × n_components_)."""
+        check_is_fitted(self, "components_")
+        X = self._validate(X, reset=False, where="SynergyModel.transform", min_samples=1)
+        return (X - self.mean_) @ self.components_.T
+
+    def inverse_transform(self, Z):
+        """Postures ``Z @ components_ + mean_`` from PC coordinates."""
+        check_is_fitted(self, "components_")
+        Z = np.asarray(Z, dtype=float)
+        return Z @ self.components_ + self.mean_
+
+    @property
+    def _n_features_out(self):
+        return self.n_components_
+
+    def reconstruction_error(self, X, k: int | None = None) -> np.ndarray:
+        """Per-DoF RMS error (radians) of reconstructing ``X`` from the first ``k`` PCs."""
+        check_is_fitted(self, "all_components_")
+        X = _as_2d_finite(X, "SynergyModel.reconstruction_error")
+        k = self.n_components_ if k is None else k
+        d = self.all_components_.shape[0]
+        if not 0 <= k <= d:
+            raise SynergyError("reconstruction_error", f"k must be in 0..{d}, got {k}")
+        Xc = X - self.mean_
+        C = self.all_components_[:k]
+        R = Xc - (Xc @ C.T) @ C
+        return np.sqrt(np.mean(R * R, axis=0))
+
+    def reconstruction_curve(self, X_heldout) -> np.ndarray:
+        """Per-DoF RMS error (radians) for k = 0..D PCs, shape (D + 1, D).
+
+        The overall RMS is ``np.sqrt((curve ** 2).mean(axis=1))``.
+        """
+        check_is_fitted(self, "all_components_")
+        X = _as_2d_finite(X_heldout, "SynergyModel.reconstruction_curve")
+        return np.sqrt(_sq_error_curve(self, X) / X.shape[0])
+
+
+def _orient(comps: np.ndarray) -> np.ndarray:
+    """Flip rows so the largest-magnitude entry of each is positive."""
+    idx = np.argmax(np.abs(comps), axis=1)
+    signs = np.sign(comps[np.arange(comps.shape[0]), idx])
+    signs[signs == 0] = 1.0
+    return comps * signs[:, None]
+
+
+def _sq_error_curve(model: SynergyModel, X: np.ndarray) -> np.ndarray:
+    """Per-DoF sum of squared reconstruction errors for k = 0..D, shape (D + 1, D)."""
+    C = model.all_components_
+    d = C.shape[0]
+    out = np.empty((d + 1, X.shape[1]))
+    for i in range(0, X.shape[0], _CHUNK_ROWS):
+        R = X[i : i + _CHUNK_ROWS] - model.mean_
+        Z = R @ C.T
+        part = np.empty_like(out)
+        part[0] = np.sum(R * R, axis=0)
+        for k in range(d):
+            R -= np.outer(Z[:, k], C[k])
+            part[k + 1] = np.sum(R * R, axis=0)
+        out = part if i == 0 else out + part
+    return out
+
+
+# ----------------------------------------------------------------------------- analysis
+def heldout_curve(groups: Sequence, n_folds: int = 5) -> tuple[np.ndarray, str]:
+    """Out-of-sample reconstruction RMS (radians, all DoF pooled) for k = 0..D PCs.
+
+    With two or more groups (trials) each is held out in turn and the model is refitted
+    from the merged statistics of the others. A single group is cut into ``n_folds``
+    contiguous blocks instead (frames are correlated in time, so random folds would flatter).
+
+    Returns
+    -------
+    rms : ndarray (D + 1,)
+    method : str
+        ``"leave-one-trial-out"`` or ``"blocked-<n>-fold"``.
+    """
+    groups = [_as_2d_finite(g, "heldout_curve") for g in groups]
+    if len(groups) == 1:
+        X = groups[0]
+        if X.shape[0] < 2 * n_folds:
+            raise SynergyError("heldout_curve", f"needs at least {2 * n_folds} samples")
+        groups = np.array_split(X, n_folds)
+        method = f"blocked-{n_folds}-fold"
+    else:
+        method = "leave-one-trial-out"
+    stats = [SufficientStats.from_array(g) for g in groups]
+    sq = None
+    total = 0
+    for i, g in enumerate(groups):
+        rest = SufficientStats.merge_all(s for j, s in enumerate(stats) if j != i)
+        if rest.n < 2 or g.shape[0] == 0:
+            continue
+        part = _sq_error_curve(rest.finalize(), g).sum(axis=1)
+        sq = part if sq is None else sq + part
+        total += g.size
+    if sq is None:
+        raise SynergyError("heldout_curve", "not enough data to hold any group out")
+    return np.sqrt(sq / total), method
+
+
+def principal_angles(A, B, k: int | None = None) -> np.ndarray:
+    """Principal angles (radians, ascending) between the spans of the first ``k`` PCs.
+
+    ``A`` and ``B`` are fitted :class:`SynergyModel` s or arrays whose rows are PCs.
+    """
+    from scipy.linalg import subspace_angles
+
+    def rows(M):
+        if isinstance(M, SynergyModel):
+            check_is_fitted(M, "all_components_")
+            return M.all_components_
+        return np.atleast_2d(np.asarray(M, dtype=float))
+
+    a, b = rows(A), rows(B)
+    if a.shape[1] != b.shape[1]:
+        raise SynergyError("principal_angles", f"{a.shape[1]} vs {b.shape[1]} DoF")
+    k = min(a.shape[0], b.shape[0]) if k is None else int(k)
+    if not 1 <= k <= min(a.shape[0], b.shape[0]):
+        raise SynergyError("principal_angles", f"k must be in 1..{min(a.shape[0], b.shape[0])}")
+    return np.sort(subspace_angles(a[:k].T, b[:k].T))
