@@ -83,11 +83,12 @@ def main(calib: str, out: str) -> None:
                        "generator": "tools/make_default_hand.py"},
         "units": "m",
         "handedness": "left",
+        "n_dofs": 26,
         "pose": {"joint": "wrist", "order": "T . Rx . Ry . Rz"},
         "joints": joints,
         "dofs": dofs,
         "segments": segments,
-        "mesh": {"ring_vertices": 24, "cap_rings": 6, "axial_rings_per_cm": 3, "blend_length": 0.006},
+        "mesh": {"ring_vertices": 18, "cap_rings": 5, "axial_rings_per_cm": 3, "blend_length": 0.006},
     }
     text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120)
     text = text.replace("-.inf", "-.inf")

@@ -1,0 +1,150 @@
+"""Numba kernels: closest points on round cones (tapered capsules) and rounded slabs."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+CAPSULE, SLAB = 0, 1
+
+
+@njit(cache=True, inline="always")
+def _round_cone_2d(x, y, L, ra, rb):
+    """Closest boundary point (cx, cy), normal (nx, ny) and signed distance for (x, y≥0) in the
+    profile plane of the convex hull of circles (0,0,ra) and (L,0,rb)."""
+    d = ra - rb
+    if abs(d) >= L:  # one sphere contains the other: the bigger sphere
+        if ra >= rb:
+            cxs, rr = 0.0, ra
+        else:
+            cxs, rr = L, rb
+        vx, vy = x - cxs, y
+        nn = np.sqrt(vx * vx + vy * vy)
+        if nn < 1e-15:
+            vx, vy, nn = 0.0, 1.0, 1.0
+        nx_, ny_ = vx / nn, vy / nn
+        return cxs + rr * nx_, rr * ny_, nx_, ny_, nn - rr
+    nx = d / L
+    ny = np.sqrt(1.0 - nx * nx)
+    tax, tay = ra * nx, ra * ny              # tangent point on circle A
+    side = np.sqrt(L * L - d * d)
+    tx, ty = ny, -nx                          # tangent direction, from A towards B
+    s = (x - tax) * tx + (y - tay) * ty
+    if s < 0.0:
+        nn = np.sqrt(x * x + y * y)
+        if nn < 1e-15:
+            return -ra, 0.0, -1.0, 0.0, -ra
+        return ra * x / nn, ra * y / nn, x / nn, y / nn, nn - ra
+    if s > side:
+        vx, vy = x - L, y
+        nn = np.sqrt(vx * vx + vy * vy)
+        if nn < 1e-15:
+            return L + rb, 0.0, 1.0, 0.0, -rb
+        return L + rb * vx / nn, rb * vy / nn, vx / nn, vy / nn, nn - rb
+    cx, cy = tax + s * tx, tay + s * ty
+    dist = (x - cx) * nx + (y - cy) * ny
+    return cx, cy, nx, ny, dist
+
+
+@njit(cache=True, inline="always")
+def _closest_on_segment_2d(px, py, ax, ay, bx, by):
+    ex, ey = bx - ax, by - ay
+    ll = ex * ex + ey * ey
+    t = 0.0 if ll <= 0.0 else ((px - ax) * ex + (py - ay) * ey) / ll
+    t = min(1.0, max(0.0, t))
+    return ax + t * ex, ay + t * ey
+
+
+@njit(cache=True)
+def closest_local(shape, L, r0, r1, th, q, out):
+    """Closest surface point of one primitive in its local frame: out = (cx,cy,cz,nx,ny,nz,dist)."""
+    x, y, z = q[0], q[1], q[2]
+    if shape == CAPSULE:
+        # axis along local +y; radial direction in the x-z plane
+        rad = np.sqrt(x * x + z * z)
+        if rad < 1e-15:
+            ex, ez = 1.0, 0.0
+        else:
+            ex, ez = x / rad, z / rad
+        cx, cr, nax, nr, dist = _round_cone_2d(y, rad, L, r0, r1)
+        out[0] = cr * ex
+        out[1] = cx
+        out[2] = cr * ez
+        out[3] = nr * ex
+        out[4] = nax
+        out[5] = nr * ez
+        out[6] = dist
+        return
+    # slab: trapezoid in the local x-y plane (half-widths w0 at y=0, w1 at y=L) swept by a sphere th
+    w0 = max(r0 - th, 0.0)
+    w1 = max(r1 - th, 0.0)
+    vx0, vy0 = -w0, 0.0
+    vx1, vy1 = w0, 0.0
+    vx2, vy2 = w1, L
+    vx3, vy3 = -w1, L
+    inside = True
+    c0 = (vx1 - vx0) * (y - vy0) - (vy1 - vy0) * (x - vx0)
+    c1 = (vx2 - vx1) * (y - vy1) - (vy2 - vy1) * (x - vx1)
+    c2 = (vx3 - vx2) * (y - vy2) - (vy3 - vy2) * (x - vx2)
+    c3 = (vx0 - vx3) * (y - vy3) - (vy0 - vy3) * (x - vx3)
+    if c0 < 0 or c1 < 0 or c2 < 0 or c3 < 0:
+        inside = False
+    if inside:
+        px, py = x, y
+    else:
+        best = 1e300
+        px, py = 0.0, 0.0
+        for e in range(4):
+            if e == 0:
+                ax, ay, bx, by = vx0, vy0, vx1, vy1
+            elif e == 1:
+                ax, ay, bx, by = vx1, vy1, vx2, vy2
+            elif e == 2:
+                ax, ay, bx, by = vx2, vy2, vx3, vy3
+            else:
+                ax, ay, bx, by = vx3, vy3, vx0, vy0
+            cx, cy = _closest_on_segment_2d(x, y, ax, ay, bx, by)
+            dd = (x - cx) * (x - cx) + (y - cy) * (y - cy)
+            if dd < best:
+                best = dd
+                px, py = cx, cy
+    dx, dy, dz = x - px, y - py, z
+    nn = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if nn < 1e-15:
+        dx, dy, dz, nn = 0.0, 0.0, 1.0, 1.0
+    nx, ny, nz = dx / nn, dy / nn, dz / nn
+    out[0] = px + th * nx
+    out[1] = py + th * ny
+    out[2] = th * nz
+    out[3] = nx
+    out[4] = ny
+    out[5] = nz
+    out[6] = nn - th
+
+
+@njit(cache=True)
+def closest_points(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, out_p, out_n, out_seg, out_d):
+    """Closest point on the union of primitives posed by node frames ``G`` for every point."""
+    P = points.shape[0]
+    S = seg_node.shape[0]
+    q = np.empty(3)
+    loc = np.empty(7)
+    for i in range(P):
+        best = 1e300
+        bs = -1
+        for s in range(S):
+            j = seg_node[s]
+            # world -> local: Rᵀ (p − o)
+            d0 = points[i, 0] - G[j, 0, 3]
+            d1 = points[i, 1] - G[j, 1, 3]
+            d2 = points[i, 2] - G[j, 2, 3]
+            for r in range(3):
+                q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
+            closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
+            if loc[6] < best:
+                best = loc[6]
+                bs = s
+                for r in range(3):
+                    out_p[i, r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
+                    out_n[i, r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+        out_seg[i] = bs
+        out_d[i] = best

@@ -1,0 +1,547 @@
+"""Synergy bundles: immutable, versioned ``<name>-<version>.npz`` files, and their registries.
+
+A bundle holds the full PCA of a training set (arrays listed in :data:`ARRAY_NAMES`)
+plus a JSON ``manifest`` (``data_schema/synergy-bundle.schema.json``) with provenance
+and a hash of the arrays. A registry is a folder of bundles; lookups search the
+folders given by the caller, then ``SYNERGY_PATH`` (``os.pathsep``-separated), then the
+shipped ``models/synergies``.
+
+Examples
+--------
+>>> import numpy as np, tempfile
+>>> from synergy.pca import SynergyModel
+>>> X = np.random.default_rng(0).normal(size=(200, 3))
+>>> reg = tempfile.mkdtemp()
+>>> p = save_bundle(SynergyModel(2).fit(X), "demo", registry=reg, dof_names=["a", "b", "c"])
+>>> p.name
+'demo-1.0.0.npz'
+>>> b = load_bundle("demo", registries=[reg])
+>>> C, mean, lo, hi = b.subspace()
+>>> C.shape
+(2, 3)
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import re
+import zipfile
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from functools import lru_cache
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from handmodel.fileio import atomic_write_bytes, models_dir, schema_path, sha256_file
+from synergy.errors import BundleError, SynergyError
+from synergy.pca import POSE_DOF_NAMES, POSTURE_DOF_NAMES, SufficientStats, SynergyModel, heldout_curve
+
+__all__ = [
+    "ARRAY_NAMES", "Bundle", "BundleRef", "Trial", "arrays_sha256", "bundle_from_trials",
+    "fit_trials", "hand_model_ref", "list_bundles", "load_bundle", "next_version", "read_bundle",
+    "read_trial", "registry_paths", "save_bundle", "select_bundle",
+]
+
+#: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
+ARRAY_NAMES = (
+    "components", "mean", "explained_variance", "explained_variance_ratio",
+    "pc_min", "pc_max", "joint_min", "joint_max", "dof_names",
+)
+SCHEMA_VERSION = 1
+GENERATOR = "synergistic-hand-tracking"
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_VERSION_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
+_FILE_RE = re.compile(r"^(?P<name>.+)-(?P<version>(?:0|[1-9]\d*)\.(?:0|[1-9]\d*)\.(?:0|[1-9]\d*))\.npz$")
+
+
+# ----------------------------------------------------------------------------- registries
+@dataclass(frozen=True)
+class BundleRef:
+    """A bundle file found in a registry (from its file name only)."""
+
+    name: str
+    version: str
+    path: Path
+
+    @property
+    def version_key(self) -> tuple[int, int, int]:
+        return _vkey(self.version)
+
+
+def _vkey(version: str) -> tuple[int, int, int]:
+    return tuple(int(x) for x in version.split("."))  # type: ignore[return-value]
+
+
+def registry_paths(registries: Sequence[str | os.PathLike] | None = None) -> list[Path]:
+    """Registry folders in search order: ``registries``, ``SYNERGY_PATH``, shipped."""
+    env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
+    out: list[Path] = []
+    seen = set()
+    for p in [*(registries or []), *env, models_dir() / "synergies"]:
+        p = Path(p).expanduser()
+        key = os.path.normcase(os.path.abspath(p))
+        if key not in seen:
+            seen.add(key)
+            out.append(p)
+    return out
+
+
+def list_bundles(registries: Sequence[str | os.PathLike] | None = None) -> list[BundleRef]:
+    """Bundle files in all registries, in search order (a name@version may appear twice)."""
+    refs = []
+    for folder in registry_paths(registries):
+        if not folder.is_dir():
+            continue
+        found = [(_FILE_RE.match(f.name), f) for f in folder.iterdir() if f.is_file()]
+        found = [BundleRef(m["name"], m["version"], f) for m, f in found if m]
+        refs += sorted(found, key=lambda r: (r.name, r.version_key))
+    return refs
+
+
+def next_version(name: str, folder: str | os.PathLike) -> str:
+    """Next patch version after the highest ``name`` in ``folder`` (``1.0.0`` if none)."""
+    versions = [
+        _vkey(m["version"])
+        for f in (Path(folder).iterdir() if Path(folder).is_dir() else ())
+        if (m := _FILE_RE.match(f.name)) and m["name"] == name
+    ]
+    if not versions:
+        return "1.0.0"
+    a, b, c = max(versions)
+    return f"{a}.{b}.{c + 1}"
+
+
+# ----------------------------------------------------------------------------- manifest helpers
+@lru_cache(maxsize=1)
+def _validator():
+    import jsonschema
+
+    with open(schema_path("synergy-bundle"), encoding="utf-8") as fh:
+        return jsonschema.Draft202012Validator(json.load(fh))
+
+
+def _check_manifest(manifest, where) -> None:
+    errors = sorted(_validator().iter_errors(manifest), key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        err = errors[0]
+        field = ".".join(str(p) for p in err.absolute_path) or "manifest"
+        raise BundleError(where, f"malformed manifest: {field}: {err.message}")
+
+
+def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 of the bundle arrays: per name in :data:`ARRAY_NAMES`, a header
+    ``name\\0dtype\\0shape\\0`` and the little-endian C-order bytes."""
+    h = hashlib.sha256()
+    for name in ARRAY_NAMES:
+        a = np.asarray(arrays[name])
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def hand_model_ref(name: str = "default", sha256: str | None = None) -> dict:
+    """``{name, sha256}`` of a hand model; the hash defaults to ``models/hands/<name>.yaml``'s."""
+    if sha256 is None:
+        f = models_dir() / "hands" / f"{name}.yaml"
+        sha256 = sha256_file(f) if f.is_file() else None
+    return {"name": name, "sha256": sha256}
+
+
+def _generator_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(GENERATOR)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+# ----------------------------------------------------------------------------- bundle object
+@dataclass(frozen=True)
+class Bundle:
+    """A loaded bundle: fitted ``model``, ``manifest`` dict, ``path`` and ``dof_names``."""
+
+    model: SynergyModel
+    manifest: dict
+    path: Path
+    dof_names: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return self.manifest["name"]
+
+    @property
+    def version(self) -> str:
+        return self.manifest["version"]
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self.manifest["tasks"])
+
+    @property
+    def spec(self) -> str:
+        return f"{self.name}@{self.version}"
+
+    def subspace(self, n_components=None):
+        """``(C, mean, pc_min, pc_max)`` of the first PCs; ``C`` is l × D (rows are PCs).
+
+        ``n_components``: int, variance fraction in (0, 1), or ``None`` for the bundle's default.
+        """
+        m = self.model
+        try:
+            k = m.n_components_ if n_components is None else m.n_components_for(n_components)
+        except SynergyError as exc:
+            raise BundleError(self.path, exc.reason) from None
+        return (m.all_components_[:k].copy(), m.mean_.copy(), m.pc_min_[:k].copy(), m.pc_max_[:k].copy())
+
+
+def _arrays_of(model: SynergyModel, dof_names: Sequence[str]) -> dict[str, np.ndarray]:
+    return {
+        "components": np.asarray(model.all_components_, dtype="<f8"),
+        "mean": np.asarray(model.mean_, dtype="<f8"),
+        "explained_variance": np.asarray(model.all_explained_variance_, dtype="<f8"),
+        "explained_variance_ratio": np.asarray(model.all_explained_variance_ratio_, dtype="<f8"),
+        "pc_min": np.asarray(model.pc_min_, dtype="<f8"),
+        "pc_max": np.asarray(model.pc_max_, dtype="<f8"),
+        "joint_min": np.asarray(model.joint_min_, dtype="<f8"),
+        "joint_max": np.asarray(model.joint_max_, dtype="<f8"),
+        "dof_names": np.array([str(n) for n in dof_names], dtype=str),
+    }
+
+
+def save_bundle(
+    model: SynergyModel,
+    name: str,
+    version: str | None = None,
+    *,
+    registry: str | os.PathLike | None = None,
+    dof_names: Sequence[str] | None = None,
+    tasks: Sequence[str] = (),
+    sources: Sequence[dict] = (),
+    n_trials: int | None = None,
+    hand_model: str = "default",
+    hand_model_sha256: str | None = None,
+    heldout: dict | None = None,
+) -> Path:
+    """Write ``model`` as ``<registry>/<name>-<version>.npz``; never overwrites.
+
+    ``version=None`` takes the next patch after the highest ``name`` in the registry;
+    ``registry=None`` takes the first ``SYNERGY_PATH`` folder. ``sources`` are
+    ``{path, sha256, task, frames}`` dicts; ``heldout`` is ``{method, rms_rad}``.
+    Returns the path written.
+    """
+    if not hasattr(model, "all_components_"):
+        raise BundleError(name, "model is not fitted")
+    if not (np.isfinite(model.pc_min_).all() and np.isfinite(model.pc_max_).all()):
+        raise BundleError(name, "PC limits are missing: call model.update_limits(X) on the training data")
+    if not _NAME_RE.match(name):
+        raise BundleError(name, "bad bundle name: use letters, digits, '_', '.', '-'")
+    if version is not None and not _VERSION_RE.match(version):
+        raise BundleError(name, f"bad version {version!r}: expected MAJOR.MINOR.PATCH")
+    d = model.mean_.shape[0]
+    if dof_names is None:
+        dof_names = getattr(model, "feature_names_in_", None)
+        if dof_names is None:
+            if d != len(POSTURE_DOF_NAMES):
+                raise BundleError(name, f"dof_names needed for a {d}-DoF model")
+            dof_names = POSTURE_DOF_NAMES
+    if len(dof_names) != d:
+        raise BundleError(name, f"{len(dof_names)} dof_names for a {d}-DoF model")
+    if registry is None:
+        env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
+        if not env:
+            raise BundleError(name, "no target registry: pass one (CLI: -o DIR) or set SYNERGY_PATH")
+        registry = env[0]
+    folder = Path(registry)
+    arrays = _arrays_of(model, dof_names)
+    variance = model.n_components if isinstance(model.n_components, float) else None
+    manifest = {
+        "schema_version": SCHEMA_VERSION,
+        "name": name,
+        "version": None,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z"),
+        "generator": {"name": GENERATOR, "version": _generator_version()},
+        "hand_model": hand_model_ref(hand_model, hand_model_sha256),
+        "units": "rad",
+        "tasks": list(dict.fromkeys(tasks)),
+        "n_samples": int(model.n_samples_),
+        "n_trials": int(n_trials if n_trials is not None else max(len(sources), 1)),
+        "n_components": int(model.n_components_),
+        "variance": variance,
+        "sources": [dict(s) for s in sources],
+        "arrays_sha256": arrays_sha256(arrays),
+    }
+    if heldout is not None:
+        manifest["heldout"] = {"method": heldout["method"], "rms_rad": [float(x) for x in heldout["rms_rad"]]}
+    for attempt in range(20):
+        ver = version or next_version(name, folder)
+        manifest["version"] = ver
+        _check_manifest(manifest, name)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays, manifest=np.array(json.dumps(manifest, indent=1)))
+        path = folder / f"{name}-{ver}.npz"
+        try:
+            return atomic_write_bytes(path, buf.getvalue(), overwrite=False)
+        except FileExistsError:
+            if version is not None:
+                raise BundleError(path, f"version {ver} exists; bundle versions are immutable") from None
+            # A concurrent writer took this version: take the next one.
+        except OSError as exc:
+            raise BundleError(path, f"cannot write ({exc.strerror or exc})") from None
+    raise BundleError(folder, f"could not find a free version for {name!r}")
+
+
+def read_bundle(path: str | os.PathLike) -> Bundle:
+    """Load and verify one bundle file (schema, shapes, arrays hash)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BundleError(path, "no such bundle file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [n for n in (*ARRAY_NAMES, "manifest") if n not in z.files]
+            if missing:
+                raise BundleError(path, f"missing array(s): {', '.join(missing)}")
+            arrays = {n: z[n] for n in ARRAY_NAMES}
+            raw = z["manifest"]
+    except BundleError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise BundleError(path, f"not a readable bundle .npz ({exc})") from None
+    if raw.ndim != 0 or raw.dtype.kind != "U":
+        raise BundleError(path, "manifest must be a 0-d unicode array (JSON string)")
+    try:
+        manifest = json.loads(str(raw[()]))
+    except json.JSONDecodeError as exc:
+        raise BundleError(path, f"malformed manifest: not JSON ({exc.msg} at char {exc.pos})") from None
+    _check_manifest(manifest, path)
+    _check_arrays(arrays, manifest, path)
+    if arrays_sha256(arrays) != manifest["arrays_sha256"]:
+        raise BundleError(path, "arrays do not match the manifest's arrays_sha256 (file modified?)")
+    m = _FILE_RE.match(path.name)
+    if m and (m["name"], m["version"]) != (manifest["name"], manifest["version"]):
+        raise BundleError(
+            path, f"file name says {m['name']}@{m['version']} but manifest says "
+            f"{manifest['name']}@{manifest['version']}"
+        )
+    model = SynergyModel.from_arrays(
+        **{k: arrays[k] for k in ARRAY_NAMES if k != "dof_names"},
+        n_samples=manifest["n_samples"],
+        n_components=manifest["n_components"],
+    )
+    return Bundle(model, manifest, path, tuple(str(s) for s in arrays["dof_names"]))
+
+
+def _check_arrays(a: dict[str, np.ndarray], manifest: dict, path: Path) -> None:
+    names = a["dof_names"]
+    if names.dtype.kind != "U" or names.ndim != 1 or names.size == 0:
+        raise BundleError(path, f"dof_names must be a 1-D unicode array, got {names.dtype} {names.shape}")
+    d = names.size
+    p = a["components"].shape[0] if a["components"].ndim == 2 else -1
+    want = {
+        "components": (p, d), "mean": (d,), "explained_variance": (p,),
+        "explained_variance_ratio": (p,), "pc_min": (p,), "pc_max": (p,),
+        "joint_min": (d,), "joint_max": (d,),
+    }
+    for k, shape in want.items():
+        arr = a[k]
+        if arr.dtype.kind != "f" or arr.shape != shape or not 1 <= p <= d:
+            raise BundleError(
+                path, f"array {k} has shape {arr.shape} ({arr.dtype}); expected "
+                f"{('PCs', d) if k == 'components' else shape} float for {d} DoF"
+            )
+        if not np.isfinite(arr).all():
+            raise BundleError(path, f"array {k} holds NaN or infinity")
+    if manifest["n_components"] > p:
+        raise BundleError(path, f"manifest n_components {manifest['n_components']} > {p} stored PCs")
+
+
+def load_bundle(spec: str | os.PathLike, registries: Sequence[str | os.PathLike] | None = None) -> Bundle:
+    """Load a bundle by ``NAME`` (highest version), ``NAME@VERSION`` or path to a ``.npz``."""
+    s = os.fspath(spec)
+    if s.endswith(".npz") or os.sep in s or "/" in s or (os.altsep and os.altsep in s):
+        return read_bundle(s)
+    name, _, version = s.partition("@")
+    if version and not _VERSION_RE.match(version):
+        raise BundleError(s, f"bad version {version!r}: expected NAME@MAJOR.MINOR.PATCH")
+    refs = list_bundles(registries)
+    hits = [r for r in refs if r.name == name and (not version or r.version == version)]
+    if not hits:
+        where = ", ".join(str(p) for p in registry_paths(registries))
+        same = sorted({r.version for r in refs if r.name == name}, key=_vkey)
+        hint = f" (versions: {', '.join(same)})" if same else f" (bundles: {', '.join(sorted({r.name for r in refs})) or 'none'})"
+        raise BundleError(s, f"no such bundle in registries {where}{hint}")
+    best = max(hits, key=lambda r: r.version_key)  # max keeps the first (earlier registry) on ties
+    return read_bundle(best.path)
+
+
+def select_bundle(task: str, registries: Sequence[str | os.PathLike] | None = None) -> Bundle:
+    """The bundle for ``task``: labelled with it, fewest tasks (most specific), then most samples.
+
+    Only the highest version of each name counts; unreadable bundles are passed over.
+    """
+    latest: dict[str, BundleRef] = {}
+    for r in list_bundles(registries):
+        if r.name not in latest or r.version_key > latest[r.name].version_key:
+            latest[r.name] = r
+    cands, known = [], set()
+    for ref in latest.values():
+        try:
+            b = read_bundle(ref.path)
+        except BundleError:
+            continue
+        known.update(b.tasks)
+        if task in b.tasks:
+            cands.append(b)
+    if not cands:
+        raise BundleError(
+            f"task {task}", f"no bundle is labelled with this task (tasks: {', '.join(sorted(known)) or 'none'})"
+        )
+    return min(cands, key=lambda b: (len(b.tasks), -b.manifest["n_samples"], b.name))
+
+
+# ----------------------------------------------------------------------------- training data
+@dataclass(frozen=True)
+class Trial:
+    """Posture frames of one source file (radians, F × D) with provenance."""
+
+    path: str
+    postures: np.ndarray
+    dof_names: tuple[str, ...] = POSTURE_DOF_NAMES
+    task: str | None = None
+    sha256: str | None = None
+
+    @property
+    def frames(self) -> int:
+        return int(self.postures.shape[0])
+
+    def source(self) -> dict:
+        return {"path": self.path, "sha256": self.sha256, "task": self.task, "frames": self.frames}
+
+
+FORMATS = ("auto", "csv", "schroeder26", "c3d")
+
+
+def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
+               markers: str | None = None) -> Trial:
+    """Read the posture frames of one file.
+
+    Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
+    rows with a missing posture angle are dropped), ``schroeder26`` (whitespace table
+    of 26 columns, 7–26 are the posture), ``c3d`` (markers → angles, needs ``markers``).
+    ``auto`` picks by suffix: .csv, .txt/.dat, .c3d.
+    """
+    p = Path(path)
+    if fmt == "auto":
+        fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
+            p.suffix.lower(), "")
+        if not fmt:
+            raise SynergyError(p, "unknown file type: give the format (csv, schroeder26, c3d)")
+    if fmt not in FORMATS:
+        raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
+    if not p.is_file():
+        raise SynergyError(p, "no such file")
+    if fmt == "csv":
+        X = _read_csv_postures(p)
+    elif fmt == "schroeder26":
+        X = _read_schroeder26(p)
+    else:
+        X = _read_c3d_postures(p, markers)
+    return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p))
+
+
+def _postures_from_table(table, where) -> np.ndarray:
+    missing = [c for c in POSTURE_DOF_NAMES if c not in table.columns]
+    if missing:
+        raise SynergyError(where, f"missing posture column(s): {', '.join(missing)}")
+    try:
+        X = table.loc[:, list(POSTURE_DOF_NAMES)].to_numpy(dtype=float)
+    except (ValueError, TypeError) as exc:
+        raise SynergyError(where, f"non-numeric posture values ({exc})") from None
+    X = X[np.isfinite(X).all(axis=1)]  # frames where marker IK failed carry NaN
+    if X.shape[0] == 0:
+        raise SynergyError(where, "no complete posture rows")
+    return X
+
+
+def _read_csv_postures(p: Path) -> np.ndarray:
+    import pandas as pd
+
+    try:
+        table = pd.read_csv(p, comment="#", skipinitialspace=True)
+    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise SynergyError(p, f"cannot read CSV ({exc})") from None
+    return _postures_from_table(table, p)
+
+
+def _read_schroeder26(p: Path) -> np.ndarray:
+    try:
+        A = np.loadtxt(p, dtype=float, ndmin=2)
+    except (ValueError, OSError, UnicodeDecodeError) as exc:
+        raise SynergyError(p, f"cannot read whitespace table ({exc})") from None
+    n = len(POSE_DOF_NAMES) + len(POSTURE_DOF_NAMES)
+    if A.shape[1] != n or A.shape[0] == 0:
+        raise SynergyError(p, f"expected rows of {n} values (pose + posture), got shape {A.shape}")
+    if not np.isfinite(A).all():
+        raise SynergyError(p, "holds NaN or infinity")
+    return A[:, len(POSE_DOF_NAMES):]
+
+
+# >>> C3D INPUT PLUGS IN HERE ------------------------------------------------------------
+# `synergy fit mocap/*.c3d --markers hand16` reaches this function. It expects
+# `synergy.angles.markers_to_angles(c3d_path, markerset_name)` to return a joint-angle
+# table (pandas DataFrame, columns = DoF names, radians; see DESIGN.md). Adapt the call
+# below once that function exists; nothing else needs to change.
+def _read_c3d_postures(p: Path, markers: str | None) -> np.ndarray:
+    if not markers:
+        raise SynergyError(p, "C3D input needs a marker set (--markers NAME)")
+    try:
+        from synergy.angles import markers_to_angles
+    except ImportError:
+        raise SynergyError(p, "C3D input is not available yet (synergy.angles.markers_to_angles "
+                              "is missing); convert to a joint-angle CSV first") from None
+    return _postures_from_table(markers_to_angles(p, markers), p)
+# <<< C3D INPUT ------------------------------------------------------------------------------
+
+
+def fit_trials(trials: Sequence[Trial], n_components=None) -> SynergyModel:
+    """Fit a :class:`SynergyModel` (with PC limits) on all trials' postures."""
+    if not trials:
+        raise SynergyError(None, "no trials to fit")
+    names = trials[0].dof_names
+    for t in trials:
+        if t.dof_names != names:
+            raise SynergyError(t.path, f"DoF names differ from {trials[0].path}")
+    stats = SufficientStats.merge_all(SufficientStats.from_array(t.postures) for t in trials)
+    model = stats.finalize(n_components)
+    for t in trials:
+        model.update_limits(t.postures)
+    return model
+
+
+def bundle_from_trials(
+    trials: Sequence[Trial], name: str, *, n_components=None, registry=None, version=None,
+    tasks: Sequence[str] | None = None, hand_model: str = "default",
+    hand_model_sha256: str | None = None, heldout: bool = True,
+) -> Bundle:
+    """Fit, estimate held-out reconstruction error, save and return the new bundle."""
+    model = fit_trials(trials, n_components)
+    ho = None
+    if heldout:
+        try:
+            rms, method = heldout_curve([t.postures for t in trials])
+            ho = {"method": method, "rms_rad": rms.tolist()}
+        except SynergyError:
+            ho = None  # too little data to hold any out; the bundle is still valid
+    if tasks is None:
+        tasks = sorted({t.task for t in trials if t.task})
+    path = save_bundle(
+        model, name, version, registry=registry, dof_names=trials[0].dof_names, tasks=tasks,
+        sources=[t.source() for t in trials], n_trials=len(trials), hand_model=hand_model,
+        hand_model_sha256=hand_model_sha256, heldout=ho,
+    )
+    return read_bundle(path)

@@ -1,0 +1,351 @@
+"""``synergy`` command line: fit, list, inspect, select, compare and plot synergy bundles.
+
+Heavy libraries (numpy, scikit-learn, pandas, matplotlib) are imported inside the
+commands so that ``synergy --help`` answers at once.
+"""
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+app = typer.Typer(
+    name="synergy",
+    help="Hand synergies (PCA of posture angles) from motion capture: fit and manage bundles.",
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+REGISTRY_HELP = "Extra registry folder to search (repeatable); SYNERGY_PATH and the shipped models/synergies follow."
+
+
+def _errors_exit_2(fn):
+    """Turn bad-input errors into one line on stderr and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        # Imported here: importing the handmodel package pulls in numpy.
+        from handmodel.errors import ToolkitError
+
+        try:
+            return fn(*args, **kwargs)
+        except ToolkitError as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+def _check_variance(variance: float) -> None:
+    from synergy.errors import SynergyError
+
+    if not 0.0 < variance < 1.0:
+        raise SynergyError("--variance", f"must be a fraction in (0, 1), got {variance}")
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
+# ----------------------------------------------------------------------------- fit
+@app.command()
+@_errors_exit_2
+def fit(
+    files: List[Path] = typer.Argument(None, help="Input files: angle tables, or C3D with --markers."),
+    angles: List[Path] = typer.Option(None, "--angles", help="Joint-angle file (repeatable; further files may follow as arguments)."),
+    name: str = typer.Option(..., "--name", help="Bundle name."),
+    task: Optional[str] = typer.Option(None, "--task", help="Task label of all inputs."),
+    tasks: Optional[Path] = typer.Option(None, "--tasks", help="Task-map YAML (glob -> task)."),
+    per_task: bool = typer.Option(False, "--per-task", help="With --tasks: one bundle per task, named NAME-TASK."),
+    variance: float = typer.Option(0.99, "--variance", help="Variance fraction that sets the default number of PCs."),
+    fmt: str = typer.Option("auto", "--format", help="Input format: auto (by suffix), csv, schroeder26."),
+    markers: Optional[str] = typer.Option(None, "--markers", help="Marker set for C3D input."),
+    registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
+    version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),
+    hand_model: str = typer.Option("default", "--hand-model", help="Hand model the angles refer to."),
+    hand_model_sha256: Optional[str] = typer.Option(None, "--hand-model-sha256", help="Its hash (default: hash of models/hands/NAME.yaml)."),
+):
+    """Fit synergies on posture files and save a new bundle version."""
+    from rich.progress import Progress
+
+    from synergy.bundle import bundle_from_trials, read_trial
+    from synergy.errors import SynergyError, TaskMapError
+    from synergy.tasks import label_for, load_task_map
+
+    _check_variance(variance)
+    inputs = [*(angles or []), *(files or [])]
+    if not inputs:
+        raise SynergyError("fit", "no input files (give --angles FILE... or files)")
+    if task and tasks:
+        raise SynergyError("fit", "give either --task or --tasks, not both")
+    if per_task and not tasks:
+        raise SynergyError("fit", "--per-task needs --tasks map.yaml")
+    task_map = load_task_map(tasks) if tasks else None
+    labels = {}
+    for f in inputs:
+        labels[f] = task if task_map is None else label_for(f, task_map)
+        if task_map is not None and labels[f] is None:
+            raise TaskMapError(tasks, f"no rule matches {f}")
+
+    trials = []
+    with Progress(console=_console(), transient=True) as progress:
+        bar = progress.add_task("reading", total=len(inputs))
+        for f in inputs:
+            progress.update(bar, description=f"reading {f.name}")
+            trials.append(read_trial(f, fmt, task=labels[f], markers=markers))
+            progress.advance(bar)
+
+    groups = {name: trials}
+    if per_task:
+        groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in task_map.tasks}
+        groups = {k: v for k, v in groups.items() if v}
+    console = _console()
+    for bname, group in groups.items():
+        bundle = bundle_from_trials(
+            group, bname, n_components=variance, registry=registry, version=version,
+            hand_model=hand_model, hand_model_sha256=hand_model_sha256,
+        )
+        console.print(_summary_table(bundle, variance))
+
+
+def _summary_table(bundle, variance: float):
+    import numpy as np
+    from rich.table import Table
+
+    m, man = bundle.model, bundle.manifest
+    cum = np.cumsum(m.all_explained_variance_ratio_)
+    t = Table(title=f"synergy bundle {bundle.spec}", show_header=False)
+    t.add_column("", style="bold")
+    t.add_column("")
+    t.add_row("trials", str(man["n_trials"]))
+    t.add_row("frames", str(man["n_samples"]))
+    t.add_row("tasks", ", ".join(man["tasks"]) or "-")
+    for k in (1, 2, 3, 6):
+        if k <= cum.size:
+            t.add_row(f"variance, {k} PC{'s' if k > 1 else ''}", _pct(cum[k - 1]))
+    t.add_row(f"PCs for {_pct(variance)}", str(m.n_components_))
+    if "heldout" in man:
+        rms = np.degrees(man["heldout"]["rms_rad"][m.n_components_])
+        t.add_row(f"held-out RMS at {m.n_components_} PCs", f"{rms:.2f}° ({man['heldout']['method']})")
+    t.add_row("file", str(bundle.path))
+    return t
+
+
+# ----------------------------------------------------------------------------- registry views
+@app.command("list")
+@_errors_exit_2
+def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP)):
+    """List the bundles in all registries."""
+    from rich.table import Table
+
+    from synergy.bundle import list_bundles, read_bundle
+    from synergy.errors import BundleError
+
+    t = Table(title="synergy bundles")
+    for col in ("name", "version", "tasks", "frames", "PCs", "path"):
+        t.add_column(col)
+    for ref in list_bundles(registry):
+        try:
+            b = read_bundle(ref.path)
+            man = b.manifest
+            t.add_row(ref.name, ref.version, ", ".join(man["tasks"]) or "-", str(man["n_samples"]),
+                      str(man["n_components"]), str(ref.path))
+        except BundleError as err:
+            t.add_row(ref.name, ref.version, f"[red]invalid: {err.reason}[/red]", "", "", str(ref.path))
+    _console().print(t)
+
+
+@app.command()
+@_errors_exit_2
+def info(
+    spec: str = typer.Argument(..., help="NAME, NAME@VERSION or path to a .npz."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
+):
+    """Show a bundle's manifest and spectrum."""
+    import numpy as np
+    from rich.table import Table
+
+    from synergy.bundle import load_bundle
+
+    b = load_bundle(spec, registry)
+    man, m = b.manifest, b.model
+    console = _console()
+    head = Table(title=f"{b.spec}", show_header=False)
+    head.add_column("", style="bold")
+    head.add_column("")
+    for key in ("created", "tasks", "n_samples", "n_trials", "n_components", "variance", "units"):
+        val = man[key]
+        head.add_row(key, ", ".join(val) if isinstance(val, list) else str(val))
+    head.add_row("generator", f"{man['generator']['name']} {man['generator']['version']}")
+    head.add_row("hand model", f"{man['hand_model']['name']} ({man['hand_model']['sha256'] or 'no hash'})")
+    head.add_row("arrays sha256", man["arrays_sha256"])
+    head.add_row("file", str(b.path))
+    console.print(head)
+    cum = np.cumsum(m.all_explained_variance_ratio_)
+    spec_t = Table(title="spectrum")
+    for col in ("PC", "variance", "cumulative", "PC min", "PC max", "held-out RMS"):
+        spec_t.add_column(col, justify="right")
+    ho = man.get("heldout", {}).get("rms_rad")
+    for i in range(cum.size):
+        spec_t.add_row(str(i + 1), _pct(m.all_explained_variance_ratio_[i]), _pct(cum[i]),
+                       f"{m.pc_min_[i]:.3f}", f"{m.pc_max_[i]:.3f}",
+                       f"{np.degrees(ho[i + 1]):.2f}°" if ho else "-")
+    console.print(spec_t)
+    src = Table(title="sources")
+    for col in ("path", "task", "frames", "sha256"):
+        src.add_column(col)
+    for s in man["sources"]:
+        src.add_row(s["path"], s["task"] or "-", str(s["frames"]), (s["sha256"] or "-")[:16])
+    console.print(src)
+
+
+@app.command()
+@_errors_exit_2
+def select(
+    task: str = typer.Option(..., "--task", help="Task label."),
+    variance: float = typer.Option(0.99, "--variance", help="Variance fraction to reach."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
+):
+    """Which bundle serves a task, and how many PCs reach the variance."""
+    import numpy as np
+
+    from synergy.bundle import select_bundle
+
+    _check_variance(variance)
+    b = select_bundle(task, registry)
+    k = b.model.n_components_for(variance)
+    got = float(np.cumsum(b.model.all_explained_variance_ratio_)[k - 1])
+    typer.echo(f"{b.spec}\t{k} PCs ({_pct(got)} variance)\t{b.path}")
+
+
+@app.command()
+@_errors_exit_2
+def compare(
+    a: str = typer.Argument(..., help="First bundle (NAME, NAME@VERSION or path)."),
+    b: str = typer.Argument(..., help="Second bundle."),
+    max_k: int = typer.Option(6, "--max-k", help="Largest subspace dimension."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
+):
+    """Principal angles (degrees) between the first k PCs of two bundles, k = 1..max-k."""
+    import numpy as np
+    from rich.table import Table
+
+    from synergy.bundle import load_bundle
+    from synergy.errors import BundleError
+    from synergy.pca import principal_angles
+
+    ba, bb = load_bundle(a, registry), load_bundle(b, registry)
+    if ba.dof_names != bb.dof_names:
+        raise BundleError(f"{ba.spec} vs {bb.spec}", "the bundles have different DoF names")
+    kmax = min(max_k, ba.model.all_components_.shape[0], bb.model.all_components_.shape[0])
+    t = Table(title=f"principal angles: {ba.spec} vs {bb.spec}")
+    for col in ("k", "largest", "all angles (deg)"):
+        t.add_column(col, justify="right" if col != "all angles (deg)" else "left")
+    for k in range(1, kmax + 1):
+        ang = np.degrees(principal_angles(ba.model, bb.model, k))
+        t.add_row(str(k), f"{ang[-1]:.2f}", " ".join(f"{x:.2f}" for x in ang))
+    _console().print(t)
+
+
+# ----------------------------------------------------------------------------- plots
+@app.command()
+@_errors_exit_2
+def plot(
+    spec: str = typer.Argument(..., help="NAME, NAME@VERSION or path to a .npz."),
+    out: Path = typer.Option(Path("figs"), "-o", "--out", help="Output folder."),
+    heldout: List[Path] = typer.Option(None, "--heldout", help="Held-out posture file(s) for the reconstruction curve (repeatable)."),
+    fmt: str = typer.Option("auto", "--format", help="Format of --heldout files."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
+):
+    """Scree/cumulative-variance PNG, and reconstruction error vs PCs if held-out data exist."""
+    import numpy as np
+
+    from synergy.bundle import load_bundle, read_trial
+
+    b = load_bundle(spec, registry)
+    stem = f"{b.name}-{b.version}"
+    written = [_plot_scree(b, out / f"{stem}-scree.png")]
+    curves = {}
+    if "heldout" in b.manifest:
+        curves[f"stored ({b.manifest['heldout']['method']})"] = np.degrees(b.manifest["heldout"]["rms_rad"])
+    if heldout:
+        X = np.vstack([read_trial(f, fmt).postures for f in heldout])
+        c = b.model.reconstruction_curve(X)
+        curves[f"--heldout ({X.shape[0]} frames)"] = np.degrees(np.sqrt((c**2).mean(axis=1)))
+    if curves:
+        written.append(_plot_reconstruction(b, curves, out / f"{stem}-reconstruction.png"))
+    for p in written:
+        typer.echo(str(p))
+
+
+def _save_fig(fig, path: Path) -> Path:
+    import io
+
+    import matplotlib.pyplot as plt
+
+    from handmodel.fileio import atomic_write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def _plot_scree(bundle, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    r = bundle.model.all_explained_variance_ratio_
+    k = np.arange(1, r.size + 1)
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
+    ax.bar(k, 100 * r, color="tab:blue", alpha=0.7, label="per PC")
+    ax.plot(k, 100 * np.cumsum(r), "o-", color="tab:red", ms=4, label="cumulative")
+    n = bundle.model.n_components_
+    ax.axvline(n + 0.5, color="0.4", ls="--", lw=1, label=f"default: {n} PCs")
+    ax.set(xlabel="principal component", ylabel="variance explained (%)", ylim=(0, 102),
+           title=f"{bundle.spec}: {bundle.manifest['n_samples']} postures", xticks=k)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="center right")
+    return _save_fig(fig, path)
+
+
+def _plot_reconstruction(bundle, curves: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
+    for label, rms_deg in curves.items():
+        ax.plot(np.arange(len(rms_deg)), rms_deg, "o-", ms=4, label=label)
+    ax.axvline(bundle.model.n_components_, color="0.4", ls="--", lw=1, label="default PCs")
+    ax.set(xlabel="number of PCs", ylabel="held-out RMS error (deg, all DoF)",
+           title=f"{bundle.spec}: reconstruction error", ylim=(0, None))
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save_fig(fig, path)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()
