@@ -268,12 +268,15 @@ def _check_pose_layout(hand):
 
 
 def fit_keypoints(hand, targets, theta0=None, *, subspace=None, schedule=None, settings: SolverSettings | None = None,
-                  weights=None, warm_start: bool = False):
+                  weights=None, warm_start: bool = False, restarts: int = 3, restart_rms_mm: float = 0.5):
     """Fit the model to 3-D keypoints (``(..., 21, 3)`` metres, NaN = missing).
 
     Without ``theta0`` each frame starts from the flat hand (the subspace mean posture when a
-    subspace or schedule is given) placed rigidly on the keypoints (Horn). Returns ``(theta, report)``
-    with θ of shape ``(..., n_dofs)``.
+    subspace or schedule is given) placed rigidly on the keypoints (Horn). Frames whose RMS residual
+    stays above ``restart_rms_mm`` (a local minimum, typical when keypoints are missing) are solved
+    again from up to ``restarts`` other postures (flexed part-way to the limits, starting from the
+    first solution's global pose) and the lowest-energy result is kept.
+    Returns ``(theta, report)`` with θ of shape ``(..., n_dofs)``.
     """
     settings = settings or SolverSettings(iterations=30)
     tg = np.asarray(targets, float)
@@ -296,4 +299,21 @@ def fit_keypoints(hand, targets, theta0=None, *, subspace=None, schedule=None, s
     w = None if weights is None else np.broadcast_to(np.asarray(weights, float), lead + (hand.n_nodes,)).reshape(-1, hand.n_nodes)
     theta, rep = solve(hand, th0, nodes, local, flat, weights=w, subspace=subspace, schedule=schedule,
                        settings=settings, warm_start=warm_start)
+    redo = np.flatnonzero(rep.rms_mm > restart_rms_mm) if (restarts and not warm_start) else np.zeros(0, int)
+    if redo.size:
+        lim = np.where(np.isfinite(hand.limits), hand.limits, 0.0)
+        post = ~hand.pose_mask
+        for frac in (0.5, 0.25, 0.75)[:restarts]:
+            start = theta[redo].copy()
+            start[:, post] = frac * np.minimum(lim[post, 0], 0.0)
+            th_r, rep_r = solve(hand, start, nodes, local, flat[redo], weights=None if w is None else w[redo],
+                                subspace=subspace, schedule=schedule, settings=settings)
+            better = rep_r.energy < rep.energy[redo]
+            k = redo[better]
+            theta[k] = th_r[better]
+            for name in ("iterations", "energy", "rms_mm", "clamps", "at_limit", "trace"):
+                getattr(rep, name)[k] = getattr(rep_r, name)[better]
+            redo = redo[rep.rms_mm[redo] > restart_rms_mm]
+            if not redo.size:
+                break
     return theta.reshape(lead + (hand.n_dofs,)), rep

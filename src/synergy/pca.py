@@ -58,7 +58,11 @@ class SufficientStats:
     ----------
     n : int
         Number of rows.
-    mean : ndarray (D,)
+    shift : ndarray (D,)
+        A data row; the mean is kept as ``shift + offset`` so that a large mean does not
+        swamp the differences between chunk means when merging.
+    offset : ndarray (D,)
+        ``mean - shift``.
     scatter : ndarray (D, D)
         Centred scatter ``Σ (x - mean)(x - mean)ᵀ``.
     min, max : ndarray (D,)
@@ -66,39 +70,48 @@ class SufficientStats:
     """
 
     n: int
-    mean: np.ndarray
+    shift: np.ndarray
+    offset: np.ndarray
     scatter: np.ndarray
     min: np.ndarray
     max: np.ndarray
 
     @property
+    def mean(self) -> np.ndarray:
+        return self.shift + self.offset
+
+    @property
     def n_features(self) -> int:
-        return self.mean.shape[0]
+        return self.shift.shape[0]
 
     @classmethod
     def empty(cls, n_features: int) -> "SufficientStats":
         """Identity element of :meth:`merge`."""
         d = int(n_features)
-        return cls(0, np.zeros(d), np.zeros((d, d)), np.full(d, np.inf), np.full(d, -np.inf))
+        z = np.zeros(d)
+        return cls(0, z, z.copy(), np.zeros((d, d)), np.full(d, np.inf), np.full(d, -np.inf))
 
     @classmethod
     def from_array(cls, X, chunk_rows: int = _CHUNK_ROWS) -> "SufficientStats":
         """Statistics of the rows of ``X`` (N × D, finite)."""
         X = _as_2d_finite(X, "SufficientStats.from_array")
         out = cls.empty(X.shape[1])
+        if X.shape[0] == 0:
+            return out
+        shift = X[0].copy()
         for i in range(0, X.shape[0], chunk_rows):
-            out = out.merge(cls._from_chunk(X[i : i + chunk_rows]))
+            out = out.merge(cls._from_chunk(X[i : i + chunk_rows], shift))
         return out
 
     @classmethod
-    def _from_chunk(cls, X: np.ndarray) -> "SufficientStats":
-        m = X.mean(axis=0)
-        Xc = X - m
+    def _from_chunk(cls, X: np.ndarray, shift: np.ndarray) -> "SufficientStats":
+        Y = X - shift
+        m = Y.mean(axis=0)
+        Y -= m
         # One refinement step removes the rounding error of the first mean (two-pass, Higham).
-        corr = Xc.mean(axis=0)
-        m = m + corr
-        Xc -= corr
-        return cls(X.shape[0], m, Xc.T @ Xc, X.min(axis=0), X.max(axis=0))
+        corr = Y.mean(axis=0)
+        Y -= corr
+        return cls(X.shape[0], shift, m + corr, Y.T @ Y, X.min(axis=0), X.max(axis=0))
 
     def merge(self, other: "SufficientStats") -> "SufficientStats":
         """Statistics of the union of both row sets (Chan, Golub & LeVeque 1979)."""
@@ -111,12 +124,16 @@ class SufficientStats:
         if self.n == 0:
             return other
         n = self.n + other.n
-        delta = other.mean - self.mean
-        mean = self.mean + delta * (other.n / n)
+        # other's mean relative to our shift; shifts are data rows, so their difference is
+        # small (exact when within a factor 2) and the chunk-mean difference keeps its digits.
+        other_offset = (other.shift - self.shift) + other.offset
+        delta = other_offset - self.offset
+        offset = self.offset + delta * (other.n / n)
         scatter = self.scatter + other.scatter + np.outer(delta, delta) * (self.n * other.n / n)
         scatter = 0.5 * (scatter + scatter.T)
         return SufficientStats(
-            n, mean, scatter, np.minimum(self.min, other.min), np.maximum(self.max, other.max)
+            n, self.shift, offset, scatter,
+            np.minimum(self.min, other.min), np.maximum(self.max, other.max),
         )
 
     @staticmethod
@@ -141,7 +158,8 @@ class SufficientStats:
         """Plain arrays (e.g. for ``np.savez`` or another process)."""
         return {
             "n": np.asarray(self.n, dtype=np.int64),
-            "mean": self.mean,
+            "shift": self.shift,
+            "offset": self.offset,
             "scatter": self.scatter,
             "min": self.min,
             "max": self.max,
@@ -152,7 +170,8 @@ class SufficientStats:
         """Inverse of :meth:`as_arrays`."""
         return cls(
             int(arrays["n"]),
-            np.asarray(arrays["mean"], dtype=float),
+            np.asarray(arrays["shift"], dtype=float),
+            np.asarray(arrays["offset"], dtype=float),
             np.asarray(arrays["scatter"], dtype=float),
             np.asarray(arrays["min"], dtype=float),
             np.asarray(arrays["max"], dtype=float),

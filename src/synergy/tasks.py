@@ -56,11 +56,11 @@ def _validator():
     return jsonschema.Draft202012Validator(schema)
 
 
-def _field(path) -> str:
+def _field(path, nested: bool = False) -> str:
     out = ""
     for p in path:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
-    return out or "task map"
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out or nested else str(p))
+    return out if out or nested else "task map"
 
 
 def task_map_from_rules(doc, source: str | os.PathLike | None = None) -> TaskMap:
@@ -76,7 +76,12 @@ def task_map_from_rules(doc, source: str | os.PathLike | None = None) -> TaskMap
     errors = sorted(_validator().iter_errors(doc), key=lambda e: (list(e.absolute_path), e.message))
     if errors:
         err = errors[0]
-        field = "glob" if err.validator == "propertyNames" else _field(err.absolute_path)
+        if "propertyNames" in err.relative_schema_path:
+            field = f"glob {err.instance!r}"
+        elif isinstance(doc, dict) and err.absolute_path:
+            field = repr(err.absolute_path[0]) + _field(list(err.absolute_path)[1:], nested=True)
+        else:
+            field = _field(err.absolute_path)
         raise TaskMapError(where, f"{field}: {err.message}")
     if isinstance(doc, dict):
         rules = tuple(TaskRule(g, t) for g, t in doc.items())
@@ -115,7 +120,7 @@ def _compile(glob: str) -> re.Pattern:
     rx = []
     for i, part in enumerate(parts):
         if part == "**":
-            rx.append("(?:[^/]+/)*")
+            rx.append(".*" if i == len(parts) - 1 else "(?:[^/]+/)*")
             continue
         rx.append(_part_regex(part) + ("/" if i < len(parts) - 1 else ""))
     body = "".join(rx)
