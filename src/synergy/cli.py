@@ -126,7 +126,7 @@ def _summary_table(bundle, variance: float):
     cum = np.cumsum(m.all_explained_variance_ratio_)
     t = Table(title=f"synergy bundle {bundle.spec}", show_header=False)
     t.add_column("", style="bold")
-    t.add_column("")
+    t.add_column("", overflow="fold")
     t.add_row("trials", str(man["n_trials"]))
     t.add_row("frames", str(man["n_samples"]))
     t.add_row("tasks", ", ".join(man["tasks"]) or "-")
@@ -153,7 +153,7 @@ def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REG
 
     t = Table(title="synergy bundles")
     for col in ("name", "version", "tasks", "frames", "PCs", "path"):
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for ref in list_bundles(registry):
         try:
             b = read_bundle(ref.path)
@@ -182,7 +182,7 @@ def info(
     console = _console()
     head = Table(title=f"{b.spec}", show_header=False)
     head.add_column("", style="bold")
-    head.add_column("")
+    head.add_column("", overflow="fold")
     for key in ("created", "tasks", "n_samples", "n_trials", "n_components", "variance", "units"):
         val = man[key]
         head.add_row(key, ", ".join(val) if isinstance(val, list) else str(val))
@@ -203,7 +203,7 @@ def info(
     console.print(spec_t)
     src = Table(title="sources")
     for col in ("path", "task", "frames", "sha256"):
-        src.add_column(col)
+        src.add_column(col, overflow="fold")
     for s in man["sources"]:
         src.add_row(s["path"], s["task"] or "-", str(s["frames"]), (s["sha256"] or "-")[:16])
     console.print(src)

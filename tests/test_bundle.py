@@ -1,0 +1,431 @@
+"""Tests of synergy.bundle (files, registries, readers) and of the ``synergy`` CLI."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from synergy.bundle import (
+    ARRAY_NAMES,
+    Bundle,
+    arrays_sha256,
+    fit_trials,
+    list_bundles,
+    load_bundle,
+    read_bundle,
+    read_trial,
+    registry_paths,
+    save_bundle,
+    select_bundle,
+)
+from synergy.cli import app
+from synergy.errors import BundleError, SynergyError
+from synergy.pca import POSE_DOF_NAMES, POSTURE_DOF_NAMES, SynergyModel
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+FINGERFIST = DATA / "htrack_schroeder" / "fingerfist.txt"
+
+
+@pytest.fixture(autouse=True)
+def _no_env_registries(monkeypatch):
+    monkeypatch.delenv("SYNERGY_PATH", raising=False)
+
+
+def postures(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    latent = rng.normal(size=(n, 3)) * [0.6, 0.3, 0.1]
+    return latent @ rng.normal(size=(3, 20)) + 0.02 * rng.normal(size=(n, 20)) - 0.4
+
+
+@pytest.fixture
+def model():
+    return SynergyModel(n_components=0.95).fit(postures())
+
+
+@pytest.fixture
+def reg(tmp_path):
+    d = tmp_path / "registry"
+    d.mkdir()
+    return d
+
+
+def rewrite(path, out=None, **changes):
+    """Re-save a bundle's npz with some arrays (or the manifest) replaced."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays.update(changes)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    Path(out or path).write_bytes(buf.getvalue())
+    return Path(out or path)
+
+
+# ----------------------------------------------------------------------------- round trip
+def test_save_load_round_trip_exact(model, reg):
+    path = save_bundle(model, "grip", registry=reg, tasks=["grasp"], n_trials=3)
+    assert path == reg / "grip-1.0.0.npz"
+    with np.load(path, allow_pickle=False) as z:
+        assert set(z.files) == {*ARRAY_NAMES, "manifest"}
+        assert z["dof_names"].dtype.kind == "U" and z["manifest"].dtype.kind == "U"
+        assert z["manifest"].shape == () and z["components"].shape == (20, 20)
+    for spec in ("grip", "grip@1.0.0", str(path)):
+        b = load_bundle(spec, registries=[reg])
+        assert isinstance(b, Bundle) and b.path == path and b.dof_names == POSTURE_DOF_NAMES
+        m = b.model
+        for a in ("all_components_", "mean_", "all_explained_variance_", "all_explained_variance_ratio_",
+                  "pc_min_", "pc_max_", "joint_min_", "joint_max_", "components_", "explained_variance_"):
+            np.testing.assert_array_equal(getattr(m, a), getattr(model, a), err_msg=a)
+        assert m.n_components_ == model.n_components_ and m.n_samples_ == 400
+        X = postures(50, seed=1)
+        np.testing.assert_array_equal(m.transform(X), model.transform(X))
+    man = b.manifest
+    assert man["name"] == "grip" and man["version"] == "1.0.0" and man["tasks"] == ["grasp"]
+    assert man["n_samples"] == 400 and man["n_trials"] == 3 and man["variance"] == 0.95
+    assert man["created"].endswith("Z") and man["generator"]["name"] == "synergistic-hand-tracking"
+    assert man["hand_model"]["name"] == "default"
+    hand = Path(__file__).resolve().parents[1] / "models" / "hands" / "default.yaml"
+    assert (man["hand_model"]["sha256"] is None) == (not hand.is_file())
+
+
+def test_subspace(model, reg):
+    b = load_bundle(save_bundle(model, "grip", registry=reg))
+    C, mean, lo, hi = b.subspace()
+    assert C.shape == (model.n_components_, 20)
+    C2, _, lo2, hi2 = b.subspace(2)
+    assert C2.shape == (2, 20) and lo2.shape == hi2.shape == (2,)
+    np.testing.assert_array_equal(C2, model.all_components_[:2])
+    np.testing.assert_array_equal(mean, model.mean_)
+    Z = (postures() - mean) @ C2.T
+    assert np.all((Z >= lo2) & (Z <= hi2))
+    assert b.subspace(0.5)[0].shape[0] == model.n_components_for(0.5)
+    with pytest.raises(BundleError):
+        b.subspace(21)
+
+
+def test_versions_are_immutable_and_bump(model, reg):
+    p1 = save_bundle(model, "grip", registry=reg)
+    before = p1.read_bytes()
+    p2 = save_bundle(model, "grip", registry=reg)
+    assert p2.name == "grip-1.0.1.npz"
+    save_bundle(model, "grip", "2.3.9", registry=reg)
+    assert save_bundle(model, "grip", registry=reg).name == "grip-2.3.10.npz"
+    with pytest.raises(BundleError, match="immutable") as info:
+        save_bundle(model, "grip", "1.0.0", registry=reg)
+    assert str(p1) in str(info.value)
+    assert p1.read_bytes() == before
+    assert load_bundle("grip", registries=[reg]).version == "2.3.10"
+    assert [r.version for r in list_bundles([reg])] == ["1.0.0", "1.0.1", "2.3.9", "2.3.10"]
+    assert not [f for f in reg.iterdir() if f.name.startswith(".")]  # no temp files left
+
+
+def test_tampered_bundle_is_rejected(model, reg):
+    path = save_bundle(model, "grip", registry=reg)
+    with np.load(path, allow_pickle=False) as z:
+        comps = z["components"].copy()
+    comps[3, 7] += 1e-12
+    rewrite(path, components=comps)
+    with pytest.raises(BundleError, match="arrays_sha256") as info:
+        load_bundle(str(path))
+    assert str(info.value).startswith(f"{path}: ")
+
+
+def test_arrays_hash_covers_every_array(model, reg):
+    path = save_bundle(model, "grip", registry=reg)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in ARRAY_NAMES}
+    ref = arrays_sha256(arrays)
+    for k in ARRAY_NAMES:
+        changed = dict(arrays)
+        if k == "dof_names":
+            changed[k] = np.array(["x", *arrays[k][1:]])
+        else:
+            changed[k] = arrays[k].copy()
+            changed[k].flat[0] = np.nextafter(changed[k].flat[0], np.inf)
+        assert arrays_sha256(changed) != ref, k
+
+
+def _manifest(path):
+    with np.load(path, allow_pickle=False) as z:
+        return json.loads(str(z["manifest"][()]))
+
+
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        (lambda m: "{not json", "not JSON"),
+        (lambda m: {k: v for k, v in m.items() if k != "arrays_sha256"}, "'arrays_sha256' is a required property"),
+        (lambda m: {**m, "n_samples": "many"}, "n_samples"),
+        (lambda m: {**m, "version": "1.0"}, "version"),
+        (lambda m: {**m, "sources": [{"path": "a.csv"}]}, "sources.0"),
+        (lambda m: {**m, "schema_version": 99}, "schema_version"),
+    ],
+    ids=["not-json", "missing-field", "wrong-type", "bad-version", "bad-source", "schema-version"],
+)
+def test_malformed_manifest(model, reg, change, fragment):
+    path = save_bundle(model, "grip", registry=reg)
+    new = change(_manifest(path))
+    rewrite(path, manifest=np.array(new if isinstance(new, str) else json.dumps(new)))
+    with pytest.raises(BundleError, match="malformed manifest") as info:
+        load_bundle(path)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_wrong_array_shapes(model, reg):
+    path = save_bundle(model, "grip", registry=reg)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in ARRAY_NAMES}
+    arrays["pc_min"] = arrays["pc_min"][:5]
+    man = _manifest(path)
+    man["arrays_sha256"] = arrays_sha256(arrays)  # only the shape is wrong
+    rewrite(path, pc_min=arrays["pc_min"], manifest=np.array(json.dumps(man)))
+    with pytest.raises(BundleError, match=r"array pc_min has shape \(5,\)"):
+        load_bundle(path)
+
+
+def test_object_arrays_and_garbage_are_rejected(model, reg, tmp_path):
+    path = save_bundle(model, "grip", registry=reg)
+    bad = rewrite(path, tmp_path / "obj.npz", dof_names=np.array(list(POSTURE_DOF_NAMES), dtype=object))
+    with pytest.raises(BundleError, match="not a readable bundle"):
+        load_bundle(bad)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(BundleError, match="not a readable bundle"):
+        load_bundle(junk)
+    with pytest.raises(BundleError, match="missing array"):
+        load_bundle(_drop(path, tmp_path / "few.npz", "pc_max"))
+
+
+def _drop(path, out, name):
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k != name}
+    np.savez(out, **arrays)
+    return out
+
+
+def test_renamed_file_is_caught(model, reg, tmp_path):
+    path = save_bundle(model, "grip", registry=reg)
+    other = reg / "grip-9.9.9.npz"
+    other.write_bytes(path.read_bytes())
+    with pytest.raises(BundleError, match="file name says grip@9.9.9"):
+        load_bundle("grip", registries=[reg])
+
+
+def test_unknown_specifier(model, reg):
+    save_bundle(model, "grip", registry=reg)
+    with pytest.raises(BundleError, match=r"no such bundle.*bundles: grip") as info:
+        load_bundle("nope", registries=[reg])
+    assert str(info.value).startswith("nope: ")
+    with pytest.raises(BundleError, match=r"versions: 1.0.0"):
+        load_bundle("grip@3.0.0", registries=[reg])
+    with pytest.raises(BundleError, match="bad version"):
+        load_bundle("grip@latest", registries=[reg])
+    with pytest.raises(BundleError, match="no such bundle file"):
+        load_bundle(str(reg / "missing.npz"))
+
+
+def test_registries_env_and_precedence(model, tmp_path, monkeypatch):
+    a, b, c = (tmp_path / n for n in "abc")
+    save_bundle(model, "grip", "1.0.0", registry=a)
+    save_bundle(model, "grip", "1.2.0", registry=b)
+    save_bundle(model, "grip", "1.2.0", registry=c)
+    save_bundle(model, "other", registry=c)
+    monkeypatch.setenv("SYNERGY_PATH", os.pathsep.join([str(b), str(c)]))
+    paths = registry_paths([a])
+    assert paths[:3] == [a, b, c] and paths[-1].parts[-2:] == ("models", "synergies")
+    got = load_bundle("grip", registries=[a])
+    assert got.version == "1.2.0" and got.path.parent == b  # highest version; ties → earlier registry
+    assert load_bundle("grip@1.0.0", registries=[a]).path.parent == a
+    assert load_bundle("other").path.parent == c
+    # save without a registry goes to the first SYNERGY_PATH folder
+    assert save_bundle(model, "fresh").parent == b
+    monkeypatch.delenv("SYNERGY_PATH")
+    with pytest.raises(BundleError, match="no target registry"):
+        save_bundle(model, "fresh")
+
+
+def test_save_rejects_incomplete_models(reg):
+    X = postures()
+    streamed = SynergyModel().partial_fit(X[:200]).partial_fit(X[200:])
+    with pytest.raises(BundleError, match="update_limits"):
+        save_bundle(streamed, "s", registry=reg)
+    with pytest.raises(BundleError, match="not fitted"):
+        save_bundle(SynergyModel(), "s", registry=reg)
+    small = SynergyModel().fit(X[:, :5])
+    with pytest.raises(BundleError, match="dof_names"):
+        save_bundle(small, "s", registry=reg)
+    assert save_bundle(small, "s", registry=reg, dof_names=list("abcde")).is_file()
+    with pytest.raises(BundleError, match="bad bundle name"):
+        save_bundle(small, "bad name", registry=reg, dof_names=list("abcde"))
+
+
+def test_select_prefers_specific_bundle(model, reg):
+    save_bundle(model, "all", registry=reg, tasks=["grasp", "general", "sign"])
+    save_bundle(model, "grasp-only", registry=reg, tasks=["grasp"])
+    assert select_bundle("grasp", [reg]).name == "grasp-only"
+    assert select_bundle("sign", [reg]).name == "all"
+    with pytest.raises(BundleError, match="tasks: general, grasp, sign"):
+        select_bundle("juggle", [reg])
+
+
+# ----------------------------------------------------------------------------- readers
+def write_csv(path, X, meta=True, extra_cols=True):
+    lines = ["# source: synthetic", "# units: rad"] if meta else []
+    cols = (["time_s", *POSE_DOF_NAMES] if extra_cols else []) + list(POSTURE_DOF_NAMES) + (
+        ["residual_mm"] if extra_cols else [])
+    lines.append(",".join(cols))
+    for i, row in enumerate(X):
+        vals = ([i / 100, *([0.0] * 6)] if extra_cols else []) + list(row) + ([0.5] if extra_cols else [])
+        lines.append(",".join(repr(float(v)) for v in vals))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_read_csv_and_schroeder26(tmp_path):
+    X = postures(30)
+    X[4, 2] = np.nan  # a frame where marker IK failed
+    t = read_trial(write_csv(tmp_path / "t.csv", X), task="grasp")
+    assert t.frames == 29 and t.task == "grasp" and len(t.sha256) == 64
+    np.testing.assert_array_equal(t.postures, np.delete(X, 4, axis=0))
+    full = np.hstack([np.ones((30, 6)), postures(30)])
+    np.savetxt(tmp_path / "p.txt", full)
+    np.testing.assert_array_equal(read_trial(tmp_path / "p.txt").postures, full[:, 6:])
+
+
+@pytest.mark.parametrize(
+    "name, content, fmt, fragment",
+    [
+        ("a.csv", "thumb1_abd,x\n1,2\n", "auto", "missing posture column(s): thumb1_flex"),
+        ("a.txt", "1 2 3\n", "auto", "expected rows of 26 values"),
+        ("a.txt", "1 2 x\n", "schroeder26", "cannot read"),
+        ("a.c3d", "", "auto", "needs a marker set"),
+        ("a.bin", "", "auto", "unknown file type"),
+        ("a.csv", "", "xlsx", "unknown format"),
+    ],
+)
+def test_reader_errors(tmp_path, name, content, fmt, fragment):
+    p = tmp_path / name
+    p.write_text(content)
+    with pytest.raises(SynergyError) as info:
+        read_trial(p, fmt)
+    assert fragment in str(info.value) and str(info.value).startswith(str(p))
+
+
+def test_fit_trials_equals_fit_on_concatenation(tmp_path):
+    parts = [postures(n, seed=s) for s, n in enumerate((50, 120, 7))]
+    trials = [read_trial(write_csv(tmp_path / f"t{i}.csv", X)) for i, X in enumerate(parts)]
+    a = fit_trials(trials)
+    b = SynergyModel().fit(np.vstack(parts))
+    np.testing.assert_allclose(a.all_components_, b.all_components_, atol=1e-10)
+    np.testing.assert_allclose(a.pc_min_, b.pc_min_, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------- CLI
+runner = CliRunner()
+
+
+def run(*args, **kw):
+    return runner.invoke(app, [str(a) for a in args], **kw)
+
+
+def assert_one_line_error(result, fragment=""):
+    assert result.exit_code == 2, (result.exit_code, result.output)
+    err = result.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err and fragment in err, err
+    assert "Traceback" not in result.output
+
+
+@pytest.fixture
+def csvs(tmp_path):
+    d = tmp_path / "angles"
+    (d / "grasp").mkdir(parents=True)
+    (d / "free").mkdir()
+    files = [write_csv(d / "grasp" / f"g{i}.csv", postures(150, seed=i)) for i in range(3)]
+    files += [write_csv(d / "free" / f"f{i}.csv", postures(150, seed=10 + i)) for i in range(2)]
+    return files
+
+
+def test_cli_fit_list_info_select_compare_plot(csvs, reg, tmp_path):
+    r = run("fit", "--angles", *csvs, "--name", "demo", "--task", "general", "-o", reg)
+    assert r.exit_code == 0, r.output
+    for word in ("demo@1.0.0", "trials", "5", "750", "variance, 1 PC", "variance, 6 PCs", "PCs for 99.0 %",
+                 "demo-1.0.0.npz", "leave-one-trial-out"):
+        assert word in r.stdout, word
+    b = load_bundle("demo", [reg])
+    assert b.manifest["n_trials"] == 5 and len(b.manifest["sources"]) == 5
+    assert b.manifest["sources"][0]["task"] == "general" and len(b.manifest["heldout"]["rms_rad"]) == 21
+
+    tm = tmp_path / "tasks.yaml"
+    tm.write_text("- glob: 'grasp/*.csv'\n  task: grasp\n- glob: '*.csv'\n  task: free\n")
+    r = run("fit", *csvs, "--name", "demo", "--tasks", tm, "--per-task", "-o", reg)
+    assert r.exit_code == 0, r.output
+    assert load_bundle("demo-grasp", [reg]).manifest["n_trials"] == 3
+    assert load_bundle("demo-free", [reg]).manifest["tasks"] == ["free"]
+
+    r = run("list", "-r", reg)
+    assert r.exit_code == 0 and "demo-grasp" in r.stdout and "demo-free" in r.stdout
+    r = run("info", "demo", "-r", reg)
+    assert r.exit_code == 0 and "spectrum" in r.stdout and "sources" in r.stdout and "150" in r.stdout
+    r = run("select", "--task", "grasp", "--variance", "0.9", "-r", reg)
+    assert r.exit_code == 0 and r.stdout.startswith("demo-grasp@1.0.0")
+    r = run("compare", "demo", "demo-grasp", "-r", reg)
+    assert r.exit_code == 0 and "principal angles" in r.stdout
+    assert len([ln for ln in r.stdout.splitlines() if ln.strip().startswith("│")]) == 6
+    r = run("plot", "demo", "-o", tmp_path / "figs", "-r", reg, "--heldout", csvs[0])
+    assert r.exit_code == 0, r.output
+    pngs = sorted((tmp_path / "figs").glob("*.png"))
+    assert [p.name for p in pngs] == ["demo-1.0.0-reconstruction.png", "demo-1.0.0-scree.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+
+
+def test_cli_errors_exit_2_one_line(csvs, reg, tmp_path):
+    assert_one_line_error(run("info", "nope", "-r", reg), "nope: no such bundle")
+    bad_map = tmp_path / "bad.yaml"
+    bad_map.write_text("- glob: '*.csv'\n  task: 3\n")
+    assert_one_line_error(run("fit", *csvs, "--name", "x", "--tasks", bad_map, "-o", reg), f"{bad_map}: [0].task")
+    partial = tmp_path / "partial.yaml"
+    partial.write_text("'grasp/*.csv': grasp\n")
+    assert_one_line_error(run("fit", *csvs, "--name", "x", "--tasks", partial, "-o", reg), "no rule matches")
+    assert run("fit", csvs[0], "--name", "x", "-o", reg, "--version", "1.0.0").exit_code == 0
+    assert_one_line_error(run("fit", csvs[0], "--name", "x", "-o", reg, "--version", "1.0.0"), "immutable")
+    assert_one_line_error(run("fit", tmp_path / "missing.csv", "--name", "x", "-o", reg), "no such file")
+    assert_one_line_error(run("fit", csvs[0], "--name", "x", "-o", reg, "--variance", "1.5"), "--variance")
+    assert_one_line_error(run("fit", csvs[0], "--name", "x"), "no target registry")
+    assert_one_line_error(run("fit", tmp_path / "m.c3d", "--name", "x", "-o", reg))
+    assert_one_line_error(run("select", "--task", "juggle", "-r", reg), "no bundle is labelled")
+    tampered = rewrite(reg / "x-1.0.0.npz", tmp_path / "t.npz", mean=np.zeros(20))
+    assert_one_line_error(run("info", tampered), "arrays_sha256")
+
+
+def test_cli_help_is_fast_and_lazy():
+    code = "import sys, synergy.cli; print(sorted(m for m in ('numpy', 'sklearn', 'pandas', 'matplotlib', 'scipy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    exe = Path(sys.executable).with_name("synergy")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "synergy.cli"]
+    t0 = time.perf_counter()
+    res = subprocess.run([*cmd, "--help"], capture_output=True, text=True)
+    elapsed = time.perf_counter() - t0
+    assert res.returncode == 0 and "fit" in res.stdout
+    assert elapsed < 1.0, elapsed
+
+
+def test_shipped_bundle_command(reg):
+    """The command that will produce models/synergies/fingerfist (run here into a temp registry)."""
+    if not FINGERFIST.is_file():
+        pytest.skip(f"fingerfist posture data not found at {FINGERFIST}")
+    r = run("fit", "--angles", FINGERFIST, "--format", "schroeder26", "--name", "fingerfist",
+            "--task", "general", "--variance", "0.99", "--version", "1.0.0", "-o", reg)
+    assert r.exit_code == 0, r.output
+    b = read_bundle(reg / "fingerfist-1.0.0.npz")
+    cum = np.cumsum(b.model.all_explained_variance_ratio_)
+    np.testing.assert_allclose(cum[[0, 2, 5]], [0.713, 0.854, 0.968], atol=1e-3)
+    assert b.manifest["n_samples"] == 6000 and b.model.n_components_ == 10
+    assert "71.3 %" in r.stdout and "85.4 %" in r.stdout and "96.8 %" in r.stdout
