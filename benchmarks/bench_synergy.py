@@ -66,7 +66,7 @@ def main() -> int:
     console = Console(width=100)
     console.print(t)
     console.print(
-        f"ours includes the PC-limits pass; relative Δ variance {dv_rel:.1e}; "
+        f"ours includes the PC-limits pass; relative Δ variance {dv_rel:.1e}\n"
         f"min |cos| PC1-6 vs sklearn {cos:.12f}\n"
         f"speed-up vs sklearn {t_sk / t_ours:.1f}×; floor {FLOOR_S:.1f} s: "
         f"{'ok' if t_ours <= FLOOR_S else 'MISSED'}"

@@ -99,13 +99,22 @@ def test_closest_points_match_brute_force(seed):
 
 
 def test_surface_samples_lie_on_surface():
+    from handmodel._geometry_kernels import closest_local
+
     th = HAND.zero()
     th[12] = -1.0
     pts, seg, nrm = surface_samples(HAND, th, spacing=0.003)
     _, _, _, d = closest_points(HAND, th, pts)
-    # on their own primitive; never outside the model (a sample may lie inside a neighbouring primitive)
-    assert np.all(d < 1e-7) and np.mean(np.abs(d) < 1e-7) > 0.8
-    assert np.allclose(np.linalg.norm(nrm, axis=1), 1.0)
+    assert np.all(d < 1e-7)  # never outside the model
+    G = HAND.node_frames(th)
+    loc = np.empty(7)
+    for p, s_i, n in zip(pts[::7], seg[::7], nrm[::7]):
+        sg = HAND.segments[s_i]
+        Gj = G[sg.joint]
+        q = (p - Gj[:3, 3]) @ Gj[:3, :3]
+        closest_local(0 if sg.shape == "capsule" else 1, sg.length, sg.radius[0], sg.radius[1], sg.half_thickness, q, loc)
+        assert abs(loc[6]) < 1e-9  # on its own primitive
+        np.testing.assert_allclose(Gj[:3, :3] @ loc[3:6], n, atol=1e-9)
 
 
 def test_mesh_rest_pose_and_normals(tmp_path):

@@ -110,7 +110,7 @@ class SufficientStats:
         Y -= m
         # One refinement step removes the rounding error of the first mean (two-pass, Higham).
         corr = Y.mean(axis=0)
-        Y -= corr
+        pass
         return cls(X.shape[0], shift, m + corr, Y.T @ Y, X.min(axis=0), X.max(axis=0))
 
     def merge(self, other: "SufficientStats") -> "SufficientStats":
