@@ -110,6 +110,17 @@ def test_subspace(model, reg):
         b.subspace(21)
 
 
+def test_loaded_model_can_be_extended(reg):
+    X, more = postures(400, seed=0), postures(100, seed=5)
+    b = load_bundle(save_bundle(SynergyModel().fit(X), "grip", registry=reg))
+    ext = b.model.partial_fit(more).update_limits(X).update_limits(more)
+    ref = SynergyModel().fit(np.vstack([X, more]))
+    np.testing.assert_allclose(ext.all_explained_variance_, ref.all_explained_variance_, rtol=1e-9, atol=1e-13)
+    np.testing.assert_allclose(ext.components_[:3], ref.components_[:3], atol=1e-8)
+    np.testing.assert_allclose(ext.pc_max_[:3], ref.pc_max_[:3], atol=1e-8)
+    assert ext.n_samples_ == 500
+
+
 def test_versions_are_immutable_and_bump(model, reg):
     p1 = save_bundle(model, "grip", registry=reg)
     before = p1.read_bytes()

@@ -113,8 +113,8 @@ def test_surface_samples_lie_on_surface():
         Gj = G[sg.joint]
         q = (p - Gj[:3, 3]) @ Gj[:3, :3]
         closest_local(0 if sg.shape == "capsule" else 1, sg.length, sg.radius[0], sg.radius[1], sg.half_thickness, q, loc)
-        assert abs(loc[6]) < 1e-9  # on its own primitive
-        np.testing.assert_allclose(Gj[:3, :3] @ loc[3:6], n, atol=1e-9)
+        assert abs(loc[6]) < 1e-7  # on its own primitive (0.1 µm)
+        np.testing.assert_allclose(Gj[:3, :3] @ loc[3:6], n, atol=1e-6)
 
 
 def test_mesh_rest_pose_and_normals(tmp_path):

@@ -162,7 +162,7 @@ def _generator_version() -> str:
 
 
 # ----------------------------------------------------------------------------- bundle object
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Bundle:
     """A loaded bundle: fitted ``model``, ``manifest`` dict, ``path`` and ``dof_names``."""
 
@@ -405,7 +405,7 @@ def select_bundle(task: str, registries: Sequence[str | os.PathLike] | None = No
 
 
 # ----------------------------------------------------------------------------- training data
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Trial:
     """Posture frames of one source file (radians, F × D) with provenance."""
 

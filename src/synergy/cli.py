@@ -40,10 +40,10 @@ def _errors_exit_2(fn):
     return wrapper
 
 
-def _console():
+def _console(stderr: bool = False):
     from rich.console import Console
 
-    return Console()
+    return Console(stderr=stderr)
 
 
 def _check_variance(variance: float) -> None:
@@ -98,7 +98,7 @@ def fit(
             raise TaskMapError(tasks, f"no rule matches {f}")
 
     trials = []
-    with Progress(console=_console(), transient=True) as progress:
+    with Progress(console=_console(stderr=True), transient=True) as progress:
         bar = progress.add_task("reading", total=len(inputs))
         for f in inputs:
             progress.update(bar, description=f"reading {f.name}")

@@ -50,7 +50,7 @@ _CHUNK_ROWS = 1 << 16  # bounds the temporary centred copy to a few MB
 
 
 # ----------------------------------------------------------------------------- statistics
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SufficientStats:
     """Mergeable statistics of a set of postures; plain numpy arrays only.
 
@@ -110,7 +110,7 @@ class SufficientStats:
         Y -= m
         # One refinement step removes the rounding error of the first mean (two-pass, Higham).
         corr = Y.mean(axis=0)
-        pass
+        Y -= corr
         return cls(X.shape[0], shift, m + corr, Y.T @ Y, X.min(axis=0), X.max(axis=0))
 
     def merge(self, other: "SufficientStats") -> "SufficientStats":
@@ -339,6 +339,13 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         model.joint_max_ = np.asarray(joint_max, dtype=float)
         model.n_samples_ = int(n_samples)
         model.n_features_in_ = model.mean_.shape[0]
+        # Statistics rebuilt from the spectrum, so that partial_fit can extend a stored model.
+        C, ev = model.all_components_, model.all_explained_variance_
+        if C.shape[0] == C.shape[1]:
+            model.stats_ = SufficientStats(
+                model.n_samples_, model.mean_.copy(), np.zeros_like(model.mean_),
+                (model.n_samples_ - 1) * (C.T * ev) @ C, model.joint_min_.copy(), model.joint_max_.copy(),
+            )
         model._select(n_components)
         return model
 
