@@ -221,14 +221,14 @@ def test_matches_west_hogan_synergies(subject):
 
 # ----------------------------------------------------------------------------- fingerfist
 @pytest.fixture(scope="module")
-def fingerfist():
+def fingerfist_postures():
     if not FINGERFIST.is_file():
         pytest.skip(f"fingerfist posture data not found at {FINGERFIST}")
     return np.loadtxt(FINGERFIST)[:, 6:]
 
 
-def test_fingerfist_variance_and_limits(fingerfist):
-    X = fingerfist
+def test_fingerfist_variance_and_limits(fingerfist_postures):
+    X = fingerfist_postures
     assert X.shape == (6000, len(POSTURE_DOF_NAMES))
     m = SynergyModel().fit(X)
     cum = np.cumsum(m.explained_variance_ratio_)
