@@ -209,7 +209,7 @@ def test_flat_vs_hierarchical_on_fingerfist(fingerfist):
     flat0 = np.tile(HAND.zero(), (100, 1))
     from handmodel.solver import rigid_pose_from_keypoints
 
-    flat0 = np.stack([rigid_pose_from_keypoints(HAND, k) for k in kp])
+    flat0 = rigid_pose_from_keypoints(HAND, kp)
     st_ = SolverSettings(iterations=10)
     est_flat, _ = fit_keypoints(HAND, kp, theta0=flat0, subspace=full, settings=st_)
     sched = hierarchical_schedule(HAND, C, mu, lo, hi, steps=(1, 4), iterations=10, full_limits=lim)

@@ -293,7 +293,10 @@ def solve_stages(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
             t_i += 1
             if t_i < trace.shape[0]:
                 trace[t_i] = E_new
-            done = E - E_new <= tol * E or E_new < 1e-18
+            big = 0.0
+            for c in range(m):
+                big = max(big, abs(step * delta[c]))
+            done = E - E_new <= tol * E or E_new < 1e-18 or big < 1e-10
             E = E_new
             if done:
                 break

@@ -7,10 +7,7 @@ import numpy as np
 def horn(src, dst, weights=None):
     """Rotation ``R`` and translation ``t`` minimising Σ w‖R·src + t − dst‖² (Horn's quaternion method).
 
-    Parameters
-    ----------
-    src, dst : array (P, 3)
-    weights : array (P,), optional
+    Batched over leading axes: ``src``/``dst`` ``(..., P, 3)``, ``weights`` ``(..., P)`` (0 drops a point).
 
     Examples
     --------
@@ -22,33 +19,37 @@ def horn(src, dst, weights=None):
     """
     src = np.asarray(src, float)
     dst = np.asarray(dst, float)
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
-    ws = w.sum()
-    cs = (w[:, None] * src).sum(0) / ws
-    cd = (w[:, None] * dst).sum(0) / ws
-    S = ((src - cs) * w[:, None]).T @ (dst - cd)
-    Sxx, Sxy, Sxz = S[0]
-    Syx, Syy, Syz = S[1]
-    Szx, Szy, Szz = S[2]
-    N = np.array([
-        [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
-        [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
-        [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
-        [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
-    ])
-    vals, vecs = np.linalg.eigh(N)
-    q = vecs[:, -1]
-    R = quat_to_matrix(q)
-    return R, cd - R @ cs
+    w = np.ones(src.shape[:-1]) if weights is None else np.broadcast_to(np.asarray(weights, float), src.shape[:-1])
+    src = np.where(w[..., None] > 0, src, 0.0)
+    dst = np.where(w[..., None] > 0, dst, 0.0)
+    ws = w.sum(-1)[..., None]
+    cs = (w[..., None] * src).sum(-2) / ws
+    cd = (w[..., None] * dst).sum(-2) / ws
+    S = np.einsum("...pi,...pj->...ij", (src - cs[..., None, :]) * w[..., None], dst - cd[..., None, :])
+    Sxx, Sxy, Sxz = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    Syx, Syy, Syz = S[..., 1, 0], S[..., 1, 1], S[..., 1, 2]
+    Szx, Szy, Szz = S[..., 2, 0], S[..., 2, 1], S[..., 2, 2]
+    N = np.stack([
+        np.stack([Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx], -1),
+        np.stack([Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz], -1),
+        np.stack([Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy], -1),
+        np.stack([Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz], -1),
+    ], -2)
+    _, vecs = np.linalg.eigh(N)
+    R = quat_to_matrix(vecs[..., :, -1])
+    return R, cd - np.einsum("...ij,...j->...i", R, cs)
 
 
 def quat_to_matrix(q):
-    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    """Rotation matrices of unit quaternions ``(..., 4)`` given as (w, x, y, z)."""
+    q = np.asarray(q, float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
 
 
 def euler_to_matrix(angles):

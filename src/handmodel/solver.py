@@ -227,30 +227,32 @@ def attached_points(hand, theta, nodes, world):
 
 # ---------------------------------------------------------------------------------- keypoints
 def rigid_pose_from_keypoints(hand, targets, posture=None):
-    """Global pose (first 6 θ entries) aligning the model's keypoints at ``posture`` to ``targets``.
+    """Global pose aligning the model's keypoints at ``posture`` to ``targets`` (Horn), batched.
 
-    Uses the keypoints that do not depend on the posture (wrist and finger bases) when at least three
-    are present, else every present keypoint. Returns a full θ with the given posture (zeros by default).
+    ``targets`` is ``(..., n_nodes, 3)`` with NaN for missing keypoints. Uses the keypoints that do
+    not depend on the posture (wrist and finger bases) where at least three are present, else every
+    present keypoint. Returns full θ ``(..., n_dofs)`` with the given posture (zeros by default).
     """
     from .rigid import horn, matrix_to_euler
 
     _check_pose_layout(hand)
-    theta = hand.zero()
-    if posture is not None:
-        theta[~hand.pose_mask] = posture
     tg = np.asarray(targets, float)
-    present = ~np.isnan(tg).any(1)
-    model_kp = hand.keypoints(theta)  # pose zero: hand frame
-    rigid = np.isin(hand.parents, [-1, 0]) & ~np.isin(np.arange(hand.n_nodes), [i for i in range(hand.n_nodes)
-                                                                                  if hand.parents[i] > 0])
+    lead = tg.shape[:-2]
+    theta = np.zeros(lead + (hand.n_dofs,))
+    if posture is not None:
+        theta[..., ~hand.pose_mask] = posture
+    present = ~np.isnan(tg).any(-1)
+    # the root and its children ride on the global pose only: independent of the posture
+    rigid = hand.parents <= 0
     use = present & rigid
-    if use.sum() < 3:
-        use = present
-    if use.sum() < 3:
-        raise SolverError("targets", f"{int(present.sum())} keypoints present: at least 3 are needed to place the hand")
-    R, t = horn(model_kp[use], tg[use])
-    theta[:3] = t
-    theta[3:6] = matrix_to_euler(R)
+    use = np.where((use.sum(-1) >= 3)[..., None], use, present)
+    if np.any(use.sum(-1) < 3):
+        raise SolverError("targets", f"{int(present.sum(-1).min())} keypoints present in a frame: at least 3 "
+                                     "are needed to place the hand")
+    model_kp = hand.keypoints(theta)  # pose zero: hand frame
+    R, t = horn(model_kp, np.nan_to_num(tg), use.astype(float))
+    theta[..., :3] = t
+    theta[..., 3:6] = matrix_to_euler(R)
     return theta
 
 
@@ -278,7 +280,7 @@ def fit_keypoints(hand, targets, theta0=None, *, subspace=None, schedule=None, s
     first solution's global pose) and the lowest-energy result is kept.
     Returns ``(theta, report)`` with θ of shape ``(..., n_dofs)``.
     """
-    settings = settings or SolverSettings(iterations=30)
+    settings = settings or SolverSettings(iterations=30, damping=0.1)
     tg = np.asarray(targets, float)
     if tg.ndim < 2 or tg.shape[-2:] != (hand.n_nodes, 3):
         raise SolverError("targets", f"shape {tg.shape}: expected (..., {hand.n_nodes}, 3) keypoints")
@@ -291,7 +293,7 @@ def fit_keypoints(hand, targets, theta0=None, *, subspace=None, schedule=None, s
         elif subspace is not None:
             base = subspace
         posture = None if base is None else base.mu[~hand.pose_mask]
-        th0 = np.stack([rigid_pose_from_keypoints(hand, f, posture) for f in flat]) if len(flat) else np.zeros((0, hand.n_dofs))
+        th0 = rigid_pose_from_keypoints(hand, flat, posture)
     else:
         th0 = np.broadcast_to(hand.check_theta(theta0), lead + (hand.n_dofs,)).reshape(-1, hand.n_dofs)
     nodes = np.arange(hand.n_nodes)

@@ -98,7 +98,8 @@ def fit(
             raise TaskMapError(tasks, f"no rule matches {f}")
 
     trials = []
-    with Progress(console=_console(stderr=True), transient=True) as progress:
+    err_console = _console(stderr=True)
+    with Progress(console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
         bar = progress.add_task("reading", total=len(inputs))
         for f in inputs:
             progress.update(bar, description=f"reading {f.name}")
@@ -281,7 +282,7 @@ def plot(
     if heldout:
         X = np.vstack([read_trial(f, fmt).postures for f in heldout])
         c = b.model.reconstruction_curve(X)
-        curves[f"--heldout ({X.shape[0]} frames)"] = np.degrees(np.sqrt((c**2).mean(axis=1)))
+        curves[f"--heldout files ({X.shape[0]} frames)"] = np.degrees(np.sqrt((c**2).mean(axis=1)))
     if curves:
         written.append(_plot_reconstruction(b, curves, out / f"{stem}-reconstruction.png"))
     for p in written:
