@@ -1,21 +1,19 @@
 """Kinematic hand model, geometry and the shared damped Gauss-Newton IK solver.
 
-Heavy modules (numba kernels, trimesh) are imported lazily on first use.
+Everything is imported lazily (``--help`` of the CLIs must not pay for numpy or numba).
 """
 from .errors import HandModelError, SolverError, ToolkitError
-from .model import HandModel
 
 __all__ = ["HandModel", "HandModelError", "SolverError", "ToolkitError", "fit_keypoints", "solve", "Subspace",
            "SolverSettings", "hierarchical_schedule"]
 
+_LAZY = {"HandModel": "model", "fit_keypoints": "solver", "solve": "solver", "SolverSettings": "solver",
+         "SolveReport": "solver", "Subspace": "subspace", "hierarchical_schedule": "subspace"}
+
 
 def __getattr__(name):
-    if name in ("fit_keypoints", "solve", "SolverSettings", "SolveReport"):
-        from . import solver
+    if name in _LAZY:
+        import importlib
 
-        return getattr(solver, name)
-    if name in ("Subspace", "hierarchical_schedule"):
-        from . import subspace
-
-        return getattr(subspace, name)
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(name)
