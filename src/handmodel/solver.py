@@ -229,28 +229,38 @@ def attached_points(hand, theta, nodes, world):
 def rigid_pose_from_keypoints(hand, targets, posture=None):
     """Global pose aligning the model's keypoints at ``posture`` to ``targets`` (Horn), batched.
 
-    ``targets`` is ``(..., n_nodes, 3)`` with NaN for missing keypoints. Uses the keypoints that do
-    not depend on the posture (wrist and finger bases) where at least three are present, else every
-    present keypoint. Returns full θ ``(..., n_dofs)`` with the given posture (zeros by default).
+    ``targets`` is ``(..., n_nodes, 3)`` with NaN for missing keypoints; see :func:`rigid_pose`.
+    """
+    return rigid_pose(hand, np.arange(hand.n_nodes), np.zeros((hand.n_nodes, 3)), targets, posture)
+
+
+def rigid_pose(hand, nodes, local, targets, posture=None):
+    """Global pose aligning attached points of the model at ``posture`` to ``targets`` (Horn), batched.
+
+    Uses the points that do not depend on the posture (on the root, or at the origin of one of its
+    children, e.g. the wrist and the finger bases) where at least three are present in a frame,
+    else every present point. Returns full θ ``(..., n_dofs)`` with the given posture (default zeros).
     """
     from .rigid import horn, matrix_to_euler
 
     _check_pose_layout(hand)
+    nodes = np.asarray(nodes, np.int64)
+    local = np.asarray(local, float).reshape(-1, 3)
     tg = np.asarray(targets, float)
     lead = tg.shape[:-2]
     theta = np.zeros(lead + (hand.n_dofs,))
     if posture is not None:
         theta[..., ~hand.pose_mask] = posture
     present = ~np.isnan(tg).any(-1)
-    # the root and its children ride on the global pose only: independent of the posture
-    rigid = hand.parents <= 0
+    par = hand.parents[nodes]
+    rigid = (par < 0) | ((par == 0) & (np.abs(local).sum(1) == 0))
     use = present & rigid
     use = np.where((use.sum(-1) >= 3)[..., None], use, present)
     if np.any(use.sum(-1) < 3):
-        raise SolverError("targets", f"{int(present.sum(-1).min())} keypoints present in a frame: at least 3 "
+        raise SolverError("targets", f"{int(present.sum(-1).min())} points present in a frame: at least 3 "
                                      "are needed to place the hand")
-    model_kp = hand.keypoints(theta)  # pose zero: hand frame
-    R, t = horn(model_kp, np.nan_to_num(tg), use.astype(float))
+    model_pts = hand.points(theta, nodes, local)  # pose zero: hand frame
+    R, t = horn(model_pts, np.nan_to_num(tg), use.astype(float))
     theta[..., :3] = t
     theta[..., 3:6] = matrix_to_euler(R)
     return theta
@@ -280,36 +290,66 @@ def fit_keypoints(hand, targets, theta0=None, *, subspace=None, schedule=None, s
     first solution's global pose) and the lowest-energy result is kept.
     Returns ``(theta, report)`` with θ of shape ``(..., n_dofs)``.
     """
-    settings = settings or SolverSettings(iterations=30, damping=0.1)
     tg = np.asarray(targets, float)
     if tg.ndim < 2 or tg.shape[-2:] != (hand.n_nodes, 3):
         raise SolverError("targets", f"shape {tg.shape}: expected (..., {hand.n_nodes}, 3) keypoints")
+    return fit_points(hand, np.arange(hand.n_nodes), np.zeros((hand.n_nodes, 3)), tg, theta0, subspace=subspace,
+                      schedule=schedule, settings=settings, weights=weights, warm_start=warm_start,
+                      restarts=restarts, restart_rms_mm=restart_rms_mm)
+
+
+def fit_points(hand, nodes, local, targets, theta0=None, *, subspace=None, schedule=None,
+               settings: SolverSettings | None = None, weights=None, warm_start: bool = False, restarts: int = 3,
+               restart_rms_mm: float = 0.5):
+    """Fit the model to target positions of points attached to its nodes (markers, keypoints).
+
+    ``targets`` is ``(..., P, 3)`` metres with NaN for missing points. Without ``theta0`` frames start
+    from the flat hand (or the subspace mean) placed by :func:`rigid_pose`; with ``warm_start`` a
+    sequence runs frame to frame from the first frame's start. Frames left with an RMS residual above
+    ``restart_rms_mm`` are re-solved from their rigid placement with the flat and up to ``restarts``
+    part-flexed postures; the lowest energy wins. Returns ``(theta (..., n_dofs), SolveReport)``.
+    """
+    settings = settings or SolverSettings(iterations=30, damping=0.1)
+    nodes = np.asarray(nodes, np.int64)
+    local = np.asarray(local, float).reshape(-1, 3)
+    tg = np.asarray(targets, float)
+    P = len(nodes)
+    if tg.ndim < 2 or tg.shape[-2:] != (P, 3):
+        raise SolverError("targets", f"shape {tg.shape}: expected (..., {P}, 3) for {P} points")
     lead = tg.shape[:-2]
-    flat = tg.reshape(-1, hand.n_nodes, 3)
+    flat = tg.reshape(-1, P, 3)
+    base = None
+    if schedule is not None:
+        base = schedule[0][0] if isinstance(schedule[0], tuple) else schedule[0]
+    elif subspace is not None:
+        base = subspace
+    posture = None if base is None else base.mu[~hand.pose_mask]
+    enough = (~np.isnan(flat[..., 0])).sum(-1) >= max(3, settings.min_points)
     if theta0 is None:
-        base = None
-        if schedule is not None:
-            base = schedule[0][0] if isinstance(schedule[0], tuple) else schedule[0]
-        elif subspace is not None:
-            base = subspace
-        posture = None if base is None else base.mu[~hand.pose_mask]
-        th0 = rigid_pose_from_keypoints(hand, flat, posture)
+        th0 = np.zeros((len(flat), hand.n_dofs))
+        if warm_start:
+            first = np.flatnonzero(enough)
+            if first.size:
+                th0[:] = rigid_pose(hand, nodes, local, flat[first[0]], posture)
+        elif enough.any():
+            th0[enough] = rigid_pose(hand, nodes, local, flat[enough], posture)
     else:
         th0 = np.broadcast_to(hand.check_theta(theta0), lead + (hand.n_dofs,)).reshape(-1, hand.n_dofs)
-    nodes = np.arange(hand.n_nodes)
-    local = np.zeros((hand.n_nodes, 3))
-    w = None if weights is None else np.broadcast_to(np.asarray(weights, float), lead + (hand.n_nodes,)).reshape(-1, hand.n_nodes)
+    w = None if weights is None else np.broadcast_to(np.asarray(weights, float), lead + (P,)).reshape(-1, P)
+    run = SolverSettings(**{**settings.__dict__, "min_points": max(3, settings.min_points)})
     theta, rep = solve(hand, th0, nodes, local, flat, weights=w, subspace=subspace, schedule=schedule,
-                       settings=settings, warm_start=warm_start)
-    redo = np.flatnonzero(rep.rms_mm > restart_rms_mm) if (restarts and not warm_start) else np.zeros(0, int)
+                       settings=run, warm_start=warm_start)
+    redo = np.flatnonzero((rep.rms_mm > restart_rms_mm) & enough) if restarts else np.zeros(0, int)
     if redo.size:
         lim = np.where(np.isfinite(hand.limits), hand.limits, 0.0)
         post = ~hand.pose_mask
-        for frac in (0.5, 0.25, 0.75)[:restarts]:
-            start = theta[redo].copy()
-            start[:, post] = frac * np.minimum(lim[post, 0], 0.0)
+        placed = rigid_pose(hand, nodes, local, flat[redo], posture)
+        for frac in (0.0, 0.5, 0.25, 0.75)[: restarts + 1]:
+            start = placed.copy()
+            if frac:
+                start[:, post] = frac * np.minimum(lim[post, 0], 0.0)
             th_r, rep_r = solve(hand, start, nodes, local, flat[redo], weights=None if w is None else w[redo],
-                                subspace=subspace, schedule=schedule, settings=settings)
+                                subspace=subspace, schedule=schedule, settings=run)
             better = rep_r.energy < rep.energy[redo]
             k = redo[better]
             theta[k] = th_r[better]
