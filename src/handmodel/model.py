@@ -254,6 +254,43 @@ class HandModel:
             segments=self.segments, mesh_settings=self.mesh_settings, description=self.description,
         )
 
+    def scaled(self, scale: float = 1.0, bone_scales: dict | None = None) -> "HandModel":
+        """A resized copy: every bone and radius × ``scale``, then the bones ending at the nodes in
+        ``bone_scales`` (node name → factor) × their factor. Capsule lengths follow their bones."""
+        if not np.isfinite(scale) or scale <= 0:
+            raise HandModelError(self.path, f"scale must be positive, got {scale}")
+        rest = self.rest.copy()
+        rest[:, :3, 3] *= scale
+        for name, f in (bone_scales or {}).items():
+            if not np.isfinite(f) or f <= 0:
+                raise HandModelError(self.path, f"bone scale of {name!r} must be positive, got {f}")
+            rest[self.node_index(name), :3, 3] *= f
+        segs = []
+        for sg in self.segments:
+            f = scale
+            kids = [k for k in range(self.n_nodes) if self.parents[k] == sg.joint]
+            if sg.shape == "capsule" and len(kids) == 1 and abs(np.linalg.norm(self.rest[kids[0], :3, 3]) - sg.length) < 1e-9:
+                length = float(np.linalg.norm(rest[kids[0], :3, 3]))  # the capsule spans its bone
+            else:
+                length = sg.length * f
+            segs.append(Segment(sg.joint, sg.shape, length, (sg.radius[0] * f, sg.radius[1] * f), sg.half_thickness * f))
+        key = json.dumps({"base": self.sha256, "scale": scale, "bones": bone_scales or {}}, sort_keys=True).encode()
+        return HandModel(
+            name=self.name, path=self.path, sha256=hashlib.sha256(key).hexdigest(), handedness=self.handedness,
+            node_names=self.node_names, parents=self.parents, rest=_ro(rest), dof_names=self.dof_names,
+            dof_types=self.dof_types, dof_axes=self.dof_axes, limits=self.limits, dof_ptr=self.dof_ptr,
+            dof_idx=self.dof_idx, segments=tuple(segs), mesh_settings=self.mesh_settings, description=self.description,
+        )
+
+    def with_limits(self, limits) -> "HandModel":
+        """A copy with other default limits ``(n_dofs, 2)``."""
+        lim = np.asarray(limits, float)
+        if lim.shape != (self.n_dofs, 2) or np.any(lim[:, 0] >= lim[:, 1]):
+            raise HandModelError(self.path, f"limits must be ({self.n_dofs}, 2) with lower < upper")
+        import dataclasses
+
+        return dataclasses.replace(self, limits=_ro(lim.copy()))
+
     # ------------------------------------------------------------------ names and masks
     @property
     def n_dofs(self) -> int:
