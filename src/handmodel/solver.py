@@ -355,7 +355,8 @@ def fit_points(hand, nodes, local, targets, theta0=None, *, subspace=None, sched
             theta[k] = th_r[better]
             for name in ("iterations", "energy", "rms_mm", "clamps", "at_limit", "trace"):
                 getattr(rep, name)[k] = getattr(rep_r, name)[better]
-            redo = redo[rep.rms_mm[redo] > restart_rms_mm]
+            still = rep.rms_mm[redo] > restart_rms_mm
+            redo, placed = redo[still], placed[still]
             if not redo.size:
                 break
     return theta.reshape(lead + (hand.n_dofs,)), rep

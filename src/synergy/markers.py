@@ -1,0 +1,202 @@
+"""Marker sets: which marker rides where on the hand model, and matching them to a trial's labels.
+
+A marker set (``models/markersets/<name>.yaml``, schema ``data_schema/marker-set.schema.json``) lists
+each marker's label (with aliases; matching ignores case and subject prefixes such as ``Name:``),
+the node it rides on and its offset in that node's frame, or a named landmark (joint centre,
+fingertip, a point along a bone with a dorsal offset, a dorsal point above a joint), a weight, and
+whether it is optional or its offset is to be calibrated.
+
+Examples
+--------
+>>> ms = load_markerset("hand16")
+>>> len(ms.markers), ms.markers[0].label
+(16, 'WRR')
+"""
+from __future__ import annotations
+
+import fnmatch
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from handmodel.fileio import models_dir, schema_path
+
+from .errors import MarkerSetError
+
+
+@dataclass(frozen=True)
+class Marker:
+    label: str
+    aliases: tuple = ()
+    joint: str | None = None
+    offset: tuple | None = None
+    landmark: dict | None = None
+    weight: float = 1.0
+    optional: bool = False
+    calibrate_offset: bool = False
+
+    def names(self) -> list:
+        return [self.label, *self.aliases]
+
+
+@dataclass(frozen=True)
+class MarkerSet:
+    name: str
+    markers: tuple
+    path: str = ""
+    description: str = ""
+    hand: str = "either"
+    sides: dict = field(default_factory=dict)
+    ignore: tuple = ()
+    hand_model: str = "default"
+
+    def for_hand(self, hand: str) -> "MarkerSet":
+        """Labels with ``{side}`` replaced for ``hand`` ('left'/'right')."""
+        if hand not in ("left", "right"):
+            raise MarkerSetError(self.path or self.name, f"hand must be 'left' or 'right', got {hand!r}")
+        if self.hand not in ("either", hand):
+            raise MarkerSetError(self.path or self.name, f"marker set {self.name!r} is for the {self.hand} hand")
+        code = self.sides.get(hand, "")
+        sub = lambda s: s.replace("{side}", code)  # noqa: E731
+        ms = tuple(replace(m, label=sub(m.label), aliases=tuple(sub(a) for a in m.aliases)) for m in self.markers)
+        return replace(self, markers=ms, ignore=tuple(sub(g) for g in self.ignore))
+
+    def attachments(self, hand_model, right: bool = False, offsets: dict | None = None, scale: float = 1.0):
+        """Node index and local offset (metres, in ``hand_model``'s node frames) of every marker.
+
+        ``offsets`` (label → offset) overrides, e.g. from a calibration. Explicit offsets and the
+        dorsal/segment landmarks are defined for the left default hand and mirrored (x → −x) for a
+        right hand; explicit offsets and dorsal distances are multiplied by ``scale`` (the subject's
+        hand size relative to the default), bone fractions follow the model's bone lengths.
+        """
+        nodes, local = [], []
+        for m in self.markers:
+            if offsets and m.label in offsets:
+                j = _joint_of(m)
+                nodes.append(_node(hand_model, j, self))
+                local.append(np.asarray(offsets[m.label], float))
+                continue
+            if m.landmark is None:
+                j = _node(hand_model, m.joint, self)
+                off = np.array(m.offset, float) * scale
+                if right:
+                    off[0] = -off[0]
+            else:
+                lm = m.landmark
+                j = _node(hand_model, lm["joint"], self)
+                off = np.zeros(3)
+                kind = lm["type"]
+                if kind == "fingertip":
+                    kids = [k for k in range(hand_model.n_nodes) if hand_model.parents[k] == j]
+                    if kids:
+                        raise MarkerSetError(self.path or self.name,
+                                             f"marker {m.label}: fingertip landmark needs an end joint, {lm['joint']!r} has children")
+                elif kind == "segment":
+                    kids = [k for k in range(hand_model.n_nodes) if hand_model.parents[k] == j]
+                    if len(kids) != 1:
+                        raise MarkerSetError(self.path or self.name,
+                                             f"marker {m.label}: segment landmark needs a joint with one child, {lm['joint']!r} has {len(kids)}")
+                    off = lm.get("along", 0.5) * hand_model.rest[kids[0], :3, 3].copy()
+                    off[2] += lm.get("dorsal", 0.0) * scale
+                elif kind == "dorsal":
+                    off[2] = lm.get("distance", 0.0) * scale
+            nodes.append(j)
+            local.append(off)
+        return np.asarray(nodes, np.int64), np.asarray(local, float).reshape(-1, 3)
+
+    def match(self, labels, where=None):
+        """Column of each marker in ``labels`` (−1 for a missing optional marker), and the unused labels.
+
+        Raises :class:`MarkerSetError` listing the missing required markers and the labels present.
+        """
+        norm = [_norm(l) for l in labels]
+        idx, missing = [], []
+        for m in self.markers:
+            found = -1
+            for cand in m.names():
+                c = _norm(cand)
+                if c in norm:
+                    found = norm.index(c)
+                    break
+            if found < 0 and not m.optional:
+                missing.append(m.label)
+            idx.append(found)
+        if missing:
+            raise MarkerSetError(where or self.name,
+                                 f"marker set {self.name!r}: missing marker(s) {', '.join(missing)}; "
+                                 f"the file has {', '.join(labels) if labels else 'no markers'}")
+        used = set(i for i in idx if i >= 0)
+        extra = [l for i, l in enumerate(labels) if i not in used
+                 and not any(fnmatch.fnmatch(_norm(l), _norm(g)) for g in self.ignore)]
+        return np.asarray(idx, np.int64), extra
+
+
+def _joint_of(m: Marker) -> str:
+    return m.joint if m.landmark is None else m.landmark["joint"]
+
+
+def _node(hand_model, name, ms):
+    try:
+        return hand_model.node_names.index(name)
+    except ValueError:
+        raise MarkerSetError(ms.path or ms.name, f"unknown joint {name!r} (hand model {hand_model.name!r} has "
+                                                 f"{', '.join(hand_model.node_names)})") from None
+
+
+def _norm(label: str) -> str:
+    return str(label).split(":")[-1].strip().lower()
+
+
+def _validate(doc, where):
+    import jsonschema
+
+    schema = json.loads(schema_path("marker-set").read_text())
+    errs = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if errs:
+        e = errs[0]
+        loc = "/".join(str(p) for p in e.absolute_path) or "(top level)"
+        raise MarkerSetError(where, f"field {loc}: {e.message}")
+
+
+def markerset_from_dict(doc, where="<dict>") -> MarkerSet:
+    if not isinstance(doc, dict):
+        raise MarkerSetError(where, "top level must be a mapping")
+    _validate(doc, where)
+    seen = set()
+    ms = []
+    for i, m in enumerate(doc["markers"]):
+        for n in [m["label"], *m.get("aliases", [])]:
+            if _norm(n) in seen:
+                raise MarkerSetError(where, f"field markers/{i}: label or alias {n!r} used twice")
+            seen.add(_norm(n))
+        ms.append(Marker(label=m["label"], aliases=tuple(m.get("aliases", ())), joint=m.get("joint"),
+                         offset=tuple(m["offset"]) if "offset" in m else None, landmark=m.get("landmark"),
+                         weight=float(m.get("weight", 1.0)), optional=bool(m.get("optional", False)),
+                         calibrate_offset=bool(m.get("calibrate_offset", False))))
+    if "{side}" in json.dumps(doc["markers"]) and "sides" not in doc:
+        raise MarkerSetError(where, "field sides: labels use {side} but no side codes are given")
+    return MarkerSet(name=doc["name"], markers=tuple(ms), path=str(where), description=doc.get("description", ""),
+                     hand=doc.get("hand", "either"), sides=dict(doc.get("sides", {})), ignore=tuple(doc.get("ignore", ())),
+                     hand_model=doc.get("hand_model", "default"))
+
+
+def load_markerset(name_or_path) -> MarkerSet:
+    """Load a shipped marker set by name, or a marker-set YAML file by path; validates it."""
+    import yaml
+
+    p = Path(name_or_path)
+    if p.suffix not in (".yaml", ".yml"):
+        cand = models_dir() / "markersets" / f"{name_or_path}.yaml"
+        if not cand.exists():
+            known = sorted(q.stem for q in (models_dir() / "markersets").glob("*.yaml"))
+            raise MarkerSetError(name_or_path, f"no such marker set (known: {', '.join(known)})")
+        p = cand
+    if not p.exists():
+        raise MarkerSetError(p, "file not found")
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise MarkerSetError(p, f"not valid YAML: {str(exc).splitlines()[0]}") from None
+    return markerset_from_dict(doc, p)

@@ -1,0 +1,159 @@
+"""Mocap simulator: procedural hand motions (with task labels) → marker trajectories → C3D.
+
+Motions are generated from a seed, so demos and tests get C3D files with ground truth without
+third-party data. Every motion returns θ per frame (26 DoF, metres/radians) for the default hand.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import SynergyError
+
+MOTIONS = {
+    "open_close": ("general", "all fingers close to a fist and open again, thumb following"),
+    "abduction": ("general", "fingers spread apart and back together"),
+    "thumb_opposition": ("general", "thumb tip travels to each fingertip in turn"),
+    "power_grasp": ("grasp", "reach open, wrap all fingers around a cylinder, hold, release"),
+    "precision_grasp": ("grasp", "thumb–index(–middle) pinch of a small object, others relaxed"),
+}
+
+
+def _smooth(t):
+    t = np.clip(t, 0, 1)
+    return t * t * (3 - 2 * t)
+
+
+def _names():
+    from handmodel import HandModel
+
+    return HandModel.load().dof_names
+
+
+def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int = 0):
+    """θ trajectory ``(F, 26)`` of a named procedural motion; returns ``(theta, task_label)``."""
+    if name not in MOTIONS:
+        raise SynergyError(name, f"unknown motion (known: {', '.join(MOTIONS)})")
+    rng = np.random.default_rng(seed)
+    F = max(int(round(duration_s * rate)), 2)
+    t = np.arange(F) / rate
+    u = t / duration_s
+    names = _names()
+    th = np.zeros((F, len(names)))
+    col = {n: i for i, n in enumerate(names)}
+    fingers = ("index", "middle", "ring", "pinky")
+    amp = rng.uniform(0.8, 1.1)
+    cycles = int(rng.integers(1, 3))
+    if name == "open_close":
+        for k, f in enumerate(fingers):
+            lag = 0.03 * k * rng.uniform(0.5, 1.5)
+            c = 0.5 - 0.5 * np.cos(2 * np.pi * cycles * (u - lag))
+            th[:, col[f"{f}1_flex"]] = -1.2 * amp * c
+            th[:, col[f"{f}2_flex"]] = -1.5 * amp * c
+            th[:, col[f"{f}3_flex"]] = -0.9 * amp * c
+            th[:, col[f"{f}1_abd"]] = (0.12 - 0.08 * k) * (1 - c)
+        c = 0.5 - 0.5 * np.cos(2 * np.pi * cycles * u)
+        th[:, col["thumb1_flex"]] = -0.7 * c
+        th[:, col["thumb2_flex"]] = -0.5 * c
+        th[:, col["thumb3_flex"]] = -0.7 * c
+    elif name == "abduction":
+        s = np.sin(2 * np.pi * cycles * u)
+        for k, f in enumerate(fingers):
+            th[:, col[f"{f}1_abd"]] = amp * (0.25 - 0.17 * k) * s
+            th[:, col[f"{f}1_flex"]] = -0.15 + 0.05 * rng.normal()
+        th[:, col["thumb1_abd"]] = -0.35 * amp * s
+    elif name == "thumb_opposition":
+        seg = np.minimum((u * 4).astype(int), 3)
+        w = np.sin(np.pi * ((u * 4) % 1.0)) ** 2
+        for k, f in enumerate(fingers):
+            on = (seg == k) * w
+            th[:, col[f"{f}1_flex"]] = -0.5 * on - 0.1
+            th[:, col[f"{f}2_flex"]] = -0.7 * on - 0.1
+            th[:, col[f"{f}3_flex"]] = -0.4 * on
+        reach = np.array([0.0, 0.25, 0.5, 0.7])[seg]
+        th[:, col["thumb1_abd"]] = (0.2 + 0.2 * reach) * w
+        th[:, col["thumb1_flex"]] = -(0.8 + 0.35 * reach) * w
+        th[:, col["thumb2_flex"]] = -0.4 * w
+        th[:, col["thumb3_flex"]] = -(0.5 - 0.3 * reach) * w
+    elif name == "power_grasp":
+        close = _smooth((u - 0.15) / 0.25) * (1 - _smooth((u - 0.75) / 0.2))
+        r = rng.uniform(0.85, 1.15)  # object size
+        for k, f in enumerate(fingers):
+            th[:, col[f"{f}1_flex"]] = -(0.9 + 0.1 * k) * r * close
+            th[:, col[f"{f}2_flex"]] = -1.3 * r * close
+            th[:, col[f"{f}3_flex"]] = -0.8 * r * close
+            th[:, col[f"{f}1_abd"]] = (0.1 - 0.07 * k) * (1 - close)
+        th[:, col["thumb1_abd"]] = 0.25 * close
+        th[:, col["thumb1_flex"]] = -0.9 * close
+        th[:, col["thumb2_flex"]] = -0.4 * close
+        th[:, col["thumb3_flex"]] = -0.5 * close
+    elif name == "precision_grasp":
+        close = _smooth((u - 0.2) / 0.25) * (1 - _smooth((u - 0.7) / 0.2))
+        tri = rng.random() < 0.5
+        for k, f in enumerate(fingers):
+            active = k == 0 or (tri and k == 1)
+            g = 1.0 if active else 0.45
+            th[:, col[f"{f}1_flex"]] = -0.75 * g * close - 0.1
+            th[:, col[f"{f}2_flex"]] = -(0.6 if active else 0.9) * close - 0.1
+            th[:, col[f"{f}3_flex"]] = -(0.25 if active else 0.6) * close
+        th[:, col["thumb1_abd"]] = 0.3 * close
+        th[:, col["thumb1_flex"]] = -0.95 * close
+        th[:, col["thumb2_flex"]] = -0.2 * close
+        th[:, col["thumb3_flex"]] = -0.3 * close
+    # natural variability and a moving, turning hand in the lab (metres)
+    th[:, 6:] += rng.normal(0, 0.02, (1, 20)) + 0.01 * np.sin(2 * np.pi * (u[:, None] * rng.uniform(0.5, 2, 20) + rng.random(20)))
+    th[:, 0:3] = [0.3, 0.2, 1.0] + 0.05 * np.sin(2 * np.pi * (u[:, None] * [0.5, 0.7, 0.3] + rng.random(3)))
+    th[:, 3:6] = rng.uniform(-0.5, 0.5, 3) + 0.3 * np.sin(2 * np.pi * (u[:, None] * [0.4, 0.3, 0.5] + rng.random(3)))
+    return th, MOTIONS[name][0]
+
+
+@dataclass
+class SimulatedTrial:
+    """Marker trajectories with ground truth; has the fields of :class:`synergy.c3d.MarkerData` that
+    the IK needs (``labels``, ``points`` in metres with NaN gaps, ``rate``, ``first_frame``)."""
+
+    labels: list
+    points: np.ndarray
+    rate: float
+    theta: np.ndarray
+    task: str
+    motion: str
+    scale: float = 1.0
+    hand: str = "left"
+    first_frame: int = 1
+    path: str = ""
+    residuals: np.ndarray = field(default=None)
+
+
+def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, gap_fraction=0.0, rate=100.0,
+                     seed=0, motion_name="", task=""):
+    """Markers of ``markerset`` on the (scaled) default hand following ``theta``; noise and gaps.
+
+    Gaps are contiguous runs (occlusions) totalling ``gap_fraction`` of each marker's samples.
+    """
+    from handmodel import HandModel
+
+    from .markers import MarkerSet, load_markerset
+
+    ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
+    ms = ms.for_hand(hand)
+    right = hand == "right"
+    hm = HandModel.load(right=right).scaled(scale)
+    nodes, local = ms.attachments(hm, right, scale=scale)
+    pts = hm.points(theta, nodes, local)
+    rng = np.random.default_rng(seed)
+    if noise_mm:
+        pts = pts + rng.normal(0, noise_mm / 1000.0, pts.shape)
+    F, P = pts.shape[:2]
+    if gap_fraction > 0:
+        for p in range(P):
+            todo = int(round(gap_fraction * F))
+            while todo > 0:
+                ln = int(min(todo, rng.integers(3, max(4, F // 20))))
+                s = int(rng.integers(0, max(F - ln, 1)))
+                pts[s:s + ln, p] = np.nan
+                todo = int(round(gap_fraction * F)) - int(np.isnan(pts[:, p, 0]).sum())
+    res = np.where(np.isnan(pts[..., 0]), -1.0, 0.0)
+    return SimulatedTrial(labels=[m.label for m in ms.markers], points=pts, rate=rate, theta=np.asarray(theta),
+                          task=task, motion=motion_name, scale=scale, hand=hand, residuals=res)
