@@ -1,0 +1,101 @@
+"""Model–data correspondences for ICP: closest points on the capsule model (compiled) or on dense
+LBS surface samples of the mesh (KD-tree), restricted to model surface facing the camera, with
+rejection beyond a distance."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Correspondences:
+    """For each data point: the model point, its node, the model normal, the distance (m) and
+    whether the pair is used (front-facing candidate found and distance below the rejection)."""
+
+    model: np.ndarray
+    nodes: np.ndarray
+    normals: np.ndarray
+    distance: np.ndarray
+    valid: np.ndarray
+
+    @property
+    def used(self) -> int:
+        return int(self.valid.sum())
+
+    def fit_error_mm(self) -> float:
+        return float(np.mean(self.distance[self.valid]) * 1000.0) if self.valid.any() else float("inf")
+
+
+class CapsuleModel:
+    """Closest points on the tapered capsules (round cones) and palm slab of the hand model."""
+
+    name = "capsules"
+
+    def __init__(self, hand):
+        self.hand = hand
+        self.caps = hand.capsules
+
+    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
+        from handmodel._geometry_kernels import closest_points_facing
+
+        G = self.hand.node_frames(theta)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        P = len(pts)
+        mp = np.zeros((P, 3))
+        mn = np.zeros((P, 3))
+        seg = np.empty(P, np.int64)
+        d = np.empty(P)
+        closest_points_facing(G, *self.caps.kernel_args(), pts, np.asarray(camera_centre, float), bool(facing_only),
+                              mp, mn, seg, d)
+        valid = (seg >= 0) & (d < reject)
+        nodes = np.where(seg >= 0, self.caps.node[np.maximum(seg, 0)], 0)
+        return Correspondences(mp, nodes, mn, d, valid)
+
+
+class MeshModel:
+    """Closest of dense area-uniform samples of the LBS-posed mesh (KD-tree rebuilt per call).
+
+    Each sample rides on the node with its largest skinning weight for the Jacobian."""
+
+    name = "mesh"
+
+    def __init__(self, hand, n_samples=8000, seed=0):
+        self.hand = hand
+        self.mesh = hand.mesh()
+        pts, w, faces = self.mesh.sample(n_samples, seed)
+        self.rest_pts = pts
+        self.weights = w
+        self.faces = faces
+        self.node = np.argmax(w, axis=1)
+        self._G0inv = np.linalg.inv(hand.node_frames(np.zeros(hand.n_dofs)))
+
+    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
+        from scipy.spatial import cKDTree
+
+        B = self.hand.node_frames(theta) @ self._G0inv
+        Bw = np.einsum("vn,nij->vij", self.weights, B[:, :3, :])
+        S = np.einsum("vij,vj->vi", Bw[:, :, :3], self.rest_pts) + Bw[:, :, 3]
+        V = self.mesh.pose(theta)
+        tri = V[self.mesh.faces[self.faces]]
+        N = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+        if facing_only:
+            keep = np.einsum("ij,ij->i", S - np.asarray(camera_centre), N) < 0
+        else:
+            keep = np.ones(len(S), bool)
+        idx_keep = np.flatnonzero(keep)
+        P = len(points)
+        if idx_keep.size == 0:
+            return Correspondences(np.zeros((P, 3)), np.zeros(P, np.int64), np.zeros((P, 3)), np.full(P, np.inf),
+                                   np.zeros(P, bool))
+        tree = cKDTree(S[idx_keep])
+        d, k = tree.query(points)
+        j = idx_keep[k]
+        return Correspondences(S[j], self.node[j], N[j], d, d < reject)
+
+
+def local_offsets(hand, theta, nodes, world):
+    """Offsets of world points in their nodes' frames at θ (so the solver can move them with the model)."""
+    G = hand.node_frames(theta)[np.asarray(nodes, np.int64)]
+    return np.einsum("pji,pj->pi", G[:, :3, :3], np.asarray(world, float) - G[:, :3, 3])

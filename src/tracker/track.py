@@ -1,0 +1,238 @@
+"""Per-frame tracking: prediction → rigid ICP → non-rigid ICP-IK (full, reduced or hierarchical),
+start from the segmented cloud, failure detection and re-initialisation.
+
+The paper's defaults (§VI, FORMAT.md §5): 1 rigid + 4 non-rigid ICP iterations × 5 Gauss-Newton
+steps, every 3rd pixel in x and y, pairs ≥ 50 mm rejected, λ = 1 on posture, 0 on pose.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from handmodel.solver import SolverSettings, solve
+from handmodel.subspace import Subspace
+
+from .correspond import CapsuleModel, MeshModel, local_offsets
+from .errors import TrackerError
+from .rigid import apply_rigid, rigid_step
+
+MODES = ("full", "reduced", "hierarchical")
+
+
+@dataclass
+class TrackerSettings:
+    """Every knob of the tracker; ``TrackerSettings.paper()`` gives the paper's values."""
+
+    mode: str = "full"
+    rigid_iterations: int = 1
+    icp_iterations: int = 4
+    gn_iterations: int = 5
+    stride: int = 3
+    reject_mm: float = 50.0
+    damping: float = 1.0
+    pose_damping: float = 0.0
+    prediction: bool = True
+    facing_only: bool = True
+    point_to_plane: bool = False
+    model: str = "capsules"            # or "mesh"
+    n_pcs: int | None = None           # reduced/hierarchical: number of PCs …
+    variance: float | None = 0.99      # … or the variance they must explain
+    hierarchy: tuple = (1, 4)          # PC counts of the reduced stages before full DoF
+    limits: str = "data"               # "data": joint limits from the bundle (as the original with PCA); "model"
+    lost_fit_mm: float = 12.0
+    lost_rejected: float = 0.6
+    min_points: int = 30
+    init_icp_iterations: int = 12
+    max_points: int | None = None
+
+    @classmethod
+    def paper(cls, **kw) -> "TrackerSettings":
+        return cls(**kw)
+
+    def check(self):
+        if self.mode not in MODES:
+            raise TrackerError("settings", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.model not in ("capsules", "mesh"):
+            raise TrackerError("settings", f"model must be 'capsules' or 'mesh', got {self.model!r}")
+        for k in ("icp_iterations", "gn_iterations", "stride"):
+            if getattr(self, k) < (1 if k != "icp_iterations" else 0):
+                raise TrackerError("settings", f"{k} must be positive")
+
+
+@dataclass
+class FrameResult:
+    theta: np.ndarray
+    status: str                 # tracked | lost | reinit
+    fit_mm: float
+    points_used: int
+    points_in: int
+    ms: float
+    rejected_share: float = 0.0
+
+
+class HandTracker:
+    """Track one hand through a sequence of point clouds (camera frame, metres).
+
+    Parameters
+    ----------
+    hand : HandModel
+    settings : TrackerSettings
+    synergies : a synergy bundle (``synergy.bundle.Bundle``) or ``None`` (full mode only)
+    """
+
+    def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None):
+        self.hand = hand
+        self.settings = settings = settings or TrackerSettings()
+        settings.check()
+        if settings.mode != "full" and synergies is None:
+            raise TrackerError("synergies", f"mode {settings.mode!r} needs a synergy bundle (--synergies)")
+        self.synergies = synergies
+        lim = np.array(hand.limits, float)
+        if synergies is not None and settings.limits == "data":
+            post = ~hand.pose_mask
+            lim[post, 0] = synergies.model.joint_min_
+            lim[post, 1] = synergies.model.joint_max_
+        self.limits = lim
+        self.full = Subspace.full(hand, lim)
+        self.n_pcs = None
+        if synergies is not None:
+            m = synergies.model
+            if settings.n_pcs is not None:
+                l = int(settings.n_pcs)
+            else:
+                l = m.n_components_for(settings.variance if settings.variance else 0.99)
+            if not 1 <= l <= m.all_components_.shape[0]:
+                raise TrackerError("synergies", f"{l} PCs requested, the bundle has {m.all_components_.shape[0]}")
+            self.n_pcs = l
+            C, mu = m.all_components_, m.mean_
+            self._pc = lambda k: Subspace.from_synergies(hand, C, mu, m.pc_min_, m.pc_max_, n_components=k)
+            self.reduced = self._pc(l)
+        self.correspond = CapsuleModel(hand) if settings.model == "capsules" else MeshModel(hand)
+        self.solver = SolverSettings(iterations=settings.gn_iterations, damping=settings.damping,
+                                     pose_damping=settings.pose_damping, min_points=3)
+        self.reset()
+
+    # --------------------------------------------------------------------------------------------
+    def reset(self):
+        self.theta = None
+        self.prev = None
+        self.lost = True
+
+    def _stage(self, k, n_stages, mode):
+        if mode == "full":
+            return self.full
+        if mode == "reduced":
+            return self.reduced
+        steps = [s for s in self.settings.hierarchy if s < self.n_pcs] + [self.n_pcs]
+        stages = [self._pc(s) for s in steps] + [self.full]
+        # spread the stages over the ICP iterations: early iterations coarse, the last one(s) full DoF
+        i = min(int(k * len(stages) / max(n_stages, 1)), len(stages) - 1)
+        return stages[i]
+
+    def _icp(self, theta, points, n_rigid, n_icp, mode):
+        st = self.settings
+        reject = st.reject_mm / 1000.0
+        corr = None
+        for _ in range(n_rigid):
+            corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+            theta = rigid_step(theta, points, corr)
+        for k in range(n_icp):
+            corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+            v = corr.valid
+            if v.sum() < 3:
+                break
+            sp = self._stage(k, n_icp, mode)
+            if sp is not self.full:
+                theta = sp.to_theta(np.clip(sp.to_alpha(theta), sp.lo, sp.hi))
+            nodes = corr.nodes[v]
+            loc = local_offsets(self.hand, theta, nodes, corr.model[v])
+            normals = corr.normals[v] if st.point_to_plane else None
+            theta, _ = solve(self.hand, theta, nodes, loc, points[v], normals=normals, subspace=sp,
+                             settings=self.solver)
+        corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+        return theta, corr
+
+    def initial_pose(self, points):
+        """Candidate starts from the cloud: the model's surface centroid on the data centroid, its
+        principal axes on the data's (fingers along the main axis; the four sign choices)."""
+        from handmodel.geometry import surface_samples
+        from handmodel.rigid import matrix_to_euler
+
+        base = np.zeros(self.hand.n_dofs)
+        if self.synergies is not None:
+            base[~self.hand.pose_mask] = self.synergies.model.mean_
+        S, _, N = surface_samples(self.hand, base, spacing=0.004)
+        # what a camera in front of the palm sees: the palm-side half
+        ms = S[N[:, 2] < 0]
+        mc = ms.mean(0)
+        dc = points.mean(0)
+        _, _, Vm = np.linalg.svd(ms - mc, full_matrices=False)
+        _, _, Vd = np.linalg.svd(points - dc, full_matrices=False)
+        cands = []
+        for s1 in (1, -1):
+            for s3 in (1, -1):
+                A = np.stack([Vm[0], np.cross(Vm[2], Vm[0]), Vm[2]], 1)
+                d1, d3 = s1 * Vd[0], s3 * Vd[2]
+                B = np.stack([d1, np.cross(d3, d1), d3], 1)
+                R = B @ A.T
+                th = base.copy()
+                th[3:6] = matrix_to_euler(R)
+                th[:3] = dc - R @ mc
+                cands.append(th)
+        return cands
+
+    def fit_single_frame(self, points, theta0=None, mode=None):
+        """Fit one frame without temporal prior (hierarchical by default when synergies exist)."""
+        st = self.settings
+        mode = mode or ("hierarchical" if self.synergies is not None else "full")
+        starts = [theta0] if theta0 is not None else self.initial_pose(points)
+        best = None
+        for th in starts:
+            th, corr = self._icp(np.array(th, float), points, 2, st.init_icp_iterations, mode)
+            score = corr.fit_error_mm() + 100.0 * (1 - corr.valid.mean())
+            if best is None or score < best[0]:
+                best = (score, th, corr)
+        return best[1], best[2]
+
+    def step(self, points) -> FrameResult:
+        """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored)."""
+        t0 = time.perf_counter()
+        st = self.settings
+        pts = np.asarray(points, float).reshape(-1, 3)
+        pts = pts[np.isfinite(pts).all(1)]
+        if st.max_points and len(pts) > st.max_points:
+            pts = pts[np.linspace(0, len(pts) - 1, st.max_points).astype(int)]
+        n_in = len(pts)
+        if n_in < st.min_points:
+            self.lost = True
+            th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
+            return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
+        if self.lost or self.theta is None:
+            theta, corr = self.fit_single_frame(pts)
+            status = "reinit"
+            self.prev = None
+        else:
+            theta = self.theta.copy()
+            if st.prediction and self.prev is not None:
+                # constant-velocity prediction, except for the global rotation (as the original code)
+                step = self.theta - self.prev
+                step[3:6] = 0.0
+                theta = theta + step
+                post = ~self.hand.pose_mask
+                theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
+            theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode)
+            status = "tracked"
+        fit = corr.fit_error_mm()
+        rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
+        ok = np.isfinite(fit) and fit <= st.lost_fit_mm and rejected <= st.lost_rejected
+        if ok:
+            self.prev, self.theta = (self.theta if status == "tracked" else None), theta
+            self.lost = False
+        else:
+            self.lost = True
+            status = "lost"
+            self.theta = theta
+            self.prev = None
+        return FrameResult(theta, status, fit, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected))
