@@ -1,0 +1,92 @@
+"""Hand segmentation in depth (and colour) frames: working volume, skin colour, nearest blob.
+
+No wristband is needed: with colour, skin pixels (HSV range of the original detector) inside the
+working volume; without colour, the connected blob of pixels within ``band`` of the nearest valid
+depth (the hand is usually the closest object to the camera in hand-tracking set-ups).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
+SKIN_HSV = ((0, 56, 113), (179, 174, 255))
+
+
+@dataclass
+class Segmenter:
+    """Settings: depth range (m), optional box in the camera frame (m), nearest-blob band (m),
+    minimum blob size (pixels), whether to use colour when present."""
+
+    z_min: float = 0.2
+    z_max: float = 1.5
+    box_min: tuple | None = None
+    box_max: tuple | None = None
+    band: float = 0.15
+    min_pixels: int = 30
+    use_color: bool = True
+
+    def __call__(self, depth, color=None, points=None):
+        """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data)."""
+        d = np.asarray(depth, float)
+        valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
+        if self.box_min is not None and points is not None:
+            lo, hi = np.asarray(self.box_min), np.asarray(self.box_max)
+            with np.errstate(invalid="ignore"):
+                valid &= np.all((points >= lo) & (points <= hi), axis=-1)
+        if not valid.any():
+            return valid
+        if color is not None and self.use_color:
+            skin = skin_mask(color) & valid
+            if skin.sum() >= self.min_pixels:
+                return largest_component(skin)
+        return nearest_blob(np.where(valid, d, np.nan), self.band, self.min_pixels)
+
+
+def skin_mask(color):
+    """Pixels inside the skin HSV range (colour ``(H, W, 3)`` uint8 RGB)."""
+    import matplotlib.colors as mc
+
+    hsv = mc.rgb_to_hsv(np.asarray(color, float) / 255.0)
+    h, s, v = hsv[..., 0] * 179.0, hsv[..., 1] * 255.0, hsv[..., 2] * 255.0
+    (h0, s0, v0), (h1, s1, v1) = SKIN_HSV
+    return (h >= h0) & (h <= h1) & (s >= s0) & (s <= s1) & (v >= v0) & (v <= v1)
+
+
+def largest_component(mask):
+    from scipy import ndimage
+
+    lab, n = ndimage.label(mask)
+    if n <= 1:
+        return mask
+    sizes = ndimage.sum(mask, lab, index=np.arange(1, n + 1))
+    return lab == (1 + int(np.argmax(sizes)))
+
+
+def nearest_blob(depth, band=0.15, min_pixels=30):
+    """The connected component of pixels within ``band`` of the nearest depth that contains the
+    nearest pixels (ignoring specks smaller than ``min_pixels``)."""
+    from scipy import ndimage
+
+    d = np.asarray(depth, float)
+    finite = np.isfinite(d)
+    if not finite.any():
+        return finite
+    near = np.nanmin(d)
+    for _ in range(5):
+        mask = finite & (d <= near + band)
+        lab, n = ndimage.label(mask)
+        if n == 0:
+            return mask
+        sizes = ndimage.sum(mask, lab, index=np.arange(1, n + 1))
+        mins = ndimage.minimum(np.where(mask, d, np.inf), lab, index=np.arange(1, n + 1))
+        ok = np.flatnonzero(sizes >= min_pixels)
+        if ok.size:
+            k = ok[np.argmin(np.asarray(mins)[ok])]
+            return lab == (k + 1)
+        # only specks near the front: skip them
+        near = np.min(np.where(mask, np.inf, d))
+        if not np.isfinite(near):
+            break
+    return np.zeros_like(finite)
