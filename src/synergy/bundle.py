@@ -427,7 +427,7 @@ FORMATS = ("auto", "csv", "schroeder26", "c3d")
 
 
 def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
-               markers: str | None = None) -> Trial:
+               markers: str | None = None, hand: str = "left", smooth_hz=None) -> Trial:
     """Read the posture frames of one file.
 
     Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
@@ -450,7 +450,8 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
     elif fmt == "schroeder26":
         X = _read_schroeder26(p)
     else:
-        X = _read_c3d_postures(p, markers)
+        X, stored_task = _read_c3d_postures(p, markers, hand, smooth_hz)
+        task = task or stored_task
     return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p))
 
 
@@ -496,15 +497,19 @@ def _read_schroeder26(p: Path) -> np.ndarray:
 # `synergy.angles.markers_to_angles(c3d_path, markerset_name)` to return a joint-angle
 # table (pandas DataFrame, columns = DoF names, radians; see DESIGN.md). Adapt the call
 # below once that function exists; nothing else needs to change.
-def _read_c3d_postures(p: Path, markers: str | None) -> np.ndarray:
+def _read_c3d_postures(p: Path, markers: str | None, hand: str = "left", smooth_hz=None):
+    """C3D → marker IK → the frames of good quality; also the task label stored in the file, if any."""
     if not markers:
         raise SynergyError(p, "C3D input needs a marker set (--markers NAME)")
-    try:
-        from synergy.angles import markers_to_angles
-    except ImportError:
-        raise SynergyError(p, "C3D input is not available yet (synergy.angles.markers_to_angles "
-                              "is missing); convert to a joint-angle CSV first") from None
-    return _postures_from_table(markers_to_angles(p, markers), p)
+    from synergy.angles import markers_to_angles
+    from synergy.c3d import read_c3d, task_from_events
+
+    data = read_c3d(p)
+    table = markers_to_angles(data, markers, hand=hand, smooth_hz=smooth_hz)
+    table = table[table["quality"] == "ok"]
+    if table.empty:
+        raise SynergyError(p, "no frame converted with good quality (check the marker set and --hand)")
+    return _postures_from_table(table, p), task_from_events(data)
 # <<< C3D INPUT ------------------------------------------------------------------------------
 
 

@@ -70,6 +70,8 @@ def fit(
     variance: float = typer.Option(0.99, "--variance", help="Variance fraction that sets the default number of PCs."),
     fmt: str = typer.Option("auto", "--format", help="Input format: auto (by suffix), csv, schroeder26."),
     markers: Optional[str] = typer.Option(None, "--markers", help="Marker set for C3D input."),
+    hand: str = typer.Option("left", "--hand", help="C3D input: which hand the markers are on (left/right)."),
+    smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
     version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model the angles refer to."),
@@ -88,8 +90,6 @@ def fit(
         raise SynergyError("fit", "no input files (give --angles FILE... or files)")
     if task and tasks:
         raise SynergyError("fit", "give either --task or --tasks, not both")
-    if per_task and not tasks:
-        raise SynergyError("fit", "--per-task needs --tasks map.yaml")
     task_map = load_task_map(tasks) if tasks else None
     labels = {}
     for f in inputs:
@@ -103,12 +103,17 @@ def fit(
         bar = progress.add_task("reading", total=len(inputs))
         for f in inputs:
             progress.update(bar, description=f"reading {f.name}")
-            trials.append(read_trial(f, fmt, task=labels[f], markers=markers))
+            trials.append(read_trial(f, fmt, task=labels[f], markers=markers, hand=hand, smooth_hz=smooth_hz))
             progress.advance(bar)
 
     groups = {name: trials}
     if per_task:
-        groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in task_map.tasks}
+        unlabelled = [tr.path for tr in trials if not tr.task]
+        if unlabelled:
+            raise SynergyError(unlabelled[0], "--per-task: no task label (give --tasks map.yaml, or files that "
+                                              "carry a task:<label> event)")
+        order = list(task_map.tasks) if task_map is not None else sorted({tr.task for tr in trials})
+        groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in order}
         groups = {k: v for k, v in groups.items() if v}
     console = _console()
     for bname, group in groups.items():
@@ -341,6 +346,9 @@ def _plot_reconstruction(bundle, curves: dict, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend()
     return _save_fig(fig, path)
+
+
+from synergy import cli_mocap  # noqa: E402,F401  (registers simulate / angles)
 
 
 def main() -> None:
