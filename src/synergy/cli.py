@@ -348,7 +348,9 @@ def _plot_reconstruction(bundle, curves: dict, path: Path) -> Path:
     return _save_fig(fig, path)
 
 
-from synergy import cli_mocap  # noqa: E402,F401  (registers simulate / angles)
+from synergy import cli_mocap  # noqa: E402
+
+cli_mocap.register(app, _errors_exit_2)
 
 
 def main() -> None:

@@ -6,11 +6,19 @@ from typing import List, Optional
 
 import typer
 
-from synergy.cli import _console, _errors_exit_2, app
+
+def _console(stderr: bool = False):
+    from rich.console import Console
+
+    return Console(stderr=stderr)
 
 
-@app.command()
-@_errors_exit_2
+def register(app, errors_exit_2) -> None:
+    """Add the commands to the ``synergy`` typer app (works when cli.py runs as __main__ too)."""
+    app.command()(errors_exit_2(simulate))
+    app.command()(errors_exit_2(angles))
+
+
 def simulate(
     out: Path = typer.Option(..., "-o", "--out", help="Output folder for the C3D files (created)."),
     motions: str = typer.Option("all", "--motions", help="Comma-separated motions, or 'all'."),
@@ -81,8 +89,6 @@ def simulate(
     _console().print(table)
 
 
-@app.command()
-@_errors_exit_2
 def angles(
     files: List[Path] = typer.Argument(..., help="C3D trials."),
     markers: str = typer.Option(..., "--markers", help="Marker set name or YAML file."),

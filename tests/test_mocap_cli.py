@@ -1,0 +1,74 @@
+"""End to end: synergy simulate → C3D → synergy angles / synergy fit --per-task → compare."""
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from handmodel import HandModel
+from synergy.angles import markers_to_angles, read_angles_csv
+from synergy.c3d import read_c3d, task_from_events
+from synergy.cli import app
+
+runner = CliRunner()
+HAND = HandModel.load()
+
+
+@pytest.fixture(scope="module")
+def mocap(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mocap")
+    r = runner.invoke(app, ["simulate", "-o", str(out), "--motions", "open_close,power_grasp,precision_grasp",
+                            "--trials", "2", "--duration", "2", "--noise-mm", "0", "--gaps", "0", "--units", "cm",
+                            "--prefix", "Subj"])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_simulated_c3d_round_trip(mocap):
+    data = read_c3d(mocap / "power_grasp_01.c3d")
+    assert data.units == "cm" and data.original_labels[0].startswith("Subj:") and data.labels[0] == "WRR"
+    assert task_from_events(data) == "grasp"
+    truth = pd.read_csv(mocap / "truth" / "power_grasp_01.csv", comment="#")
+    df = markers_to_angles(data, "hand16")
+    err = np.degrees(np.sqrt(np.mean((df[HAND.dof_names[6:]].to_numpy() - truth[HAND.dof_names[6:]].to_numpy()) ** 2)))
+    assert err <= 0.05
+
+
+def test_angles_command_writes_tables_and_refuses_overwrite(mocap, tmp_path):
+    files = sorted(str(p) for p in mocap.glob("open_close_*.c3d"))
+    r = runner.invoke(app, ["angles", *files, "--markers", "hand16", "-o", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "residual" in r.output
+    df = read_angles_csv(tmp_path / "open_close_01.csv")
+    assert len(df) == 200 and df.attrs["markerset"] == "hand16"
+    r = runner.invoke(app, ["angles", *files, "--markers", "hand16", "-o", str(tmp_path)])
+    assert r.exit_code == 2 and "never overwritten" in r.output
+
+
+def test_per_task_bundles_differ(mocap, tmp_path):
+    files = sorted(str(p) for p in mocap.glob("*.c3d"))
+    r = runner.invoke(app, ["fit", *files, "--markers", "hand16", "--name", "sim", "--per-task", "-o", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "sim-grasp-1.0.0.npz").exists() and (tmp_path / "sim-general-1.0.0.npz").exists()
+    r = runner.invoke(app, ["compare", "sim-grasp", "sim-general", "-r", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    from synergy.bundle import load_bundle
+    from synergy.pca import principal_angles
+
+    a = load_bundle("sim-grasp", [tmp_path]).model
+    b = load_bundle("sim-general", [tmp_path]).model
+    ang = np.degrees(principal_angles(a, b, 3))
+    assert ang.max() > 20  # the grasp and general synergy subspaces differ
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path):
+    bad = tmp_path / "broken.c3d"
+    bad.write_bytes(b"\x00" * 100)
+    r = subprocess.run([sys.executable, "-m", "synergy.cli", "angles", str(bad), "--markers", "hand16", "-o",
+                        str(tmp_path / "o")], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "broken.c3d" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "synergy.cli", "simulate", "-o", str(tmp_path), "--motions", "dance"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "unknown motion" in r.stderr
