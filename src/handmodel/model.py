@@ -282,6 +282,35 @@ class HandModel:
             dof_idx=self.dof_idx, segments=tuple(segs), mesh_settings=self.mesh_settings, description=self.description,
         )
 
+    def with_joint_positions(self, positions: dict) -> "HandModel":
+        """A copy with the rest positions (in the parent's frame, metres) of some joints replaced,
+        e.g. the finger bases on the palm measured from a subject."""
+        rest = self.rest.copy()
+        for name, v in positions.items():
+            v = np.asarray(v, float)
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise HandModelError(self.path, f"joint position of {name!r} must be 3 finite numbers")
+            rest[self.node_index(name), :3, 3] = v
+        key = json.dumps({"base": self.sha256, "positions": {k: list(map(float, v)) for k, v in positions.items()}},
+                         sort_keys=True).encode()
+        import dataclasses
+
+        return dataclasses.replace(self, rest=_ro(rest), sha256=hashlib.sha256(key).hexdigest())
+
+    def with_rest_rotations(self, rotations: dict) -> "HandModel":
+        """A copy with the rest rotations of some joints replaced (3×3 proper rotations)."""
+        rest = self.rest.copy()
+        for name, R in rotations.items():
+            R = np.asarray(R, float)
+            if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+                raise HandModelError(self.path, f"rest rotation of {name!r} is not a proper rotation")
+            rest[self.node_index(name), :3, :3] = R
+        key = json.dumps({"base": self.sha256, "rotations": {k: np.asarray(v).round(12).tolist()
+                                                             for k, v in rotations.items()}}, sort_keys=True).encode()
+        import dataclasses
+
+        return dataclasses.replace(self, rest=_ro(rest), sha256=hashlib.sha256(key).hexdigest())
+
     def with_limits(self, limits) -> "HandModel":
         """A copy with other default limits ``(n_dofs, 2)``."""
         lim = np.asarray(limits, float)

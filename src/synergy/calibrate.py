@@ -26,6 +26,8 @@ class Calibration:
 
     scale: float = 1.0
     bone_scales: dict = field(default_factory=dict)
+    joint_positions: dict = field(default_factory=dict)
+    joint_rotations: dict = field(default_factory=dict)
     offsets: dict = field(default_factory=dict)
     frames_used: int = 0
     median_residual_mm: float = float("nan")
@@ -34,12 +36,19 @@ class Calibration:
 
     def model(self, hand):
         """The calibrated hand model."""
-        return hand.scaled(self.scale, self.bone_scales)
+        m = hand.scaled(self.scale, self.bone_scales)
+        if self.joint_positions:
+            m = m.with_joint_positions(self.joint_positions)
+        if self.joint_rotations:
+            m = m.with_rest_rotations(self.joint_rotations)
+        return m
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["offsets"] = {k: [float(x) for x in v] for k, v in self.offsets.items()}
         d["bone_scales"] = {k: float(v) for k, v in self.bone_scales.items()}
+        d["joint_positions"] = {k: [float(x) for x in v] for k, v in self.joint_positions.items()}
+        d["joint_rotations"] = {k: np.asarray(v, float).tolist() for k, v in self.joint_rotations.items()}
         return d
 
     @classmethod
@@ -74,8 +83,44 @@ def _joint_centre_bones(hand, markerset, nodes, local, targets):
     return out
 
 
+def _orient_finger_bases(hand, nodes, local, palm, residual, cal):
+    """Rest rotation of each finger base that best explains its finger's joint centres (the plane
+    the finger flexes in differs between people and tracking systems): a small rotation, 3 numbers
+    per finger, fitted by Nelder–Mead on the finger's marker residual after IK."""
+    from scipy.optimize import minimize
+    from scipy.spatial.transform import Rotation
+
+    rots = {}
+    for i in palm:
+        base = int(nodes[i])
+        chain = [k for k, n in enumerate(nodes) if _descends(hand, int(n), base)]
+        if len(chain) < 3:
+            continue
+        name = hand.node_names[base]
+        R0 = hand.scaled(1.0, cal.bone_scales).rest[base, :3, :3]
+        sel = slice(None, None, 3)
+
+        def cost(r):
+            R = Rotation.from_rotvec(r).as_matrix() @ R0
+            return residual(1.0, cal.bone_scales, None, cal.joint_positions, {**rots, name: R}, sel, chain)[0]
+
+        res = minimize(cost, np.zeros(3), method="Nelder-Mead",
+                       options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 120, "initial_simplex": 0.15 * np.vstack([np.zeros(3), np.eye(3)])})
+        if res.fun < cost(np.zeros(3)):
+            rots[name] = Rotation.from_rotvec(res.x).as_matrix() @ R0
+    return rots
+
+
+def _descends(hand, node, base):
+    while node >= 0:
+        if node == base:
+            return True
+        node = int(hand.parents[node])
+    return False
+
+
 def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iterations=3, scale_range=(0.6, 1.6),
-              settings=None) -> Calibration:
+              settings=None, orient_bases=True) -> Calibration:
     """Estimate the subject's hand from a trial (``data``: marker data with ``labels``/``points``).
 
     Returns a :class:`Calibration`; ``Calibration.model(hand)`` is the calibrated model and its
@@ -93,19 +138,46 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
     tg = targets[sel]
     settings = settings or SolverSettings(iterations=15, damping=0.1)
     nodes, local = ms.attachments(hand, right)
+    weights = np.array([m.weight for m in ms.markers])
     bones = _joint_centre_bones(hand, ms, nodes, local, tg)
     cal = Calibration(source=str(getattr(data, "path", "")), frames_used=int(len(sel)))
 
-    def residual(scale, bone_scales, offsets):
+    def residual(scale, bone_scales, offsets, positions=None, rotations=None, frames_sel=None, markers_sel=None):
         model = hand.scaled(scale, bone_scales)
+        if positions:
+            model = model.with_joint_positions(positions)
+        if rotations:
+            model = model.with_rest_rotations(rotations)
         n, l = ms.attachments(model, right, offsets, scale=scale)
-        th, rep = fit_points(model, n, l, tg, settings=settings, restarts=1)
-        return float(np.nanmedian(rep.rms_mm)), th, model, n, l
+        t = tg if frames_sel is None else tg[frames_sel]
+        th, rep = fit_points(model, n, l, t, weights=weights, settings=settings, restarts=1)
+        if markers_sel is None:
+            return float(np.nanmedian(rep.rms_mm)), th, model, n, l
+        e = np.linalg.norm(model.points(th, n[markers_sel], l[markers_sel]) - t[:, markers_sel], axis=-1)
+        return float(np.nanmedian(np.sqrt(np.nanmean(e ** 2, axis=1))) * 1000.0), th, model, n, l
 
     if len(bones) >= len(nodes) - 1 and bones:
-        # every bone measured: the model follows the data directly (joint-centre protocols)
+        # every bone measured: the model follows the data directly (joint-centre protocols); the
+        # joints on the palm (finger bases) are then placed where the data has them in the hand frame
         cal.bone_scales = bones
         cal.method = "bone lengths from joint centres"
+        palm = [i for i, n in enumerate(nodes) if hand.parents[n] == 0 and not np.any(local[i])]
+        for _ in range(3):
+            _, th, model, n, _ = residual(1.0, cal.bone_scales, None, cal.joint_positions)
+            G0 = model.node_frames(th)[:, 0]
+            pos = {}
+            for i in palm:
+                loc = np.einsum("sji,sj->si", G0[:, :3, :3], tg[:, i] - G0[:, :3, 3])
+                ok = np.isfinite(loc).all(1)
+                if ok.sum() >= 3:
+                    pos[hand.node_names[nodes[i]]] = np.median(loc[ok], axis=0)
+            cal.joint_positions = pos
+            # the bone scale of a palm joint is now part of its position
+            cal.bone_scales = {k: v for k, v in bones.items() if k not in pos}
+        cal.method += " + finger bases on the palm"
+        if orient_bases:
+            cal.joint_rotations = _orient_finger_bases(hand, nodes, local, palm, residual, cal)
+            cal.method += " + finger base orientations"
     else:
         lo, hi = scale_range
         g = (np.sqrt(5) - 1) / 2
@@ -127,7 +199,7 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
     if flagged and offset_iterations:
         offsets = None
         for _ in range(offset_iterations):
-            _, th, model, n, l = residual(cal.scale, cal.bone_scales, offsets)
+            _, th, model, n, l = residual(cal.scale, cal.bone_scales, offsets, cal.joint_positions)
             G = model.node_frames(th)  # (S, N, 4, 4)
             offsets = dict(offsets or {})
             for i in flagged:
@@ -138,5 +210,6 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
                     offsets[ms.markers[i].label] = np.median(loc[ok], axis=0)
         cal.offsets = offsets
         cal.method += " + marker offsets"
-    cal.median_residual_mm = residual(cal.scale, cal.bone_scales, cal.offsets or None)[0]
+    cal.median_residual_mm = residual(cal.scale, cal.bone_scales, cal.offsets or None, cal.joint_positions,
+                                      cal.joint_rotations)[0]
     return cal
