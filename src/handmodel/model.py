@@ -119,6 +119,12 @@ class HandModel:
             raise HandModelError(p, "file not found")
         doc = _load_yaml(p)
         model = cls.from_dict(doc, where=p)
+        # the model's identity is the hash of its file (what bundles and outputs record)
+        from .fileio import sha256_file
+
+        import dataclasses
+
+        model = dataclasses.replace(model, sha256=sha256_file(p))
         if right != (model.handedness == "right"):
             model = model.mirrored()
         return model
