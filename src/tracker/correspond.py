@@ -99,3 +99,76 @@ def local_offsets(hand, theta, nodes, world):
     """Offsets of world points in their nodes' frames at θ (so the solver can move them with the model)."""
     G = hand.node_frames(theta)[np.asarray(nodes, np.int64)]
     return np.einsum("pji,pj->pi", G[:, :3, :3], np.asarray(world, float) - G[:, :3, 3])
+
+
+class ModelSamples:
+    """Points on the capsule model stored in their nodes' frames, posed cheaply by the node frames
+    (for the model→data silhouette term)."""
+
+    def __init__(self, hand, spacing=0.004):
+        from handmodel.geometry import surface_samples
+
+        theta0 = np.zeros(hand.n_dofs)
+        P, S, N = surface_samples(hand, theta0, spacing=spacing)
+        G0 = hand.node_frames(theta0)
+        nodes = np.array([hand.segments[s].joint for s in S], np.int64)
+        R = G0[nodes, :3, :3]
+        self.hand = hand
+        self.nodes = nodes
+        self.local = np.einsum("pji,pj->pi", R, P - G0[nodes, :3, 3])
+        self.local_n = np.einsum("pji,pj->pi", R, N)
+
+    def pose(self, theta):
+        G = self.hand.node_frames(theta)[self.nodes]
+        P = np.einsum("pij,pj->pi", G[:, :3, :3], self.local) + G[:, :3, 3]
+        N = np.einsum("pij,pj->pi", G[:, :3, :3], self.local_n)
+        return P, N
+
+
+class Silhouette:
+    """The hand silhouette of one frame with its distance transform (computed once per frame, on the
+    bounding box of the mask plus a margin)."""
+
+    def __init__(self, mask, depth, camera, margin=48):
+        from scipy import ndimage
+
+        self.mask = np.asarray(mask, bool)
+        self.depth = depth
+        self.camera = camera
+        rows, cols = np.flatnonzero(self.mask.any(1)), np.flatnonzero(self.mask.any(0))
+        self.empty = rows.size == 0
+        if self.empty:
+            return
+        self.v0 = max(rows[0] - margin, 0)
+        self.u0 = max(cols[0] - margin, 0)
+        v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
+        u1 = min(cols[-1] + margin + 1, self.mask.shape[1])
+        sub = self.mask[self.v0:v1, self.u0:u1]
+        self.dist, (self.iv, self.iu) = ndimage.distance_transform_edt(~sub, return_indices=True)
+
+
+def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
+    """Model→data pairs for front-facing model points that project outside the hand silhouette
+    (by more than ``tolerance_px``): each is pulled to the 3-D point of the nearest silhouette pixel
+    (a 3-D version of htrack's 2-D silhouette term). Returns (nodes, local offsets, targets)."""
+    empty = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    if sil.empty:
+        return empty
+    cam = sil.camera
+    P, N = samples.pose(theta)
+    z = P[:, 2]
+    ok = (np.einsum("ij,ij->i", P, N) < 0) & (z > 1e-3)
+    u = np.rint(cam.fx * P[ok, 0] / z[ok] + cam.cx).astype(np.int64) - sil.u0
+    v = np.rint(cam.fy * P[ok, 1] / z[ok] + cam.cy).astype(np.int64) - sil.v0
+    h, w = sil.dist.shape
+    uu, vv = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
+    d_px = sil.dist[vv, uu] + np.hypot(u - uu, v - vv)
+    far = d_px > tolerance_px
+    if not far.any():
+        return empty
+    idx = np.flatnonzero(ok)[far]
+    tv, tu = sil.iv[vv[far], uu[far]] + sil.v0, sil.iu[vv[far], uu[far]] + sil.u0
+    d = sil.depth[tv, tu]
+    tgt = np.stack([(tu - cam.cx) / cam.fx * d, (tv - cam.cy) / cam.fy * d, d], 1)
+    good = np.isfinite(d)
+    return samples.nodes[idx[good]], samples.local[idx[good]], tgt[good]

@@ -14,7 +14,7 @@ import numpy as np
 from handmodel.solver import SolverSettings, solve
 from handmodel.subspace import Subspace
 
-from .correspond import CapsuleModel, MeshModel, local_offsets
+from .correspond import CapsuleModel, MeshModel, ModelSamples, Silhouette, local_offsets, silhouette_pairs
 from .errors import TrackerError
 from .rigid import apply_rigid, rigid_step
 
@@ -33,7 +33,7 @@ class TrackerSettings:
     reject_mm: float = 50.0
     damping: float = 1.0
     pose_damping: float = 0.0
-    prediction: bool = True
+    prediction: float = 1.0            # share of the last frame's change added before fitting (0 = off)
     facing_only: bool = True
     point_to_plane: bool = False
     model: str = "capsules"            # or "mesh"
@@ -46,6 +46,7 @@ class TrackerSettings:
     min_points: int = 30
     init_icp_iterations: int = 12
     max_points: int | None = None
+    silhouette_weight: float = 1.0     # model→data term for model parts outside the silhouette (0 = paper)
 
     @classmethod
     def paper(cls, **kw) -> "TrackerSettings":
@@ -110,6 +111,7 @@ class HandTracker:
             self._pc = lambda k: Subspace.from_synergies(hand, C, mu, m.pc_min_, m.pc_max_, n_components=k)
             self.reduced = self._pc(l)
         self.correspond = CapsuleModel(hand) if settings.model == "capsules" else MeshModel(hand)
+        self.samples = ModelSamples(hand) if settings.silhouette_weight > 0 else None
         self.solver = SolverSettings(iterations=settings.gn_iterations, damping=settings.damping,
                                      pose_damping=settings.pose_damping, min_points=3)
         self.reset()
@@ -131,7 +133,7 @@ class HandTracker:
         i = min(int(k * len(stages) / max(n_stages, 1)), len(stages) - 1)
         return stages[i]
 
-    def _icp(self, theta, points, n_rigid, n_icp, mode):
+    def _icp(self, theta, points, n_rigid, n_icp, mode, obs=None):
         st = self.settings
         reject = st.reject_mm / 1000.0
         corr = None
@@ -148,8 +150,18 @@ class HandTracker:
                 theta = sp.to_theta(np.clip(sp.to_alpha(theta), sp.lo, sp.hi))
             nodes = corr.nodes[v]
             loc = local_offsets(self.hand, theta, nodes, corr.model[v])
+            tg = points[v]
+            w = np.ones(len(nodes))
             normals = corr.normals[v] if st.point_to_plane else None
-            theta, _ = solve(self.hand, theta, nodes, loc, points[v], normals=normals, subspace=sp,
+            if obs is not None and self.samples is not None:
+                sn, sl, st_ = silhouette_pairs(self.samples, theta, obs)
+                if len(sn):
+                    nodes, loc, tg = np.r_[nodes, sn], np.r_[loc, sl], np.r_[tg, st_]
+                    # weight per pair so the term counts like the data term per unit area
+                    w = np.r_[w, np.full(len(sn), st.silhouette_weight * np.sqrt(max(v.sum(), 1) / max(len(self.samples.nodes), 1)))]
+                    if normals is not None:
+                        normals = np.r_[normals, np.zeros((len(sn), 3))]
+            theta, _ = solve(self.hand, theta, nodes, loc, tg, weights=w, normals=normals, subspace=sp,
                              settings=self.solver)
         corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
         return theta, corr
@@ -183,21 +195,25 @@ class HandTracker:
                 cands.append(th)
         return cands
 
-    def fit_single_frame(self, points, theta0=None, mode=None):
+    def fit_single_frame(self, points, theta0=None, mode=None, obs=None):
         """Fit one frame without temporal prior (hierarchical by default when synergies exist)."""
         st = self.settings
         mode = mode or ("hierarchical" if self.synergies is not None else "full")
         starts = [theta0] if theta0 is not None else self.initial_pose(points)
         best = None
         for th in starts:
-            th, corr = self._icp(np.array(th, float), points, 2, st.init_icp_iterations, mode)
+            th, corr = self._icp(np.array(th, float), points, 2, st.init_icp_iterations, mode, obs)
             score = corr.fit_error_mm() + 100.0 * (1 - corr.valid.mean())
             if best is None or score < best[0]:
                 best = (score, th, corr)
         return best[1], best[2]
 
-    def step(self, points) -> FrameResult:
-        """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored)."""
+    def step(self, points, *, mask=None, depth=None, camera=None) -> FrameResult:
+        """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored).
+
+        With the hand ``mask``, the ``depth`` image (metres) and the ``camera``, model parts that
+        leave the silhouette are pulled back (``silhouette_weight``)."""
+        obs = None if mask is None or camera is None or depth is None else Silhouette(mask, depth, camera)
         t0 = time.perf_counter()
         st = self.settings
         pts = np.asarray(points, float).reshape(-1, 3)
@@ -210,19 +226,19 @@ class HandTracker:
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
         if self.lost or self.theta is None:
-            theta, corr = self.fit_single_frame(pts)
+            theta, corr = self.fit_single_frame(pts, obs=obs)
             status = "reinit"
             self.prev = None
         else:
             theta = self.theta.copy()
             if st.prediction and self.prev is not None:
                 # constant-velocity prediction, except for the global rotation (as the original code)
-                step = self.theta - self.prev
+                step = (self.theta - self.prev) * float(st.prediction)
                 step[3:6] = 0.0
                 theta = theta + step
                 post = ~self.hand.pose_mask
                 theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
-            theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode)
+            theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode, obs)
             status = "tracked"
         fit = corr.fit_error_mm()
         rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
