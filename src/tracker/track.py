@@ -45,8 +45,10 @@ class TrackerSettings:
     lost_rejected: float = 0.6
     min_points: int = 30
     init_icp_iterations: int = 12
+    init_postures: int = 2             # single-frame fits start from the mean and ±σ along this many PCs
     max_points: int | None = None
     silhouette_weight: float = 1.0     # model→data term for model parts outside the silhouette (0 = paper)
+    normal_agreement: float = 0.5      # with data normals: reject pairs whose normals' cosine is below this
 
     @classmethod
     def paper(cls, **kw) -> "TrackerSettings":
@@ -122,6 +124,16 @@ class HandTracker:
         self.prev = None
         self.lost = True
 
+    def _through(self, sp, theta):
+        """The same synergy directions, but through the current θ (a refinement that keeps what the
+        previous stage or frame found outside the subspace); PC limits shift accordingly."""
+        from handmodel.subspace import Subspace
+
+        a = sp.to_alpha(theta)
+        mu = np.array(theta, float)
+        mu[self.hand.pose_mask] = 0.0
+        return Subspace(sp.M, mu, sp.lo - a, sp.hi - a, sp.pose, label=sp.label + " (through θ)")
+
     def _stage(self, k, n_stages, mode):
         if mode == "full":
             return self.full
@@ -133,21 +145,34 @@ class HandTracker:
         i = min(int(k * len(stages) / max(n_stages, 1)), len(stages) - 1)
         return stages[i]
 
-    def _icp(self, theta, points, n_rigid, n_icp, mode, obs=None):
+    def _corr(self, theta, points, normals):
         st = self.settings
-        reject = st.reject_mm / 1000.0
+        corr = self.correspond(theta, points, reject=st.reject_mm / 1000.0, facing_only=st.facing_only)
+        if normals is not None and st.normal_agreement > -1:
+            # a data point on a surface facing another way than the model's is a wrong pair
+            cos = np.einsum("ij,ij->i", normals, corr.normals)
+            corr.valid &= ~(cos < st.normal_agreement)  # NaN (unknown normal) keeps the pair
+        return corr
+
+    def _icp(self, theta, points, n_rigid, n_icp, mode, obs=None, normals=None, refine=False):
+        """Rigid then non-rigid ICP. ``refine``: hierarchical stages pass through the current θ
+        (tracking) instead of through the synergy mean (single-frame fits)."""
+        st = self.settings
         corr = None
         for _ in range(n_rigid):
-            corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+            corr = self._corr(theta, points, normals)
             theta = rigid_step(theta, points, corr)
         for k in range(n_icp):
-            corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+            corr = self._corr(theta, points, normals)
             v = corr.valid
             if v.sum() < 3:
                 break
             sp = self._stage(k, n_icp, mode)
             if sp is not self.full:
-                theta = sp.to_theta(np.clip(sp.to_alpha(theta), sp.lo, sp.hi))
+                if mode == "hierarchical" and refine:
+                    sp = self._through(sp, theta)
+                else:
+                    theta = sp.to_theta(np.clip(sp.to_alpha(theta), sp.lo, sp.hi))
             nodes = corr.nodes[v]
             loc = local_offsets(self.hand, theta, nodes, corr.model[v])
             tg = points[v]
@@ -163,7 +188,7 @@ class HandTracker:
                         normals = np.r_[normals, np.zeros((len(sn), 3))]
             theta, _ = solve(self.hand, theta, nodes, loc, tg, weights=w, normals=normals, subspace=sp,
                              settings=self.solver)
-        corr = self.correspond(theta, points, reject=reject, facing_only=st.facing_only)
+        corr = self._corr(theta, points, normals)
         return theta, corr
 
     def initial_pose(self, points):
@@ -195,20 +220,58 @@ class HandTracker:
                 cands.append(th)
         return cands
 
-    def fit_single_frame(self, points, theta0=None, mode=None, obs=None):
-        """Fit one frame without temporal prior (hierarchical by default when synergies exist)."""
+    def _score(self, theta, corr, obs):
+        """Lower is better: mean data→model distance (mm) plus the share of front-facing model
+        samples outside the silhouette (× 20 mm) and of rejected data points (× 100 mm)."""
+        score = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
+        if obs is not None and self.samples is not None and not obs.empty:
+            n_out = len(silhouette_pairs(self.samples, theta, obs)[0])
+            score += 20.0 * n_out / max(len(self.samples.nodes), 1)
+        return score
+
+    def posture_candidates(self, k=None):
+        """Start postures for single-frame fits: the synergy mean and ±σ along the first PCs."""
+        post = ~self.hand.pose_mask
+        if self.synergies is None:
+            return [np.zeros(int(post.sum()))]
+        m = self.synergies.model
+        sd = np.sqrt(m.all_explained_variance_)
+        out = [m.mean_.copy()]
+        for pc, amp in ((0, 1.5), (1, 1.2), (2, 1.2))[: (k if k is not None else self.settings.init_postures)]:
+            for sgn in (1, -1):
+                out.append(m.mean_ + sgn * amp * sd[pc] * m.all_components_[pc])
+        return out
+
+    def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None):
+        """Fit one frame without temporal prior: from ``theta0``'s global pose (or candidate poses
+        from the cloud's principal axes) and several synergy postures, each refined by ICP (the
+        hierarchical schedule by default when synergies exist); the best-scoring fit wins."""
         st = self.settings
         mode = mode or ("hierarchical" if self.synergies is not None else "full")
-        starts = [theta0] if theta0 is not None else self.initial_pose(points)
+        if theta0 is not None:
+            poses = [np.array(theta0, float)]
+        else:
+            poses = self.initial_pose(points)
+        posts = self.posture_candidates() if postures is None else postures
+        post = ~self.hand.pose_mask
         best = None
-        for th in starts:
-            th, corr = self._icp(np.array(th, float), points, 2, st.init_icp_iterations, mode, obs)
-            score = corr.fit_error_mm() + 100.0 * (1 - corr.valid.mean())
-            if best is None or score < best[0]:
-                best = (score, th, corr)
+        for pose in poses:
+            for p in posts:
+                th = pose.copy()
+                if theta0 is None or len(posts) > 1:
+                    th[post] = p
+                th, corr = self._icp(th, points, 2, st.init_icp_iterations, mode, obs, normals)
+                score = self._score(th, corr, obs)
+                if best is None or score < best[0]:
+                    best = (score, th, corr)
         return best[1], best[2]
 
-    def step(self, points, *, mask=None, depth=None, camera=None) -> FrameResult:
+    def track(self, observation, camera) -> FrameResult:
+        """Track one :class:`tracker.observe.Observation`."""
+        return self.step(observation.points, normals=observation.normals, mask=observation.mask,
+                         depth=observation.depth, camera=camera)
+
+    def step(self, points, *, normals=None, mask=None, depth=None, camera=None) -> FrameResult:
         """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored).
 
         With the hand ``mask``, the ``depth`` image (metres) and the ``camera``, model parts that
@@ -217,16 +280,21 @@ class HandTracker:
         t0 = time.perf_counter()
         st = self.settings
         pts = np.asarray(points, float).reshape(-1, 3)
-        pts = pts[np.isfinite(pts).all(1)]
-        if st.max_points and len(pts) > st.max_points:
-            pts = pts[np.linspace(0, len(pts) - 1, st.max_points).astype(int)]
+        keep = np.isfinite(pts).all(1)
+        if st.max_points and keep.sum() > st.max_points:
+            idx = np.flatnonzero(keep)
+            keep[:] = False
+            keep[idx[np.linspace(0, len(idx) - 1, st.max_points).astype(int)]] = True
+        pts = pts[keep]
+        # NaN normals (unknown) keep their pairs: the cosine test is skipped for them
+        nrm = None if normals is None else np.asarray(normals, float).reshape(-1, 3)[keep]
         n_in = len(pts)
         if n_in < st.min_points:
             self.lost = True
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
         if self.lost or self.theta is None:
-            theta, corr = self.fit_single_frame(pts, obs=obs)
+            theta, corr = self.fit_single_frame(pts, obs=obs, normals=nrm)
             status = "reinit"
             self.prev = None
         else:
@@ -238,7 +306,8 @@ class HandTracker:
                 theta = theta + step
                 post = ~self.hand.pose_mask
                 theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
-            theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode, obs)
+            theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode, obs, nrm,
+                                    refine=True)
             status = "tracked"
         fit = corr.fit_error_mm()
         rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0

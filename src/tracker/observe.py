@@ -1,0 +1,58 @@
+"""From a depth frame to what the tracker fits: the segmented hand's 3-D points (every ``stride``-th
+pixel in x and y), their surface normals, and the silhouette. Pixel (u, v) has its centre at integer
+coordinates: x = (u − cx)/fx · z, y = (v − cy)/fy · z (camera frame: x right, y down, z forward)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def backproject_image(depth, camera):
+    """Camera-frame points ``(H, W, 3)`` of a depth image in metres (NaN where no depth)."""
+    d = np.asarray(depth, float)
+    H, W = d.shape
+    u = (np.arange(W) - camera.cx) / camera.fx
+    v = (np.arange(H) - camera.cy) / camera.fy
+    return np.stack([np.broadcast_to(u[None, :], (H, W)) * d, np.broadcast_to(v[:, None], (H, W)) * d, d], -1)
+
+
+def image_normals(X, max_jump=0.01):
+    """Unit normals ``(H, W, 3)`` from central differences of back-projected points, oriented
+    towards the camera; NaN where a neighbour is missing or a depth jump exceeds ``max_jump`` m."""
+    dx = np.full_like(X, np.nan)
+    dy = np.full_like(X, np.nan)
+    dx[:, 1:-1] = X[:, 2:] - X[:, :-2]
+    dy[1:-1] = X[2:] - X[:-2]
+    with np.errstate(invalid="ignore"):
+        bad = (np.abs(dx[..., 2]) > max_jump) | (np.abs(dy[..., 2]) > max_jump)
+    n = np.cross(dx, dy)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-300
+    n *= -np.sign(np.einsum("...i,...i->...", n, X))[..., None]
+    n[bad] = np.nan
+    return n
+
+
+@dataclass
+class Observation:
+    points: np.ndarray        # (N, 3) metres
+    normals: np.ndarray       # (N, 3), NaN where unknown
+    mask: np.ndarray          # (H, W) hand silhouette
+    depth: np.ndarray         # (H, W) metres
+    density: float            # share of silhouette pixels kept (1/stride²)
+
+
+def observe(depth, camera, *, stride=3, segmenter=None, color=None):
+    """Segment the hand and sample its points (every ``stride``-th pixel in x and y)."""
+    from .segment import Segmenter
+
+    d = np.asarray(depth, np.float64)
+    seg = segmenter or Segmenter()
+    X = backproject_image(d, camera)
+    mask = seg(d, color, X)
+    N = image_normals(X)
+    sub = np.zeros_like(mask)
+    sub[::stride, ::stride] = True
+    keep = mask & sub & np.isfinite(X).all(-1)
+    n_mask = max(int(mask.sum()), 1)
+    return Observation(X[keep], N[keep], mask, np.where(mask, d, np.nan), float(keep.sum()) / n_mask)
