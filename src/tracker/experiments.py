@@ -1,0 +1,330 @@
+"""The paper's experiments on our renderer with real trajectories (fingerfist postures):
+error and time vs ICP iterations (Fig. 8) and vs sampling density (Fig. 9), the occluded grasp (full
+vs reduced), single-frame hierarchical vs flat, capsules vs mesh, and the noise model.
+
+Everything runs in memory (render → observe → track), so the same code serves the report
+(``tracker experiments -o report/``) and the tests (small sizes).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .evaluate import posture_error_deg
+
+PAPER = {
+    "fig8_error_5icp_deg": 2.0, "fig9_ms_stride3": 40.0, "occluded_full_deg": 12.0, "occluded_reduced_deg": 4.0,
+    "single_flat_deg": 22.0, "single_hier_deg": 0.4, "single_s": 10.0, "cylinders_full_deg": 4.0, "mesh_full_deg": 2.0,
+    "fps_full": 25.0, "fps_reduced": 30.0,
+}
+
+
+def default_camera():
+    from .cameras import preset
+
+    return preset("kinect1")
+
+
+@dataclass
+class SequenceResult:
+    error_deg: np.ndarray
+    ms: np.ndarray
+    status: np.ndarray
+    theta: np.ndarray
+    lead: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def mean_error(self) -> float:
+        return float(np.nanmean(self.error_deg[self.lead:]))
+
+    @property
+    def median_ms(self) -> float:
+        return float(np.median(self.ms[self.lead:]))
+
+
+def fingerfist_postures():
+    from .motions import fingerfist_path, read_schroeder26
+
+    return read_schroeder26(fingerfist_path())
+
+
+def sequence(postures, start_posture, *, lead=10, distance=0.75, tilt=(0.2, 0.3, 0.0), lateral=(0.0, -0.05)):
+    """θ truth: a ``lead``-frame transition from ``start_posture`` into the posture rows, hand
+    centred ``distance`` m in front of the camera, palm towards it with a tilt (radians)."""
+    from handmodel import HandModel
+
+    hand = HandModel.load()
+    P = np.vstack([np.linspace(start_posture, postures[0], lead), postures]) if lead else np.asarray(postures)
+    th = np.zeros((len(P), hand.n_dofs))
+    th[:, ~hand.pose_mask] = P
+    th[:, 3:6] = tilt
+    # put the palm centre (≈ 6 cm along the fingers from the wrist) at the requested spot
+    from handmodel.rigid import euler_to_matrix
+
+    R = euler_to_matrix(np.asarray(tilt, float))
+    th[:, :3] = np.array([lateral[0], lateral[1], distance]) - R @ np.array([0.0, 0.06, 0.0])
+    return th
+
+
+def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, stride=None, seed=0, lead=0,
+                 blank=None):
+    """Render each frame, observe it (segmentation, stride sampling, normals) and track it."""
+    from .observe import observe
+    from .synthetic import DepthRenderer
+
+    ren = renderer or DepthRenderer(hand, camera)
+    stride = stride or tracker.settings.stride
+    F = len(truth)
+    err, ms, status, th = np.full(F, np.nan), np.zeros(F), np.empty(F, object), np.full((F, hand.n_dofs), np.nan)
+    for f in range(F):
+        depth = ren.render(truth[f], labels=False).depth
+        if noise is not None:
+            depth = noise.apply(depth, camera, rng=np.random.default_rng([seed, f]))
+        if blank is not None and blank[0] <= f < blank[1]:
+            depth = np.full_like(depth, np.nan)
+        ob = observe(depth, camera, stride=stride)
+        t0 = time.perf_counter()
+        r = tracker.track(ob, camera)
+        ms[f] = (time.perf_counter() - t0) * 1000.0
+        status[f] = r.status
+        th[f] = r.theta
+        if np.all(np.isfinite(r.theta)):
+            err[f] = posture_error_deg(r.theta, truth[f], hand.pose_mask)
+    return SequenceResult(err, ms, status, th, lead)
+
+
+def segments(n, length, seed=0):
+    """``n`` start rows of fingerfist segments spread over both recordings of the file."""
+    starts = np.linspace(100, 6000 - length - 100, n).astype(int)
+    return [(int(s), length) for s in starts]
+
+
+# ----------------------------------------------------------------------------------------- report
+def _tracker(hand, bundle, **kw):
+    from .track import HandTracker, TrackerSettings
+
+    return HandTracker(hand, TrackerSettings(**kw), synergies=bundle)
+
+
+def experiment_icp(hand, bundle, camera, segs, iterations=(0, 1, 2, 3, 4, 6, 8), mode="full"):
+    """Fig. 8: posture error and time vs non-rigid ICP iterations (1 rigid + k), stride 3."""
+    P = fingerfist_postures()
+    out = []
+    for k in iterations:
+        e, t = [], []
+        for i, (s, n) in enumerate(segs):
+            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
+            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, icp_iterations=k), lead=10)
+            e.append(r.mean_error)
+            t.append(r.median_ms)
+        out.append((k, float(np.mean(e)), float(np.mean(t))))
+    return out
+
+
+def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode="full"):
+    """Fig. 9: posture error and time vs sampling density (every k-th pixel in x and y), 1+4 ICP."""
+    P = fingerfist_postures()
+    out = []
+    for k in strides:
+        e, t, npts = [], [], []
+        for i, (s, n) in enumerate(segs):
+            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
+            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, stride=k), lead=10)
+            e.append(r.mean_error)
+            t.append(r.median_ms)
+        out.append((k, 1.0 / k ** 2, float(np.mean(e)), float(np.mean(t))))
+    return out
+
+
+def experiment_modes(hand, bundle, camera, segs, noise=None, model="capsules"):
+    """Full / reduced / hierarchical on the same sequences; optional noise model."""
+    P = fingerfist_postures()
+    res = {}
+    for mode in ("full", "reduced", "hierarchical"):
+        e, t, recon = [], [], []
+        for i, (s, n) in enumerate(segs):
+            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
+            tr = _tracker(hand, bundle, mode=mode, model=model)
+            r = run_sequence(hand, truth, camera, tr, noise=noise, seed=i, lead=10)
+            e.append(r.mean_error)
+            t.append(r.median_ms)
+            if mode == "reduced":
+                sp = tr.reduced
+                recon.append(float(np.mean(posture_error_deg(sp.project(truth), truth, hand.pose_mask)[10:])))
+        res[mode] = {"error_deg": float(np.mean(e)), "ms": float(np.mean(t)), "fps": 1000.0 / float(np.mean(t))}
+        if recon:
+            res[mode]["subspace_reconstruction_deg"] = float(np.mean(recon))
+    return res
+
+
+def grasp_bundle(n_pcs_variance=0.99, seed=0):
+    """A grasp-only synergy bundle fitted in memory from our simulator's grasp trials (power and
+    precision grasps, several seeds), like the paper's grasp data set."""
+    from synergy.pca import SynergyModel
+    from synergy.simulate import motion
+
+    X = np.vstack([motion(m, duration_s=3.0, seed=seed + k)[0][:, 6:]
+                   for m in ("power_grasp", "precision_grasp") for k in range(6)])
+    model = SynergyModel().fit(X)
+
+    class _B:  # the parts of synergy.bundle.Bundle the tracker uses
+        pass
+
+    b = _B()
+    b.model = model
+    b.spec = "simulated-grasps (in memory)"
+    b.n_pcs = model.n_components_for(n_pcs_variance)
+    return b
+
+
+def experiment_occlusion(hand, camera, frames=45, seed=0):
+    """Grasp seen from the back of the hand (fingers self-occluded): full vs reduced (grasp synergies)."""
+    from synergy.simulate import motion
+
+    from .motions import GlobalPath, with_path
+
+    gb = grasp_bundle(seed=100)
+    th, _ = motion("power_grasp", duration_s=frames / 30.0, rate=30.0, seed=seed + 50)
+    path = GlobalPath(facing="back", tilt_deg=(-15.0, 0.0, 0.0), wobble_deg=(0.0, 0.0, 0.0))
+    truth = with_path(th[:, 6:], hand, 30.0, path)
+    res = {}
+    for mode in ("full", "reduced"):
+        tr = _tracker(hand, gb, mode=mode, n_pcs=gb.n_pcs, variance=None, limits="model" if mode == "full" else "data")
+        r = run_sequence(hand, truth, camera, tr, lead=5)
+        res[mode] = r.mean_error
+    res["n_pcs"] = gb.n_pcs
+    return res
+
+
+def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0):
+    """Single frames from the global pose only (posture unknown: the synergy mean), full cloud:
+    flat (all DoF) vs hierarchical (1 → 4 → l PCs → all DoF)."""
+    from .correspond import Silhouette
+    from .observe import observe
+    from .synthetic import DepthRenderer
+
+    P = fingerfist_postures()
+    rng = np.random.default_rng(seed)
+    rows = rng.choice(len(P), n, replace=False)
+    ren = DepthRenderer(hand, camera)
+    tr = _tracker(hand, bundle, mode="full", init_icp_iterations=icp)
+    out = {"flat": [], "hierarchical": [], "s_flat": [], "s_hier": []}
+    for i, row in enumerate(rows):
+        truth = sequence(P[row:row + 1], bundle.model.mean_, lead=0, distance=0.6 + 0.3 * (i % 4) / 3)[0]
+        depth = ren.render(truth, labels=False).depth
+        ob = observe(depth, camera, stride=1)
+        sil = Silhouette(ob.mask, ob.depth, camera)
+        start = truth.copy()
+        start[~hand.pose_mask] = bundle.model.mean_
+        for mode, key in (("full", "flat"), ("hierarchical", "hierarchical")):
+            t0 = time.perf_counter()
+            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, obs=sil, normals=ob.normals)
+            out["s_flat" if key == "flat" else "s_hier"].append(time.perf_counter() - t0)
+            out[key].append(float(posture_error_deg(th, truth, hand.pose_mask)))
+    return {k: (float(np.mean(v)), float(np.median(v))) for k, v in out.items()}
+
+
+def _fig(path, xs, ys, xlabel, ylabel, ys2=None, ylabel2=None, paper=None, title=""):
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from handmodel.fileio import atomic_write_bytes
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    ax.plot(xs, ys, "o-", color="C0", label="posture error (ours)")
+    if paper is not None:
+        ax.axhline(paper, color="C0", ls=":", label="paper")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel, color="C0")
+    if ys2 is not None:
+        ax2 = ax.twinx()
+        ax2.plot(xs, ys2, "s--", color="C1", label="time")
+        ax2.set_ylabel(ylabel2, color="C1")
+    ax.set_title(title)
+    ax.legend(loc="upper center", fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def report(out_dir, *, quick=False, progress=None):
+    """Run every experiment and write ``report.md`` with tables and PNG plots next to the paper's numbers."""
+    from handmodel import HandModel
+    from handmodel.fileio import atomic_write_text
+    from synergy.bundle import load_bundle
+
+    from .noise import NoiseModel
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    hand = HandModel.load()
+    bundle = load_bundle("fingerfist")
+    cam = default_camera()
+    segs = segments(2 if quick else 4, 30 if quick else 60)
+    steps = ["icp", "density", "modes", "noise", "mesh", "occlusion", "single"]
+    done = 0
+
+    def tick(name):
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, len(steps), name)
+
+    icp = experiment_icp(hand, bundle, cam, segs, (0, 1, 2, 4) if quick else (0, 1, 2, 3, 4, 6, 8))
+    tick("icp")
+    dens = experiment_density(hand, bundle, cam, segs, (2, 3, 4) if quick else (1, 2, 3, 4, 6))
+    tick("density")
+    modes = experiment_modes(hand, bundle, cam, segs)
+    tick("modes")
+    noisy = experiment_modes(hand, bundle, cam, segs, noise=NoiseModel.preset("kinect1"))
+    tick("noise")
+    mesh = experiment_modes(hand, bundle, cam, segs[:1] if quick else segs[:2], model="mesh")
+    tick("mesh")
+    occ = experiment_occlusion(hand, cam, frames=30 if quick else 60)
+    tick("occlusion")
+    single = experiment_single_frame(hand, bundle, cam, n=4 if quick else 12)
+    tick("single")
+    _fig(out / "fig8_icp_iterations.png", [k + 1 for k, _, _ in icp], [e for _, e, _ in icp], "ICP iterations (1 rigid + k)",
+         "posture error (°)", [t for _, _, t in icp], "ms / frame", PAPER["fig8_error_5icp_deg"], "Fig. 8: stride 3")
+    _fig(out / "fig9_density.png", [d for _, d, _, _ in dens], [e for _, _, e, _ in dens], "share of pixels used (1/stride²)",
+         "posture error (°)", [t for _, _, _, t in dens], "ms / frame", None, "Fig. 9: 1 rigid + 4 ICP")
+    L = ["# Experiments (the paper's, on our renderer, real fingerfist trajectories)", "",
+         f"Camera: {getattr(cam, 'name', 'kinect1')} {cam.width}×{cam.height}; hand at 0.6–0.9 m; {len(segs)} fingerfist "
+         f"segments of {segs[0][1]} frames after a 10-frame lead-in; mesh-rendered, capsule-tracked unless stated; "
+         f"bundle fingerfist@1.0.0 ({bundle.model.n_components_for(0.99)} PCs for 99 %). One core of this machine.", "",
+         "## Fig. 8 — ICP iterations (stride 3, full DoF)", "", "| ICP iterations | posture error ° | ms/frame |", "|---|---|---|"]
+    L += [f"| 1 + {k} | {e:.2f} | {t:.1f} |" for k, e, t in icp]
+    L += ["", f"Paper: < {PAPER['fig8_error_5icp_deg']}° after 5 iterations. ![](fig8_icp_iterations.png)", "",
+          "## Fig. 9 — sampling density (1 + 4 ICP iterations)", "", "| stride | pixels used | posture error ° | ms/frame |",
+          "|---|---|---|---|"]
+    L += [f"| {k} | 1/{k * k} | {e:.2f} | {t:.1f} |" for k, d, e, t in dens]
+    L += ["", f"Paper: ~{PAPER['fig9_ms_stride3']:.0f} ms/frame at 1/3 on 8 cores. ![](fig9_density.png)", "",
+          "## Modes (noise-free / Kinect v1 noise model / mesh correspondences)", "",
+          "| mode | error ° | fps | error ° with noise | error ° mesh model |", "|---|---|---|---|---|"]
+    for m in modes:
+        L.append(f"| {m} | {modes[m]['error_deg']:.2f} | {modes[m]['fps']:.0f} | {noisy[m]['error_deg']:.2f} | "
+                 f"{mesh[m]['error_deg']:.2f} |")
+    rec = modes["reduced"].get("subspace_reconstruction_deg")
+    L += ["", f"Reduced mode cannot beat its subspace: projecting the true postures onto the "
+              f"{bundle.model.n_components_for(0.99)} PCs alone costs {rec:.2f}°." if rec else "",
+          f"Paper: 25 fps full, 30 fps reduced (8-core Xeon); cylinders 4° vs mesh 2° full DoF.", "",
+          "## Occluded grasp (back of the hand to the camera)", "", "| mode | posture error ° | paper ° |", "|---|---|---|",
+          f"| full | {occ['full']:.2f} | {PAPER['occluded_full_deg']} |",
+          f"| reduced ({occ['n_pcs']} grasp PCs) | {occ['reduced']:.2f} | {PAPER['occluded_reduced_deg']} |", "",
+          "## Single frame from the global pose only (full cloud)", "", "| method | mean ° | median ° | s/frame | paper ° |",
+          "|---|---|---|---|---|",
+          f"| flat | {single['flat'][0]:.2f} | {single['flat'][1]:.2f} | {single['s_flat'][0]:.2f} | {PAPER['single_flat_deg']} |",
+          f"| hierarchical | {single['hierarchical'][0]:.2f} | {single['hierarchical'][1]:.2f} | {single['s_hier'][0]:.2f} | "
+          f"{PAPER['single_hier_deg']} |", ""]
+    atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
+    return {"icp": icp, "density": dens, "modes": modes, "noise": noisy, "mesh": mesh, "occlusion": occ, "single": single}
