@@ -120,6 +120,7 @@ class HandTracker:
 
     # --------------------------------------------------------------------------------------------
     def reset(self):
+        self.last_good = None
         self.theta = None
         self.prev = None
         self.lost = True
@@ -242,7 +243,7 @@ class HandTracker:
                 out.append(m.mean_ + sgn * amp * sd[pc] * m.all_components_[pc])
         return out
 
-    def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None):
+    def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None, extra=()):
         """Fit one frame without temporal prior: from ``theta0``'s global pose (or candidate poses
         from the cloud's principal axes) and several synergy postures, each refined by ICP (the
         hierarchical schedule by default when synergies exist); the best-scoring fit wins."""
@@ -254,16 +255,27 @@ class HandTracker:
             poses = self.initial_pose(points)
         posts = self.posture_candidates() if postures is None else postures
         post = ~self.hand.pose_mask
-        best = None
+        starts = []
         for pose in poses:
             for p in posts:
                 th = pose.copy()
                 if theta0 is None or len(posts) > 1:
                     th[post] = p
-                th, corr = self._icp(th, points, 2, st.init_icp_iterations, mode, obs, normals)
-                score = self._score(th, corr, obs)
-                if best is None or score < best[0]:
-                    best = (score, th, corr)
+                starts.append((th, False))
+        # e.g. the last good estimate before the hand was lost: refined through itself (not re-projected
+        # onto the synergy mean's subspaces), as it is and re-placed on the cloud
+        for th in extra:
+            starts.append((np.array(th, float), True))
+            moved = np.array(th, float)
+            centre = (self.hand.keypoints(moved)[[0, 5, 9, 13, 17]]).mean(0)
+            moved[:3] += points.mean(0) - centre
+            starts.append((moved, True))
+        best = None
+        for th, refine in starts:
+            th, corr = self._icp(th, points, 2, st.init_icp_iterations, mode, obs, normals, refine=refine)
+            score = self._score(th, corr, obs)
+            if best is None or score < best[0]:
+                best = (score, th, corr)
         return best[1], best[2]
 
     def track(self, observation, camera) -> FrameResult:
@@ -294,7 +306,8 @@ class HandTracker:
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
         if self.lost or self.theta is None:
-            theta, corr = self.fit_single_frame(pts, obs=obs, normals=nrm)
+            extra = () if self.last_good is None else (self.last_good,)
+            theta, corr = self.fit_single_frame(pts, obs=obs, normals=nrm, extra=extra)
             status = "reinit"
             self.prev = None
         else:
@@ -314,6 +327,7 @@ class HandTracker:
         ok = np.isfinite(fit) and fit <= st.lost_fit_mm and rejected <= st.lost_rejected
         if ok:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
+            self.last_good = theta
             self.lost = False
         else:
             self.lost = True
