@@ -64,29 +64,35 @@ def largest_component(mask):
     return lab == (1 + int(np.argmax(sizes)))
 
 
-def nearest_blob(depth, band=0.15, min_pixels=30):
-    """The connected component of pixels within ``band`` of the nearest depth that contains the
-    nearest pixels (ignoring specks smaller than ``min_pixels``)."""
+def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02):
+    """The nearest sizeable surface, cut to ``band`` metres behind its nearest part.
+
+    Pixels are grouped into surfaces by depth continuity (neighbours closer than ``jump``); among
+    surfaces of at least ``min_pixels`` the one whose 2nd-percentile depth is smallest wins (the hand
+    held towards the camera), and only its pixels within ``band`` of that depth are kept (the hand,
+    not the arm behind it)."""
     from scipy import ndimage
 
     d = np.asarray(depth, float)
     finite = np.isfinite(d)
     if not finite.any():
         return finite
-    near = np.nanmin(d)
-    for _ in range(5):
-        mask = finite & (d <= near + band)
-        lab, n = ndimage.label(mask)
-        if n == 0:
-            return mask
-        sizes = ndimage.sum(mask, lab, index=np.arange(1, n + 1))
-        mins = ndimage.minimum(np.where(mask, d, np.inf), lab, index=np.arange(1, n + 1))
-        ok = np.flatnonzero(sizes >= min_pixels)
-        if ok.size:
-            k = ok[np.argmin(np.asarray(mins)[ok])]
-            return lab == (k + 1)
-        # only specks near the front: skip them
-        near = np.min(np.where(mask, np.inf, d))
-        if not np.isfinite(near):
-            break
-    return np.zeros_like(finite)
+    with np.errstate(invalid="ignore"):
+        cut = np.zeros_like(finite)
+        cut[:, :-1] |= np.abs(d[:, 1:] - d[:, :-1]) > jump
+        cut[:-1, :] |= np.abs(d[1:, :] - d[:-1, :]) > jump
+    lab, n = ndimage.label(finite & ~cut)
+    if n == 0:
+        return np.zeros_like(finite)
+    ids = np.arange(1, n + 1)
+    sizes = ndimage.sum(np.ones_like(d), lab, index=ids)
+    big = ids[sizes >= min_pixels]
+    if big.size == 0:
+        return np.zeros_like(finite)
+    fronts = [np.percentile(d[lab == k], 2) for k in big]
+    k = big[int(np.argmin(fronts))]
+    front = min(fronts)
+    comp = lab == k
+    # re-attach the pixels on the cut lines that belong to this surface
+    grown = ndimage.binary_dilation(comp) & finite
+    return grown & (d <= front + band)
