@@ -133,7 +133,7 @@ def test_versions_are_immutable_and_bump(model, reg):
     assert str(p1) in str(info.value)
     assert p1.read_bytes() == before
     assert load_bundle("grip", registries=[reg]).version == "2.3.10"
-    assert [r.version for r in list_bundles([reg])] == ["1.0.0", "1.0.1", "2.3.9", "2.3.10"]
+    assert [r.version for r in list_bundles([reg]) if r.name == "grip"] == ["1.0.0", "1.0.1", "2.3.9", "2.3.10"]
     assert not [f for f in reg.iterdir() if f.name.startswith(".")]  # no temp files left
 
 
@@ -231,7 +231,7 @@ def test_renamed_file_is_caught(model, reg, tmp_path):
 
 def test_unknown_specifier(model, reg):
     save_bundle(model, "grip", registry=reg)
-    with pytest.raises(BundleError, match=r"no such bundle.*bundles: grip") as info:
+    with pytest.raises(BundleError, match=r"no such bundle.*bundles: .*grip") as info:
         load_bundle("nope", registries=[reg])
     assert str(info.value).startswith("nope: ")
     with pytest.raises(BundleError, match=r"versions: 1.0.0"):

@@ -106,7 +106,9 @@ def _orient_finger_bases(hand, nodes, local, palm, residual, cal):
 
         res = minimize(cost, np.zeros(3), method="Nelder-Mead",
                        options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 120, "initial_simplex": 0.15 * np.vstack([np.zeros(3), np.eye(3)])})
-        if res.fun < cost(np.zeros(3)):
+        # only a clear improvement re-orients the base: where the model already explains the finger,
+        # a rotated base would fit as well and merely change what the angles mean
+        if res.fun < 0.8 * cost(np.zeros(3)) - 0.1:
             rots[name] = Rotation.from_rotvec(res.x).as_matrix() @ R0
     return rots
 

@@ -93,6 +93,10 @@ def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02):
     k = big[int(np.argmin(fronts))]
     front = min(fronts)
     comp = lab == k
-    # re-attach the pixels on the cut lines that belong to this surface
-    grown = ndimage.binary_dilation(comp) & finite
-    return grown & (d <= front + band)
+    # the hand's own depth edges (fingers over the palm) split it into several surfaces: keep everything
+    # within the band that touches the chosen surface
+    near = finite & (d <= front + band)
+    lab2, _ = ndimage.label(near)
+    keep = np.unique(lab2[comp & near])
+    keep = keep[keep > 0]
+    return np.isin(lab2, keep)
