@@ -86,7 +86,7 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
             depth = noise.apply(depth, camera, rng=np.random.default_rng([seed, f]))
         if blank is not None and blank[0] <= f < blank[1]:
             depth = np.full_like(depth, np.nan)
-        ob = observe(depth, camera, stride=stride)
+        ob = observe(depth, camera, stride=stride, target_points=tracker.settings.target_points)
         t0 = time.perf_counter()
         r = tracker.track(ob, camera)
         ms[f] = (time.perf_counter() - t0) * 1000.0
@@ -118,7 +118,8 @@ def experiment_icp(hand, bundle, camera, segs, iterations=(0, 1, 2, 3, 4, 6, 8),
         e, t = [], []
         for i, (s, n) in enumerate(segs):
             truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
-            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, icp_iterations=k), lead=10)
+            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, icp_iterations=k, target_points=None),
+                             lead=10)
             e.append(r.mean_error)
             t.append(r.median_ms)
         out.append((k, float(np.mean(e)), float(np.mean(t))))
@@ -133,7 +134,8 @@ def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode
         e, t, npts = [], [], []
         for i, (s, n) in enumerate(segs):
             truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
-            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, stride=k), lead=10)
+            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, stride=k, target_points=None),
+                             lead=10)
             e.append(r.mean_error)
             t.append(r.median_ms)
         out.append((k, 1.0 / k ** 2, float(np.mean(e)), float(np.mean(t))))

@@ -39,11 +39,16 @@ class Observation:
     normals: np.ndarray       # (N, 3), NaN where unknown
     mask: np.ndarray          # (H, W) hand silhouette
     depth: np.ndarray         # (H, W) metres
-    density: float            # share of silhouette pixels kept (1/stride²)
+    density: float            # share of silhouette pixels kept (≈ 1/stride²)
+    stride: int = 1
 
 
-def observe(depth, camera, *, stride=3, segmenter=None, color=None):
-    """Segment the hand and sample its points (every ``stride``-th pixel in x and y)."""
+def observe(depth, camera, *, stride=3, segmenter=None, color=None, target_points=None):
+    """Segment the hand and sample its points (every ``stride``-th pixel in x and y).
+
+    With ``target_points`` the stride adapts to the hand's size in the image: the largest stride
+    (at most ``stride``) that still keeps about that many points, so a distant hand is sampled densely
+    enough and a near one is not oversampled."""
     from .segment import Segmenter
 
     d = np.asarray(depth, np.float64)
@@ -51,8 +56,10 @@ def observe(depth, camera, *, stride=3, segmenter=None, color=None):
     X = backproject_image(d, camera)
     mask = seg(d, color, X)
     N = image_normals(X)
+    if target_points:
+        stride = int(np.clip(np.floor(np.sqrt(mask.sum() / float(target_points))), 1, stride))
     sub = np.zeros_like(mask)
     sub[::stride, ::stride] = True
     keep = mask & sub & np.isfinite(X).all(-1)
     n_mask = max(int(mask.sum()), 1)
-    return Observation(X[keep], N[keep], mask, np.where(mask, d, np.nan), float(keep.sum()) / n_mask)
+    return Observation(X[keep], N[keep], mask, np.where(mask, d, np.nan), float(keep.sum()) / n_mask, stride)

@@ -29,7 +29,8 @@ class TrackerSettings:
     rigid_iterations: int = 1
     icp_iterations: int = 4
     gn_iterations: int = 5
-    stride: int = 3
+    stride: int = 3                    # every k-th pixel in x and y (the paper's "1/3 sampling" is 3) …
+    target_points: int | None = 600    # … or, when set, the largest stride ≤ `stride` keeping this many points
     reject_mm: float = 50.0
     damping: float = 1.0
     pose_damping: float = 0.0
@@ -230,6 +231,19 @@ class HandTracker:
             score += 20.0 * n_out / max(len(self.samples.nodes), 1)
         return score
 
+    def posture_grid(self):
+        """A grid of start postures over the first three synergies (PC1 at −2…+2 σ, PC2 and PC3 at
+        −1, 0, +1 σ), inside the PC limits: the search space of single-frame fits."""
+        m = self.synergies.model
+        sd = np.sqrt(m.all_explained_variance_)
+        out = []
+        for a1 in (-2.0, -1.0, 0.0, 1.0, 2.0):
+            for a2 in (-1.0, 0.0, 1.0):
+                for a3 in (-1.0, 0.0, 1.0):
+                    a = np.clip(np.array([a1 * sd[0], a2 * sd[1], a3 * sd[2]]), m.pc_min_[:3], m.pc_max_[:3])
+                    out.append(m.mean_ + a @ m.all_components_[:3])
+        return out
+
     def posture_candidates(self, k=None):
         """Start postures for single-frame fits: the synergy mean and ±σ along the first PCs."""
         post = ~self.hand.pose_mask
@@ -243,7 +257,8 @@ class HandTracker:
                 out.append(m.mean_ + sgn * amp * sd[pc] * m.all_components_[pc])
         return out
 
-    def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None, extra=()):
+    def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None, extra=(),
+                         search=True):
         """Fit one frame without temporal prior: from ``theta0``'s global pose (or candidate poses
         from the cloud's principal axes) and several synergy postures, each refined by ICP (the
         hierarchical schedule by default when synergies exist); the best-scoring fit wins."""
@@ -270,6 +285,19 @@ class HandTracker:
             centre = (self.hand.keypoints(moved)[[0, 5, 9, 13, 17]]).mean(0)
             moved[:3] += points.mean(0) - centre
             starts.append((moved, True))
+        if search and self.synergies is not None and postures is None:
+            # coarse search: short fits from a synergy grid on a thinned cloud, the best few refined fully
+            sub = slice(None, None, max(1, len(points) // 1500))
+            nsub = None if normals is None else normals[sub]
+            coarse = []
+            for pose in poses:
+                for p in self.posture_grid():
+                    th = pose.copy()
+                    th[post] = p
+                    th, corr = self._icp(th, points[sub], 1, 4, "reduced" if mode != "full" else "full", obs, nsub)
+                    coarse.append((self._score(th, corr, obs), th))
+            coarse.sort(key=lambda x: x[0])
+            starts = [(th, True) for _, th in coarse[:3]] + starts
         best = None
         for th, refine in starts:
             th, corr = self._icp(th, points, 2, st.init_icp_iterations, mode, obs, normals, refine=refine)

@@ -22,6 +22,7 @@ def track(
     overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
     overlay_every: int = typer.Option(10, "--overlay-every", help="Overlay every N-th frame."),
     stride: int = typer.Option(3, "--stride", help="Use every K-th pixel in x and y (the paper's '1/3 sampling' is 3)."),
+    points: int = typer.Option(600, "--points", help="Adapt the stride (≤ --stride) to keep about this many hand points; 0 = fixed stride."),
     icp: int = typer.Option(4, "--icp", help="Non-rigid ICP iterations per frame (after 1 rigid)."),
     gn: int = typer.Option(5, "--gn", help="Gauss-Newton steps per ICP iteration."),
     damping: float = typer.Option(1.0, "--damping", help="λ on posture coordinates (paper 1; residuals in mm)."),
@@ -57,6 +58,7 @@ def track(
         raise TrackerError("--synergies", f"mode {mode!r} needs a synergy bundle")
     hand = HandModel.load(hand_model, right=getattr(rec, "handedness", "left") == "right")
     settings = TrackerSettings(mode=mode, n_pcs=pcs, variance=None if pcs else variance, stride=stride,
+                               target_points=points or None,
                                icp_iterations=icp, gn_iterations=gn, damping=damping, model=model,
                                silhouette_weight=silhouette, prediction=prediction)
     tracker = HandTracker(hand, settings, synergies=bundle)
@@ -73,7 +75,7 @@ def track(
                 r = tracker.step(np.zeros((0, 3)))
                 npts = 0
             else:
-                ob = observe(depth, cam, stride=stride, color=frame.color)
+                ob = observe(depth, cam, stride=stride, color=frame.color, target_points=points or None)
                 r = tracker.track(ob, cam)
                 npts = len(ob.points)
             rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used, npts, r.ms, *r.theta))
