@@ -24,23 +24,13 @@ def kinect_camera():
 
 
 def back_project_points(depth, cam):
-    """Camera-frame points of all valid pixels (integer pixel centres), and their (v, u)."""
-    try:
-        from tracker import pointcloud
-    except ImportError:
-        pointcloud = None
+    """Camera-frame points of all valid pixels and their (v, u): the camera's own back-projection when it
+    has one (tracker.cameras), else x = (u − cx)·z/fx, y = (v − cy)·z/fy (integer pixel centres)."""
     v, u = np.nonzero(np.isfinite(depth))
+    if hasattr(cam, "backproject"):
+        return np.asarray(cam.backproject(depth), float)[v, u], v, u
     z = depth[v, u].astype(float)
-    if pointcloud is not None and hasattr(pointcloud, "back_project"):
-        try:
-            P = np.asarray(pointcloud.back_project(depth, cam), float)
-            if P.shape == depth.shape + (3,):
-                return P[v, u], v, u
-        except TypeError:
-            pass
-    x = (u - cam.cx) * z / cam.fx
-    y = (v - cam.cy) * z / cam.fy
-    return np.stack([x, y, z], 1), v, u
+    return np.stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z], 1), v, u
 
 
 # ----------------------------------------------------------------------------- independent references
@@ -270,6 +260,7 @@ def test_clutter_forearm_and_table(hand, cam, scenes):
     forearm = (r.face >= DepthRenderer(hand, cam).n_faces)
     # the hand is unchanged where it is not behind the forearm (thicker than the palm at the wrist)
     kept = r.labels >= 0
+    assert np.array_equal(r.hand_mask, kept)
     assert not (kept & ~hand_px).any()
     assert (forearm[hand_px & ~kept]).all() and (hand_px & ~kept).sum() < 0.1 * hand_px.sum()
     assert np.array_equal(r.depth[kept], plain.depth[kept])
@@ -314,7 +305,7 @@ def test_synthesize_round_trip(tmp_path, hand, cam):
     frames = list(R)
     assert len(frames) == 4
     truth = make_motion("open-close", hand=hand, frames=4, fps=30).theta
-    scale = float(getattr(R.camera, "depth_scale_m", 1e-3))
+    scale = float(R.camera.depth_scale)
     # the same seed gives the same noisy frames
     from tracker.noise import NoiseModel
 
@@ -343,7 +334,7 @@ def test_synthesize_noise_free_color(tmp_path, hand, cam):
     got = np.asarray(f.depth, float)
     ok = np.isfinite(exp)
     assert np.array_equal(np.isfinite(got), ok)
-    scale = float(getattr(R.camera, "depth_scale_m", 1e-3))
+    scale = float(R.camera.depth_scale)
     assert np.abs(got[ok] - exp[ok]).max() <= scale / 2 + 1e-6
 
 
@@ -355,3 +346,54 @@ def test_synthesize_bad_input(tmp_path, hand, cam):
         synthesize("no-such-motion", cam, "kinect1", tmp_path / "x", hand=hand)
     with pytest.raises(TrackerError):
         synthesize("still", cam, "kinect9", tmp_path / "y", hand=hand, frames=1)
+
+
+# ----------------------------------------------------------------------------- CLI
+def _app():
+    import typer
+
+    from tracker.synth_cli import register
+
+    app = typer.Typer(pretty_exceptions_enable=False)
+
+    @app.callback()
+    def main():
+        pass
+
+    register(app)
+    return app
+
+
+def test_cli_list_and_bad_input(tmp_path):
+    from typer.testing import CliRunner
+
+    from handmodel.errors import ToolkitError
+
+    runner = CliRunner()
+    r = runner.invoke(_app(), ["synth", "--list"])
+    assert r.exit_code == 0 and "grasp-back" in r.output and "kinect1" in r.output
+    r = runner.invoke(_app(), ["synth", "--motion", "still"])  # no -o
+    assert isinstance(r.exception, ToolkitError) and "-o" in str(r.exception)
+    r = runner.invoke(_app(), ["synth", "--motion", "nope", "-o", str(tmp_path / "r")])
+    assert isinstance(r.exception, ToolkitError)
+    r = runner.invoke(_app(), ["synth", "--noise", "kinect9", "-o", str(tmp_path / "r")])
+    assert isinstance(r.exception, ToolkitError) and "kinect9" in str(r.exception)
+    r = runner.invoke(_app(), ["synth", "--clutter", "sofa", "-o", str(tmp_path / "r")])
+    assert isinstance(r.exception, ToolkitError)
+    r = runner.invoke(_app(), ["synth", "--frames", "0", "-o", str(tmp_path / "r")])
+    assert isinstance(r.exception, ToolkitError)
+    assert not (tmp_path / "r").exists()
+
+
+def test_cli_synth_writes_a_recording(tmp_path):
+    rec = _recording_module()
+    pytest.importorskip("tracker.cameras")
+    from typer.testing import CliRunner
+
+    out = tmp_path / "rec"
+    r = CliRunner().invoke(_app(), ["synth", "--motion", "grasp-back", "--camera", "kinect1", "--noise", "kinect1",
+                                    "--frames", "3", "--seed", "1", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "hand pixels" in r.output
+    R = rec.Recording.open(out)
+    assert len(list(R)) == 3

@@ -169,3 +169,81 @@ def projector_shadow(depth, fb, side, out):
                 out[v, u] = True
             else:
                 m = up
+
+
+@njit(cache=True, nogil=True)
+def shade(P, faces, face_id, n_hand, n_table, fx, fy, cx, cy, light, materials, background, color, cos_out):
+    """Per-pixel flat shading and incidence from the visible-face buffer.
+
+    ``face_id`` ≥ 0 indexes ``faces`` (hand faces first, ``n_hand`` of them, then clutter), −2 is the
+    plane with normal ``n_table``. ``materials`` rows: hand, other triangles, plane (RGB). Writes
+    ``color`` (H, W, 3) uint8 when it has pixels and ``cos_out`` (H, W) float32 (|cos| between normal
+    and ray, NaN where nothing) when it has pixels.
+    """
+    H, W = face_id.shape
+    want_color = color.shape[0] == H
+    want_cos = cos_out.shape[0] == H
+    for v in range(H):
+        for u in range(W):
+            f = face_id[v, u]
+            if f == -1:
+                if want_color:
+                    color[v, u, 0] = background[0]
+                    color[v, u, 1] = background[1]
+                    color[v, u, 2] = background[2]
+                if want_cos:
+                    cos_out[v, u] = np.nan
+                continue
+            if f >= 0:
+                a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+                e1x, e1y, e1z = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+                e2x, e2y, e2z = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+                nx = e1y * e2z - e1z * e2y
+                ny = e1z * e2x - e1x * e2z
+                nz = e1x * e2y - e1y * e2x
+                m = 0 if f < n_hand else 1
+            else:
+                nx, ny, nz = n_table[0], n_table[1], n_table[2]
+                m = 2
+            nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+            if nn == 0.0:
+                nn = 1.0
+            rx = (u - cx) / fx
+            ry = (v - cy) / fy
+            rn = np.sqrt(rx * rx + ry * ry + 1.0)
+            cosr = (nx * rx + ny * ry + nz) / (nn * rn)
+            if want_cos:
+                cos_out[v, u] = abs(cosr)
+            if want_color:
+                s = -1.0 if cosr > 0.0 else 1.0  # the side facing the camera
+                lam = s * (nx * light[0] + ny * light[1] + nz * light[2]) / nn
+                lam = 0.35 + 0.65 * min(max(lam, 0.0), 1.0)
+                for k in range(3):
+                    color[v, u, k] = np.uint8(min(materials[m, k] * lam + 0.5, 255.0))
+
+
+@njit(cache=True, nogil=True)
+def lateral_resample(d, cosi, nu, nv, sigma0, angle, reach, out_d, out_cos):
+    """Nearest-pixel resampling at Gaussian offsets: pixel (v, u) takes (v + round(σ nv), u + round(σ nu)).
+
+    σ = ``sigma0`` (+ Nguyen's ``0.035 θ/(π/2 − θ)`` when ``angle``, θ from ``cosi``, clipped at 85°);
+    offsets are clipped to ±``reach`` and to the image. ``cosi`` may be empty (0×0) when not used.
+    """
+    H, W = d.shape
+    use_cos = cosi.shape[0] == H
+    tmax = 85.0 * np.pi / 180.0
+    for v in range(H):
+        for u in range(W):
+            s = sigma0
+            if angle and use_cos:
+                c = cosi[v, u]
+                if c == c:
+                    th = min(np.arccos(min(abs(c), 1.0)), tmax)
+                    s += 0.035 * th / (np.pi / 2 - th)
+            du = min(max(int(np.rint(s * nu[v, u])), -reach), reach)
+            dv = min(max(int(np.rint(s * nv[v, u])), -reach), reach)
+            uu = min(max(u + du, 0), W - 1)
+            vv = min(max(v + dv, 0), H - 1)
+            out_d[v, u] = d[vv, uu]
+            if use_cos:
+                out_cos[v, u] = cosi[vv, uu]

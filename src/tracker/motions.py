@@ -112,13 +112,33 @@ class GlobalPath:
 
     def pose(self, hand, frames: int, fps: float) -> np.ndarray:
         """Global pose columns ``(frames, 6)``: tx ty tz rx ry rz with R = Rx·Ry·Rz, angles unwrapped."""
-        from handmodel.rigid import matrix_to_euler
-
         t = np.arange(frames) / float(fps)
         R = self.rotations(t)
         trans = self.centres(t) - R @ hand_centre(hand)
-        ang = np.unwrap(matrix_to_euler(R), axis=0) if frames else np.zeros((0, 3))
-        return np.concatenate([trans, ang], axis=1)
+        return np.concatenate([trans, continuous_euler(R)], axis=1)
+
+
+def continuous_euler(R) -> np.ndarray:
+    """Angles ``(F, 3)`` with R = Rx·Ry·Rz that change continuously from frame to frame.
+
+    Of the two solutions ``(a, b, c)`` and ``(a + π, π − b, c + π)`` (and their 2π shifts) each
+    frame takes the one nearest the previous frame's, so a path through ``b = ±90°`` does not jump.
+    """
+    from handmodel.rigid import matrix_to_euler
+
+    e = matrix_to_euler(np.asarray(R, float).reshape(-1, 3, 3))
+    out = np.empty_like(e)
+    prev = None
+    for i, (a, b, c) in enumerate(e):
+        cands = np.array([[a, b, c], [a + np.pi, np.pi - b, c + np.pi]])
+        if prev is None:
+            cands = (cands + np.pi) % (2 * np.pi) - np.pi
+            out[i] = cands[0]
+        else:
+            cands = prev + (cands - prev + np.pi) % (2 * np.pi) - np.pi
+            out[i] = cands[np.argmin(np.abs(cands - prev).sum(1))]
+        prev = out[i]
+    return out
 
 
 STILL = GlobalPath(amplitude=(0.0, 0.0, 0.0), wobble_deg=(0.0, 0.0, 0.0))
@@ -270,14 +290,14 @@ def read_schroeder26(path) -> np.ndarray:
     return A[:, N_POSE:]
 
 
-def from_postures_file(path, *, hand=None, fps: float = 30.0, path_: GlobalPath | None = None,
+def from_postures_file(file, *, hand=None, fps: float = 30.0, path: GlobalPath | None = None,
                        name: str | None = None) -> Motion:
     """Replay a schroeder26 posture file one row per frame; its columns 1–6 (unreliable global
-    pose) are replaced by the global path ``path_`` (default :class:`GlobalPath`)."""
+    pose) are replaced by the global path ``path`` (default :class:`GlobalPath`)."""
     hand = hand or _hand()
-    P = read_schroeder26(path)
-    return Motion(name or Path(path).stem, with_path(P, hand, fps, path_), fps,
-                  "posture file replay (schroeder26, cols 1-6 replaced)", source=str(path))
+    P = read_schroeder26(file)
+    return Motion(name or Path(file).stem, with_path(P, hand, fps, path), fps,
+                  "posture file replay (schroeder26, cols 1-6 replaced)", source=str(file))
 
 
 def fingerfist_path() -> Path:
@@ -344,10 +364,11 @@ def _grasp_back(hand, frames, fps, seed):
     return with_path(keyframes([OPEN, GRASP], frames, fps, 3.0, hold=0.3), hand, fps, path)
 
 
-@_scenario("rotate", "open hand closing and opening while it turns from palm to back and back (±100° about the "
-                     "vertical)", 6.0)
+@_scenario("rotate", "hand closing and opening while it turns from palm to back and back (0–180° about the "
+                     "vertical in 6 s)", 6.0)
 def _rotate(hand, frames, fps, seed):
-    path = GlobalPath(wobble_deg=(5.0, 100.0, 5.0), wobble_period_s=(6.0, 6.0, 6.0), phase=(0.0, 0.0, 0.0))
+    path = GlobalPath(tilt_deg=(0.0, 90.0, 0.0), wobble_deg=(5.0, 90.0, 5.0), wobble_period_s=(6.0, 6.0, 6.0),
+                      phase=(0.0, -np.pi / 2, 0.0))
     return with_path(keyframes([OPEN, GRASP], frames, fps, 3.0), hand, fps, path)
 
 
@@ -403,7 +424,7 @@ def make_motion(spec: str | os.PathLike, *, hand=None, frames: int | None = None
     if suffix == ".csv":
         return from_table(p, hand=hand, fps=fps, path=path).head(frames)
     if suffix in (".txt", ".dat"):
-        return from_postures_file(p, hand=hand, fps=fps, path_=path).head(frames)
+        return from_postures_file(p, hand=hand, fps=fps, path=path).head(frames)
     if p.exists():
         raise TrackerError(p, "unknown motion file type (.csv angle table, .txt/.dat schroeder26)")
     raise TrackerError(spec, f"no such scenario or file (scenarios: {', '.join(sorted(SCENARIOS))})")

@@ -202,7 +202,7 @@ class NoiseModel:
             projector_shadow(d, self.focal(camera) * self.baseline_m, self.projector_side, sh)
             d[sh] = np.nan
         if self.lateral_px > 0:
-            d, cosi = _lateral(d, cosi, self.sigma_lateral(cosi), jitter, rng)
+            d, cosi = _lateral(d, cosi, self.lateral_px, self.angle_terms, max(jitter, 1), rng)
         if self.edge_drop_prob > 0 and self.edge_width_px > 0:
             near_edge = _edge_band(d, self.edge_width_px, self.edge_jump_m)
             d[near_edge & (rng.random(d.shape) < self.edge_drop_prob)] = np.nan
@@ -233,15 +233,17 @@ def _theta(cos_incidence) -> np.ndarray:
     return np.minimum(np.arccos(c), _THETA_MAX)
 
 
-def _lateral(d, cosi, sigma, reach, rng):
-    """Nearest-pixel resampling at Gaussian offsets (σ pixels, clipped to ±reach)."""
-    H, W = d.shape
-    reach = max(int(reach), 0)
-    du = np.clip(np.rint(rng.standard_normal(d.shape) * sigma), -reach, reach).astype(np.int64)
-    dv = np.clip(np.rint(rng.standard_normal(d.shape) * sigma), -reach, reach).astype(np.int64)
-    vv = np.clip(np.arange(H)[:, None] + dv, 0, H - 1)
-    uu = np.clip(np.arange(W)[None, :] + du, 0, W - 1)
-    return d[vv, uu], (None if cosi is None else cosi[vv, uu])
+def _lateral(d, cosi, sigma0, angle, reach, rng):
+    """Nearest-pixel resampling at Gaussian offsets (σ_L pixels, clipped to ±reach)."""
+    from ._render_kernels import lateral_resample
+
+    nu = rng.standard_normal(d.shape, dtype=np.float32)
+    nv = rng.standard_normal(d.shape, dtype=np.float32)
+    c = np.zeros((0, 0)) if cosi is None else np.ascontiguousarray(cosi, dtype=np.float64)
+    out_d = np.empty_like(d)
+    out_c = np.empty_like(c)
+    lateral_resample(np.ascontiguousarray(d), c, nu, nv, float(sigma0), bool(angle), int(reach), out_d, out_c)
+    return out_d, (None if cosi is None else out_c)
 
 
 def _edge_band(d, width, jump):

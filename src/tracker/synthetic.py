@@ -6,7 +6,8 @@ z of the ray–triangle intersection (1/z is interpolated, not z), so it agrees 
 
 Pixel convention: pixel centres sit at integer coordinates; pixel ``(v, u)`` (row, column) samples
 the ray ``((u − cx)/fx, (v − cy)/fy, 1)``, and a point projects to ``u = fx·x/z + cx``. Back-project
-a depth image with the same rule (``x = (u − cx)·z/fx``) to get points on the surface.
+a depth image with the same rule (``x = (u − cx)·z/fx``, ``y = (v − cy)·z/fy``) to get points on the
+surface.
 
 Examples
 --------
@@ -36,6 +37,8 @@ TABLE_RGB = (178, 172, 160)
 BACKGROUND_RGB = (36, 40, 48)
 LIGHT_DIR = np.array([-0.3, -0.5, -1.0]) / np.linalg.norm([-0.3, -0.5, -1.0])  # toward the light (camera frame)
 TABLE_FACE = -2  # face id of table pixels; hand faces are 0..T-1, forearm faces follow
+_MATERIALS = np.array([SKIN_RGB, SLEEVE_RGB, TABLE_RGB], float)
+_BACKGROUND = np.array(BACKGROUND_RGB, np.uint8)
 
 
 # ----------------------------------------------------------------------------- scene pieces
@@ -136,7 +139,7 @@ class Rendered:
     color : (H, W, 3) uint8 or None
         Shaded colour image registered to the depth image (skin hand, blue sleeve, grey table).
     face : (H, W) int32
-        Visible triangle: hand faces 0…T−1, forearm faces T…, −2 table, −1 none.
+        Visible triangle: hand faces 0…T−1 (``T = n_hand_faces``), forearm faces T…, −2 table, −1 none.
     cos_incidence : (H, W) float32 or None
         |cos| of the angle between surface normal and pixel ray (NaN where no surface).
     """
@@ -146,16 +149,12 @@ class Rendered:
     color: np.ndarray | None
     face: np.ndarray
     cos_incidence: np.ndarray | None = None
+    n_hand_faces: int = 0
 
     @property
     def hand_mask(self) -> np.ndarray:
         """Pixels showing the hand."""
-        f = self.face
-        return (f >= 0) & np.isfinite(self.depth) & (f < _hand_face_count(self))
-
-
-def _hand_face_count(r: Rendered) -> int:
-    return getattr(r, "_n_hand_faces", np.iinfo(np.int32).max)
+        return (self.face >= 0) & (self.face < self.n_hand_faces)
 
 
 def as_camera(camera):
@@ -170,17 +169,6 @@ def as_camera(camera):
         if not hasattr(camera, a):
             raise TrackerError("camera", f"needs attribute {a!r} (pinhole intrinsics)")
     return camera
-
-
-def pixel_rays(camera) -> np.ndarray:
-    """Ray directions ``(H, W, 3)`` with z = 1 of all pixels (integer pixel centres)."""
-    u = (np.arange(camera.width) - camera.cx) / camera.fx
-    v = (np.arange(camera.height) - camera.cy) / camera.fy
-    d = np.empty((camera.height, camera.width, 3))
-    d[..., 0] = u[None, :]
-    d[..., 1] = v[:, None]
-    d[..., 2] = 1.0
-    return d
 
 
 # ----------------------------------------------------------------------------- renderer
@@ -283,7 +271,6 @@ class DepthRenderer:
         depth, lab, face = self.rasterize(P)
         c = self.camera
         verts, faces = P, self._p.faces
-        G0 = None
         if clutter is not None and clutter.forearm:
             G0 = self._p.hand.node_frames(theta)[0]
             Vf, Ff = self._forearm_mesh(clutter)
@@ -301,54 +288,23 @@ class DepthRenderer:
                        depth, lab, np.int16(-1), face, np.int32(TABLE_FACE))
         cosi = col = None
         if color or incidence:
-            normals, hit = _pixel_normals(verts, faces, face, n_table)
-            rays = pixel_rays(c)
-            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-            if incidence:
-                cosi = np.full(depth.shape, np.nan, np.float32)
-                cosi[hit] = np.abs(np.einsum("ij,ij->i", normals, rays[hit]))
-            if color:
-                col = _shade(face, hit, normals, rays, self.n_faces)
-        out = Rendered(depth, lab if labels else None, col, face, cosi)
-        object.__setattr__(out, "_n_hand_faces", self.n_faces)
-        return out
+            from ._render_kernels import shade
+
+            H, W = depth.shape
+            col = np.empty((H, W, 3) if color else (0, 0, 3), np.uint8)
+            cosi = np.empty((H, W) if incidence else (0, 0), np.float32)
+            shade(np.ascontiguousarray(verts), faces, face, self.n_faces,
+                  np.zeros(3) if n_table is None else n_table, float(c.fx), float(c.fy), float(c.cx), float(c.cy),
+                  LIGHT_DIR, _MATERIALS, _BACKGROUND, col, cosi)
+            col = col if color else None
+            cosi = cosi if incidence else None
+        return Rendered(depth, lab if labels else None, col, face, cosi, self.n_faces)
 
     def _forearm_mesh(self, clutter: Clutter):
         key = (clutter.forearm_length_m, clutter.forearm_wrist_m, clutter.forearm_far_m)
         if key not in self._forearm:
             self._forearm[key] = _forearm_mesh(clutter)
         return self._forearm[key]
-
-
-def _pixel_normals(verts, faces, face, n_table):
-    """Unit normals of the visible surface at each hit pixel, oriented toward the camera."""
-    hit = face != -1
-    f = face[hit]
-    normals = np.zeros((len(f), 3))
-    tri = f >= 0
-    if tri.any():
-        T = verts[faces[f[tri]]]
-        n = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-        normals[tri] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    if n_table is not None:
-        normals[f == TABLE_FACE] = n_table
-    return normals, hit
-
-
-def _shade(face, hit, normals, rays, n_hand_faces):
-    """Lambert shading with a light near the camera; materials by face range."""
-    H, W = face.shape
-    img = np.empty((H, W, 3), np.float32)
-    img[:] = BACKGROUND_RGB
-    f = face[hit]
-    n = normals * np.where(np.einsum("ij,ij->i", normals, rays[hit]) > 0, -1.0, 1.0)[:, None]
-    lam = 0.35 + 0.65 * np.clip(n @ LIGHT_DIR, 0.0, 1.0)
-    base = np.empty((len(f), 3), np.float32)
-    base[:] = SLEEVE_RGB
-    base[(f >= 0) & (f < n_hand_faces)] = SKIN_RGB
-    base[f == TABLE_FACE] = TABLE_RGB
-    img[hit] = base * lam[:, None]
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
 def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = False,
@@ -371,12 +327,6 @@ def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = Fa
     """
     return DepthRenderer(hand_or_mesh, camera).render(theta, labels=labels, color=color, clutter=clutter,
                                                       incidence=incidence)
-
-
-def back_project(depth, camera) -> np.ndarray:
-    """Camera-frame points ``(H, W, 3)`` of a depth image (NaN where no depth), integer pixel centres."""
-    d = np.asarray(depth, float)
-    return pixel_rays(camera) * d[..., None]
 
 
 # ----------------------------------------------------------------------------- synthesis
@@ -458,6 +408,9 @@ def synthesize(motion, camera, noise, out_dir, fps: float = 30, seed: int = 0,
     n_hand = n_valid = 0
     zmin, zmax = np.inf, -np.inf
     cam_name = getattr(cam, "name", None) or (camera if isinstance(camera, str) else "custom")
+    clutter_desc = "none" if clutter is None else ",".join(k for k in ("forearm", "table") if getattr(clutter, k))
+    writer_options.setdefault("source", f"synthetic: motion {m.name}, noise {nm.name}, seed {seed}, "
+                                        f"clutter {clutter_desc}, hand {hand.name} ({hand.handedness})")
     with RecordingWriter(out_dir, cam, float(fps), hand.handedness, **writer_options) as writer:
         for i, th in enumerate(m.theta):
             t0 = time.perf_counter()

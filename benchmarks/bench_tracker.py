@@ -1,0 +1,98 @@
+"""Tracking speed at the paper's settings (1 rigid + 4 non-rigid ICP iterations × 5 Gauss-Newton steps,
+stride 3) for full, reduced and hierarchical modes, next to a peer on the same frames: the same ICP loop
+with each non-rigid step solved by scipy.optimize.least_squares (analytic Jacobian, 5 evaluations).
+
+Run: .venv/bin/python benchmarks/bench_tracker.py [--frames 60]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from handmodel import HandModel
+from synergy.bundle import load_bundle
+from tracker import experiments as E
+from tracker.cameras import preset
+from tracker.correspond import local_offsets
+from tracker.observe import observe
+from tracker.rigid import rigid_step
+from tracker.synthetic import DepthRenderer
+from tracker.track import HandTracker, TrackerSettings
+
+
+def frames(hand, bundle, cam, n):
+    P = E.fingerfist_postures()
+    truth = E.sequence(P[3000:3000 + n], bundle.model.mean_, lead=10, distance=0.75)
+    ren = DepthRenderer(hand, cam)
+    obs = [observe(ren.render(t, labels=False).depth, cam, stride=3) for t in truth]
+    return truth, obs
+
+
+def run(hand, bundle, cam, truth, obs, mode, silhouette):
+    tr = HandTracker(hand, TrackerSettings(mode=mode, target_points=None, silhouette_weight=silhouette),
+                     synergies=bundle)
+    ms, err = [], []
+    for t, ob in zip(truth, obs):
+        t0 = time.perf_counter()
+        r = tr.track(ob, cam)
+        ms.append((time.perf_counter() - t0) * 1000)
+        err.append(E.posture_error_deg(r.theta, t, hand.pose_mask))
+    return float(np.median(ms[10:])), float(np.mean(err[10:]))
+
+
+def peer(hand, bundle, cam, truth, obs):
+    """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
+    tr = HandTracker(hand, TrackerSettings(mode="full", target_points=None, silhouette_weight=0.0), synergies=bundle)
+    lo, hi = tr.limits[:, 0], tr.limits[:, 1]
+    theta = truth[0].copy()
+    ms, err = [], []
+    for t, ob in zip(truth, obs):
+        t0 = time.perf_counter()
+        pts = ob.points
+        corr = tr._corr(theta, pts, ob.normals)
+        theta = rigid_step(theta, pts, corr)
+        for _ in range(4):
+            corr = tr._corr(theta, pts, ob.normals)
+            v = corr.valid
+            nodes, tgt = corr.nodes[v], pts[v]
+            loc = local_offsets(hand, theta, nodes, corr.model[v])
+            r = least_squares(lambda q: (hand.points(q, nodes, loc) - tgt).ravel() * 1000.0,
+                              np.clip(theta, lo + 1e-9, hi - 1e-9),
+                              jac=lambda q: hand.jacobian(q, nodes, loc).reshape(-1, 26) * 1000.0,
+                              bounds=(lo, hi), method="trf", max_nfev=5)
+            theta = r.x
+        ms.append((time.perf_counter() - t0) * 1000)
+        err.append(E.posture_error_deg(theta, t, hand.pose_mask))
+    return float(np.median(ms[10:])), float(np.mean(err[10:]))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=60)
+    args = ap.parse_args()
+    hand = HandModel.load()
+    bundle = load_bundle("fingerfist")
+    cam = preset("kinect1")
+    truth, obs = frames(hand, bundle, cam, args.frames)
+    run(hand, bundle, cam, truth[:12], obs[:12], "full", 1.0)  # compile kernels
+    print(f"bench_tracker: {len(truth)} mesh-rendered Kinect v1 frames (fingerfist rows 3000+, 0.75 m), stride 3, "
+          f"{np.mean([len(o.points) for o in obs]):.0f} points/frame, 1 rigid + 4 ICP × 5 GN, one core")
+    print(f"  {'method':<46} {'ms/frame':>9} {'fps':>7} {'posture error':>14}")
+    for mode, sil, label in [("full", 0.0, "full (paper: data→model only)"), ("full", 1.0, "full + silhouette term"),
+                             ("reduced", 0.0, f"reduced ({bundle.model.n_components_for(0.99)} PCs)"),
+                             ("reduced", 1.0, "reduced + silhouette term"),
+                             ("hierarchical", 1.0, "hierarchical + silhouette term")]:
+        ms, e = run(hand, bundle, cam, truth, obs, mode, sil)
+        print(f"  {label:<46} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+    ms, e = peer(hand, bundle, cam, truth, obs)
+    print(f"  {'peer: same ICP, scipy least_squares (full)':<46} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+
+
+if __name__ == "__main__":
+    main()
