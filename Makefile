@@ -3,8 +3,9 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+DEMO := out/demo
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-fast bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -12,14 +13,34 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# The whole workflow on data the project generates itself: simulated mocap (C3D) → per-task synergy
+# bundles → synthetic depth recording → tracking in full / reduced / hierarchical space → evaluation.
 demo: $(STAMP)
-	$(BIN)/python -m handmodel.demo --out out
+	@echo "== demo outputs go to $(DEMO) (recreated on every run)"; rm -rf $(DEMO); mkdir -p $(DEMO)
+	$(BIN)/python -m handmodel.demo --out $(DEMO)/hand --frames 1000
+	$(BIN)/synergy simulate -o $(DEMO)/mocap --trials 2 --duration 3
+	$(BIN)/synergy angles $(DEMO)/mocap/power_grasp_01.c3d --markers hand16 -o $(DEMO)/angles
+	$(BIN)/synergy fit $(DEMO)/mocap/*.c3d --markers hand16 --name demo --per-task -o $(DEMO)/synergies
+	$(BIN)/synergy compare demo-grasp demo-general -r $(DEMO)/synergies
+	$(BIN)/synergy plot demo-grasp -r $(DEMO)/synergies -o $(DEMO)/figs
+	$(BIN)/tracker synth --motion grasp-back --noise kinect1 --frames 60 -o $(DEMO)/recording
+	$(BIN)/tracker show $(DEMO)/recording -o $(DEMO)/figs/recording.png
+	for mode in full reduced hierarchical; do \
+	  $(BIN)/tracker track $(DEMO)/recording --synergies demo-grasp -r $(DEMO)/synergies --mode $$mode -o $(DEMO)/track-$$mode.csv \
+	    --overlay $(DEMO)/overlay-$$mode --overlay-every 20 || exit 1; \
+	  $(BIN)/tracker eval $(DEMO)/recording $(DEMO)/track-$$mode.csv \
+	    --plot $(DEMO)/figs/error-$$mode.png || exit 1; \
+	done
+	@echo "== done: see $(DEMO) (figs/, overlay-*/, track-*.csv, synergies/)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests
 
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow" tests
+
 bench: $(STAMP)
-	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
+	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) out

@@ -513,16 +513,18 @@ def _read_c3d_postures(p: Path, markers: str | None, hand: str = "left", smooth_
 # <<< C3D INPUT ------------------------------------------------------------------------------
 
 
-def fit_trials(trials: Sequence[Trial], n_components=None) -> SynergyModel:
-    """Fit a :class:`SynergyModel` (with PC limits) on all trials' postures."""
+def fit_trials(trials: Sequence[Trial], n_components=None, stats=None) -> SynergyModel:
+    """Fit a :class:`SynergyModel` (with PC limits) on all trials' postures; ``stats`` are the trials'
+    sufficient statistics when already computed elsewhere (e.g. as Dask tasks)."""
     if not trials:
         raise SynergyError(None, "no trials to fit")
     names = trials[0].dof_names
     for t in trials:
         if t.dof_names != names:
             raise SynergyError(t.path, f"DoF names differ from {trials[0].path}")
-    stats = SufficientStats.merge_all(SufficientStats.from_array(t.postures) for t in trials)
-    model = stats.finalize(n_components)
+    if stats is None:
+        stats = [SufficientStats.from_array(t.postures) for t in trials]
+    model = SufficientStats.merge_all(stats).finalize(n_components)
     for t in trials:
         model.update_limits(t.postures)
     return model
@@ -531,10 +533,10 @@ def fit_trials(trials: Sequence[Trial], n_components=None) -> SynergyModel:
 def bundle_from_trials(
     trials: Sequence[Trial], name: str, *, n_components=None, registry=None, version=None,
     tasks: Sequence[str] | None = None, hand_model: str = "default",
-    hand_model_sha256: str | None = None, heldout: bool = True,
+    hand_model_sha256: str | None = None, heldout: bool = True, stats=None,
 ) -> Bundle:
     """Fit, estimate held-out reconstruction error, save and return the new bundle."""
-    model = fit_trials(trials, n_components)
+    model = fit_trials(trials, n_components, stats)
     ho = None
     if heldout:
         try:

@@ -73,6 +73,7 @@ def fit(
     hand: str = typer.Option("left", "--hand", help="C3D input: which hand the markers are on (left/right)."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
+    dask: Optional[str] = typer.Option(None, "--dask", help="Convert files and compute statistics as Dask tasks: local, local:N or a scheduler address."),
     version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model the angles refer to."),
     hand_model_sha256: Optional[str] = typer.Option(None, "--hand-model-sha256", help="Its hash (default: hash of models/hands/NAME.yaml)."),
@@ -98,13 +99,22 @@ def fit(
             raise TaskMapError(tasks, f"no rule matches {f}")
 
     trials = []
+    stats_of = {}
     err_console = _console(stderr=True)
-    with Progress(console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
-        bar = progress.add_task("reading", total=len(inputs))
-        for f in inputs:
-            progress.update(bar, description=f"reading {f.name}")
-            trials.append(read_trial(f, fmt, task=labels[f], markers=markers, hand=hand, smooth_hz=smooth_hz))
-            progress.advance(bar)
+    if dask:
+        from synergy.scale import read_trials_dask
+
+        with err_console.status(f"converting {len(inputs)} file(s) on Dask ({dask})"):
+            trials, stats = read_trials_dask(inputs, fmt, labels, markers=markers, hand=hand, smooth_hz=smooth_hz,
+                                             address=dask)
+        stats_of = {id(t): s for t, s in zip(trials, stats)}
+    else:
+        with Progress(console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
+            bar = progress.add_task("reading", total=len(inputs))
+            for f in inputs:
+                progress.update(bar, description=f"reading {f.name}")
+                trials.append(read_trial(f, fmt, task=labels[f], markers=markers, hand=hand, smooth_hz=smooth_hz))
+                progress.advance(bar)
 
     groups = {name: trials}
     if per_task:
@@ -120,6 +130,7 @@ def fit(
         bundle = bundle_from_trials(
             group, bname, n_components=variance, registry=registry, version=version,
             hand_model=hand_model, hand_model_sha256=hand_model_sha256,
+            stats=[stats_of[id(t)] for t in group] if stats_of else None,
         )
         console.print(_summary_table(bundle, variance))
 
@@ -273,14 +284,17 @@ def plot(
     fmt: str = typer.Option("auto", "--format", help="Format of --heldout files."),
     registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
 ):
-    """Scree/cumulative-variance PNG, and reconstruction error vs PCs if held-out data exist."""
+    """Scree/cumulative-variance PNG, the hand at μ ± 2σ along PC1–3 (paper Fig. 6), and reconstruction
+    error vs PCs if held-out data exist."""
     import numpy as np
 
     from synergy.bundle import load_bundle, read_trial
 
     b = load_bundle(spec, registry)
     stem = f"{b.name}-{b.version}"
-    written = [_plot_scree(b, out / f"{stem}-scree.png")]
+    from synergy.plots import synergy_hands
+
+    written = [_plot_scree(b, out / f"{stem}-scree.png"), synergy_hands(b, out / f"{stem}-hands.png")]
     curves = {}
     if "heldout" in b.manifest:
         curves[f"stored ({b.manifest['heldout']['method']})"] = np.degrees(b.manifest["heldout"]["rms_rad"])

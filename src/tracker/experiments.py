@@ -86,7 +86,8 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
             depth = noise.apply(depth, camera, rng=np.random.default_rng([seed, f]))
         if blank is not None and blank[0] <= f < blank[1]:
             depth = np.full_like(depth, np.nan)
-        ob = observe(depth, camera, stride=stride, target_points=tracker.settings.target_points)
+        ob = observe(depth, camera, stride=stride, target_points=tracker.settings.target_points,
+                     smooth=tracker.settings.smooth)
         t0 = time.perf_counter()
         r = tracker.track(ob, camera)
         ms[f] = (time.perf_counter() - t0) * 1000.0
@@ -195,7 +196,7 @@ def experiment_occlusion(hand, camera, frames=45, seed=0):
     truth = with_path(th[:, 6:], hand, 30.0, path)
     res = {}
     for mode in ("full", "reduced"):
-        tr = _tracker(hand, gb, mode=mode, n_pcs=gb.n_pcs, variance=None, limits="model" if mode == "full" else "data")
+        tr = _tracker(hand, gb, mode=mode, n_pcs=gb.n_pcs, variance=None)
         r = run_sequence(hand, truth, camera, tr, lead=5)
         res[mode] = r.mean_error
     res["n_pcs"] = gb.n_pcs

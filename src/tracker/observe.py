@@ -33,6 +33,27 @@ def image_normals(X, max_jump=0.01):
     return n
 
 
+def smooth_depth(depth, radius=1, max_diff=0.01):
+    """Edge-preserving smoothing: each pixel becomes the mean of the valid pixels in its
+    (2r+1)² window whose depth is within ``max_diff`` m of its own (a cheap bilateral filter that
+    averages sensor noise without blurring the hand into the background)."""
+    d = np.asarray(depth, float)
+    H, W = d.shape
+    pad = np.pad(d, radius, constant_values=np.nan)
+    acc = np.zeros_like(d)
+    cnt = np.zeros_like(d)
+    with np.errstate(invalid="ignore"):
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                nb = pad[radius + dy:radius + dy + H, radius + dx:radius + dx + W]
+                ok = np.isfinite(nb) & (np.abs(nb - d) <= max_diff)
+                acc += np.where(ok, nb, 0.0)
+                cnt += ok
+    out = np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
+    out[~np.isfinite(d)] = np.nan
+    return out
+
+
 @dataclass
 class Observation:
     points: np.ndarray        # (N, 3) metres
@@ -43,15 +64,18 @@ class Observation:
     stride: int = 1
 
 
-def observe(depth, camera, *, stride=3, segmenter=None, color=None, target_points=None):
+def observe(depth, camera, *, stride=3, segmenter=None, color=None, target_points=None, smooth=0):
     """Segment the hand and sample its points (every ``stride``-th pixel in x and y).
 
     With ``target_points`` the stride adapts to the hand's size in the image: the largest stride
     (at most ``stride``) that still keeps about that many points, so a distant hand is sampled densely
-    enough and a near one is not oversampled."""
+    enough and a near one is not oversampled. ``smooth`` > 0 applies :func:`smooth_depth` with that
+    radius first (for noisy sensors)."""
     from .segment import Segmenter
 
     d = np.asarray(depth, np.float64)
+    if smooth:
+        d = smooth_depth(d, int(smooth))
     seg = segmenter or Segmenter()
     X = backproject_image(d, camera)
     mask = seg(d, color, X)

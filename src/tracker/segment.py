@@ -64,13 +64,14 @@ def largest_component(mask):
     return lab == (1 + int(np.argmax(sizes)))
 
 
-def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02):
+def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02, margin_px=25):
     """The nearest sizeable surface, cut to ``band`` metres behind its nearest part.
 
     Pixels are grouped into surfaces by depth continuity (neighbours closer than ``jump``); among
-    surfaces of at least ``min_pixels`` the one whose 2nd-percentile depth is smallest wins (the hand
-    held towards the camera), and only its pixels within ``band`` of that depth are kept (the hand,
-    not the arm behind it)."""
+    surfaces of at least ``min_pixels`` (and 5 % of the largest) the one whose 2nd-percentile depth is
+    smallest wins (the hand held towards the camera). Then everything within ``band`` of that depth
+    that is connected to the biggest part of it, or lies within ``margin_px`` of that part (fingers cut
+    off by sensor shadows), is kept — the hand, not the arm or body behind it."""
     from scipy import ndimage
 
     d = np.asarray(depth, float)
@@ -86,17 +87,18 @@ def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02):
         return np.zeros_like(finite)
     ids = np.arange(1, n + 1)
     sizes = ndimage.sum(np.ones_like(d), lab, index=ids)
-    big = ids[sizes >= min_pixels]
+    big = ids[sizes >= max(min_pixels, 0.05 * sizes.max())]
     if big.size == 0:
         return np.zeros_like(finite)
     fronts = [np.percentile(d[lab == k], 2) for k in big]
-    k = big[int(np.argmin(fronts))]
     front = min(fronts)
-    comp = lab == k
-    # the hand's own depth edges (fingers over the palm) split it into several surfaces: keep everything
-    # within the band that touches the chosen surface
     near = finite & (d <= front + band)
-    lab2, _ = ndimage.label(near)
-    keep = np.unique(lab2[comp & near])
+    lab2, n2 = ndimage.label(near)
+    if n2 == 0:
+        return np.zeros_like(finite)
+    sizes2 = ndimage.sum(np.ones_like(d), lab2, index=np.arange(1, n2 + 1))
+    main = lab2 == (1 + int(np.argmax(sizes2)))
+    zone = ndimage.binary_dilation(main, iterations=margin_px)
+    keep = np.unique(lab2[zone & near])
     keep = keep[keep > 0]
     return np.isin(lab2, keep)

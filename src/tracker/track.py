@@ -31,6 +31,7 @@ class TrackerSettings:
     gn_iterations: int = 5
     stride: int = 3                    # every k-th pixel in x and y (the paper's "1/3 sampling" is 3) …
     target_points: int | None = 600    # … or, when set, the largest stride ≤ `stride` keeping this many points
+    smooth: int = 1                    # edge-preserving depth smoothing radius (px) before sampling; 0 = off
     reject_mm: float = 50.0
     damping: float = 1.0
     pose_damping: float = 0.0
@@ -41,7 +42,8 @@ class TrackerSettings:
     n_pcs: int | None = None           # reduced/hierarchical: number of PCs …
     variance: float | None = 0.99      # … or the variance they must explain
     hierarchy: tuple = (1, 4)          # PC counts of the reduced stages before full DoF
-    limits: str = "data"               # "data": joint limits from the bundle (as the original with PCA); "model"
+    limits: str = "anatomical"         # joint limits: "anatomical" (synergy.angles), "data" (the bundle's joint
+                                       # min/max, as the original with PCA on) or "model" (the model file's)
     lost_fit_mm: float = 12.0
     lost_rejected: float = 0.6
     min_points: int = 30
@@ -94,6 +96,12 @@ class HandTracker:
             raise TrackerError("synergies", f"mode {settings.mode!r} needs a synergy bundle (--synergies)")
         self.synergies = synergies
         lim = np.array(hand.limits, float)
+        if settings.limits == "anatomical":
+            from synergy.angles import anatomical_limits
+
+            lim = anatomical_limits(hand)
+        elif settings.limits not in ("data", "model"):
+            raise TrackerError("settings", f"limits must be anatomical, data or model, got {settings.limits!r}")
         if synergies is not None and settings.limits == "data":
             post = ~hand.pose_mask
             lim[post, 0] = synergies.model.joint_min_
@@ -209,17 +217,21 @@ class HandTracker:
         dc = points.mean(0)
         _, _, Vm = np.linalg.svd(ms - mc, full_matrices=False)
         _, _, Vd = np.linalg.svd(points - dc, full_matrices=False)
+        from scipy.spatial.transform import Rotation
+
         cands = []
         for s1 in (1, -1):
             for s3 in (1, -1):
                 A = np.stack([Vm[0], np.cross(Vm[2], Vm[0]), Vm[2]], 1)
                 d1, d3 = s1 * Vd[0], s3 * Vd[2]
                 B = np.stack([d1, np.cross(d3, d1), d3], 1)
-                R = B @ A.T
-                th = base.copy()
-                th[3:6] = matrix_to_euler(R)
-                th[:3] = dc - R @ mc
-                cands.append(th)
+                # a curled hand's main axis need not be the fingers': also roll about it
+                for roll in (0.0, 45.0, -45.0, 90.0, -90.0):
+                    R = Rotation.from_rotvec(np.radians(roll) * d1).as_matrix() @ B @ A.T
+                    th = base.copy()
+                    th[3:6] = matrix_to_euler(R)
+                    th[:3] = dc - R @ mc
+                    cands.append(th)
         return cands
 
     def _score(self, theta, corr, obs):
@@ -264,10 +276,18 @@ class HandTracker:
         hierarchical schedule by default when synergies exist); the best-scoring fit wins."""
         st = self.settings
         mode = mode or ("hierarchical" if self.synergies is not None else "full")
+        sub = slice(None, None, max(1, len(points) // 800))
+        nsub = None if normals is None else normals[sub]
         if theta0 is not None:
             poses = [np.array(theta0, float)]
         else:
-            poses = self.initial_pose(points)
+            # many candidate placements, each briefly fitted; the best three go on
+            quick = []
+            for th in self.initial_pose(points):
+                th, corr = self._icp(th, points[sub], 1, 4, mode, obs, nsub)
+                quick.append((self._score(th, corr, obs), th))
+            quick.sort(key=lambda x: x[0])
+            poses = [th for _, th in quick[:3]]
         posts = self.posture_candidates() if postures is None else postures
         post = ~self.hand.pose_mask
         starts = []
@@ -287,8 +307,6 @@ class HandTracker:
             starts.append((moved, True))
         if search and self.synergies is not None and postures is None:
             # coarse search: short fits from a synergy grid on a thinned cloud, the best few refined fully
-            sub = slice(None, None, max(1, len(points) // 1500))
-            nsub = None if normals is None else normals[sub]
             coarse = []
             for pose in poses:
                 for p in self.posture_grid():

@@ -6,7 +6,7 @@ imported inside the commands so ``tracker --help`` stays fast.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -14,6 +14,7 @@ import typer
 def track(
     recording: Path = typer.Argument(..., help="Recording folder (recording.yaml, depth/…)."),
     synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable); SYNERGY_PATH and the shipped bundles follow."),
     mode: str = typer.Option("full", "--mode", help="full, reduced or hierarchical."),
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
     variance: float = typer.Option(0.99, "--variance", help="…or the variance the PCs must explain."),
@@ -22,6 +23,7 @@ def track(
     overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
     overlay_every: int = typer.Option(10, "--overlay-every", help="Overlay every N-th frame."),
     stride: int = typer.Option(3, "--stride", help="Use every K-th pixel in x and y (the paper's '1/3 sampling' is 3)."),
+    smooth: int = typer.Option(1, "--smooth", help="Edge-preserving depth smoothing radius in pixels (0 = off)."),
     points: int = typer.Option(600, "--points", help="Adapt the stride (≤ --stride) to keep about this many hand points; 0 = fixed stride."),
     icp: int = typer.Option(4, "--icp", help="Non-rigid ICP iterations per frame (after 1 rigid)."),
     gn: int = typer.Option(5, "--gn", help="Gauss-Newton steps per ICP iteration."),
@@ -53,12 +55,12 @@ def track(
     if synergies:
         from synergy.bundle import load_bundle
 
-        bundle = load_bundle(synergies)
+        bundle = load_bundle(synergies, registries=list(registry or []) or None)
     elif mode != "full":
         raise TrackerError("--synergies", f"mode {mode!r} needs a synergy bundle")
     hand = HandModel.load(hand_model, right=getattr(rec, "handedness", "left") == "right")
     settings = TrackerSettings(mode=mode, n_pcs=pcs, variance=None if pcs else variance, stride=stride,
-                               target_points=points or None,
+                               target_points=points or None, smooth=smooth,
                                icp_iterations=icp, gn_iterations=gn, damping=damping, model=model,
                                silhouette_weight=silhouette, prediction=prediction)
     tracker = HandTracker(hand, settings, synergies=bundle)
@@ -75,7 +77,7 @@ def track(
                 r = tracker.step(np.zeros((0, 3)))
                 npts = 0
             else:
-                ob = observe(depth, cam, stride=stride, color=frame.color, target_points=points or None)
+                ob = observe(depth, cam, stride=stride, color=frame.color, target_points=points or None, smooth=smooth)
                 r = tracker.track(ob, cam)
                 npts = len(ob.points)
             rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used, npts, r.ms, *r.theta))
