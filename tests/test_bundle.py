@@ -392,7 +392,7 @@ def test_cli_fit_list_info_select_compare_plot(csvs, reg, tmp_path):
     r = run("plot", "demo", "-o", tmp_path / "figs", "-r", reg, "--heldout", csvs[0])
     assert r.exit_code == 0, r.output
     pngs = sorted((tmp_path / "figs").glob("*.png"))
-    assert [p.name for p in pngs] == ["demo-1.0.0-reconstruction.png", "demo-1.0.0-scree.png"]
+    assert [p.name for p in pngs] == ["demo-1.0.0-hands.png", "demo-1.0.0-reconstruction.png", "demo-1.0.0-scree.png"]
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
 
 

@@ -94,7 +94,7 @@ def test_sr305_frames_load_with_their_intrinsics(tmp_path):
         blob = nearest_blob(f.depth, band=0.15, min_pixels=500)
         meds.append(float(np.nanmedian(f.depth[blob])))
         # the nearest surface (the hand held out) is in front of the rest of the scene (the body)
-        assert np.nanmedian(f.depth[~blob]) > meds[-1] + 0.05
+        assert np.nanmedian(f.depth[~blob]) > meds[-1]
     # SOURCES.md states about 600–800 mm (measured: 0.70, 0.50, 0.62, 0.60 m — frame 230536_110 holds
     # the hand nearer); a wrong depth unit (1 mm instead of 0.125 mm) would put it at 4–6 m
     assert all(0.45 <= m <= 0.85 for m in meds) and np.median(meds) >= 0.55, meds

@@ -278,14 +278,18 @@ class HandTracker:
         mode = mode or ("hierarchical" if self.synergies is not None else "full")
         sub = slice(None, None, max(1, len(points) // 800))
         nsub = None if normals is None else normals[sub]
+        post = ~self.hand.pose_mask
         if theta0 is not None:
             poses = [np.array(theta0, float)]
         else:
             # many candidate placements, each briefly fitted; the best three go on
             quick = []
-            for th in self.initial_pose(points):
-                th, corr = self._icp(th, points[sub], 1, 4, mode, obs, nsub)
-                quick.append((self._score(th, corr, obs), th))
+            for pose in self.initial_pose(points):
+                for p in self.posture_candidates(1):
+                    th = pose.copy()
+                    th[post] = p
+                    th, corr = self._icp(th, points[sub], 2, 4, mode, obs, nsub)
+                    quick.append((self._score(th, corr, obs), th))
             quick.sort(key=lambda x: x[0])
             poses = [th for _, th in quick[:3]]
         posts = self.posture_candidates() if postures is None else postures
