@@ -23,7 +23,7 @@ demo: $(STAMP)
 	$(BIN)/synergy fit $(DEMO)/mocap/*.c3d --markers hand16 --name demo --per-task -o $(DEMO)/synergies
 	$(BIN)/synergy compare demo-grasp demo-general -r $(DEMO)/synergies
 	$(BIN)/synergy plot demo-grasp -r $(DEMO)/synergies -o $(DEMO)/figs
-	$(BIN)/tracker synth --motion grasp-back --noise kinect1 --frames 60 -o $(DEMO)/recording
+	$(BIN)/tracker synth --motion grasp-back --noise none --frames 60 -o $(DEMO)/recording
 	$(BIN)/tracker show $(DEMO)/recording -o $(DEMO)/figs/recording.png
 	for mode in full reduced hierarchical; do \
 	  $(BIN)/tracker track $(DEMO)/recording --synergies demo-grasp -r $(DEMO)/synergies --mode $$mode -o $(DEMO)/track-$$mode.csv \
