@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 _SHARE = Path("share") / "synergistic-hand-tracking"
@@ -35,24 +37,24 @@ def schema_path(name: str) -> Path:
     return resource_dir("data_schema") / f"{name}.schema.json"
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
-    """Write ``data`` to ``path`` through a temporary file and a rename.
-
-    With ``overwrite=False`` an existing file is never replaced (``FileExistsError``);
-    the final step then uses a hard link, which fails atomically if the name exists.
-    """
+@contextmanager
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = True, suffix: str = ".tmp"):
+    """Yield a temporary path beside ``path``; when the block succeeds, the file written there is
+    synced and moved into place (``os.replace``, or with ``overwrite=False`` a hard link, which fails
+    atomically if the name exists: ``FileExistsError``). On any error the temporary file is removed
+    and ``path`` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if not overwrite and path.exists():
         raise FileExistsError(f"{path}: exists and is never overwritten")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
     try:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
+        yield Path(tmp)
+        with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         if overwrite:
             os.replace(tmp, path)
@@ -62,11 +64,16 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool 
             except FileExistsError:
                 raise FileExistsError(f"{path}: exists and is never overwritten") from None
             os.unlink(tmp)
-    except BaseException:
+    finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-        raise
-    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
+    """Write ``data`` to ``path`` through a temporary file and a rename (see :func:`atomic_path`)."""
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = True) -> Path:
@@ -82,3 +89,15 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
                 break
             h.update(b)
     return h.hexdigest()
+
+
+def schema_errors(doc, name: str) -> str | None:
+    """The first violation of ``data_schema/<name>.schema.json`` as ``field a/b: message``, or None."""
+    import jsonschema
+
+    schema = json.loads(schema_path(name).read_text())
+    errs = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if not errs:
+        return None
+    e = errs[0]
+    return f"field {'/'.join(str(p) for p in e.absolute_path) or '(top level)'}: {e.message}"

@@ -46,14 +46,11 @@ def _load_yaml(path: Path):
 
 
 def _validate_schema(doc, path: Path) -> None:
-    import jsonschema
+    from .fileio import schema_errors
 
-    schema = json.loads(schema_path("hand-model").read_text())
-    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
-    if errors:
-        e = errors[0]
-        where = "/".join(str(p) for p in e.absolute_path) or "(top level)"
-        raise HandModelError(path, f"field {where}: {e.message}")
+    problem = schema_errors(doc, "hand-model")
+    if problem:
+        raise HandModelError(path, problem)
 
 
 @dataclass(frozen=True, eq=False)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import io
 import os
 import struct
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -727,28 +726,13 @@ def write_c3d(
     c["data"]["points"] = data
     c["data"]["meta_points"]["residuals"] = residuals
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.c3d", dir=path.parent)
-    os.close(fd)
-    try:
+    from handmodel.fileio import atomic_path
+
+    with atomic_path(path, overwrite=overwrite, suffix=".tmp.c3d") as tmp:
         try:
-            c.write(tmp)
+            c.write(str(tmp))
         except Exception as exc:  # noqa: BLE001
             raise C3DError(path, f"ezc3d could not write the file: {exc}") from None
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError:
-                raise FileExistsError(f"{path}: exists and is never overwritten") from None
-            os.unlink(tmp)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return path
 
 

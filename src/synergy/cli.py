@@ -5,7 +5,6 @@ commands so that ``synergy --help`` answers at once.
 """
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import List, Optional
 
@@ -23,21 +22,7 @@ app = typer.Typer(
 REGISTRY_HELP = "Extra registry folder to search (repeatable); SYNERGY_PATH and the shipped models/synergies follow."
 
 
-def _errors_exit_2(fn):
-    """Turn bad-input errors into one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        # Imported here: importing the handmodel package pulls in numpy.
-        from handmodel.errors import ToolkitError
-
-        try:
-            return fn(*args, **kwargs)
-        except ToolkitError as err:
-            typer.echo(f"error: {err}", err=True)
-            raise typer.Exit(2) from None
-
-    return wrapper
+from handmodel.cliutil import errors_exit_2 as _errors_exit_2  # noqa: E402
 
 
 def _console(stderr: bool = False):

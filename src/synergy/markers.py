@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from handmodel.fileio import models_dir, schema_path
+from handmodel.fileio import models_dir
 
 from .errors import MarkerSetError
 
@@ -150,14 +150,11 @@ def _norm(label: str) -> str:
 
 
 def _validate(doc, where):
-    import jsonschema
+    from handmodel.fileio import schema_errors
 
-    schema = json.loads(schema_path("marker-set").read_text())
-    errs = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
-    if errs:
-        e = errs[0]
-        loc = "/".join(str(p) for p in e.absolute_path) or "(top level)"
-        raise MarkerSetError(where, f"field {loc}: {e.message}")
+    problem = schema_errors(doc, "marker-set")
+    if problem:
+        raise MarkerSetError(where, problem)
 
 
 def markerset_from_dict(doc, where="<dict>") -> MarkerSet:

@@ -5,7 +5,6 @@ prints one line ``error: …`` on stderr and exits 2.
 """
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Optional
 
@@ -15,21 +14,7 @@ app = typer.Typer(name="tracker", help="Synergistic hand tracking in depth recor
                   no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None)
 
 
-def _errors_exit_2(fn):
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from handmodel.errors import ToolkitError
-
-        try:
-            return fn(*args, **kwargs)
-        except ToolkitError as err:
-            typer.echo(f"error: {err}", err=True)
-            raise typer.Exit(2) from None
-        except FileExistsError as err:
-            typer.echo(f"error: {err}", err=True)
-            raise typer.Exit(2) from None
-
-    return wrapper
+from handmodel.cliutil import errors_exit_2 as _errors_exit_2  # noqa: E402
 
 
 def _camera(camera, fx, fy, cx, cy, width, height, depth_scale):

@@ -13,8 +13,6 @@ Examples
 """
 from __future__ import annotations
 
-import io
-import json
 import re
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -22,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from handmodel.fileio import atomic_write_bytes, atomic_write_text, schema_path
+from handmodel.fileio import atomic_write_bytes, atomic_write_text, schema_errors
 
 from .cameras import Camera
 from .errors import RecordingError
@@ -117,7 +115,6 @@ class Recording:
 
     @classmethod
     def open(cls, path) -> "Recording":
-        import jsonschema
         import yaml
 
         path = Path(path)
@@ -130,12 +127,9 @@ class Recording:
             meta = yaml.safe_load(y.read_text())
         except yaml.YAMLError as exc:
             raise RecordingError(y, f"not valid YAML: {str(exc).splitlines()[0]}") from None
-        schema = json.loads(schema_path("recording").read_text())
-        errs = sorted(jsonschema.Draft202012Validator(schema).iter_errors(meta if meta is not None else {}),
-                      key=lambda e: list(e.absolute_path))
-        if errs:
-            e = errs[0]
-            raise RecordingError(y, f"field {'/'.join(map(str, e.absolute_path)) or '(top level)'}: {e.message}")
+        problem = schema_errors(meta if meta is not None else {}, "recording")
+        if problem:
+            raise RecordingError(y, problem)
         c = meta["camera"]
         cam = Camera(c["width"], c["height"], c["fx"], c["fy"], c["cx"], c["cy"], meta["depth"]["scale_m"],
                      meta["depth"]["encoding"], c.get("name", "custom"))
