@@ -101,3 +101,31 @@ def schema_errors(doc, name: str) -> str | None:
         return None
     e = errs[0]
     return f"field {'/'.join(str(p) for p in e.absolute_path) or '(top level)'}: {e.message}"
+
+
+def resolve_model_file(kind: str, name_or_path, error_cls, what: str) -> Path:
+    """A shipped ``models/<kind>/<name>.yaml`` by name, or a YAML file by path; ``error_cls(where,
+    reason)`` for a missing one, listing the shipped names."""
+    p = Path(name_or_path)
+    if p.suffix not in (".yaml", ".yml"):
+        cand = models_dir() / kind / f"{name_or_path}.yaml"
+        if not cand.exists():
+            known = sorted(q.stem for q in (models_dir() / kind).glob("*.yaml"))
+            raise error_cls(name_or_path, f"no such {what} (known: {', '.join(known) or 'none'})")
+        p = cand
+    if not p.exists():
+        raise error_cls(p, "file not found")
+    return p
+
+
+def load_yaml(path, error_cls):
+    """Parse a YAML file; unreadable or invalid YAML → ``error_cls(path, reason)``."""
+    import yaml
+
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise error_cls(path, f"cannot read: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise error_cls(path, f"not valid YAML: {str(exc).splitlines()[0]}") from None

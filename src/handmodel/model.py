@@ -26,23 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import HandModelError
-from .fileio import models_dir, schema_path
 
 ROTATION, TRANSLATION = 0, 1
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0),
          "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 _MIRROR = np.diag([-1.0, 1.0, 1.0])
-
-
-def _load_yaml(path: Path):
-    import yaml
-
-    try:
-        return yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise HandModelError(path, f"cannot read: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise HandModelError(path, f"not valid YAML: {str(exc).splitlines()[0]}") from None
 
 
 def _validate_schema(doc, path: Path) -> None:
@@ -105,16 +93,10 @@ class HandModel:
         A right hand is the mirror image of the left one for the same θ (x → −x in the hand frame);
         the global pose is not mirrored.
         """
-        p = Path(name_or_path)
-        if p.suffix not in (".yaml", ".yml"):
-            cand = models_dir() / "hands" / f"{name_or_path}.yaml"
-            if not cand.exists():
-                known = sorted(q.stem for q in (models_dir() / "hands").glob("*.yaml"))
-                raise HandModelError(name_or_path, f"no such hand model (known: {', '.join(known) or 'none'})")
-            p = cand
-        if not p.exists():
-            raise HandModelError(p, "file not found")
-        doc = _load_yaml(p)
+        from .fileio import load_yaml, resolve_model_file
+
+        p = resolve_model_file("hands", name_or_path, HandModelError, "hand model")
+        doc = load_yaml(p, HandModelError)
         model = cls.from_dict(doc, where=p)
         # the model's identity is the hash of its file (what bundles and outputs record)
         from .fileio import sha256_file

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from handmodel.fileio import models_dir
 
 from .errors import MarkerSetError
 
@@ -181,19 +180,7 @@ def markerset_from_dict(doc, where="<dict>") -> MarkerSet:
 
 def load_markerset(name_or_path) -> MarkerSet:
     """Load a shipped marker set by name, or a marker-set YAML file by path; validates it."""
-    import yaml
+    from handmodel.fileio import load_yaml, resolve_model_file
 
-    p = Path(name_or_path)
-    if p.suffix not in (".yaml", ".yml"):
-        cand = models_dir() / "markersets" / f"{name_or_path}.yaml"
-        if not cand.exists():
-            known = sorted(q.stem for q in (models_dir() / "markersets").glob("*.yaml"))
-            raise MarkerSetError(name_or_path, f"no such marker set (known: {', '.join(known)})")
-        p = cand
-    if not p.exists():
-        raise MarkerSetError(p, "file not found")
-    try:
-        doc = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise MarkerSetError(p, f"not valid YAML: {str(exc).splitlines()[0]}") from None
-    return markerset_from_dict(doc, p)
+    p = resolve_model_file("markersets", name_or_path, MarkerSetError, "marker set")
+    return markerset_from_dict(load_yaml(p, MarkerSetError), p)

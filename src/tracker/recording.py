@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from handmodel.fileio import atomic_write_bytes, atomic_write_text, schema_errors
+from handmodel.fileio import atomic_write_bytes, atomic_write_text, load_yaml, schema_errors
 
 from .cameras import Camera
 from .errors import RecordingError
@@ -115,18 +115,13 @@ class Recording:
 
     @classmethod
     def open(cls, path) -> "Recording":
-        import yaml
-
         path = Path(path)
         y = path / "recording.yaml"
         if not path.is_dir():
             raise RecordingError(path, "no such recording folder")
         if not y.is_file():
             raise RecordingError(y, "missing (not a recording folder)")
-        try:
-            meta = yaml.safe_load(y.read_text())
-        except yaml.YAMLError as exc:
-            raise RecordingError(y, f"not valid YAML: {str(exc).splitlines()[0]}") from None
+        meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
         if problem:
             raise RecordingError(y, problem)
