@@ -144,11 +144,14 @@ class HandTracker:
         mu[self.hand.pose_mask] = 0.0
         return Subspace(sp.M, mu, sp.lo - a, sp.hi - a, sp.pose, label=sp.label + " (through θ)")
 
-    def _stage(self, k, n_stages, mode):
+    def _stage(self, k, n_stages, mode, tracking=False):
         if mode == "full":
             return self.full
         if mode == "reduced":
             return self.reduced
+        if tracking:
+            # tracking: one coarse step in the synergy subspace, then all DoF (half the iterations at least)
+            return self.reduced if k < max(n_stages // 2, 1) else self.full
         steps = [s for s in self.settings.hierarchy if s < self.n_pcs] + [self.n_pcs]
         stages = [self._pc(s) for s in steps] + [self.full]
         # spread the stages over the ICP iterations: early iterations coarse, the last one(s) full DoF
@@ -164,7 +167,7 @@ class HandTracker:
             corr.valid &= ~(cos < st.normal_agreement)  # NaN (unknown normal) keeps the pair
         return corr
 
-    def _icp(self, theta, points, n_rigid, n_icp, mode, obs=None, normals=None, refine=False):
+    def _icp(self, theta, points, n_rigid, n_icp, mode, obs=None, normals=None, refine=False, tracking=False):
         """Rigid then non-rigid ICP. ``refine``: hierarchical stages pass through the current θ
         (tracking) instead of through the synergy mean (single-frame fits)."""
         st = self.settings
@@ -177,7 +180,7 @@ class HandTracker:
             v = corr.valid
             if v.sum() < 3:
                 break
-            sp = self._stage(k, n_icp, mode)
+            sp = self._stage(k, n_icp, mode, tracking)
             if sp is not self.full:
                 if mode == "hierarchical" and refine:
                     sp = self._through(sp, theta)
@@ -366,11 +369,17 @@ class HandTracker:
                 # constant-velocity prediction, except for the global rotation (as the original code)
                 step = (self.theta - self.prev) * float(st.prediction)
                 step[3:6] = 0.0
+                if st.mode != "full":
+                    # predict the posture only along the synergies: noise-driven changes in other
+                    # directions would otherwise be extrapolated and left to the last stage to undo
+                    post = ~self.hand.pose_mask
+                    C = self.synergies.model.all_components_[: self.n_pcs]
+                    step[post] = (step[post] @ C.T) @ C
                 theta = theta + step
                 post = ~self.hand.pose_mask
                 theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
             theta, corr = self._icp(theta, pts, st.rigid_iterations, st.icp_iterations, st.mode, obs, nrm,
-                                    refine=True)
+                                    refine=True, tracking=True)
             status = "tracked"
         fit = corr.fit_error_mm()
         rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
