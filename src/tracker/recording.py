@@ -1,19 +1,34 @@
 """Recording folders (DESIGN.md): ``recording.yaml``, ``depth/000000.png`` …, optional ``color/`` and
 ``truth.csv``. Frames are read lazily; depth comes out in metres as float32 with NaN for no data.
 
+Layout::
+
+    rec/
+      recording.yaml      camera intrinsics and image size, depth encoding and scale, fps, handedness,
+                          frame count, colour and truth flags (data_schema/recording.schema.json)
+      depth/000000.png    one PNG per frame, numbered from 0 without gaps, in the depth encoding
+      color/000000.png    optional, 8-bit RGB registered to the depth image
+      truth.csv           optional: frame, time_s and the 26 DoF per frame (metres, radians)
+
+The depth encoding says how a PNG stores integer units (``metres = units · scale_m``, 0 = no data):
+``uint16`` is a 16-bit greyscale PNG (Kinect, RealSense with ``scale_m`` 0.000125), ``nyu_rgb`` an
+8-bit RGB PNG with ``units = G·256 + B`` (the NYU hand dataset).
+
 Examples
 --------
 >>> import numpy as np, tempfile, pathlib
 >>> from tracker.cameras import preset
 >>> d = pathlib.Path(tempfile.mkdtemp()) / "rec"
->>> with RecordingWriter(d, preset("kinect1"), fps=30) as w:
+>>> with RecordingWriter(d, preset("kinect1"), fps=30, handedness="right") as w:
 ...     _ = w.write(np.full((480, 640), 0.75, np.float32))
->>> rec = Recording.open(d); len(rec), float(rec[0].depth[0, 0])
-(1, 0.75)
+>>> rec = Recording.open(d); len(rec), float(rec[0].depth[0, 0]), rec.handedness
+(1, 0.75, 'right')
 """
 from __future__ import annotations
 
 import re
+import shutil
+import struct
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -22,18 +37,24 @@ import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, atomic_write_text, load_yaml, schema_errors
 
-from .cameras import Camera
-from .errors import RecordingError
+from .cameras import MAX_UNITS, Camera
+from .errors import RecordingError, TrackerError
 
-DOF_COLUMNS = None  # filled lazily from the default hand model
+SCHEMA_VERSION = 1
+HANDEDNESS = ("left", "right")
+_FRAME_RE = re.compile(r"^(\d+)\.png$")
+# what a recording folder may hold; anything else makes overwrite=True refuse
+_OWN = {"recording.yaml", "truth.csv", "depth", "color"}
+
+DOF_COLUMNS = None  # the 26 DoF names, filled lazily from the default hand model
 
 
-def _dof_names():
+def _dof_names() -> list[str]:
     global DOF_COLUMNS
     if DOF_COLUMNS is None:
         from handmodel import HandModel
 
-        DOF_COLUMNS = HandModel.load().dof_names
+        DOF_COLUMNS = list(HandModel.load().dof_names)
     return DOF_COLUMNS
 
 
@@ -41,8 +62,16 @@ def _natural_key(p: Path):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]
 
 
+def natural_sorted(paths) -> list[Path]:
+    """Paths sorted by name in natural order (``frame2.png`` before ``frame10.png``)."""
+    return sorted((Path(p) for p in paths), key=_natural_key)
+
+
 @dataclass
 class Frame:
+    """One frame: ``depth (H, W)`` float32 metres (NaN = no data), ``color (H, W, 3)`` uint8 or None,
+    ``truth (26,)`` θ or None."""
+
     index: int
     time_s: float
     depth: np.ndarray
@@ -50,60 +79,231 @@ class Frame:
     truth: np.ndarray | None = None
 
 
-def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
-    """Stored image → metres (float32, NaN = no data), checking the bit depth and the size."""
-    a = np.asarray(img)
-    if a.shape[:2] != (camera.height, camera.width):
-        raise RecordingError(where, f"image is {a.shape[1]}×{a.shape[0]}, the camera says {camera.width}×{camera.height}")
-    if camera.depth_encoding == "nyu_rgb":
-        if a.ndim != 3 or a.shape[2] < 3 or a.dtype != np.uint8:
-            raise RecordingError(where, f"NYU depth needs an 8-bit RGB PNG, got {a.dtype} with shape {a.shape}")
-        raw = a[..., 1].astype(np.uint32) * 256 + a[..., 2].astype(np.uint32)
-    else:
-        if a.ndim != 2:
-            raise RecordingError(where, f"depth must be a single-channel image, got shape {a.shape}")
-        if a.dtype != np.uint16:
-            raise RecordingError(where, f"wrong bit depth: {a.dtype} (16-bit PNG expected)")
-        raw = a
-    d = raw.astype(np.float32) * np.float32(camera.depth_scale)
-    d[raw == 0] = np.nan
-    return d
+# ----------------------------------------------------------------------------- PNG level
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_TYPES = {0: "greyscale", 2: "RGB", 3: "palette", 4: "greyscale+alpha", 6: "RGBA"}
 
 
-def encode_depth(depth_m, camera: Camera) -> np.ndarray:
-    d = np.asarray(depth_m, float)
-    if d.shape != (camera.height, camera.width):
-        raise RecordingError("depth", f"frame is {d.shape[::-1]}, the camera says {camera.width}×{camera.height}")
-    units = np.where(np.isfinite(d) & (d > 0), np.rint(d / camera.depth_scale), 0)
-    units = np.clip(units, 0, 65535 if camera.depth_encoding == "uint16" else 65535).astype(np.uint16)
-    if camera.depth_encoding == "nyu_rgb":
-        rgb = np.zeros(d.shape + (3,), np.uint8)
-        rgb[..., 1] = units >> 8
-        rgb[..., 2] = units & 255
-        return rgb
-    return units
+def png_header(data: bytes, where) -> tuple[int, int, int, str]:
+    """``(width, height, bit_depth, colour_type_name)`` from a PNG's IHDR chunk."""
+    if len(data) < 26 or data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise RecordingError(where, "unreadable PNG (no PNG signature / IHDR header)")
+    w, h = struct.unpack(">II", data[16:24])
+    return w, h, data[24], _PNG_TYPES.get(data[25], f"colour type {data[25]}")
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise RecordingError(path, "missing frame file") from None
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _decode_png(data: bytes, where) -> np.ndarray:
+    import imageio.v3 as iio
+
+    try:
+        return np.asarray(iio.imread(data, extension=".png", plugin="pillow"))
+    except Exception as exc:  # Pillow raises many types for damaged files
+        raise RecordingError(where, f"unreadable PNG ({type(exc).__name__}: {exc})") from None
 
 
 def _png_bytes(a) -> bytes:
     import imageio.v3 as iio
 
-    return iio.imwrite("<bytes>", a, extension=".png")
+    return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
 
 
-def _read_png(path: Path):
-    import imageio.v3 as iio
+def _expect(header, camera: Camera, kind: str, where):
+    """Check a PNG header against the camera size and what ``kind`` (depth or color) needs."""
+    w, h, bits, ctype = header
+    if kind == "color":
+        what, need_bits, need_types = "colour frames need", 8, ("RGB", "RGBA")
+    elif camera.depth_encoding == "nyu_rgb":
+        what, need_bits, need_types = "depth encoding nyu_rgb needs", 8, ("RGB", "RGBA")
+    else:
+        what, need_bits, need_types = f"depth encoding {camera.depth_encoding} needs", 16, ("greyscale",)
+    need = f"{'an' if need_bits == 8 else 'a'} {need_bits}-bit {need_types[0]} PNG"
+    if bits != need_bits:
+        raise RecordingError(where, f"wrong bit depth: {bits}-bit {ctype} PNG, {what} {need}")
+    if ctype not in need_types:
+        raise RecordingError(where, f"wrong PNG type: {bits}-bit {ctype} PNG, {what} {need}")
+    if (w, h) != (camera.width, camera.height):
+        raise RecordingError(where, f"image is {w}×{h}, the camera says {camera.width}×{camera.height}")
 
+
+def read_depth_units(path, camera: Camera) -> np.ndarray:
+    """Stored depth units ``(H, W)`` uint16 of one depth PNG, checked against the camera."""
+    path = Path(path)
+    data = _read_bytes(path)
+    _expect(png_header(data, path), camera, "depth", path)
+    a = _decode_png(data, path)
+    if camera.depth_encoding == "nyu_rgb":
+        return (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
+    if a.dtype != np.uint16 or a.ndim != 2:  # e.g. a reader that widened the data
+        raise RecordingError(path, f"decoded as {a.dtype} {a.shape}, expected uint16 (H, W)")
+    return a
+
+
+def read_color(path, camera: Camera) -> np.ndarray:
+    """Colour frame ``(H, W, 3)`` uint8 of one PNG, checked against the camera."""
+    path = Path(path)
+    data = _read_bytes(path)
+    _expect(png_header(data, path), camera, "color", path)
+    return np.ascontiguousarray(_decode_png(data, path)[..., :3])
+
+
+def units_to_metres(units, camera: Camera) -> np.ndarray:
+    """Depth units → metres, float32 with NaN where the unit is 0."""
+    u = np.asarray(units)
+    d = (u * camera.depth_scale_m).astype(np.float32)
+    d[u == 0] = np.nan
+    return d
+
+
+def metres_to_units(depth_m, camera: Camera, where="depth") -> np.ndarray:
+    """Metres → depth units (uint16, rounded to the nearest unit; NaN, ±inf and 0 → 0 = no data).
+
+    Negative depths, depths beyond the encoding's range and positive depths under half a unit are
+    errors (they cannot be stored faithfully).
+    """
+    d = np.asarray(depth_m, float)
+    if d.shape != (camera.height, camera.width):
+        size = "×".join(map(str, d.shape[::-1])) or "a scalar"
+        raise RecordingError(where, f"depth frame is {size}, the camera says {camera.width}×{camera.height}")
+    finite = np.isfinite(d)
+    units = np.zeros(d.shape, float)
+    units[finite] = np.rint(d[finite] / camera.depth_scale_m)
+    bad = finite & (d < 0)
+    if bad.any():
+        raise RecordingError(where, f"negative depth ({d[bad].min():.4g} m)")
+    bad = units > MAX_UNITS
+    if bad.any():
+        raise RecordingError(where, f"depth {d[bad].max():.4g} m beyond the encoding's range "
+                                    f"{camera.max_depth_m:.4g} m (scale {camera.depth_scale_m:g} m)")
+    bad = finite & (d > 0) & (units == 0)
+    if bad.any():
+        raise RecordingError(where, f"depth {d[bad].min():.3g} m is under half a depth unit "
+                                    f"({camera.depth_scale_m:g} m)")
+    return units.astype(np.uint16)
+
+
+def encode_units(units, camera: Camera) -> np.ndarray:
+    """The image a PNG of the camera's depth encoding stores for these units."""
+    u = np.asarray(units, np.uint16)
+    if camera.depth_encoding == "nyu_rgb":
+        rgb = np.zeros(u.shape + (3,), np.uint8)
+        rgb[..., 1] = u >> 8
+        rgb[..., 2] = u & 255
+        return rgb
+    return u
+
+
+def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
+    """A decoded depth image (as stored) → metres (float32, NaN = no data), checking type and size."""
+    a = np.asarray(img)
+    if a.shape[:2] != (camera.height, camera.width):
+        raise RecordingError(where, f"image is {a.shape[1] if a.ndim > 1 else '?'}×{a.shape[0]}, "
+                                    f"the camera says {camera.width}×{camera.height}")
+    if camera.depth_encoding == "nyu_rgb":
+        if a.ndim != 3 or a.shape[2] < 3 or a.dtype != np.uint8:
+            raise RecordingError(where, f"depth encoding nyu_rgb needs an 8-bit RGB image, got {a.dtype} {a.shape}")
+        units = (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
+    else:
+        if a.ndim != 2 or a.dtype != np.uint16:
+            raise RecordingError(where, f"wrong bit depth: {a.dtype} {a.shape}, depth encoding uint16 needs "
+                                        "16-bit greyscale")
+        units = a
+    return units_to_metres(units, camera)
+
+
+def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
+    """Metres → the image stored in a depth PNG (see :func:`metres_to_units`)."""
+    return encode_units(metres_to_units(depth_m, camera, where), camera)
+
+
+def _as_camera(camera) -> Camera:
+    if isinstance(camera, Camera):
+        return camera
     try:
-        return iio.imread(path)
-    except Exception as exc:  # imageio raises many types for broken files
-        raise RecordingError(path, f"unreadable PNG ({type(exc).__name__})") from None
+        return Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+                      getattr(camera, "depth_scale_m", getattr(camera, "depth_scale", 0.001)),
+                      getattr(camera, "depth_encoding", "uint16"), getattr(camera, "name", "custom"))
+    except AttributeError as exc:
+        raise TrackerError("camera", f"needs pinhole intrinsics ({exc})") from None
+
+
+# ----------------------------------------------------------------------------- reading
+def _frame_files(folder: Path, n: int, what: str) -> list[Path]:
+    """``folder/000000.png`` … for ``n`` frames; gaps and strays are errors naming the files."""
+    if not folder.is_dir():
+        raise RecordingError(folder, f"missing folder (recording.yaml says {n} {what} frames)")
+    present = {p.name for p in folder.iterdir() if _FRAME_RE.match(p.name)}
+    files = [folder / f"{i:06d}.png" for i in range(n)]
+    missing = [p.name for p in files if p.name not in present]
+    if missing:
+        more = f" … ({len(missing)} missing)" if len(missing) > 5 else ""
+        raise RecordingError(folder, f"missing frame file(s) {', '.join(missing[:5])}{more} "
+                                     f"of {n} in recording.yaml")
+    extra = natural_sorted(present - {p.name for p in files})
+    if extra:
+        raise RecordingError(folder, f"unexpected frame file(s) {', '.join(p.name for p in extra[:5])} "
+                                     f"(recording.yaml says {n} frames)")
+    return files
+
+
+def _read_truth(path: Path, n: int, fps: float):
+    import csv
+
+    import pandas as pd
+
+    names = _dof_names()
+    try:
+        with open(path, newline="") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].startswith("#")]
+    except FileNotFoundError:
+        raise RecordingError(path, "missing (recording.yaml says truth: true)") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise RecordingError(path, f"cannot read ({exc})") from None
+    if not rows:
+        raise RecordingError(path, "empty (no header row)")
+    head = [h.strip() for h in rows[0]]
+    lack = [k for k in ["frame", *names] if k not in head]
+    if lack:
+        raise RecordingError(path, f"missing column(s) {', '.join(lack[:5])}{' …' if len(lack) > 5 else ''}")
+    body = rows[1:]
+    if len(body) != n:
+        raise RecordingError(path, f"{len(body)} rows for {n} frames")
+    cols = {k: j for j, k in enumerate(head)}
+    try:
+        # float() reads what repr() wrote exactly (pandas' default parser may be off by an ulp)
+        theta = np.array([[float(r[cols[k]]) for k in names] for r in body], float).reshape(n, len(names))
+        frame = np.array([int(r[cols["frame"]]) for r in body], int)
+        if "time_s" in cols:
+            [float(r[cols["time_s"]]) for r in body]  # checked only: frame times are index / fps
+    except (ValueError, IndexError) as exc:
+        raise RecordingError(path, f"bad value ({exc})") from None
+    if not np.array_equal(frame, np.arange(n)):
+        k = int(np.argmax(frame != np.arange(n)))
+        raise RecordingError(path, f"row {k + 1}: frame {frame[k]}, expected {k} (frames 0…{n - 1} in order)")
+    df = pd.DataFrame(theta, columns=names)
+    df.insert(0, "time_s", np.arange(n) / fps)
+    df.insert(0, "frame", frame)
+    return df, theta
 
 
 class Recording:
-    """A recording folder opened for reading; ``len(rec)``, ``rec[i]`` and iteration give frames."""
+    """A recording folder opened for reading (:meth:`open`).
+
+    ``len(rec)``, ``rec[i]`` and ``for frame in rec`` give :class:`Frame` objects, read lazily.
+    Attributes: ``path``, ``camera``, ``fps``, ``handedness``, ``meta`` (the YAML), ``truth``
+    (DataFrame with ``frame``, ``time_s`` and the 26 DoF columns, or None).
+    """
 
     def __init__(self, path: Path, meta: dict, camera: Camera, depth_files: list, color_files: list | None,
-                 truth):
+                 truth=None, truth_theta=None):
         self.path = path
         self.meta = meta
         self.camera = camera
@@ -112,9 +312,18 @@ class Recording:
         self._depth = depth_files
         self._color = color_files
         self.truth = truth
+        self._theta = truth_theta
 
     @classmethod
     def open(cls, path) -> "Recording":
+        """Open and check a recording folder (metadata, frame files, truth); frames are read later.
+
+        Raises
+        ------
+        RecordingError
+            Naming the file and the problem: no folder, missing ``recording.yaml``, invalid YAML or
+            schema violation (with the field), missing or stray frame files, a bad ``truth.csv``.
+        """
         path = Path(path)
         y = path / "recording.yaml"
         if not path.is_dir():
@@ -124,52 +333,53 @@ class Recording:
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
         if problem:
-            raise RecordingError(y, problem)
-        c = meta["camera"]
-        cam = Camera(c["width"], c["height"], c["fx"], c["fy"], c["cx"], c["cy"], meta["depth"]["scale_m"],
-                     meta["depth"]["encoding"], c.get("name", "custom"))
-        n = meta["frames"]
-        depth = [path / "depth" / f"{i:06d}.png" for i in range(n)]
-        missing = [p.name for p in depth if not p.is_file()]
-        if missing:
-            raise RecordingError(path / "depth", f"missing frame file(s) {', '.join(missing[:5])}"
-                                                 f"{' …' if len(missing) > 5 else ''} of {n}")
-        color = None
-        if meta.get("color"):
-            color = [path / "color" / f"{i:06d}.png" for i in range(n)]
-            miss = [p.name for p in color if not p.is_file()]
-            if miss:
-                raise RecordingError(path / "color", f"missing frame file(s) {', '.join(miss[:5])}")
-        truth = None
+            raise RecordingError(y, f"schema violation, {problem}")
+        c, dp = meta["camera"], meta["depth"]
+        try:
+            cam = Camera(c["width"], c["height"], c["fx"], c["fy"], c["cx"], c["cy"], dp["scale_m"], dp["encoding"],
+                         c.get("name", "custom"))
+        except TrackerError as exc:
+            raise RecordingError(y, exc.reason) from None
+        n = int(meta["frames"])
+        depth = _frame_files(path / "depth", n, "depth")
+        color = _frame_files(path / "color", n, "colour") if meta.get("color") else None
+        truth = theta = None
         if meta.get("truth"):
-            import pandas as pd
-
-            tp = path / "truth.csv"
-            if not tp.is_file():
-                raise RecordingError(tp, "missing (recording.yaml says truth: true)")
-            truth = pd.read_csv(tp, comment="#")
-            need = ["frame", *_dof_names()]
-            lack = [k for k in need if k not in truth.columns]
-            if lack:
-                raise RecordingError(tp, f"missing column(s) {', '.join(lack)}")
-            if len(truth) != n:
-                raise RecordingError(tp, f"{len(truth)} rows for {n} frames")
-        return cls(path, meta, cam, depth, color, truth)
+            truth, theta = _read_truth(path / "truth.csv", n, float(meta["fps"]))
+        return cls(path, meta, cam, depth, color, truth, theta)
 
     def __len__(self) -> int:
         return len(self._depth)
 
+    def __repr__(self) -> str:
+        return (f"Recording({str(self.path)!r}, {len(self)} frames, {self.camera.name} "
+                f"{self.camera.width}×{self.camera.height}, {self.fps:g} fps, {self.handedness})")
+
+    @property
+    def has_color(self) -> bool:
+        return self._color is not None
+
+    @property
+    def has_truth(self) -> bool:
+        return self._theta is not None
+
+    def depth_units(self, i: int) -> np.ndarray:
+        """Stored depth units of frame ``i`` (uint16), as in the file."""
+        return read_depth_units(self._depth[self._index(i)], self.camera)
+
+    def _index(self, i) -> int:
+        n = len(self)
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+            raise TypeError(f"frame index must be an integer, got {type(i).__name__}")
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for {n} frames")
+        return int(i) % n
+
     def __getitem__(self, i) -> Frame:
-        if not -len(self) <= i < len(self):
-            raise IndexError(i)
-        i %= len(self)
-        depth = decode_depth(_read_png(self._depth[i]), self.camera, self._depth[i])
-        color = None
-        if self._color is not None:
-            color = np.asarray(_read_png(self._color[i]))[..., :3]
-            if color.shape[:2] != depth.shape:
-                raise RecordingError(self._color[i], "colour frame size differs from the depth frame")
-        truth = None if self.truth is None else self.truth.iloc[i][_dof_names()].to_numpy(float)
+        i = self._index(i)
+        depth = units_to_metres(read_depth_units(self._depth[i], self.camera), self.camera)
+        color = read_color(self._color[i], self.camera) if self._color is not None else None
+        truth = None if self._theta is None else self._theta[i].copy()
         return Frame(i, i / self.fps, depth, color, truth)
 
     def __iter__(self):
@@ -177,30 +387,66 @@ class Recording:
             yield self[i]
 
     def truth_array(self):
-        return None if self.truth is None else self.truth[_dof_names()].to_numpy(float)
+        """θ of every frame ``(F, 26)``, or None."""
+        return None if self._theta is None else self._theta.copy()
 
 
+# ----------------------------------------------------------------------------- writing
 class RecordingWriter:
-    """Write a recording folder frame by frame (each PNG atomically); metadata at :meth:`close`.
+    """Write a recording folder frame by frame; use as a context manager.
 
-    Refuses a folder that exists and is not empty unless ``overwrite=True``."""
+    Each PNG is written atomically (temporary file + rename); ``truth.csv`` and then
+    ``recording.yaml`` are written at :meth:`close`, so a folder without ``recording.yaml`` is an
+    unfinished recording. An existing non-empty folder is refused unless ``overwrite=True``, which
+    replaces a previous recording (and refuses a folder holding anything else).
 
-    def __init__(self, path, camera: Camera, fps: float = 30.0, handedness: str = "left", *, overwrite=False,
+    Parameters
+    ----------
+    path : folder to create
+    camera : Camera (intrinsics, size, depth encoding and scale)
+    fps : frame rate (Hz)
+    handedness : ``left`` or ``right``
+    overwrite : replace an existing recording in ``path``
+    source : free text stored in ``recording.yaml`` (where the frames came from)
+    """
+
+    def __init__(self, path, camera, fps: float = 30.0, handedness: str = "left", *, overwrite: bool = False,
                  source: str = ""):
         self.path = Path(path)
-        if self.path.exists() and any(self.path.iterdir()) and not overwrite:
-            raise RecordingError(self.path, "exists and is not empty (never overwritten; use another folder)")
-        if handedness not in ("left", "right"):
+        if handedness not in HANDEDNESS:
             raise RecordingError(self.path, f"handedness must be left or right, got {handedness!r}")
-        if not fps > 0:
+        try:
+            fps = float(fps)
+        except (TypeError, ValueError):
+            raise RecordingError(self.path, f"fps must be a number, got {fps!r}") from None
+        if not (np.isfinite(fps) and fps > 0):
             raise RecordingError(self.path, f"fps must be positive, got {fps}")
-        self.camera = camera
-        self.fps = float(fps)
+        self.camera = _as_camera(camera)
+        self.fps = fps
         self.handedness = handedness
-        self.source = source
+        self.source = str(source)
         self.n = 0
-        self.truth = []
-        self.color = None
+        self.truth: list[np.ndarray] = []
+        self.color: bool | None = None
+        self._closed = False
+        self._prepare(overwrite)
+
+    def _prepare(self, overwrite: bool):
+        p = self.path
+        if p.exists() and not p.is_dir():
+            raise RecordingError(p, "exists and is not a folder")
+        entries = list(p.iterdir()) if p.exists() else []
+        if not entries:
+            return
+        if not overwrite:
+            raise RecordingError(p, "exists and is not empty (never overwritten; use another folder, or --overwrite)")
+        leftover = {e.name for e in entries if e.name.startswith(".") and e.name.endswith(".tmp")}  # a crashed write
+        alien = sorted(e.name for e in entries if e.name not in _OWN | leftover)
+        if alien:
+            raise RecordingError(p, f"holds {', '.join(alien[:3])}, not part of a recording; refusing to overwrite")
+        # recording.yaml goes first: a half-cleared folder must not look like a recording
+        for e in sorted(entries, key=lambda e: e.name != "recording.yaml"):
+            shutil.rmtree(e) if e.is_dir() and not e.is_symlink() else e.unlink()
 
     def __enter__(self):
         return self
@@ -209,65 +455,122 @@ class RecordingWriter:
         if exc_type is None:
             self.close()
 
+    def __len__(self) -> int:
+        return self.n
+
     def write(self, depth_m, color=None, truth=None) -> int:
-        atomic_write_bytes(self.path / "depth" / f"{self.n:06d}.png", _png_bytes(encode_depth(depth_m, self.camera)))
-        if self.color is None:
-            self.color = color is not None
-        if (color is not None) != self.color:
-            raise RecordingError(self.path, "colour frames must be given for all frames or none")
-        if color is not None:
+        """Append a frame: depth ``(H, W)`` in metres (NaN/0 = no data), optional colour ``(H, W, 3)``
+        uint8 and θ ``(26,)``. Returns the frame index."""
+        where = self.path / "depth" / f"{self.n:06d}.png"
+        return self._write(metres_to_units(depth_m, self.camera, where), color, truth)
+
+    def write_units(self, units, color=None, truth=None) -> int:
+        """Append a frame given as stored depth units ``(H, W)`` (integers 0…65535, 0 = no data)."""
+        where = self.path / "depth" / f"{self.n:06d}.png"
+        u = np.asarray(units)
+        if u.shape != self.camera.shape:
+            raise RecordingError(where, f"depth frame is {u.shape}, the camera says {self.camera.shape}")
+        if not np.issubdtype(u.dtype, np.integer) or (u.size and (u.min() < 0 or u.max() > MAX_UNITS)):
+            raise RecordingError(where, f"depth units must be integers in 0…{MAX_UNITS}")
+        return self._write(u.astype(np.uint16), color, truth)
+
+    def _write(self, units, color, truth) -> int:
+        if self._closed:
+            raise RecordingError(self.path, "writer is closed")
+        name = f"{self.n:06d}.png"
+        has_color = color is not None
+        if self.color is not None and has_color != self.color:
+            raise RecordingError(self.path / "color" / name, "colour must be given for all frames or none")
+        if has_color:
             c = np.asarray(color)
-            if c.shape != (self.camera.height, self.camera.width, 3) or c.dtype != np.uint8:
-                raise RecordingError(self.path, f"colour frame must be {self.camera.height}×{self.camera.width}×3 uint8")
-            atomic_write_bytes(self.path / "color" / f"{self.n:06d}.png", _png_bytes(c))
+            if c.shape != self.camera.shape + (3,) or c.dtype != np.uint8:
+                raise RecordingError(self.path / "color" / name,
+                                     f"colour frame must be {self.camera.height}×{self.camera.width}×3 uint8, "
+                                     f"got {c.dtype} {c.shape}")
+        if (truth is not None) != bool(self.truth) and self.n > 0:
+            raise RecordingError(self.path / "truth.csv", f"frame {self.n}: truth must be given for all frames or none")
         if truth is not None:
             t = np.asarray(truth, float)
             if t.shape != (len(_dof_names()),):
-                raise RecordingError(self.path, f"truth must have {len(_dof_names())} entries")
-            self.truth.append(t)
-        elif self.truth:
-            raise RecordingError(self.path, "truth must be given for all frames or none")
+                raise RecordingError(self.path / "truth.csv", f"frame {self.n}: truth must have shape "
+                                                              f"({len(_dof_names())},), got {t.shape}")
+        atomic_write_bytes(self.path / "depth" / name, _png_bytes(encode_units(units, self.camera)))
+        if has_color:
+            atomic_write_bytes(self.path / "color" / name, _png_bytes(c))
+        if truth is not None:
+            self.truth.append(t.copy())
+        self.color = has_color
         self.n += 1
         return self.n - 1
 
     def close(self):
+        """Write ``truth.csv`` (if any) and ``recording.yaml``."""
         import yaml
 
-        if self.truth and len(self.truth) != self.n:
-            raise RecordingError(self.path, "truth must be given for all frames or none")
+        if self._closed:
+            return
+        self.path.mkdir(parents=True, exist_ok=True)
         if self.truth:
-            import pandas as pd
-
-            df = pd.DataFrame(np.array(self.truth), columns=_dof_names())
-            df.insert(0, "time_s", np.arange(self.n) / self.fps)
-            df.insert(0, "frame", np.arange(self.n))
-            atomic_write_text(self.path / "truth.csv", df.to_csv(index=False, float_format="%.10g"), overwrite=True)
+            names = _dof_names()
+            # repr() is the shortest text that reads back to the same float
+            lines = [",".join(["frame", "time_s", *names])]
+            lines += [",".join([str(i), repr(i / self.fps), *map(repr, map(float, t))])
+                      for i, t in enumerate(self.truth)]
+            atomic_write_text(self.path / "truth.csv", "\n".join(lines) + "\n", overwrite=True)
         cam = self.camera
         meta = {
-            "schema_version": 1,
-            "camera": {"name": cam.name, "width": cam.width, "height": cam.height, "fx": float(cam.fx),
-                       "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy)},
-            "depth": {"encoding": cam.depth_encoding, "scale_m": float(cam.depth_scale)},
+            "schema_version": SCHEMA_VERSION,
+            "camera": {"name": cam.name, "width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
+                       "cx": cam.cx, "cy": cam.cy},
+            "depth": {"encoding": cam.depth_encoding, "scale_m": cam.depth_scale_m},
             "fps": self.fps, "handedness": self.handedness, "frames": self.n,
             "color": bool(self.color), "truth": bool(self.truth),
             "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "generator": "synergistic-hand-tracking", "source": self.source,
         }
-        self.path.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.path / "recording.yaml", yaml.safe_dump(meta, sort_keys=False), overwrite=True)
+        self._closed = True
 
 
-def import_pngs(src, dst, camera: Camera, fps: float = 30.0, handedness: str = "left", progress=None) -> Recording:
-    """Turn a plain folder of depth PNGs (natural sort order) into a recording (re-encoded losslessly
-    in the camera's depth encoding)."""
+def list_pngs(folder) -> list[Path]:
+    """The PNG files directly in ``folder`` (any case of ``.png``, hidden files skipped), natural order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecordingError(folder, "no such folder")
+    return natural_sorted(p for p in folder.iterdir()
+                          if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file())
+
+
+def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *, overwrite: bool = False,
+                progress=None) -> Recording:
+    """Turn a plain folder of depth PNGs (natural name order) into a recording.
+
+    Every PNG must match the camera: its size and the depth encoding's PNG type (16-bit greyscale
+    for ``uint16``, 8-bit RGB for ``nyu_rgb``). The stored units are copied exactly.
+
+    Parameters
+    ----------
+    src : folder of PNGs
+    dst : recording folder to create
+    camera : Camera (e.g. ``preset("sr305")``)
+    fps, handedness, overwrite : as for :class:`RecordingWriter`
+    progress : callable ``progress(done, total)``, called after each frame
+
+    Returns
+    -------
+    Recording
+        The new recording, opened.
+    """
     src = Path(src)
-    files = sorted((p for p in src.glob("*.png") if p.is_file()), key=_natural_key) if src.is_dir() else []
+    files = list_pngs(src)
     if not files:
         raise RecordingError(src, "no PNG files to import")
-    with RecordingWriter(dst, camera, fps, handedness, source=str(src)) as w:
+    camera = _as_camera(camera)
+    if Path(dst).resolve() == src.resolve():
+        raise RecordingError(dst, "the recording folder must differ from the source folder")
+    with RecordingWriter(dst, camera, fps, handedness, overwrite=overwrite, source=f"import of {src}") as w:
         for k, f in enumerate(files):
-            d = decode_depth(_read_png(f), camera, f)
-            w.write(d)
-            if progress:
+            w.write_units(read_depth_units(f, camera))
+            if progress is not None:
                 progress(k + 1, len(files))
     return Recording.open(dst)
