@@ -1,6 +1,5 @@
 """Hand model: FK against the original code's regression values and an independent FK, mirroring,
 validation of model files and parameter vectors."""
-import copy
 
 import numpy as np
 import pytest

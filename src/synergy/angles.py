@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MarkerSetError
 
 # Anatomical ranges (rad) around the default hand's rest posture; wide enough for fingerfist (PIP/DIP to
 # −123°) and typical ROM tables (MCP 90–100° flexion / up to 45° hyperextension, PIP 100–120°, DIP 80–90°

@@ -132,7 +132,7 @@ def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode
     P = fingerfist_postures()
     out = []
     for k in strides:
-        e, t, npts = [], [], []
+        e, t = [], []
         for i, (s, n) in enumerate(segs):
             truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
             r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, stride=k, target_points=None),
@@ -320,7 +320,7 @@ def report(out_dir, *, quick=False, progress=None):
     rec = modes["reduced"].get("subspace_reconstruction_deg")
     L += ["", f"Reduced mode cannot beat its subspace: projecting the true postures onto the "
               f"{bundle.model.n_components_for(0.99)} PCs alone costs {rec:.2f}°." if rec else "",
-          f"Paper: 25 fps full, 30 fps reduced (8-core Xeon); cylinders 4° vs mesh 2° full DoF.", "",
+          "Paper: 25 fps full, 30 fps reduced (8-core Xeon); cylinders 4° vs mesh 2° full DoF.", "",
           "## Occluded grasp (back of the hand to the camera)", "", "| mode | posture error ° | paper ° |", "|---|---|---|",
           f"| full | {occ['full']:.2f} | {PAPER['occluded_full_deg']} |",
           f"| reduced ({occ['n_pcs']} grasp PCs) | {occ['reduced']:.2f} | {PAPER['occluded_reduced_deg']} |", "",

@@ -7,7 +7,7 @@ steps, every 3rd pixel in x and y, pairs ≥ 50 mm rejected, λ = 1 on posture, 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from handmodel.subspace import Subspace
 
 from .correspond import CapsuleModel, MeshModel, ModelSamples, Silhouette, local_offsets, silhouette_pairs
 from .errors import TrackerError
-from .rigid import apply_rigid, rigid_step
+from .rigid import rigid_step
 
 MODES = ("full", "reduced", "hierarchical")
 
