@@ -124,16 +124,12 @@ class Camera:
 
         float32 depth gives float32 points, anything else float64.
         """
+        from .observe import backproject_image
+
         d = np.asarray(depth)
         if d.shape != self.shape:
             raise ValueError(f"depth shape {d.shape} does not match the camera's {self.shape}")
-        dt = np.float32 if d.dtype == np.float32 else np.float64
-        d = d.astype(dt, copy=False)
-        out = np.empty(self.shape + (3,), dt)
-        out[..., 0] = d * ((np.arange(self.width, dtype=dt) - self.cx) / self.fx)[None, :]
-        out[..., 1] = d * ((np.arange(self.height, dtype=dt) - self.cy) / self.fy)[:, None]
-        out[..., 2] = d
-        return out
+        return backproject_image(d, self)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -9,12 +9,17 @@ import numpy as np
 
 
 def backproject_image(depth, camera):
-    """Camera-frame points ``(H, W, 3)`` of a depth image in metres (NaN where no depth)."""
-    d = np.asarray(depth, float)
+    """Camera-frame points ``(H, W, 3)`` of a depth image in metres (NaN where no depth); any object with
+    ``fx fy cx cy`` serves as the camera. float32 depth gives float32 points, anything else float64."""
+    d = np.asarray(depth)
+    dt = np.float32 if d.dtype == np.float32 else np.float64
+    d = d.astype(dt, copy=False)
     H, W = d.shape
-    u = (np.arange(W) - camera.cx) / camera.fx
-    v = (np.arange(H) - camera.cy) / camera.fy
-    return np.stack([np.broadcast_to(u[None, :], (H, W)) * d, np.broadcast_to(v[:, None], (H, W)) * d, d], -1)
+    out = np.empty((H, W, 3), dt)
+    out[..., 0] = d * ((np.arange(W, dtype=dt) - camera.cx) / camera.fx)[None, :]
+    out[..., 1] = d * ((np.arange(H, dtype=dt) - camera.cy) / camera.fy)[:, None]
+    out[..., 2] = d
+    return out
 
 
 def image_normals(X, max_jump=0.01):
