@@ -20,6 +20,7 @@ import numpy as np  # noqa: E402
 from handmodel import HandModel  # noqa: E402
 from tracker.motions import GlobalPath, OPEN, FIST, Motion, keyframes, with_path  # noqa: E402
 from tracker.noise import NoiseModel  # noqa: E402
+from tracker.raycast import raycast  # noqa: E402
 from tracker.synthetic import DepthRenderer  # noqa: E402
 
 
@@ -32,47 +33,6 @@ def camera():
         from types import SimpleNamespace
 
         return SimpleNamespace(width=640, height=480, fx=580.0, fy=580.0, cx=319.5, cy=239.5, name="kinect1")
-
-
-def numpy_raycast(V, F, cam, tile=16):
-    """Nearest hit per pixel ray: tile-binned, vectorised two-sided Möller–Trumbore (depth, NaN = miss)."""
-    H, W = cam.height, cam.width
-    depth = np.full((H, W), np.nan)
-    T = V[F]
-    z = T[..., 2]
-    keep = (z > 0.05).all(1)
-    uu = cam.fx * T[..., 0] / np.where(keep[:, None], z, 1.0) + cam.cx
-    vv = cam.fy * T[..., 1] / np.where(keep[:, None], z, 1.0) + cam.cy
-    tu0 = np.clip(np.floor(uu.min(1) - 1) // tile, 0, (W - 1) // tile).astype(int)
-    tu1 = np.clip(np.ceil(uu.max(1) + 1) // tile, 0, (W - 1) // tile).astype(int)
-    tv0 = np.clip(np.floor(vv.min(1) - 1) // tile, 0, (H - 1) // tile).astype(int)
-    tv1 = np.clip(np.ceil(vv.max(1) + 1) // tile, 0, (H - 1) // tile).astype(int)
-    bins: dict = {}
-    for t in np.flatnonzero(keep):
-        for a in range(tv0[t], tv1[t] + 1):
-            for b in range(tu0[t], tu1[t] + 1):
-                bins.setdefault((a, b), []).append(t)
-    for (a, b), tris in bins.items():
-        vs = np.arange(a * tile, min((a + 1) * tile, H))
-        us = np.arange(b * tile, min((b + 1) * tile, W))
-        gv, gu = np.meshgrid(vs, us, indexing="ij")
-        d = np.stack([(gu.ravel() - cam.cx) / cam.fx, (gv.ravel() - cam.cy) / cam.fy, np.ones(gu.size)], 1)
-        tris = np.asarray(tris)
-        v0, e1, e2 = T[tris, 0], T[tris, 1] - T[tris, 0], T[tris, 2] - T[tris, 0]
-        p = np.cross(d[:, None, :], e2[None])
-        det = np.einsum("tk,rtk->rt", e1, p)
-        ok = np.abs(det) > 1e-18
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        s = -v0
-        bu = np.einsum("tk,rtk->rt", s, p) * inv
-        q = np.cross(s, e1)
-        bv = np.einsum("rk,tk->rt", d, q) * inv
-        tt = np.einsum("tk,tk->t", e2, q)[None] * inv
-        tt = np.where(ok & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (tt > 0), tt, np.inf)
-        best = tt.min(1)
-        m = np.isfinite(best)
-        depth[gv.ravel()[m], gu.ravel()[m]] = best[m]
-    return depth
 
 
 def trimesh_raycast(V, F, cam):
@@ -144,7 +104,7 @@ def main():
     peer = trimesh_raycast(posed[0], mesh.faces, cam)
     if peer is None:
         peer_name = "peer: numpy Möller–Trumbore ray caster (*)"
-        cast = lambda i: numpy_raycast(posed[i], mesh.faces, cam)  # noqa: E731
+        cast = lambda i: raycast(posed[i], mesh.faces, cam)[0]  # noqa: E731
     else:
         cast = lambda i: trimesh_raycast(posed[i], mesh.faces, cam)  # noqa: E731
     peer_idx = list(np.linspace(0, len(thetas) - 1, P).astype(int))

@@ -111,55 +111,48 @@ def _tracker(hand, bundle, **kw):
     return HandTracker(hand, TrackerSettings(**kw), synergies=bundle)
 
 
+def _segment_truths(bundle, segs):
+    """θ truth of each fingerfist segment, the hand at 0.6, 0.7, 0.8, 0.9 m in turn."""
+    P = fingerfist_postures()
+    return [sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3) for i, (s, n) in enumerate(segs)]
+
+
+def _over_segments(hand, bundle, camera, truths, noise=None, **settings):
+    """Track every segment with one setting; the trackers, the mean posture error and ms per frame."""
+    trackers, e, t = [], [], []
+    for i, truth in enumerate(truths):
+        tr = _tracker(hand, bundle, **settings)
+        r = run_sequence(hand, truth, camera, tr, noise=noise, seed=i, lead=10)
+        trackers.append(tr)
+        e.append(r.mean_error)
+        t.append(r.median_ms)
+    return trackers, float(np.mean(e)), float(np.mean(t))
+
+
 def experiment_icp(hand, bundle, camera, segs, iterations=(0, 1, 2, 3, 4, 6, 8), mode="full"):
     """Fig. 8: posture error and time vs non-rigid ICP iterations (1 rigid + k), stride 3."""
-    P = fingerfist_postures()
-    out = []
-    for k in iterations:
-        e, t = [], []
-        for i, (s, n) in enumerate(segs):
-            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
-            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, icp_iterations=k, target_points=None),
-                             lead=10)
-            e.append(r.mean_error)
-            t.append(r.median_ms)
-        out.append((k, float(np.mean(e)), float(np.mean(t))))
-    return out
+    truths = _segment_truths(bundle, segs)
+    return [(k, *_over_segments(hand, bundle, camera, truths, mode=mode, icp_iterations=k, target_points=None)[1:])
+            for k in iterations]
 
 
 def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode="full"):
     """Fig. 9: posture error and time vs sampling density (every k-th pixel in x and y), 1+4 ICP."""
-    P = fingerfist_postures()
-    out = []
-    for k in strides:
-        e, t = [], []
-        for i, (s, n) in enumerate(segs):
-            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
-            r = run_sequence(hand, truth, camera, _tracker(hand, bundle, mode=mode, stride=k, target_points=None),
-                             lead=10)
-            e.append(r.mean_error)
-            t.append(r.median_ms)
-        out.append((k, 1.0 / k ** 2, float(np.mean(e)), float(np.mean(t))))
-    return out
+    truths = _segment_truths(bundle, segs)
+    return [(k, 1.0 / k ** 2, *_over_segments(hand, bundle, camera, truths, mode=mode, stride=k, target_points=None)[1:])
+            for k in strides]
 
 
 def experiment_modes(hand, bundle, camera, segs, noise=None, model="capsules"):
     """Full / reduced / hierarchical on the same sequences; optional noise model."""
-    P = fingerfist_postures()
+    truths = _segment_truths(bundle, segs)
     res = {}
     for mode in ("full", "reduced", "hierarchical"):
-        e, t, recon = [], [], []
-        for i, (s, n) in enumerate(segs):
-            truth = sequence(P[s:s + n], bundle.model.mean_, distance=0.6 + 0.3 * (i % 4) / 3)
-            tr = _tracker(hand, bundle, mode=mode, model=model)
-            r = run_sequence(hand, truth, camera, tr, noise=noise, seed=i, lead=10)
-            e.append(r.mean_error)
-            t.append(r.median_ms)
-            if mode == "reduced":
-                sp = tr.reduced
-                recon.append(float(np.mean(posture_error_deg(sp.project(truth), truth, hand.pose_mask)[10:])))
-        res[mode] = {"error_deg": float(np.mean(e)), "ms": float(np.mean(t)), "fps": 1000.0 / float(np.mean(t))}
-        if recon:
+        trackers, e, t = _over_segments(hand, bundle, camera, truths, noise=noise, mode=mode, model=model)
+        res[mode] = {"error_deg": e, "ms": t, "fps": 1000.0 / t}
+        if mode == "reduced":
+            recon = [np.mean(posture_error_deg(tr.reduced.project(truth), truth, hand.pose_mask)[10:])
+                     for tr, truth in zip(trackers, truths)]
             res[mode]["subspace_reconstruction_deg"] = float(np.mean(recon))
     return res
 
