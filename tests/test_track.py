@@ -66,12 +66,19 @@ def test_occluded_grasp_reduced_beats_full():
 
 @pytest.mark.slow
 def test_single_frame_hierarchical_better_than_flat(bundle, postures):
-    """From the global pose only (posture unknown). The paper reports 22° flat vs 0.4° hierarchical;
-    we reach ~4° median hierarchical (README), and hierarchical must beat flat."""
-    res = E.experiment_single_frame(HAND, bundle, CAM, n=6, icp=20, seed=1)
-    print(f"\nsingle frame: flat {res['flat']} hierarchical {res['hierarchical']} (mean, median deg)")
-    assert res["hierarchical"][0] < res["flat"][0]
-    assert res["hierarchical"][1] <= 6.0
+    """From the global pose only (posture unknown), the report's settings. The paper reports 22° flat
+    vs 0.4° hierarchical; the issue's floor is 1°. These rows hold a fist (5700) and a crossed index
+    finger (864), the two failure kinds the README lists; the rest must be well under 1°."""
+    res = E.experiment_single_frame(HAND, bundle, CAM, n=6, icp=30, seed=1)
+    print(f"\nsingle frame rows {res['rows']}:")
+    for key, _, _ in E.SINGLE_METHODS:
+        print(f"  {key:20s} {np.round(res[key + '_frames'], 2)}  {res['s_' + key][0]:.2f} s/frame")
+    # the paper's finding: from the mean posture, hierarchical beats flat
+    assert res["hierarchical_plain"][1] < res["flat_plain"][1]
+    # ours: the start search makes most frames exact, and never loses to the plain fit on average
+    assert res["hierarchical"][1] <= 1.0
+    assert res["hierarchical_share"][1.0] >= 4 / 6
+    assert res["hierarchical"][0] <= res["hierarchical_plain"][0]
 
 
 def test_blank_frames_lost_then_recovered(bundle, postures):
@@ -96,3 +103,127 @@ def test_bad_settings():
         HandTracker(HAND, TrackerSettings(mode="fast"))
     with pytest.raises(TrackerError, match="needs a synergy bundle"):
         HandTracker(HAND, TrackerSettings(mode="reduced"))
+
+
+# ----------------------------------------------------------------------------- silhouette pairs (numba kernel)
+def _silhouette_pairs_reference(samples, theta, sil, tolerance_px=1.5):
+    """The straightforward numpy version: pose all samples, keep the front-facing ones, project,
+    look up the distance transform (plus the overshoot outside its window), fetch the nearest
+    silhouette pixel's depth. Also returns how many kept samples fell outside the window."""
+    cam = sil.camera
+    G = HAND.node_frames(theta)[samples.nodes]
+    P = np.einsum("pij,pj->pi", G[:, :3, :3], samples.local) + G[:, :3, 3]
+    N = np.einsum("pij,pj->pi", G[:, :3, :3], samples.local_n)
+    z = P[:, 2]
+    ok = (np.einsum("ij,ij->i", P, N) < 0) & (z > 1e-3)
+    u = np.rint(cam.fx * P[ok, 0] / z[ok] + cam.cx).astype(np.int64) - sil.u0
+    v = np.rint(cam.fy * P[ok, 1] / z[ok] + cam.cy).astype(np.int64) - sil.v0
+    h, w = sil.dist.shape
+    uu, vv = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
+    d_px = sil.dist[vv, uu] + np.hypot(u - uu, v - vv)
+    far = d_px > tolerance_px
+    idx = np.flatnonzero(ok)[far]
+    tv, tu = sil.iv[vv[far], uu[far]] + sil.v0, sil.iu[vv[far], uu[far]] + sil.u0
+    d = sil.depth[tv, tu]
+    tgt = np.stack([(tu - cam.cx) / cam.fx * d, (tv - cam.cy) / cam.fy * d, d], 1)
+    good = np.isfinite(d)
+    n_outside = int(((u != uu) | (v != vv)).sum())
+    return samples.nodes[idx[good]], samples.local[idx[good]], tgt[good], n_outside, int((~good).sum())
+
+
+@pytest.fixture(scope="module")
+def silhouette_scenes():
+    """(θ, Silhouette) of rendered frames: a half-closed hand in the middle, near the top edge, and
+    shifted so that it partly leaves the image on the right (and so its distance-transform window)."""
+    from tracker.motions import make_motion
+    from tracker.observe import observe
+    from tracker.synthetic import DepthRenderer
+    from tracker.correspond import Silhouette
+
+    base = make_motion("open-close", hand=HAND, frames=20).theta[12]
+    ren = DepthRenderer(HAND, CAM)
+    out = []
+    for shift in [(0.0, 0.0, 0.0), (0.0, -0.25, 0.0), (0.45, 0.0, 0.0)]:
+        th = base.copy()
+        th[:3] += shift
+        ob = observe(ren.render(th, labels=False).depth, CAM, stride=3)
+        out.append((th, Silhouette(ob.mask, ob.depth, CAM)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def model_samples():
+    from tracker.correspond import ModelSamples
+
+    return ModelSamples(HAND)
+
+
+def _assert_same_pairs(got, ref):
+    assert got[0].dtype == ref[0].dtype == np.int64
+    assert got[1].dtype == got[2].dtype == np.float64
+    np.testing.assert_array_equal(got[0], ref[0])
+    np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got[2], ref[2], rtol=0, atol=1e-12)
+
+
+def test_silhouette_pairs_kernel_matches_numpy_reference(silhouette_scenes, model_samples):
+    from tracker.correspond import silhouette_pairs
+
+    rng = np.random.default_rng(7)
+    n_outside = 0
+    for th, sil in silhouette_scenes:
+        assert not sil.empty
+        # at the rendered θ few samples are outside; perturbed, many are
+        got = silhouette_pairs(model_samples, th, sil)
+        _assert_same_pairs(got, _silhouette_pairs_reference(model_samples, th, sil))
+        for _ in range(6):
+            p = th.copy()
+            p[:3] += rng.normal(0.0, 0.03, 3)
+            p[3:] += rng.normal(0.0, 0.15, len(p) - 3)
+            for tol in (1.5, 0.0, 6.0):
+                got = silhouette_pairs(model_samples, p, sil, tolerance_px=tol)
+                ref = _silhouette_pairs_reference(model_samples, p, sil, tolerance_px=tol)
+                _assert_same_pairs(got, ref)
+                assert len(got[0]) > 0
+                n_outside += ref[3]
+    # the samples projecting beyond the distance transform's window were exercised
+    assert n_outside > 0
+
+
+def test_silhouette_pairs_kernel_drops_missing_depth(silhouette_scenes, model_samples):
+    """Silhouette pixels without depth (NaN) give no pair, in both implementations."""
+    from tracker.correspond import Silhouette, silhouette_pairs
+
+    rng = np.random.default_rng(3)
+    th, sil = silhouette_scenes[0]
+    depth = sil.depth.copy()
+    v, u = np.nonzero(sil.mask)
+    hole = rng.random(len(v)) < 0.3
+    depth[v[hole], u[hole]] = np.nan
+    holed = Silhouette(sil.mask, depth, CAM)
+    p = th.copy()
+    p[:3] += (0.02, -0.015, 0.0)
+    p[3:] += rng.normal(0.0, 0.15, len(p) - 3)
+    ref = _silhouette_pairs_reference(model_samples, p, holed)
+    assert ref[4] > 0 and len(ref[0]) > 0
+    _assert_same_pairs(silhouette_pairs(model_samples, p, holed), ref)
+
+
+def test_silhouette_pairs_empty_silhouette(model_samples):
+    from tracker.correspond import Silhouette, silhouette_pairs
+
+    sil = Silhouette(np.zeros((CAM.height, CAM.width), bool), np.full((CAM.height, CAM.width), np.nan), CAM)
+    n, loc, tg = silhouette_pairs(model_samples, HAND.zero(), sil)
+    assert n.shape == (0,) and loc.shape == (0, 3) and tg.shape == (0, 3)
+
+
+def test_model_samples_pose_agrees_with_node_frames(model_samples):
+    """``ModelSamples.pose`` (no longer on the hot path) still poses points and normals by the node frames."""
+    th = HAND.zero()
+    th[2] = 0.6
+    th[3:6] = (0.3, -0.2, 0.5)
+    P, N = model_samples.pose(th)
+    nodes = model_samples.nodes
+    np.testing.assert_allclose(P, HAND.points(th, nodes, model_samples.local), atol=1e-12)
+    origin = HAND.points(th, nodes, np.zeros_like(model_samples.local_n))
+    np.testing.assert_allclose(N, HAND.points(th, nodes, model_samples.local_n) - origin, atol=1e-12)

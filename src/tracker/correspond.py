@@ -154,21 +154,13 @@ def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
     empty = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
     if sil.empty:
         return empty
+    from ._silhouette_kernels import silhouette_pairs_kernel
+
     cam = sil.camera
-    P, N = samples.pose(theta)
-    z = P[:, 2]
-    ok = (np.einsum("ij,ij->i", P, N) < 0) & (z > 1e-3)
-    u = np.rint(cam.fx * P[ok, 0] / z[ok] + cam.cx).astype(np.int64) - sil.u0
-    v = np.rint(cam.fy * P[ok, 1] / z[ok] + cam.cy).astype(np.int64) - sil.v0
-    h, w = sil.dist.shape
-    uu, vv = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
-    d_px = sil.dist[vv, uu] + np.hypot(u - uu, v - vv)
-    far = d_px > tolerance_px
-    if not far.any():
-        return empty
-    idx = np.flatnonzero(ok)[far]
-    tv, tu = sil.iv[vv[far], uu[far]] + sil.v0, sil.iu[vv[far], uu[far]] + sil.u0
-    d = sil.depth[tv, tu]
-    tgt = np.stack([(tu - cam.cx) / cam.fx * d, (tv - cam.cy) / cam.fy * d, d], 1)
-    good = np.isfinite(d)
-    return samples.nodes[idx[good]], samples.local[idx[good]], tgt[good]
+    G = samples.hand.node_frames(theta)
+    n = len(samples.nodes)
+    nodes, local, tgt = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))
+    k = silhouette_pairs_kernel(G, samples.nodes, samples.local, samples.local_n, float(cam.fx), float(cam.fy),
+                                float(cam.cx), float(cam.cy), sil.dist, sil.iv, sil.iu, sil.depth, int(sil.v0),
+                                int(sil.u0), float(tolerance_px), nodes, local, tgt)
+    return nodes[:k], local[:k], tgt[:k]

@@ -157,6 +157,40 @@ def experiment_modes(hand, bundle, camera, segs, noise=None, model="capsules"):
     return res
 
 
+def subspace_oracle(hand, subspace, truth):
+    """The subspace posture whose capsule surface best matches the truth's (every surface sample of
+    the model, hidden ones included, with known correspondences): what any estimator that fits
+    geometry inside ``subspace`` converges to at best on noise-free data. Compare with
+    ``subspace.project(truth)``, the best in joint-angle terms, which geometry cannot see."""
+    from handmodel.solver import SolverSettings, fit_points
+
+    from .correspond import ModelSamples
+
+    ms = ModelSamples(hand, spacing=0.006)
+    targets = np.stack([ms.pose(t)[0] for t in truth])
+    th, _ = fit_points(hand, ms.nodes, ms.local, targets, theta0=subspace.project(truth), subspace=subspace,
+                       settings=SolverSettings(iterations=40, damping=0.01), restarts=0)
+    return th
+
+
+def experiment_reduced_pcs(hand, bundle, camera, segs, counts=(6, 8, 10, 12, 14)):
+    """Reduced mode vs the number of PCs: tracked error, the subspace's angular projection error and
+    its geometric optimum (:func:`subspace_oracle`), noise-free, capsule-tracked."""
+    truths = _segment_truths(bundle, segs)
+    m = bundle.model
+    rows = []
+    for k in counts:
+        trackers, e, t = _over_segments(hand, bundle, camera, truths, mode="reduced", n_pcs=k, variance=None)
+        proj = np.mean([np.mean(posture_error_deg(tr.reduced.project(tt), tt, hand.pose_mask)[10:])
+                        for tr, tt in zip(trackers, truths)])
+        orac = np.mean([np.mean(posture_error_deg(subspace_oracle(hand, tr.reduced, tt[10:]), tt[10:], hand.pose_mask))
+                        for tr, tt in zip(trackers, truths)])
+        var = float(np.sum(m.all_explained_variance_ratio_[:k]))
+        rows.append({"n_pcs": k, "variance": var, "error_deg": e, "projection_deg": float(proj),
+                     "oracle_deg": float(orac), "ms": t})
+    return rows
+
+
 def grasp_bundle(n_pcs_variance=0.99, seed=0):
     """A grasp-only synergy bundle fitted in memory from our simulator's grasp trials (power and
     precision grasps, several seeds), like the paper's grasp data set."""
@@ -196,9 +230,18 @@ def experiment_occlusion(hand, camera, frames=45, seed=0):
     return res
 
 
-def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0):
-    """Single frames from the global pose only (posture unknown: the synergy mean), full cloud:
-    flat (all DoF) vs hierarchical (1 → 4 → l PCs → all DoF)."""
+SINGLE_METHODS = (  # key, mode, search: the paper's two (ICP from the mean posture only) and ours
+    ("flat_plain", "full", False), ("hierarchical_plain", "hierarchical", False),
+    ("flat", "full", True), ("hierarchical", "hierarchical", True))
+
+
+def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=SINGLE_METHODS):
+    """Single frames from the global pose only (posture unknown), full cloud. The paper's flat (all
+    DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean (``*_plain``), and
+    ours: the same after the start search (synergy grid, finger-wise restarts).
+
+    Returns per method ``(mean, median)`` degrees, ``<key>_frames`` (per frame), ``<key>_share``
+    (share of frames ≤ 1, 2, 5°) and ``s_<key>`` (seconds per frame, mean and median)."""
     from .correspond import Silhouette
     from .observe import observe
     from .synthetic import DepthRenderer
@@ -208,7 +251,8 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0):
     rows = rng.choice(len(P), n, replace=False)
     ren = DepthRenderer(hand, camera)
     tr = _tracker(hand, bundle, mode="full", init_icp_iterations=icp)
-    out = {"flat": [], "hierarchical": [], "s_flat": [], "s_hier": []}
+    out = {k: [] for k, _, _ in methods}
+    sec = {k: [] for k, _, _ in methods}
     for i, row in enumerate(rows):
         truth = sequence(P[row:row + 1], bundle.model.mean_, lead=0, distance=0.6 + 0.3 * (i % 4) / 3)[0]
         depth = ren.render(truth, labels=False).depth
@@ -216,12 +260,20 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0):
         sil = Silhouette(ob.mask, ob.depth, camera)
         start = truth.copy()
         start[~hand.pose_mask] = bundle.model.mean_
-        for mode, key in (("full", "flat"), ("hierarchical", "hierarchical")):
+        for key, mode, search in methods:
             t0 = time.perf_counter()
-            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, obs=sil, normals=ob.normals)
-            out["s_flat" if key == "flat" else "s_hier"].append(time.perf_counter() - t0)
+            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, obs=sil, normals=ob.normals,
+                                        postures=None if search else [bundle.model.mean_], search=search)
+            sec[key].append(time.perf_counter() - t0)
             out[key].append(float(posture_error_deg(th, truth, hand.pose_mask)))
-    return {k: (float(np.mean(v)), float(np.median(v))) for k, v in out.items()}
+    res = {"rows": [int(r) for r in rows]}
+    for key in out:
+        e = np.asarray(out[key])
+        res[key] = (float(np.mean(e)), float(np.median(e)))
+        res["s_" + key] = (float(np.mean(sec[key])), float(np.median(sec[key])))
+        res[key + "_frames"] = e
+        res[key + "_share"] = {t: float(np.mean(e <= t)) for t in (1.0, 2.0, 5.0)}
+    return res
 
 
 def _fig(path, xs, ys, xlabel, ylabel, ys2=None, ylabel2=None, paper=None, title=""):

@@ -49,6 +49,8 @@ class TrackerSettings:
     min_points: int = 30
     init_icp_iterations: int = 12
     init_postures: int = 2             # single-frame fits start from the mean and ±σ along this many PCs
+    finger_search: bool = True         # single-frame fits: finger-wise restarts after the synergy search
+    finger_search_icp: int = 10        # … ICP iterations (all DoF, full cloud) for a finger's best restart
     max_points: int | None = None
     silhouette_weight: float = 1.0     # model→data term for model parts outside the silhouette (0 = paper)
     normal_agreement: float = 0.5      # with data normals: reject pairs whose normals' cosine is below this
@@ -321,6 +323,13 @@ class HandTracker:
                     th[post] = p
                     th, corr = self._icp(th, points[sub], 1, 4, "reduced" if mode != "full" else "full", obs, nsub)
                     coarse.append((self._score(th, corr, obs), th))
+                if st.finger_search:
+                    # and the synergy mean with one finger in another shape (what no synergy posture holds)
+                    for p in self.finger_variants(self.synergies.model.mean_):
+                        th = pose.copy()
+                        th[post] = p
+                        th, corr = self._icp(th, points[sub], 1, 4, "full", obs, nsub)
+                        coarse.append((self._score(th, corr, obs), th))
             coarse.sort(key=lambda x: x[0])
             starts = [(th, True) for _, th in coarse[:3]] + starts
         best = None
@@ -329,7 +338,71 @@ class HandTracker:
             score = self._score(th, corr, obs)
             if best is None or score < best[0]:
                 best = (score, th, corr)
+        if search and st.finger_search:
+            best = self._finger_search(best, points, obs, normals, sub)
         return best[1], best[2]
+
+    # finger shapes for finger-wise restarts: flexion (°) of the first, second and third flexion joint
+    # (MCP, PIP, DIP; for the thumb CMC, MCP, IP): straight, evenly curled, PIP-led curl (a finger
+    # flexed alone, as in fingerfist), MCP-led bend, hook
+    FINGER_SHAPES_DEG = ((5.0, 5.0, 5.0), (-25.0, -25.0, -25.0), (-55.0, -55.0, -55.0), (-85.0, -85.0, -85.0),
+                         (-45.0, -100.0, -10.0), (-80.0, -20.0, -10.0), (0.0, -90.0, -60.0))
+
+    def finger_groups(self):
+        """Posture DoF indices per finger (thumb, index, middle, ring, pinky) and which of them flex."""
+        names = list(self.hand.dof_names)
+        out = []
+        for f in ("thumb", "index", "middle", "ring", "pinky"):
+            idx = np.array([i for i, n in enumerate(names) if n.startswith(f)], np.int64)
+            if idx.size:
+                out.append((f, idx, np.array(["flex" in names[i] for i in idx])))
+        return out
+
+    def finger_variants(self, posture):
+        """``posture`` (the posture DoFs) with one finger at a time set to each of FINGER_SHAPES_DEG."""
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        p0 = self.hand.pose_mask.sum()
+        out = []
+        for _, idx, flex in self.finger_groups():
+            fi = idx[flex]
+            for shape in self.FINGER_SHAPES_DEG:
+                p = np.array(posture, float).copy()
+                p[fi - p0] = np.clip(np.radians(np.resize(shape, len(fi))), lo[fi], hi[fi])
+                out.append(p)
+        return out
+
+    def _finger_search(self, best, points, obs, normals, sub, sweeps=2):
+        """Finger-wise restarts: synergies couple the fingers, so a finger flexed alone (a ring finger
+        curled into the palm, a thumb tucked under) lies outside every start the synergy grid gives.
+        Each finger in turn is set to a few shapes (the rest of the hand as found), refitted briefly with
+        all DoF on a thinned cloud; the best is refitted on the full cloud and kept only when the
+        whole-frame score improves. Repeated while a sweep improves something."""
+        st = self.settings
+        nsub = None if normals is None else normals[sub]
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        score, theta, corr = best
+        for _ in range(sweeps):
+            improved = False
+            for _, idx, flex in self.finger_groups():
+                fi = idx[flex]
+                tried = []
+                for shape in self.FINGER_SHAPES_DEG:
+                    th = theta.copy()
+                    th[fi] = np.clip(np.radians(np.resize(shape, len(fi))), lo[fi], hi[fi])
+                    if np.max(np.abs(th[fi] - theta[fi])) < np.radians(12.0):
+                        continue  # the finger has that shape already
+                    th, c = self._icp(th, points[sub], 0, 4, "full", obs, nsub)
+                    tried.append((self._score(th, c, obs), th))
+                if not tried:
+                    continue
+                tried.sort(key=lambda x: x[0])
+                th, c = self._icp(tried[0][1], points, 0, st.finger_search_icp, "full", obs, normals)
+                s = self._score(th, c, obs)
+                if s < score - 1e-3:
+                    score, theta, corr, improved = s, th, c, True
+            if not improved:
+                break
+        return score, theta, corr
 
     def track(self, observation, camera) -> FrameResult:
         """Track one :class:`tracker.observe.Observation`."""
