@@ -54,6 +54,7 @@ class TrackerSettings:
     max_points: int | None = None
     silhouette_weight: float = 1.0     # model→data term for model parts outside the silhouette (0 = paper)
     normal_agreement: float = 0.5      # with data normals: reject pairs whose normals' cosine is below this
+    robust_mm: float = 8.0             # Cauchy scale (mm) for data-term weights; 0 = plain least squares (paper)
 
     @classmethod
     def paper(cls, **kw) -> "TrackerSettings":
@@ -192,6 +193,10 @@ class HandTracker:
             loc = local_offsets(self.hand, theta, nodes, corr.model[v])
             tg = points[v]
             w = np.ones(len(nodes))
+            if st.robust_mm > 0:
+                # Cauchy IRLS: pairs far off (a finger the subspace cannot bend there, a wrong match)
+                # lose weight instead of dragging the global pose
+                w = 1.0 / np.sqrt(1.0 + (corr.distance[v] * 1000.0 / st.robust_mm) ** 2)
             normals = corr.normals[v] if st.point_to_plane else None
             if obs is not None and self.samples is not None:
                 sn, sl, st_ = silhouette_pairs(self.samples, theta, obs)
