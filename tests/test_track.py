@@ -72,6 +72,34 @@ def test_hierarchical_tracking(bundle, postures):
     assert r.mean_error <= 2.0
 
 
+def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
+    """Random postures within the joint limits (not fingerfist-like): the synergy step must not hold
+    the hand back — hierarchical stays as accurate as full DoF."""
+    from tracker.motions import make_motion
+
+    th = make_motion("random", hand=HAND, frames=90, seed=3).theta
+    err = {}
+    for mode in ("full", "hierarchical"):
+        tr = HandTracker(HAND, TrackerSettings(mode=mode), synergies=bundle)
+        err[mode] = E.run_sequence(HAND, th, CAM, tr).mean_error
+    print(f"\nrandom postures: full {err['full']:.2f} deg, hierarchical {err['hierarchical']:.2f} deg")
+    assert err["hierarchical"] <= err["full"] + 1.0
+    assert err["hierarchical"] <= 3.0
+
+
+def test_coarse_step_through_theta_keeps_theta_feasible(bundle):
+    """A posture outside the PC limits (rarer than every training posture): the subspace through it
+    must admit it (α = 0), else the coarse step would clamp it back."""
+    tr = HandTracker(HAND, TrackerSettings(mode="hierarchical"), synergies=bundle)
+    sp = tr.reduced
+    theta = np.zeros(HAND.n_dofs)
+    theta[~HAND.pose_mask] = bundle.model.mean_ + 3.0 * (sp.hi[6] + 0.1) * bundle.model.all_components_[0]
+    assert sp.to_alpha(theta)[6] > sp.hi[6]
+    th = tr._through(sp, theta)
+    assert (th.lo <= 0).all() and (th.hi >= 0).all()
+    np.testing.assert_allclose(th.to_theta(np.zeros(th.M.shape[1])), theta, atol=1e-12)
+
+
 def test_occluded_grasp_reduced_beats_full():
     res = E.experiment_occlusion(HAND, CAM, frames=36)
     print(f"\noccluded grasp: full {res['full']:.2f} deg, reduced ({res['n_pcs']} PCs) {res['reduced']:.2f} deg")

@@ -42,6 +42,7 @@ class TrackerSettings:
     n_pcs: int | None = None           # reduced/hierarchical: number of PCs …
     variance: float | None = 0.99      # … or the variance they must explain
     hierarchy: tuple = (1, 4)          # PC counts of the reduced stages before full DoF
+    coarse_iterations: int = 1         # hierarchical tracking: ICP iterations in the synergy subspace first
     limits: str = "anatomical"         # joint limits: "anatomical" (synergy.angles), "data" (the bundle's joint
                                        # min/max, as the original with PCA on) or "model" (the model file's)
     lost_fit_mm: float = 12.0
@@ -145,7 +146,10 @@ class HandTracker:
         a = sp.to_alpha(theta)
         mu = np.array(theta, float)
         mu[self.hand.pose_mask] = 0.0
-        return Subspace(sp.M, mu, sp.lo - a, sp.hi - a, sp.pose, label=sp.label + " (through θ)")
+        # θ itself is always allowed: a posture outside the PC limits (rarer than any training posture)
+        # must not be clamped back to them by the coarse step
+        return Subspace(sp.M, mu, np.minimum(sp.lo - a, 0.0), np.maximum(sp.hi - a, 0.0), sp.pose,
+                        label=sp.label + " (through θ)")
 
     def _stage(self, k, n_stages, mode, tracking=False):
         if mode == "full":
@@ -154,7 +158,7 @@ class HandTracker:
             return self.reduced
         if tracking:
             # tracking: one coarse step in the synergy subspace, then all DoF (half the iterations at least)
-            return self.reduced if k < max(n_stages // 2, 1) else self.full
+            return self.reduced if k < self.settings.coarse_iterations else self.full
         steps = [s for s in self.settings.hierarchy if s < self.n_pcs] + [self.n_pcs]
         stages = [self._pc(s) for s in steps] + [self.full]
         # spread the stages over the ICP iterations: early iterations coarse, the last one(s) full DoF
@@ -447,9 +451,9 @@ class HandTracker:
                 # constant-velocity prediction, except for the global rotation (as the original code)
                 step = (self.theta - self.prev) * float(st.prediction)
                 step[3:6] = 0.0
-                if st.mode != "full":
-                    # predict the posture only along the synergies: noise-driven changes in other
-                    # directions would otherwise be extrapolated and left to the last stage to undo
+                if st.mode == "reduced":
+                    # reduced: the posture moves along the synergies only (hierarchical mode predicts
+                    # all DoF: motion outside the synergies — one finger alone — is real motion there)
                     post = ~self.hand.pose_mask
                     C = self.synergies.model.all_components_[: self.n_pcs]
                     step[post] = (step[post] @ C.T) @ C
