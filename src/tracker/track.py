@@ -283,6 +283,24 @@ class HandTracker:
                 out.append(m.mean_ + sgn * amp * sd[pc] * m.all_components_[pc])
         return out
 
+    @staticmethod
+    def _diverse(scored, k, min_deg=60.0):
+        """The best ``k`` of (score, θ) sorted by score whose global rotations differ pairwise by at
+        least ``min_deg`` (so a palm-facing and a back-facing placement both go on when the cloud
+        alone cannot tell them apart), filled up with the next best if fewer are that different."""
+        from handmodel.rigid import euler_to_matrix
+
+        picked, Rs = [], []
+        for _, th in scored:
+            R = euler_to_matrix(th[3:6])
+            if all(np.degrees(np.arccos(np.clip((np.trace(R @ Q.T) - 1) / 2, -1, 1))) >= min_deg for Q in Rs):
+                picked.append(th)
+                Rs.append(R)
+                if len(picked) == k:
+                    return picked
+        rest = [th for _, th in scored if not any(th is p for p in picked)]
+        return picked + rest[: k - len(picked)]
+
     def fit_single_frame(self, points, theta0=None, mode=None, obs=None, postures=None, normals=None, extra=(),
                          search=True):
         """Fit one frame without temporal prior: from ``theta0``'s global pose (or candidate poses
@@ -305,7 +323,7 @@ class HandTracker:
                     th, corr = self._icp(th, points[sub], 2, 4, mode, obs, nsub)
                     quick.append((self._score(th, corr, obs), th))
             quick.sort(key=lambda x: x[0])
-            poses = [th for _, th in quick[:3]]
+            poses = self._diverse(quick, 3)
         posts = self.posture_candidates() if postures is None else postures
         post = ~self.hand.pose_mask
         starts = []
