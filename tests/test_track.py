@@ -123,6 +123,85 @@ def test_single_frame_hierarchical_better_than_flat(bundle, postures):
     assert res["hierarchical"][0] <= res["hierarchical_plain"][0]
 
 
+def test_finger_search_finds_a_finger_flexed_alone(bundle):
+    """A ring finger curled alone (PIP-led, as in fingerfist) lies outside every synergy start; the
+    finger-wise restarts find it, the synergy search alone does not."""
+    from tracker.correspond import Silhouette
+    from tracker.observe import observe
+    from tracker.synthetic import DepthRenderer
+
+    truth = E.sequence(bundle.model.mean_[None], bundle.model.mean_, lead=0, distance=0.7)[0]
+    names = list(HAND.dof_names)
+    for n in names:  # other fingers straight, ring finger curled
+        if "flex" in n and not n.startswith("thumb"):
+            truth[names.index(n)] = np.radians(-5.0)
+    for n, deg in (("ring1_flex", -45.0), ("ring2_flex", -100.0), ("ring3_flex", -15.0)):
+        truth[names.index(n)] = np.radians(deg)
+    ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM, stride=1)
+    sil = Silhouette(ob.mask, ob.depth, CAM)
+    start = truth.copy()
+    start[~HAND.pose_mask] = bundle.model.mean_
+    err = {}
+    for fs in (False, True):
+        tr = HandTracker(HAND, TrackerSettings(finger_search=fs, init_icp_iterations=20), synergies=bundle)
+        th, _ = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", obs=sil, normals=ob.normals)
+        err[fs] = float(E.posture_error_deg(th, truth, HAND.pose_mask))
+    print(f"\nring finger alone: without finger search {err[False]:.2f} deg, with {err[True]:.2f} deg")
+    assert err[True] <= 1.0
+    assert err[False] > 2.0 * err[True]
+
+
+def test_diverse_placements_keep_a_flipped_candidate():
+    from handmodel.rigid import euler_to_matrix, matrix_to_euler
+
+    base = np.zeros(HAND.n_dofs)
+    near = [base.copy() for _ in range(3)]
+    for i, t in enumerate(near):
+        t[3:6] = [0.05 * i, 0.0, 0.0]
+    flipped = base.copy()
+    flipped[3:6] = matrix_to_euler(euler_to_matrix([np.pi, 0.0, 0.0]))
+    scored = [(1.0, near[0]), (1.1, near[1]), (1.2, near[2]), (5.0, flipped)]
+    picked = HandTracker._diverse(scored, 2)
+    assert picked[0] is near[0] and picked[1] is flipped
+    # fewer than k different ones: filled up in score order
+    assert [p is q for p, q in zip(HandTracker._diverse(scored[:3], 2), near[:2])] == [True, True]
+
+
+class _FlyingPixels:
+    """10 % of the hand's pixels moved 15–45 mm along their rays (edge/multipath artefacts of real
+    depth cameras): outliers inside the 50 mm rejection radius."""
+
+    def apply(self, depth, camera, rng):
+        d = depth.copy()
+        idx = np.flatnonzero(np.isfinite(d))
+        pick = rng.choice(idx, len(idx) // 10, replace=False)
+        d.flat[pick] += rng.choice([-1.0, 1.0], len(pick)) * rng.uniform(0.015, 0.045, len(pick))
+        return d
+
+
+@pytest.mark.parametrize("row", [310, 320])
+def test_robust_weights_resist_outliers(bundle, postures, row):
+    """One tracking step from the true θ on a frame with 10 % flying pixels: least squares is dragged
+    far off, the Cauchy-weighted data term stays close."""
+    from tracker.observe import observe
+    from tracker.synthetic import DepthRenderer
+
+    truth = E.sequence(postures[row:row + 1], bundle.model.mean_, lead=0)[0]
+    depth = _FlyingPixels().apply(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM,
+                                  np.random.default_rng(row))
+    ob = observe(depth, CAM, stride=3, target_points=600, smooth=0)
+    err = {}
+    for c in (0.0, 8.0):
+        tr = HandTracker(HAND, TrackerSettings(robust_mm=c, smooth=0), synergies=bundle)
+        tr.theta, tr.lost = truth.copy(), False
+        r = tr.track(ob, CAM)
+        assert r.status == "tracked"
+        err[c] = float(E.posture_error_deg(r.theta, truth, HAND.pose_mask))
+    print(f"\n10 % flying pixels, one step from the truth: least squares {err[0.0]:.2f} deg, Cauchy {err[8.0]:.2f} deg")
+    assert err[8.0] <= 3.0
+    assert err[0.0] >= 3.0 * err[8.0]
+
+
 def test_blank_frames_lost_then_recovered(bundle, postures):
     truth = E.sequence(postures[3000:3040], bundle.model.mean_)
     tr = HandTracker(HAND, TrackerSettings(mode="full"), synergies=bundle)
