@@ -508,3 +508,11 @@ def test_cli_synth_track_eval(tmp_path):
     assert r.exit_code == 0 and "posture_error_mean_deg" in r.output
     r = runner.invoke(app, ["track", str(rec), "-o", str(out)])
     assert r.exit_code == 2 and "never overwritten" in r.output
+    # the paper's method alone (no silhouette term, least squares, no finger search): another fit, also close
+    paper = tmp_path / "paper.csv"
+    r = runner.invoke(app, ["track", str(rec), "--paper", "-o", str(paper)])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["eval", str(rec), str(paper)])
+    assert r.exit_code == 0
+    err = float(next(ln for ln in r.output.splitlines() if "posture_error_mean_deg" in ln).split()[-2])
+    assert err <= 3.0 and paper.read_text() != out.read_text()

@@ -31,6 +31,9 @@ def track(
     model: str = typer.Option("capsules", "--model", help="Correspondence model: capsules or mesh."),
     silhouette: float = typer.Option(1.0, "--silhouette", help="Weight of the model→data silhouette term (0 = paper)."),
     prediction: float = typer.Option(1.0, "--prediction", help="Share of last frame's change added before fitting."),
+    robust: float = typer.Option(8.0, "--robust", help="Cauchy scale (mm) weighting the data term; 0 = plain least squares (paper)."),
+    finger_search: bool = typer.Option(True, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising."),
+    paper: bool = typer.Option(False, "--paper", help="The paper's method only: no silhouette term, plain least squares, no finger search."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
@@ -62,7 +65,8 @@ def track(
     settings = TrackerSettings(mode=mode, n_pcs=pcs, variance=None if pcs else variance, stride=stride,
                                target_points=points or None, smooth=smooth,
                                icp_iterations=icp, gn_iterations=gn, damping=damping, model=model,
-                               silhouette_weight=silhouette, prediction=prediction)
+                               silhouette_weight=0.0 if paper else silhouette, prediction=prediction,
+                               robust_mm=0.0 if paper else robust, finger_search=finger_search and not paper)
     tracker = HandTracker(hand, settings, synergies=bundle)
     cam = rec.camera
     rows, kps = [], []
