@@ -253,13 +253,23 @@ def experiments(
 
     from .experiments import report
 
+    from rich.table import Table
+
     with Progress(console=Console(stderr=True), transient=True) as p:
-        bar = p.add_task("experiments", total=7)
-        res = report(output, quick=quick, progress=lambda k, n, name: p.update(bar, completed=k, description=name))
-    m = res["modes"]
-    Console().print(f"full {m['full']['error_deg']:.2f}°, reduced {m['reduced']['error_deg']:.2f}°, hierarchical "
-                    f"{m['hierarchical']['error_deg']:.2f}°; occluded grasp full {res['occlusion']['full']:.1f}° vs "
-                    f"reduced {res['occlusion']['reduced']:.1f}°; wrote {output / 'report.md'}")
+        bar = p.add_task("experiments", total=None)
+        res = report(output, quick=quick,
+                     progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
+    t = Table(title=f"experiments (details: {output / 'report.md'})")
+    for c in ("variant", "noise-free °", "Kinect v1 noise °", "fps"):
+        t.add_column(c, justify="left" if c == "variant" else "right")
+    for label, m in res["modes"].items():
+        t.add_row(label, f"{m['error_deg']:.2f}", f"{res['noise'][label]['error_deg']:.2f}", f"{m['fps']:.0f}")
+    occ = res["occlusion"]
+    t.add_row("occluded grasp: full / reduced", f"{occ['full']:.1f} / {occ['reduced']:.1f}", "", "")
+    sf = res["single"]
+    t.add_row("single frame, hierarchical (mean / median)", f"{sf['hierarchical'][0]:.2f} / {sf['hierarchical'][1]:.2f}",
+              "", "")
+    Console().print(t)
 
 
 from tracker import synth_cli, track_cli  # noqa: E402

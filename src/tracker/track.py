@@ -42,6 +42,8 @@ class TrackerSettings:
     n_pcs: int | None = None           # reduced/hierarchical: number of PCs …
     variance: float | None = 0.99      # … or the variance they must explain
     hierarchy: tuple = (1, 4)          # PC counts of the reduced stages before full DoF
+    projected_steps: int = 0           # reduced tracking: last ICP iterations with all DoF, projected onto
+                                       # the PCs (0 = the paper's α-only fit; 2: more accurate unoccluded)
     coarse_iterations: int = 1         # hierarchical tracking: ICP iterations in the synergy subspace first
     limits: str = "anatomical"         # joint limits: "anatomical" (synergy.angles), "data" (the bundle's joint
                                        # min/max, as the original with PCA on) or "model" (the model file's)
@@ -66,6 +68,8 @@ class TrackerSettings:
             raise TrackerError("settings", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.model not in ("capsules", "mesh"):
             raise TrackerError("settings", f"model must be 'capsules' or 'mesh', got {self.model!r}")
+        if self.projected_steps < 0 or self.robust_mm < 0:
+            raise TrackerError("settings", "projected_steps and robust_mm must not be negative")
         for k in ("icp_iterations", "gn_iterations", "stride"):
             if getattr(self, k) < (1 if k != "icp_iterations" else 0):
                 raise TrackerError("settings", f"{k} must be positive")
@@ -188,6 +192,11 @@ class HandTracker:
             if v.sum() < 3:
                 break
             sp = self._stage(k, n_icp, mode, tracking)
+            # reduced tracking, last `projected_steps` iterations: all DoF, the result projected onto the PCs
+            # in joint-angle space (the closest subspace posture, which α-only fitting cannot reach)
+            project = mode == "reduced" and tracking and k >= max(n_icp - st.projected_steps, 1)
+            if project:
+                sp = self.full
             if sp is not self.full:
                 if mode == "hierarchical" and refine:
                     sp = self._through(sp, theta)
@@ -212,6 +221,9 @@ class HandTracker:
                         normals = np.r_[normals, np.zeros((len(sn), 3))]
             theta, _ = solve(self.hand, theta, nodes, loc, tg, weights=w, normals=normals, subspace=sp,
                              settings=self.solver)
+            if project:
+                r = self.reduced
+                theta = r.to_theta(np.clip(r.to_alpha(theta), r.lo, r.hi))
         corr = self._corr(theta, points, normals)
         return theta, corr
 

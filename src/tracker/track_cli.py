@@ -33,6 +33,7 @@ def track(
     prediction: float = typer.Option(1.0, "--prediction", help="Share of last frame's change added before fitting."),
     robust: float = typer.Option(8.0, "--robust", help="Cauchy scale (mm) weighting the data term; 0 = plain least squares (paper)."),
     finger_search: bool = typer.Option(True, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising."),
+    projected_steps: int = typer.Option(0, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs (0 = paper)."),
     paper: bool = typer.Option(False, "--paper", help="The paper's method only: no silhouette term, plain least squares, no finger search."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
@@ -66,7 +67,8 @@ def track(
                                target_points=points or None, smooth=smooth,
                                icp_iterations=icp, gn_iterations=gn, damping=damping, model=model,
                                silhouette_weight=0.0 if paper else silhouette, prediction=prediction,
-                               robust_mm=0.0 if paper else robust, finger_search=finger_search and not paper)
+                               robust_mm=0.0 if paper else robust, finger_search=finger_search and not paper,
+                               projected_steps=0 if paper else projected_steps)
     tracker = HandTracker(hand, settings, synergies=bundle)
     cam = rec.camera
     rows, kps = [], []
