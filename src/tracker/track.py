@@ -52,7 +52,7 @@ class TrackerSettings:
     min_points: int = 30
     init_icp_iterations: int = 12
     init_postures: int = 2             # single-frame fits start from the mean and ±σ along this many PCs
-    finger_search: bool = True         # single-frame fits: finger-wise restarts after the synergy search
+    finger_search: bool = True         # single-frame fits: finger-variant starts and finger-wise restarts
     finger_search_icp: int = 10        # … ICP iterations (all DoF, full cloud) for a finger's best restart
     max_points: int | None = None
     silhouette_weight: float = 1.0     # model→data term for model parts outside the silhouette (0 = paper)
@@ -161,7 +161,7 @@ class HandTracker:
         if mode == "reduced":
             return self.reduced
         if tracking:
-            # tracking: one coarse step in the synergy subspace, then all DoF (half the iterations at least)
+            # tracking: `coarse_iterations` in the synergy subspace (through θ), then all DoF
             return self.reduced if k < self.settings.coarse_iterations else self.full
         steps = [s for s in self.settings.hierarchy if s < self.n_pcs] + [self.n_pcs]
         stages = [self._pc(s) for s in steps] + [self.full]
