@@ -131,6 +131,7 @@ class HandTracker:
             self.reduced = self._pc(l)
         self.correspond = CapsuleModel(hand) if settings.model == "capsules" else MeshModel(hand)
         self.samples = ModelSamples(hand) if settings.silhouette_weight > 0 else None
+        self.finger_shapes = self._make_finger_shapes()
         self.solver = SolverSettings(iterations=settings.gn_iterations, damping=settings.damping,
                                      pose_damping=settings.pose_damping, min_points=3)
         self.reset()
@@ -364,9 +365,9 @@ class HandTracker:
                     coarse.append((self._score(th, corr, obs), th))
                 if st.finger_search:
                     # and the synergy mean with one finger in another shape (what no synergy posture holds)
-                    for p in self.finger_variants(self.synergies.model.mean_):
-                        th = pose.copy()
-                        th[post] = p
+                    at_mean = pose.copy()
+                    at_mean[post] = self.synergies.model.mean_
+                    for th in self.finger_variants(at_mean):
                         th, corr = self._icp(th, points[sub], 1, 4, "full", obs, nsub)
                         coarse.append((self._score(th, corr, obs), th))
             coarse.sort(key=lambda x: x[0])
@@ -387,27 +388,29 @@ class HandTracker:
     FINGER_SHAPES_DEG = ((5.0, 5.0, 5.0), (-25.0, -25.0, -25.0), (-55.0, -55.0, -55.0), (-85.0, -85.0, -85.0),
                          (-45.0, -100.0, -10.0), (-80.0, -20.0, -10.0), (0.0, -90.0, -60.0))
 
-    def finger_groups(self):
-        """Posture DoF indices per finger (thumb, index, middle, ring, pinky) and which of them flex."""
+    def _make_finger_shapes(self):
+        """Per finger (thumb … pinky): the θ indices of its flexion joints and FINGER_SHAPES_DEG as
+        values for them, inside the joint limits — one row per shape."""
         names = list(self.hand.dof_names)
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
         out = []
         for f in ("thumb", "index", "middle", "ring", "pinky"):
-            idx = np.array([i for i, n in enumerate(names) if n.startswith(f)], np.int64)
-            if idx.size:
-                out.append((f, idx, np.array(["flex" in names[i] for i in idx])))
+            fi = np.array([i for i, n in enumerate(names) if n.startswith(f) and "flex" in n], np.int64)
+            if fi.size:
+                vals = np.radians([np.resize(shape, fi.size) for shape in self.FINGER_SHAPES_DEG])
+                out.append((fi, np.clip(vals, lo[fi], hi[fi])))
         return out
 
-    def finger_variants(self, posture):
-        """``posture`` (the posture DoFs) with one finger at a time set to each of FINGER_SHAPES_DEG."""
-        lo, hi = self.limits[:, 0], self.limits[:, 1]
-        p0 = self.hand.pose_mask.sum()
+    def finger_variants(self, theta, finger=None):
+        """Copies of ``theta`` with one finger's flexion joints set to each finger shape, every finger
+        in turn (or only ``finger``, an index into ``finger_shapes``), the rest unchanged."""
         out = []
-        for _, idx, flex in self.finger_groups():
-            fi = idx[flex]
-            for shape in self.FINGER_SHAPES_DEG:
-                p = np.array(posture, float).copy()
-                p[fi - p0] = np.clip(np.radians(np.resize(shape, len(fi))), lo[fi], hi[fi])
-                out.append(p)
+        for k, (fi, vals) in enumerate(self.finger_shapes):
+            if finger is None or finger == k:
+                for v in vals:
+                    th = np.array(theta, float)
+                    th[fi] = v
+                    out.append(th)
         return out
 
     def _finger_search(self, best, points, obs, normals, sub, sweeps=2):
@@ -418,16 +421,12 @@ class HandTracker:
         whole-frame score improves. Repeated while a sweep improves something."""
         st = self.settings
         nsub = None if normals is None else normals[sub]
-        lo, hi = self.limits[:, 0], self.limits[:, 1]
         score, theta, corr = best
         for _ in range(sweeps):
             improved = False
-            for _, idx, flex in self.finger_groups():
-                fi = idx[flex]
+            for k, (fi, _) in enumerate(self.finger_shapes):
                 tried = []
-                for shape in self.FINGER_SHAPES_DEG:
-                    th = theta.copy()
-                    th[fi] = np.clip(np.radians(np.resize(shape, len(fi))), lo[fi], hi[fi])
+                for th in self.finger_variants(theta, k):
                     if np.max(np.abs(th[fi] - theta[fi])) < np.radians(12.0):
                         continue  # the finger has that shape already
                     th, c = self._icp(th, points[sub], 0, 4, "full", obs, nsub)
