@@ -4,6 +4,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from conftest import SHARED_DATA
+
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -16,7 +18,6 @@ from tracker.cameras import Camera, preset
 from tracker.errors import RecordingError, TrackerError
 from tracker.recording import Recording, RecordingWriter, import_pngs, list_pngs
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SR305 = SHARED_DATA / "realsense_sr305_lada"
 SMALL = Camera(32, 24, 30.0, 30.0, 15.5, 11.5, 0.001, "uint16", "small")
 

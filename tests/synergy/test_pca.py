@@ -5,6 +5,8 @@ import pickle
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from conftest import SHARED_DATA
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -21,7 +23,7 @@ from synergy.pca import (
     principal_angles,
 )
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = SHARED_DATA
 WEST_HOGAN = DATA / "west_hogan_cyberglove"
 FINGERFIST = DATA / "htrack_schroeder" / "fingerfist.txt"
 

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from conftest import ROOT, SHARED_DATA
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -30,7 +32,7 @@ from synergy.cli import app
 from synergy.errors import BundleError, SynergyError
 from synergy.pca import POSE_DOF_NAMES, POSTURE_DOF_NAMES, SynergyModel
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = SHARED_DATA
 FINGERFIST = DATA / "htrack_schroeder" / "fingerfist.txt"
 
 
@@ -91,7 +93,7 @@ def test_save_load_round_trip_exact(model, reg):
     assert man["n_samples"] == 400 and man["n_trials"] == 3 and man["variance"] == 0.95
     assert man["created"].endswith("Z") and man["generator"]["name"] == "synergistic-hand-tracking"
     assert man["hand_model"]["name"] == "default"
-    hand = Path(__file__).resolve().parents[1] / "models" / "hands" / "default.yaml"
+    hand = ROOT / "models" / "hands" / "default.yaml"
     assert (man["hand_model"]["sha256"] is None) == (not hand.is_file())
 
 

@@ -8,6 +8,8 @@ import time
 import warnings
 from pathlib import Path
 
+from conftest import SHARED_DATA
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -16,7 +18,7 @@ from hypothesis import strategies as st
 from synergy.c3d import MarkerData, read_c3d, write_c3d
 from synergy.errors import C3DError
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = SHARED_DATA
 NO_DATA = f"real C3D corpus not found at {DATA} (the shared test data folder)"
 C3D_DIRS = ("btk_samples", "c3dorg_samples", "c3dorg_art_hands", "ezc3d_testfiles", "dfki_hand_embodiment")
 
