@@ -16,9 +16,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from handmodel import HandModel
+from handmodel.dofs import anatomical_limits
 from handmodel.solver import SolverSettings, fit_points
 from handmodel.subspace import Subspace
-from synergy.angles import anatomical_limits
 from synergy.markers import load_markerset
 from synergy.simulate import motion, simulate_markers
 

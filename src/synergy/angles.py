@@ -12,25 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-# Anatomical ranges (rad) around the default hand's rest posture; wide enough for fingerfist (PIP/DIP to
-# −123°) and typical ROM tables (MCP 90–100° flexion / up to 45° hyperextension, PIP 100–120°, DIP 80–90°
-# with up to 30° hyperextension, finger ab/adduction 20–40°, thumb CMC ±45–50°).
-ANATOMICAL_LIMITS = {
-    "thumb1_abd": (-0.9, 0.9), "thumb1_flex": (-1.2, 0.8), "thumb2_flex": (-1.4, 0.8), "thumb3_flex": (-1.7, 0.8),
-    **{f"{f}1_abd": (-0.8, 0.8) for f in ("index", "middle", "ring", "pinky")},
-    **{f"{f}1_flex": (-1.75, 0.8) for f in ("index", "middle", "ring", "pinky")},
-    **{f"{f}2_flex": (-2.3, 0.4) for f in ("index", "middle", "ring", "pinky")},
-    **{f"{f}3_flex": (-2.3, 0.6) for f in ("index", "middle", "ring", "pinky")},
-}
-
-
-def anatomical_limits(hand):
-    lim = np.array(hand.limits, float)
-    for i, n in enumerate(hand.dof_names):
-        if n in ANATOMICAL_LIMITS:
-            lim[i] = ANATOMICAL_LIMITS[n]
-    return lim
+from handmodel.dofs import anatomical_limits
 
 
 def lowpass_markers(points, rate, cutoff_hz, order=4):

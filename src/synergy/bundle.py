@@ -38,7 +38,8 @@ import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, models_dir, schema_path, sha256_file
 from synergy.errors import BundleError, SynergyError
-from synergy.pca import POSE_DOF_NAMES, POSTURE_DOF_NAMES, SufficientStats, SynergyModel, heldout_curve
+from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
+from synergy.pca import SufficientStats, SynergyModel, heldout_curve
 
 __all__ = [
     "ARRAY_NAMES", "Bundle", "BundleRef", "Trial", "arrays_sha256", "bundle_from_trials",

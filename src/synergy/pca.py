@@ -36,16 +36,6 @@ except ImportError:  # scikit-learn < 1.6
         return est._validate_data(X, **kw)
 
 
-#: The 20 posture DoF in the paper's (= fingerfist) order. Single source until the hand
-#: model takes over; re-point this constant then.
-POSTURE_DOF_NAMES: tuple[str, ...] = tuple(
-    f"{finger}{part}"
-    for finger in ("thumb", "index", "middle", "ring", "pinky")
-    for part in ("1_abd", "1_flex", "2_flex", "3_flex")
-)
-#: The 6 global pose DoF that precede the posture in θ.
-POSE_DOF_NAMES: tuple[str, ...] = ("tx", "ty", "tz", "rx", "ry", "rz")
-
 _CHUNK_ROWS = 1 << 16  # bounds the temporary centred copy to a few MB
 
 

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from handmodel.dofs import DOF_NAMES
+
 from .errors import SynergyError
 
 MOTIONS = {
@@ -25,12 +27,6 @@ def _smooth(t):
     return t * t * (3 - 2 * t)
 
 
-def _names():
-    from handmodel import HandModel
-
-    return HandModel.load().dof_names
-
-
 def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int = 0):
     """θ trajectory ``(F, 26)`` of a named procedural motion; returns ``(theta, task_label)``."""
     if name not in MOTIONS:
@@ -39,7 +35,7 @@ def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int
     F = max(int(round(duration_s * rate)), 2)
     t = np.arange(F) / rate
     u = t / duration_s
-    names = _names()
+    names = DOF_NAMES
     th = np.zeros((F, len(names)))
     col = {n: i for i, n in enumerate(names)}
     fingers = ("index", "middle", "ring", "pinky")

@@ -30,7 +30,8 @@ from synergy.bundle import (
 )
 from synergy.cli import app
 from synergy.errors import BundleError, SynergyError
-from synergy.pca import POSE_DOF_NAMES, POSTURE_DOF_NAMES, SynergyModel
+from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
+from synergy.pca import SynergyModel
 
 DATA = SHARED_DATA
 FINGERFIST = DATA / "htrack_schroeder" / "fingerfist.txt"

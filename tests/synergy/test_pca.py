@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from sklearn.decomposition import PCA
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
+from handmodel.dofs import POSTURE_DOF_NAMES
 from synergy.errors import SynergyError
 from synergy.pca import (
-    POSTURE_DOF_NAMES,
     SufficientStats,
     SynergyModel,
     heldout_curve,
