@@ -102,13 +102,46 @@ class Subspace:
         return np.asarray(J) @ self.M
 
 
-def hierarchical_schedule(hand, components, mean, pc_min=None, pc_max=None, steps=(1, 4), iterations=10,
-                          final_iterations=None, full_limits=None):
-    """A hierarchical schedule: stages of growing synergy subspaces ending at all DoFs.
+def hierarchical_schedule(hand, components, mean, pc_min=None, pc_max=None, *, steps=(1, 4), n_pcs=None,
+                          full_limits=None) -> list:
+    """The stages of hierarchical optimisation: growing synergy subspaces, then all DoF.
 
-    Returns a list of ``(Subspace, iterations)``; ``steps`` are the PC counts of the reduced stages.
+    Parameters
+    ----------
+    hand : HandModel
+    components : array (p, D)
+        Synergies, rows are PCs (e.g. a model's ``all_components_``); ``D`` posture DoF.
+    mean : array (D,)
+    pc_min, pc_max : array (p,), optional
+        PC limits (±inf if omitted).
+    steps : sequence of int
+        PC counts of the coarse stages; those ``≥ n_pcs`` are dropped.
+    n_pcs : int, optional
+        PCs of the last reduced stage (default: all ``p`` rows).
+    full_limits : array (n_dofs, 2), optional
+        Box limits of the final all-DoF stage (default: the model's).
+
+    Returns
+    -------
+    list of Subspace
+        ``[PC(s) for s in steps if s < n_pcs] + [PC(n_pcs), full]``; a list the solver takes as its
+        ``schedule`` (each stage runs ``settings.iterations``; pair stages with counts to override).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from handmodel import HandModel
+    >>> hand = HandModel.load()
+    >>> C = np.eye(20)[:6]
+    >>> [sp.label for sp in hierarchical_schedule(hand, C, np.zeros(20), steps=(1, 4, 8), n_pcs=5)]
+    ['6 pose + 1 PCs', '6 pose + 4 PCs', '6 pose + 5 PCs', 'full (26 DoF)']
     """
-    stages = [(Subspace.from_synergies(hand, components, mean, pc_min, pc_max, n_components=k), int(iterations))
-              for k in steps]
-    stages.append((Subspace.full(hand, full_limits), int(final_iterations or iterations)))
-    return stages
+    p = np.atleast_2d(np.asarray(components, float)).shape[0]
+    l = p if n_pcs is None else int(n_pcs)
+    if not 1 <= l <= p:
+        raise SolverError("schedule", f"{l} PCs requested, {p} available")
+    if any(int(s) < 1 for s in steps):
+        raise SolverError("schedule", f"PC steps must be positive, got {tuple(steps)}")
+    ks = sorted({int(s) for s in steps if int(s) < l}) + [l]
+    return [Subspace.from_synergies(hand, components, mean, pc_min, pc_max, n_components=k) for k in ks] + [
+        Subspace.full(hand, full_limits)]

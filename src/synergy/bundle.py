@@ -10,15 +10,15 @@ Examples
 --------
 >>> import numpy as np, tempfile
 >>> from synergy.pca import SynergyModel
->>> X = np.random.default_rng(0).normal(size=(200, 3))
+>>> X = np.random.default_rng(0).normal(size=(200, 20)) * 0.1
 >>> reg = tempfile.mkdtemp()
->>> p = save_bundle(SynergyModel(2).fit(X), "demo", registry=reg, dof_names=["a", "b", "c"])
+>>> p = save_bundle(SynergyModel(2).fit(X), "demo", registry=reg)
 >>> p.name
 'demo-1.0.0.npz'
 >>> b = load_bundle("demo", registries=[reg])
->>> C, mean, lo, hi = b.subspace()
->>> C.shape
-(2, 3)
+>>> sp = b.subspace()                       # handmodel.Subspace: 6 pose DoF + 2 PCs
+>>> sp.dim, sp.M.shape
+(8, (26, 8))
 """
 from __future__ import annotations
 
@@ -39,6 +39,9 @@ import numpy as np
 from handmodel.fileio import atomic_write_bytes, models_dir, schema_path, sha256_file
 from synergy.errors import BundleError, SynergyError
 from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
+from handmodel.errors import HandModelError
+from handmodel.model import HandModel
+from handmodel.subspace import Subspace
 from synergy.pca import SufficientStats, SynergyModel, heldout_curve
 
 __all__ = [
@@ -188,17 +191,34 @@ class Bundle:
     def spec(self) -> str:
         return f"{self.name}@{self.version}"
 
-    def subspace(self, n_components=None):
-        """``(C, mean, pc_min, pc_max)`` of the first PCs; ``C`` is l × D (rows are PCs).
+    def subspace(self, n_components=None, hand=None) -> Subspace:
+        """The parameter subspace of the first PCs (pose DoF + PCs, with the PC limits) for the solver.
 
         ``n_components``: int, variance fraction in (0, 1), or ``None`` for the bundle's default.
+        ``hand``: the :class:`~handmodel.HandModel` whose θ it spans (default: the bundle's hand model).
         """
         m = self.model
         try:
             k = m.n_components_ if n_components is None else m.n_components_for(n_components)
         except SynergyError as exc:
             raise BundleError(self.path, exc.reason) from None
-        return (m.all_components_[:k].copy(), m.mean_.copy(), m.pc_min_[:k].copy(), m.pc_max_[:k].copy())
+        hand = self.hand_model() if hand is None else hand
+        if tuple(hand.posture_names) != self.dof_names:
+            raise BundleError(self.path, f"the bundle's DoF names are not the posture DoF of hand model {hand.name!r}")
+        return Subspace.from_synergies(hand, m.all_components_, m.mean_, m.pc_min_, m.pc_max_, n_components=k)
+
+    def hand_model(self) -> HandModel:
+        """The hand model the bundle's angles refer to (by the name in its manifest)."""
+        name = self.manifest["hand_model"]["name"]
+        try:
+            return _load_hand(name)
+        except HandModelError as exc:
+            raise BundleError(self.path, f"hand model {name!r}: {exc.reason}") from None
+
+
+@lru_cache(maxsize=4)
+def _load_hand(name: str) -> HandModel:
+    return HandModel.load(name)
 
 
 def _arrays_of(model: SynergyModel, dof_names: Sequence[str]) -> dict[str, np.ndarray]:

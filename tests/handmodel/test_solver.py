@@ -212,13 +212,34 @@ def test_flat_vs_hierarchical_on_fingerfist(fingerfist):
     flat0 = rigid_pose_from_keypoints(HAND, kp)
     st_ = SolverSettings(iterations=10)
     est_flat, _ = fit_keypoints(HAND, kp, theta0=flat0, subspace=full, settings=st_)
-    sched = hierarchical_schedule(HAND, C, mu, lo, hi, steps=(1, 4), iterations=10, full_limits=lim)
+    sched = hierarchical_schedule(HAND, C, mu, lo, hi, steps=(1, 4), n_pcs=4, full_limits=lim)
+    assert [sp.dim for sp in sched] == [7, 10, 26]
     est_h, _ = fit_keypoints(HAND, kp, theta0=flat0, schedule=sched, settings=st_)
     e_flat = posture_error_deg(est_flat, truth).mean()
     e_h = posture_error_deg(est_h, truth).mean()
     print(f"\nfingerfist, 100 postures from the flat hand: flat {e_flat:.4f} deg, hierarchical {e_h:.4f} deg")
     assert e_h <= e_flat + 1e-6
     assert e_h < 0.5
+
+
+def test_hierarchical_schedule_stages(fingerfist):
+    """The stages the tracker runs: coarse PC steps below n_pcs, PC(n_pcs), then all DoF with given limits."""
+    C, mu, lo, hi = _fingerfist_pca(fingerfist)
+    lim = HAND.limits.copy()
+    lim[6:] = [-2.0, 1.0]
+    sched = hierarchical_schedule(HAND, C, mu, lo, hi, steps=(4, 1, 9, 4), n_pcs=6, full_limits=lim)
+    assert [sp.dim for sp in sched] == [7, 10, 12, 26]
+    for sp, k in zip(sched[:3], (1, 4, 6)):
+        np.testing.assert_array_equal(sp.M[6:, 6:], C[:k].T)
+        np.testing.assert_array_equal(sp.lo[6:], lo[:k])
+        np.testing.assert_array_equal(sp.hi[6:], hi[:k])
+        np.testing.assert_array_equal(sp.mu[6:], mu)
+    assert sched[-1].is_identity and np.array_equal(sched[-1].lo, lim[:, 0])
+    assert [sp.dim for sp in hierarchical_schedule(HAND, C[:3], mu, steps=(1, 4))] == [7, 9, 26]
+    assert [sp.dim for sp in hierarchical_schedule(HAND, C, mu, steps=(), n_pcs=1)] == [7, 26]
+    for bad in ({"n_pcs": 0}, {"n_pcs": 21}, {"steps": (0, 2)}):
+        with pytest.raises(SolverError, match="schedule"):
+            hierarchical_schedule(HAND, C, mu, **bad)
 
 
 def test_point_to_plane_terms_converge():

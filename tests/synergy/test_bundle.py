@@ -30,7 +30,9 @@ from synergy.bundle import (
 )
 from synergy.cli import app
 from synergy.errors import BundleError, SynergyError
+from handmodel import HandModel
 from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
+from handmodel.subspace import Subspace
 from synergy.pca import SynergyModel
 
 DATA = SHARED_DATA
@@ -100,17 +102,29 @@ def test_save_load_round_trip_exact(model, reg):
 
 def test_subspace(model, reg):
     b = load_bundle(save_bundle(model, "grip", registry=reg))
-    C, mean, lo, hi = b.subspace()
-    assert C.shape == (model.n_components_, 20)
-    C2, _, lo2, hi2 = b.subspace(2)
-    assert C2.shape == (2, 20) and lo2.shape == hi2.shape == (2,)
-    np.testing.assert_array_equal(C2, model.all_components_[:2])
-    np.testing.assert_array_equal(mean, model.mean_)
-    Z = (postures() - mean) @ C2.T
-    assert np.all((Z >= lo2) & (Z <= hi2))
-    assert b.subspace(0.5)[0].shape[0] == model.n_components_for(0.5)
-    with pytest.raises(BundleError):
+    sp = b.subspace()
+    assert isinstance(sp, Subspace) and sp.dim == 6 + model.n_components_
+    sp2 = b.subspace(2)
+    assert sp2.dim == 8 and sp2.M.shape == (26, 8) and list(sp2.pose) == [True] * 6 + [False] * 2
+    np.testing.assert_array_equal(sp2.M[6:, 6:], model.all_components_[:2].T)
+    np.testing.assert_array_equal(sp2.mu[6:], model.mean_)
+    np.testing.assert_array_equal(sp2.lo[6:], model.pc_min_[:2])
+    np.testing.assert_array_equal(sp2.hi[6:], model.pc_max_[:2])
+    assert np.all(np.isinf(sp2.lo[:6])) and np.all(np.isinf(sp2.hi[:6]))
+    theta = np.zeros((400, 26))
+    theta[:, 6:] = postures()
+    Z = sp2.to_alpha(theta)[:, 6:]
+    assert np.all((Z >= sp2.lo[6:]) & (Z <= sp2.hi[6:]))
+    assert b.subspace(0.5).dim == 6 + model.n_components_for(0.5)
+    right = HandModel.load(right=True)
+    assert b.subspace(2, hand=right).dim == 8
+    with pytest.raises(BundleError, match="1..20"):
         b.subspace(21)
+    other = load_bundle(save_bundle(SynergyModel(2).fit(postures()[:, :5]), "five", registry=reg,
+                                    dof_names=list("abcde")))
+    with pytest.raises(BundleError, match="posture DoF of hand model") as info:
+        other.subspace()
+    assert str(info.value).startswith(str(other.path))
 
 
 def test_loaded_model_can_be_extended(reg):
