@@ -352,6 +352,44 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         Z = np.asarray(Z, dtype=float)
         return Z @ self.components_ + self.mean_
 
+    def posture(self, coef_sd, clip: bool = False) -> np.ndarray:
+        """The posture ``μ + Σᵢ aᵢ σᵢ Cᵢ``: ``aᵢ`` standard deviations along each of the first PCs.
+
+        Parameters
+        ----------
+        coef_sd : array (..., k)
+            Multiples ``a`` of the standard deviations σ (``sqrt(all_explained_variance_)``) of PCs 1..k.
+        clip : bool
+            Clip each ``aᵢσᵢ`` to the PC limits ``[pc_min_, pc_max_]`` (keeps the posture among the
+            training data's extremes along each PC).
+
+        Returns
+        -------
+        ndarray (..., D)
+
+        Examples
+        --------
+        >>> X = np.random.default_rng(0).normal(size=(500, 3)) @ np.diag([2.0, 1.0, 0.1])
+        >>> m = SynergyModel().fit(X)
+        >>> sd = np.sqrt(m.all_explained_variance_)
+        >>> (m.transform(m.posture([[1.5, -1.0]])) / sd).round(6) + 0.0    # back in σ units
+        array([[ 1.5, -1. ,  0. ]])
+        >>> bool(np.allclose(m.posture([]), m.mean_))
+        True
+        >>> bool(np.isclose(m.transform(m.posture([[9.0]], clip=True))[0, 0], m.pc_max_[0]))
+        True
+        """
+        check_is_fitted(self, "all_components_")
+        a = np.asarray(coef_sd, dtype=float)
+        k = a.shape[-1] if a.ndim else -1
+        if not 0 <= k <= self.all_components_.shape[0]:
+            raise SynergyError("posture", f"coef_sd must end in an axis of 0..{self.all_components_.shape[0]} "
+                                          f"PCs, got shape {a.shape}")
+        z = a * np.sqrt(self.all_explained_variance_[:k])
+        if clip:
+            z = np.clip(z, self.pc_min_[:k], self.pc_max_[:k])
+        return self.mean_ + z @ self.all_components_[:k]
+
     @property
     def _n_features_out(self):
         return self.n_components_

@@ -23,13 +23,12 @@ def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="de
     hand = HandModel.load(hand_model)
     m = bundle.model
     k = min(n_pcs, m.all_components_.shape[0])
-    sd = np.sqrt(m.all_explained_variance_)
     mesh = hand.mesh()
     fig = plt.figure(figsize=(2.6 * len(sigmas), 2.5 * k))
     for r in range(k):
         for c, s in enumerate(sigmas):
             th = np.zeros(hand.n_dofs)
-            th[~hand.pose_mask] = m.mean_ + s * sd[r] * m.all_components_[r]
+            th[~hand.pose_mask] = m.posture(np.eye(r + 1)[r] * s)
             ax = fig.add_subplot(k, len(sigmas), r * len(sigmas) + c + 1, projection="3d", proj_type="ortho")
             draw_mesh(ax, hand, th, mesh)
             ax.view_init(elev=-60, azim=-100)

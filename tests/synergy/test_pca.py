@@ -296,3 +296,22 @@ def test_bad_input_raises_synergy_error():
         m.transform(np.zeros((2, 4)))
     with pytest.raises(SynergyError):
         SufficientStats.empty(2).merge(SufficientStats.empty(3))
+
+
+def test_posture_is_mean_plus_scaled_components():
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(300, 6)) @ np.diag([3.0, 2.0, 1.0, 0.5, 0.2, 0.1]) + 0.4
+    m = SynergyModel(n_components=2).fit(X)
+    sd = np.sqrt(m.all_explained_variance_)
+    a = np.array([1.5, -0.5, 2.0])
+    want = m.mean_ + (a * sd[:3]) @ m.all_components_[:3]  # beyond n_components_: any PC counts
+    np.testing.assert_allclose(m.posture(a), want, atol=1e-12)
+    grid = rng.normal(size=(4, 5, 2))
+    assert m.posture(grid).shape == (4, 5, 6)
+    np.testing.assert_allclose(m.posture(grid)[2, 3], m.posture(grid[2, 3]), atol=1e-12)
+    np.testing.assert_array_equal(m.posture(np.zeros(0)), m.mean_)
+    # clipping keeps each aᵢσᵢ within the PC limits, and leaves values inside them alone
+    z = (m.posture([[40.0, -40.0, 0.3]], clip=True) - m.mean_) @ m.all_components_[:3].T
+    np.testing.assert_allclose(z[0], [m.pc_max_[0], m.pc_min_[1], 0.3 * sd[2]], atol=1e-12)
+    with pytest.raises(SynergyError, match="posture"):
+        m.posture(np.zeros(7))
