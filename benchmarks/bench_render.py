@@ -3,7 +3,7 @@
 Scene: the default hand mesh (8.7k triangles) opening and closing at 0.6–0.9 m in front of a
 640×480 Kinect-v1 camera. The peer is trimesh's ray casting when its acceleration structure is
 installed (``rtree``, or ``embreex``), otherwise an independent numpy Möller–Trumbore ray caster
-with tile binning (tracker.raycast, which tests/test_synthetic.py checks the renderer against); the table says which.
+with tile binning (tracker.sim.raycast, which tests/tracker/test_synthetic.py checks the renderer against); the table says which.
 
 Run: .venv/bin/python benchmarks/bench_render.py [--frames 300] [--peer-frames 5]
 """
@@ -18,10 +18,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from handmodel import HandModel  # noqa: E402
-from tracker.motions import GlobalPath, OPEN, FIST, Motion, keyframes, with_path  # noqa: E402
-from tracker.noise import NoiseModel  # noqa: E402
-from tracker.raycast import raycast  # noqa: E402
-from tracker.synthetic import DepthRenderer  # noqa: E402
+from tracker.sim.motions import GlobalPath, OPEN, FIST, Motion, keyframes, with_path  # noqa: E402
+from tracker.sim.noise import NoiseModel  # noqa: E402
+from tracker.sim.raycast import raycast  # noqa: E402
+from tracker.sim.render import DepthRenderer  # noqa: E402
 
 
 def camera():
@@ -127,7 +127,7 @@ def main():
           f"max depth difference {1e3 * diff:.4f} mm")
     if peer_name.endswith("(*)"):
         print("(*) trimesh's ray casting needs rtree or embreex, which are not installed; the peer is the "
-              "independent numpy ray caster tracker.raycast (the tests' reference)")
+              "independent numpy ray caster tracker.sim.raycast (the tests' reference)")
     floor = 200.0
     print(f"floor ≥ {floor:.0f} frames/s with LBS: {'met' if 1 / t_full >= floor else 'MISSED'} "
           f"({1 / t_full:.0f} frames/s)")

@@ -17,12 +17,12 @@ from scipy.optimize import least_squares
 
 from handmodel import HandModel
 from synergy.bundle import load_bundle
-from tracker import experiments as E
+from tracker.sim import experiments as E
 from tracker.cameras import preset
 from tracker.correspond import local_offsets
 from tracker.observe import observe
-from tracker.rigid import rigid_step
-from tracker.synthetic import DepthRenderer
+from tracker.icp import rigid_step
+from tracker.sim.render import DepthRenderer
 from tracker.track import HandTracker, TrackerSettings
 
 

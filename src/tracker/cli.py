@@ -179,16 +179,10 @@ def show(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey."""
-    import io
-
     import numpy as np
-    from matplotlib import colormaps
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from handmodel.fileio import atomic_write_bytes
 
     from .errors import TrackerError
+    from .plots import contact_sheet
     from .recording import Recording
 
     if output.exists() and not overwrite:
@@ -207,33 +201,11 @@ def show(
         for i in shown:
             depths.append(rec[i].depth * 1000.0)
             p.advance(bar)
-    finite = np.concatenate([d[np.isfinite(d)] for d in depths])
-    lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
-    lo = lo if near is None else near * 1000
-    hi = hi if far is None else far * 1000
-    if not hi > lo:
-        hi = lo + 1.0
-    cols = int(np.ceil(np.sqrt(len(shown))))
-    rows = int(np.ceil(len(shown) / cols))
-    aspect = rec.camera.height / rec.camera.width
-    fig = Figure(figsize=(2.6 * cols + 0.8, 2.6 * aspect * rows + 0.9), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, cols, squeeze=False)
-    cmap = colormaps["viridis"].with_extremes(bad="0.85")  # grey is not in viridis: no data stands out
-    im = None
-    for ax, i, d in zip(axes.ravel(), shown, depths):
-        im = ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
-        ax.set_title(f"#{i}  {i / rec.fps:.2f} s", fontsize=8)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    for ax in axes.ravel()[len(shown):]:
-        ax.set_axis_off()
-    fig.suptitle(f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; "
-                 f"grey = no depth", fontsize=9)
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="depth (mm)")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    atomic_write_bytes(output, buf.getvalue(), overwrite=True)
+    lo, hi = contact_sheet(
+        output, depths, [f"#{i}  {i / rec.fps:.2f} s" for i in shown],
+        f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; grey = no depth",
+        near_mm=None if near is None else near * 1000, far_mm=None if far is None else far * 1000,
+        overwrite=overwrite)
     valid = np.mean([np.isfinite(d).mean() for d in depths])
     _table(f"wrote {output}", [
         ("frames shown", f"{len(shown)} of {n}"
@@ -241,40 +213,12 @@ def show(
         ("colour scale", f"{lo:.0f}–{hi:.0f} mm"), ("pixels with depth", f"{100 * valid:.1f} %")])
 
 
-@app.command()
-@_errors_exit_2
-def experiments(
-    output: Path = typer.Option(..., "-o", "--output", help="Report folder (report.md + PNGs)."),
-    quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
-):
-    """Reproduce the paper's experiments on our renderer; writes report.md with tables and plots."""
-    from rich.console import Console
-    from rich.progress import Progress
+# the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer
+# at the top (the lab's libraries load when a command runs), so registering them keeps --help fast
+from tracker import track_cli  # noqa: E402
+from tracker.sim import cli as sim_cli  # noqa: E402
 
-    from .experiments import report
-
-    from rich.table import Table
-
-    with Progress(console=Console(stderr=True), transient=True) as p:
-        bar = p.add_task("experiments", total=None)
-        res = report(output, quick=quick,
-                     progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
-    t = Table(title=f"experiments (details: {output / 'report.md'})")
-    for c in ("variant", "noise-free °", "Kinect v1 noise °", "fps"):
-        t.add_column(c, justify="left" if c == "variant" else "right")
-    for label, m in res["modes"].items():
-        t.add_row(label, f"{m['error_deg']:.2f}", f"{res['noise'][label]['error_deg']:.2f}", f"{m['fps']:.0f}")
-    occ = res["occlusion"]
-    t.add_row("occluded grasp: full / reduced", f"{occ['full']:.1f} / {occ['reduced']:.1f}", "", "")
-    sf = res["single"]
-    t.add_row("single frame, hierarchical (mean / median)", f"{sf['hierarchical'][0]:.2f} / {sf['hierarchical'][1]:.2f}",
-              "", "")
-    Console().print(t)
-
-
-from tracker import synth_cli, track_cli  # noqa: E402
-
-app.command("synth")(_errors_exit_2(synth_cli.synth))
+sim_cli.register(app, _errors_exit_2)
 track_cli.register(app, _errors_exit_2)
 
 

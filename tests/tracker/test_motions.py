@@ -7,7 +7,7 @@ import pytest
 
 from handmodel.rigid import euler_to_matrix
 from tracker.errors import TrackerError
-from tracker.motions import (
+from tracker.sim.motions import (
     SCENARIOS, GlobalPath, Motion, continuous_euler, from_postures_file, from_table, hand_centre, make_motion,
 )
 
@@ -50,7 +50,7 @@ def test_posture_file_replay(tmp_path, hand, fingerfist):
 @pytest.mark.parametrize("name", sorted(SCENARIOS))
 def test_scenarios_give_valid_theta_in_view(hand, name):
     if name == "fingerfist":
-        from tracker.motions import fingerfist_path
+        from tracker.sim.motions import fingerfist_path
 
         if not fingerfist_path().is_file():
             pytest.skip("fingerfist.txt not available")
@@ -82,7 +82,7 @@ def test_back_of_hand_grasp_hides_the_fingertips(hand):
     """At full grasp the distal finger segments are (nearly) hidden from the back, not from the palm."""
     from types import SimpleNamespace
 
-    from tracker.synthetic import DepthRenderer
+    from tracker.sim.render import DepthRenderer
 
     cam = SimpleNamespace(width=W, height=H, fx=F, fy=F, cx=C[0], cy=C[1])
     back = make_motion("grasp-back", hand=hand, frames=45).theta[40]  # held grasp

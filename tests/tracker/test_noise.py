@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tracker.errors import TrackerError
-from tracker.noise import PRESETS, NoiseModel
+from tracker.sim.noise import PRESETS, NoiseModel
 
 CAM = SimpleNamespace(width=640, height=480, fx=580.0, fy=580.0, cx=319.5, cy=239.5)
 
@@ -19,7 +19,7 @@ def nguyen_sigma(z):
 
 def rendered_wall(hand, z):
     """A fronto-parallel plane at depth z through the renderer (hand behind the camera), with incidence."""
-    from tracker.synthetic import Clutter, render
+    from tracker.sim.render import Clutter, render
 
     th = np.zeros(26)
     th[2] = -1.0

@@ -9,9 +9,9 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tracker.errors import TrackerError
-from tracker.motions import make_motion
-from tracker.raycast import raycast
-from tracker.synthetic import Clutter, DepthRenderer, render
+from tracker.sim.motions import make_motion
+from tracker.sim.raycast import raycast
+from tracker.sim.render import Clutter, DepthRenderer, render
 
 
 def kinect_camera():
@@ -29,7 +29,7 @@ def back_project_points(depth, cam):
     has one (tracker.cameras), else x = (u − cx)·z/fx, y = (v − cy)·z/fy (integer pixel centres)."""
     v, u = np.nonzero(np.isfinite(depth))
     if hasattr(cam, "backproject"):
-        return np.asarray(cam.backproject(depth), float)[v, u], v, u
+        return np.asarray(backproject(depth, cam), float)[v, u], v, u
     z = depth[v, u].astype(float)
     return np.stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z], 1), v, u
 
@@ -249,7 +249,7 @@ def _recording_module():
 
 def test_synthesize_round_trip(tmp_path, hand, cam):
     rec = _recording_module()
-    from tracker.synthetic import synthesize
+    from tracker.sim.synthesize import synthesize
 
     out = tmp_path / "rec"
     rep = synthesize("open-close", cam, "kinect1", out, fps=30, seed=3, frames=4, hand=hand)
@@ -260,7 +260,7 @@ def test_synthesize_round_trip(tmp_path, hand, cam):
     truth = make_motion("open-close", hand=hand, frames=4, fps=30).theta
     scale = float(R.camera.depth_scale)
     # the same seed gives the same noisy frames
-    from tracker.noise import NoiseModel
+    from tracker.sim.noise import NoiseModel
 
     r = DepthRenderer(hand, cam)
     for i, f in enumerate(frames):
@@ -276,7 +276,7 @@ def test_synthesize_round_trip(tmp_path, hand, cam):
 
 def test_synthesize_noise_free_color(tmp_path, hand, cam):
     rec = _recording_module()
-    from tracker.synthetic import synthesize
+    from tracker.sim.synthesize import synthesize
 
     out = tmp_path / "rec2"
     synthesize("grasp-back", cam, "none", out, frames=2, hand=hand, color=True, clutter="forearm")
@@ -293,7 +293,7 @@ def test_synthesize_noise_free_color(tmp_path, hand, cam):
 
 def test_synthesize_bad_input(tmp_path, hand, cam):
     _recording_module()
-    from tracker.synthetic import synthesize
+    from tracker.sim.synthesize import synthesize
 
     with pytest.raises(TrackerError):
         synthesize("no-such-motion", cam, "kinect1", tmp_path / "x", hand=hand)
@@ -305,7 +305,7 @@ def test_synthesize_bad_input(tmp_path, hand, cam):
 def _app():
     import typer
 
-    from tracker.synth_cli import register
+    from tracker.sim.cli import register
 
     app = typer.Typer(pretty_exceptions_enable=False)
 

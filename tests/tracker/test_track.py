@@ -7,7 +7,7 @@ import pytest
 
 from conftest import shared
 from handmodel import HandModel
-from tracker import experiments as E
+from tracker.sim import experiments as E
 from tracker.errors import TrackerError
 from tracker.track import HandTracker, TrackerSettings
 
@@ -86,7 +86,7 @@ def test_hierarchical_tracking(bundle, postures):
 def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
     """Random postures within the joint limits (not fingerfist-like): the synergy step must not hold
     the hand back — hierarchical stays as accurate as full DoF."""
-    from tracker.motions import make_motion
+    from tracker.sim.motions import make_motion
 
     th = make_motion("random", hand=HAND, frames=90, seed=3).theta
     err = {}
@@ -139,7 +139,7 @@ def test_finger_search_finds_a_finger_flexed_alone(bundle):
     finger-wise restarts find it, the synergy search alone does not."""
     from tracker.correspond import Silhouette
     from tracker.observe import observe
-    from tracker.synthetic import DepthRenderer
+    from tracker.sim.render import DepthRenderer
 
     truth = E.sequence(bundle.model.mean_[None], bundle.model.mean_, lead=0, distance=0.7)[0]
     names = list(HAND.dof_names)
@@ -195,7 +195,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
     """One tracking step from the true θ on a frame with 10 % flying pixels: least squares is dragged
     far off, the Cauchy-weighted data term stays close."""
     from tracker.observe import observe
-    from tracker.synthetic import DepthRenderer
+    from tracker.sim.render import DepthRenderer
 
     truth = E.sequence(postures[row:row + 1], bundle.model.mean_, lead=0)[0]
     depth = _FlyingPixels().apply(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM,
@@ -267,9 +267,9 @@ def _silhouette_pairs_reference(samples, theta, sil, tolerance_px=1.5):
 def silhouette_scenes():
     """(θ, Silhouette) of rendered frames: a half-closed hand in the middle, near the top edge, and
     shifted so that it partly leaves the image on the right (and so its distance-transform window)."""
-    from tracker.motions import make_motion
+    from tracker.sim.motions import make_motion
     from tracker.observe import observe
-    from tracker.synthetic import DepthRenderer
+    from tracker.sim.render import DepthRenderer
     from tracker.correspond import Silhouette
 
     base = make_motion("open-close", hand=HAND, frames=20).theta[12]

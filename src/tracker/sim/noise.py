@@ -41,8 +41,10 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
+from scipy.ndimage import binary_dilation
 
-from .errors import TrackerError
+from ..errors import TrackerError
+from ._kernels import lateral_resample, projector_shadow
 
 _THETA_MAX = np.radians(85.0)
 
@@ -196,8 +198,6 @@ class NoiseModel:
         cosi = None if cos_incidence is None else np.asarray(cos_incidence, float)[win]
 
         if self.shadow:
-            from ._render_kernels import projector_shadow
-
             sh = np.zeros(d.shape, np.bool_)
             projector_shadow(d, self.focal(camera) * self.baseline_m, self.projector_side, sh)
             d[sh] = np.nan
@@ -235,8 +235,6 @@ def _theta(cos_incidence) -> np.ndarray:
 
 def _lateral(d, cosi, sigma0, angle, reach, rng):
     """Nearest-pixel resampling at Gaussian offsets (σ_L pixels, clipped to ±reach)."""
-    from ._render_kernels import lateral_resample
-
     nu = rng.standard_normal(d.shape, dtype=np.float32)
     nv = rng.standard_normal(d.shape, dtype=np.float32)
     c = np.zeros((0, 0)) if cosi is None else np.ascontiguousarray(cosi, dtype=np.float64)
@@ -248,8 +246,6 @@ def _lateral(d, cosi, sigma0, angle, reach, rng):
 
 def _edge_band(d, width, jump):
     """Valid pixels within ``width`` pixels (4-connected) of an invalid pixel or a depth jump."""
-    from scipy.ndimage import binary_dilation
-
     ok = np.isfinite(d)
     edge = np.zeros_like(ok)
     filled = np.where(ok, d, np.inf)

@@ -1,8 +1,11 @@
-"""Synthetic depth frames of the hand model: a compiled z-buffer renderer and recording synthesis.
+"""Synthetic depth frames of the hand model: a compiled z-buffer renderer.
 
 The LBS-posed hand mesh (θ's global pose places the hand in the camera frame: x right, y down,
 z forward, metres) is rasterised through a pinhole camera by a numba kernel. Depth is the exact
-z of the ray–triangle intersection (1/z is interpolated, not z), so it agrees with ray casting.
+z of the ray–triangle intersection (1/z is interpolated, not z), so it agrees with ray casting
+(:mod:`tracker.sim.raycast`, the independent reference). Optional clutter (:class:`Clutter`: a
+forearm and a table plane), segment labels, a shaded colour image and the incidence cosine
+(which the sensor noise of :mod:`tracker.sim.noise` uses) come from the same pass.
 
 Pixel convention: pixel centres sit at integer coordinates; pixel ``(v, u)`` (row, column) samples
 the ray ``((u − cx)/fx, (v − cy)/fy, 1)``, and a point projects to ``u = fx·x/z + cx``. Back-project
@@ -13,7 +16,7 @@ Examples
 --------
 >>> from types import SimpleNamespace
 >>> from handmodel import HandModel
->>> from tracker.motions import make_motion
+>>> from tracker.sim.motions import make_motion
 >>> cam = SimpleNamespace(width=160, height=120, fx=145.0, fy=145.0, cx=79.5, cy=59.5)
 >>> r = render(HandModel.load(), make_motion("still", frames=1).theta[0], cam)
 >>> r.depth.shape, r.depth.dtype, bool(0.6 < float(np.nanmin(r.depth)) < 0.9)
@@ -21,15 +24,14 @@ Examples
 """
 from __future__ import annotations
 
-import time
 import weakref
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from .errors import TrackerError
+from ..cameras import preset
+from ..errors import TrackerError
+from ._kernels import lbs, plane_pass, raster, shade
 
 SKIN_RGB = (226, 178, 150)
 SLEEVE_RGB = (48, 66, 128)
@@ -160,10 +162,6 @@ class Rendered:
 def as_camera(camera):
     """A camera object from a preset name, or the object itself if it has pinhole intrinsics."""
     if isinstance(camera, str):
-        try:
-            from .cameras import preset
-        except ImportError:  # pragma: no cover - the cameras module is written alongside this one
-            raise TrackerError(f"camera {camera}", "camera presets need tracker.cameras") from None
         return preset(camera)
     for a in ("width", "height", "fx", "fy", "cx", "cy"):
         if not hasattr(camera, a):
@@ -236,8 +234,6 @@ class DepthRenderer:
 
     def pose(self, theta) -> np.ndarray:
         """LBS-posed vertices ``(V, 3)`` in the camera frame (same as ``mesh.pose(theta)``)."""
-        from ._render_kernels import lbs
-
         p = self._p
         G = p.hand.node_frames(theta)
         if G.ndim != 3:
@@ -249,8 +245,6 @@ class DepthRenderer:
 
     def rasterize(self, vertices, *, cull: bool = True):
         """Z-buffer posed vertices: ``(depth float32, labels int16, face int32)``."""
-        from ._render_kernels import raster
-
         c = self.camera
         H, W = int(c.height), int(c.width)
         depth = np.full((H, W), np.nan, np.float32)
@@ -263,8 +257,6 @@ class DepthRenderer:
     def render(self, theta, *, labels: bool = True, color: bool = False, clutter: Clutter | str | None = None,
                incidence: bool = False) -> Rendered:
         """Render one frame at parameters ``theta`` (26,); see :func:`render`."""
-        from ._render_kernels import plane_pass, raster
-
         if isinstance(clutter, str):
             clutter = Clutter.parse(clutter)
         P = self.pose(theta)
@@ -288,8 +280,6 @@ class DepthRenderer:
                        depth, lab, np.int16(-1), face, np.int32(TABLE_FACE))
         cosi = col = None
         if color or incidence:
-            from ._render_kernels import shade
-
             H, W = depth.shape
             col = np.empty((H, W, 3) if color else (0, 0, 3), np.uint8)
             cosi = np.empty((H, W) if incidence else (0, 0), np.float32)
@@ -327,112 +317,3 @@ def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = Fa
     """
     return DepthRenderer(hand_or_mesh, camera).render(theta, labels=labels, color=color, clutter=clutter,
                                                       incidence=incidence)
-
-
-# ----------------------------------------------------------------------------- synthesis
-@dataclass(frozen=True)
-class SynthesisReport:
-    """What :func:`synthesize` wrote."""
-
-    path: Path
-    motion: str
-    frames: int
-    fps: float
-    camera: str
-    noise: str
-    hand_pixels: float  # mean rendered hand pixels per frame
-    valid_fraction: float  # of rendered hand pixels that keep depth after noise
-    depth_range_m: tuple  # min, max hand depth over all frames (rendered)
-    render_ms: float  # mean per frame, LBS + raster (+ colour)
-    noise_ms: float
-    seconds: float
-
-
-def _resolve(motion, camera, noise, hand, frames, fps, seed):
-    from .motions import Motion, make_motion
-    from .noise import NoiseModel
-
-    if not fps > 0:
-        raise TrackerError("fps", f"must be positive, got {fps}")
-    if isinstance(motion, Motion):
-        m = motion.resample(fps).head(frames)
-    else:
-        m = make_motion(motion, hand=hand, frames=frames, fps=fps, seed=seed)
-    cam = as_camera(camera)
-    nm = NoiseModel.preset(noise) if isinstance(noise, str) else (noise or NoiseModel.preset("none"))
-    if not isinstance(nm, NoiseModel):
-        raise TrackerError("noise", "needs a NoiseModel or a preset name")
-    return m, cam, nm
-
-
-def synthesize(motion, camera, noise, out_dir, fps: float = 30, seed: int = 0,
-               progress: Callable[[int, int], None] | None = None, *, hand=None, frames: int | None = None,
-               clutter: Clutter | str | None = None, color: bool = False, **writer_options) -> SynthesisReport:
-    """Render a motion, add sensor noise and write a recording folder with the true θ per frame.
-
-    Parameters
-    ----------
-    motion : Motion, scenario name or motion file (see :func:`tracker.motions.make_motion`)
-        A :class:`Motion` at another frame rate is resampled to ``fps``.
-    camera : camera object or preset name
-    noise : NoiseModel or preset name (``none``, ``kinect1``)
-    out_dir : folder to create (via :class:`tracker.recording.RecordingWriter`)
-    fps, seed : frame rate; noise of frame ``i`` uses ``default_rng([seed, i])``
-    progress : called as ``progress(done, total)`` after each frame
-    hand : HandModel (default: the default left hand)
-    frames : at most this many frames
-    clutter : forearm / table (the table stays where the motion's mean hand centre puts it)
-    color : also write colour frames
-    writer_options : passed to ``RecordingWriter``
-    """
-    from .recording import RecordingWriter
-
-    if hand is None:
-        from handmodel import HandModel
-
-        hand = HandModel.load()
-    m, cam, nm = _resolve(motion, camera, noise, hand, frames, fps, seed)
-    if isinstance(clutter, str):
-        clutter = Clutter.parse(clutter)
-    renderer = DepthRenderer(hand, cam)
-    if clutter is not None and clutter.table:
-        from .motions import hand_centre
-
-        from handmodel.rigid import euler_to_matrix
-
-        R = euler_to_matrix(m.theta[:, 3:6])
-        centres = m.theta[:, :3] + R @ hand_centre(hand)
-        clutter = clutter.fixed(centres.mean(axis=0))
-    t_start = time.perf_counter()
-    t_render = t_noise = 0.0
-    n_hand = n_valid = 0
-    zmin, zmax = np.inf, -np.inf
-    cam_name = getattr(cam, "name", None) or (camera if isinstance(camera, str) else "custom")
-    clutter_desc = "none" if clutter is None else ",".join(k for k in ("forearm", "table") if getattr(clutter, k))
-    writer_options.setdefault("source", f"synthetic: motion {m.name}, noise {nm.name}, seed {seed}, "
-                                        f"clutter {clutter_desc}, hand {hand.name} ({hand.handedness})")
-    with RecordingWriter(out_dir, cam, float(fps), hand.handedness, **writer_options) as writer:
-        for i, th in enumerate(m.theta):
-            t0 = time.perf_counter()
-            r = renderer.render(th, labels=True, color=color, clutter=clutter, incidence=nm.needs_incidence)
-            t1 = time.perf_counter()
-            depth = r.depth if nm.is_noise_free else nm.apply(r.depth, cam, np.random.default_rng([seed, i]),
-                                                             r.cos_incidence)
-            t2 = time.perf_counter()
-            t_render += t1 - t0
-            t_noise += t2 - t1
-            hm = r.labels >= 0
-            n_hand += int(hm.sum())
-            n_valid += int(np.isfinite(depth[hm]).sum())
-            if hm.any():
-                zmin, zmax = min(zmin, float(r.depth[hm].min())), max(zmax, float(r.depth[hm].max()))
-            writer.write(depth, color=r.color if color else None, truth=np.asarray(th))
-            if progress is not None:
-                progress(i + 1, m.frames)
-    F = m.frames
-    return SynthesisReport(
-        path=Path(out_dir), motion=m.name, frames=F, fps=float(fps), camera=str(cam_name), noise=nm.name,
-        hand_pixels=n_hand / F, valid_fraction=(n_valid / n_hand) if n_hand else 0.0,
-        depth_range_m=(zmin, zmax) if n_hand else (float("nan"), float("nan")),
-        render_ms=1000 * t_render / F, noise_ms=1000 * t_noise / F, seconds=time.perf_counter() - t_start,
-    )

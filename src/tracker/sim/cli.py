@@ -1,8 +1,10 @@
-"""The ``tracker synth`` command: render a motion into a recording folder with ground truth.
+"""The synthetic lab's commands: ``tracker synth`` (render a motion into a recording folder with
+ground truth) and ``tracker experiments`` (the paper's experiments, written as a report).
 
-``register(app)`` adds the command to the ``tracker`` typer app. Heavy modules are imported inside
-the command so that ``tracker --help`` stays fast. Bad input raises
-:class:`handmodel.errors.ToolkitError` subclasses; the app prints them on one line and exits 2.
+``register(app, wrap)`` adds them to the ``tracker`` typer app. The library modules (numba, pandas,
+matplotlib behind them) are imported inside the commands, not at the top, so that ``tracker --help``
+stays fast. Bad input raises :class:`handmodel.errors.ToolkitError` subclasses; with the app's
+``wrap`` they print on one line and exit 2.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ def synth(
     """Render a hand motion with sensor noise into a recording folder (depth, truth.csv)."""
     from rich.console import Console
 
-    from .errors import TrackerError
+    from ..errors import TrackerError
 
     console = Console()
     if list_:
@@ -50,7 +52,8 @@ def synth(
 
     from .motions import make_motion
     from .noise import NoiseModel
-    from .synthetic import Clutter, as_camera, synthesize
+    from .render import Clutter, as_camera
+    from .synthesize import synthesize
 
     clut = Clutter.parse(clutter)
     nm = NoiseModel.preset(noise)
@@ -111,6 +114,39 @@ def _listing():
     return t
 
 
-def register(app: typer.Typer) -> None:
-    """Add the ``synth`` command to the ``tracker`` app."""
-    app.command("synth")(synth)
+def experiments(
+    output: Path = typer.Option(..., "-o", "--output", help="Report folder (report.md + PNGs)."),
+    quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
+):
+    """Reproduce the paper's experiments on our renderer; writes report.md with tables and plots."""
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from .report import report
+
+    with Progress(console=Console(stderr=True), transient=True) as p:
+        bar = p.add_task("experiments", total=None)
+        res = report(output, quick=quick,
+                     progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
+    t = Table(title=f"experiments (details: {output / 'report.md'})")
+    for c in ("variant", "noise-free °", "Kinect v1 noise °", "fps"):
+        t.add_column(c, justify="left" if c == "variant" else "right")
+    for label, m in res["modes"].items():
+        t.add_row(label, f"{m['error_deg']:.2f}", f"{res['noise'][label]['error_deg']:.2f}", f"{m['fps']:.0f}")
+    occ = res["occlusion"]
+    t.add_row("occluded grasp: full / reduced", f"{occ['full']:.1f} / {occ['reduced']:.1f}", "", "")
+    sf = res["single"]
+    t.add_row("single frame, hierarchical (mean / median)", f"{sf['hierarchical'][0]:.2f} / {sf['hierarchical'][1]:.2f}",
+              "", "")
+    Console().print(t)
+
+
+def register(app: typer.Typer, wrap=None) -> None:
+    """Add the ``synth`` and ``experiments`` commands to the ``tracker`` app.
+
+    ``wrap`` decorates each command (the app's one-line error handler); ``None`` adds them as they are.
+    """
+    wrap = wrap or (lambda fn: fn)
+    app.command("experiments")(wrap(experiments))  # before synth: the order of ``tracker --help``
+    app.command("synth")(wrap(synth))

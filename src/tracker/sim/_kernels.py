@@ -1,4 +1,5 @@
-"""numba kernels of the synthetic depth renderer (imported lazily by :mod:`tracker.synthetic`).
+"""numba kernels of the synthetic lab: skinning, z-buffer passes and shading for
+:mod:`tracker.sim.render`, projector shadows and lateral resampling for :mod:`tracker.sim.noise`.
 
 Pixel convention: pixel ``(v, u)`` (row, column) samples the ray through the image point ``(u, v)``
 with integer coordinates, i.e. pixel centres sit at integers (OpenCV's convention): the ray of
@@ -34,6 +35,17 @@ def lbs(rest, idx, w, B, out):
         out[i, 0] = ox
         out[i, 1] = oy
         out[i, 2] = oz
+
+
+@njit(cache=True, nogil=True)
+def _keep_nearer(depth, label, face_id, v, u, z, lab, fid):
+    """The z-buffer test of every pass: pixel ``(v, u)`` takes ``z`` (float32) and its label and face
+    where it is nearer than what is there or nothing is there yet (NaN)."""
+    d = depth[v, u]
+    if z < d or d != d:
+        depth[v, u] = z
+        label[v, u] = lab
+        face_id[v, u] = fid
 
 
 @njit(cache=True, nogil=True)
@@ -117,12 +129,7 @@ def raster(P, faces, face_label, face_offset, fx, fy, cx, cy, near, cull, depth,
                 iz = iA * fu + iB * fv + iC
                 if iz <= 0.0:
                     continue
-                z = np.float32(1.0 / iz)
-                d = depth[v, u]
-                if z < d or d != d:
-                    depth[v, u] = z
-                    label[v, u] = lab
-                    face_id[v, u] = fid
+                _keep_nearer(depth, label, face_id, v, u, np.float32(1.0 / iz), lab, fid)
 
 
 @njit(cache=True, nogil=True)
@@ -138,12 +145,7 @@ def plane_pass(n, dn, fx, fy, cx, cy, zmax, depth, label, lab, face_id, fid):
             z = dn / nd
             if z <= 0.0 or z > zmax:
                 continue
-            z32 = np.float32(z)
-            d = depth[v, u]
-            if z32 < d or d != d:
-                depth[v, u] = z32
-                label[v, u] = lab
-                face_id[v, u] = fid
+            _keep_nearer(depth, label, face_id, v, u, np.float32(z), lab, fid)
 
 
 @njit(cache=True, nogil=True)

@@ -23,8 +23,12 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import pandas as pd
 
-from .errors import TrackerError
+from handmodel import HandModel
+from handmodel.rigid import euler_to_matrix, matrix_to_euler
+
+from ..errors import TrackerError
 
 N_POSE = 6
 
@@ -48,12 +52,6 @@ FACING = {
     "back": np.diag([1.0, -1.0, -1.0]),  # palm normal → +z_cam: the back of the hand faces the camera
     "side": np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]]),  # thumb side (+x_hand) → −z_cam
 }
-
-
-def _hand():
-    from handmodel import HandModel
-
-    return HandModel.load()
 
 
 def hand_centre(hand) -> np.ndarray:
@@ -91,8 +89,6 @@ class GlobalPath:
 
     def rotations(self, t) -> np.ndarray:
         """Hand orientations ``(F, 3, 3)`` at times ``t`` (seconds)."""
-        from handmodel.rigid import euler_to_matrix
-
         t = np.asarray(t, float)
         w = np.radians(self.wobble_deg) * np.sin(
             2 * np.pi * self.speed * t[:, None] / np.asarray(self.wobble_period_s) + np.asarray(self.phase))
@@ -124,8 +120,6 @@ def continuous_euler(R) -> np.ndarray:
     Of the two solutions ``(a, b, c)`` and ``(a + π, π − b, c + π)`` (and their 2π shifts) each
     frame takes the one nearest the previous frame's, so a path through ``b = ±90°`` does not jump.
     """
-    from handmodel.rigid import matrix_to_euler
-
     e = matrix_to_euler(np.asarray(R, float).reshape(-1, 3, 3))
     out = np.empty_like(e)
     prev = None
@@ -228,9 +222,7 @@ def from_table(table, *, hand=None, fps: float = 30.0, path: GlobalPath | None =
     dropped rows are bridged); without it each row is one frame. Rows with a missing posture angle
     are dropped. Pose columns (tx … rz) that are absent are filled from ``path``.
     """
-    import pandas as pd
-
-    hand = hand or _hand()
+    hand = hand or HandModel.load()
     where = source or name or "table"
     if not isinstance(table, pd.DataFrame):
         p = Path(table)
@@ -294,7 +286,7 @@ def from_postures_file(file, *, hand=None, fps: float = 30.0, path: GlobalPath |
                        name: str | None = None) -> Motion:
     """Replay a schroeder26 posture file one row per frame; its columns 1–6 (unreliable global
     pose) are replaced by the global path ``path`` (default :class:`GlobalPath`)."""
-    hand = hand or _hand()
+    hand = hand or HandModel.load()
     P = read_schroeder26(file)
     return Motion(name or Path(file).stem, with_path(P, hand, fps, path), fps,
                   "posture file replay (schroeder26, cols 1-6 replaced)", source=str(file))
@@ -306,7 +298,8 @@ def fingerfist_path() -> Path:
     env = os.environ.get("TRACKER_FINGERFIST")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[3] / "shared" / "data" / "htrack_schroeder" / "fingerfist.txt"
+    # parents: sim, tracker, src, the checkout, the folder beside it
+    return Path(__file__).resolve().parents[4] / "shared" / "data" / "htrack_schroeder" / "fingerfist.txt"
 
 
 # ----------------------------------------------------------------------------- scenarios
@@ -407,7 +400,7 @@ def make_motion(spec: str | os.PathLike, *, hand=None, frames: int | None = None
     ``frames`` defaults to the scenario's length (files: all rows); files are cut to ``frames``.
     ``path`` replaces the global path of file input.
     """
-    hand = hand or _hand()
+    hand = hand or HandModel.load()
     if frames is not None and frames < 1:
         raise TrackerError("frames", f"must be at least 1, got {frames}")
     if not fps > 0:
