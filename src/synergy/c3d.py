@@ -22,8 +22,15 @@ Why the extra work around the two backends (all measured on ``../shared/data``):
 from __future__ import annotations
 
 import io
+import json
 import os
+import select
+import signal
 import struct
+import subprocess
+import sys
+import threading
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -208,8 +215,12 @@ def _walk_parameters(buf: bytes, start: int, processor: int) -> tuple[str | None
     found: dict[tuple[int, str], tuple[float | None, int, int]] = {}
 
     def done(problem: str | None) -> tuple[str | None, dict]:
-        point = [gid for gid, name in groups.items() if name == b"POINT"]
-        return problem, {k: v for (g, k), v in found.items() if point and g == point[0]}
+        ids: dict[bytes, int] = {}
+        for gid, name in groups.items():
+            ids.setdefault(name, gid)
+        out = {k: v for (g, k), v in found.items() if g == ids.get(b"POINT")}
+        out.update({f"ANALOG_{k}": v for (g, k), v in found.items() if g == ids.get(b"ANALOG")})
+        return problem, out
 
     for _ in range(100_000):
         if pos + 2 > n:
@@ -234,11 +245,18 @@ def _walk_parameters(buf: bytes, start: int, processor: int) -> tuple[str | None
             bpe, ndim = _int8(buf[desc_at]), buf[desc_at + 1]
             if bpe not in (-1, 1, 2, 4):
                 return done(f"parameter {label} has element size {bpe}")
-            count = int(np.prod(list(buf[desc_at + 2:desc_at + 2 + ndim]), dtype=np.int64))
             data_at = desc_at + 2 + ndim
+            if data_at > n:
+                return done(f"parameter {label} leaves the parameter section")
+            # Python integers: up to 255 dimensions of up to 255 each must not wrap around.
+            count = 1
+            for d in buf[desc_at + 2:data_at]:
+                count *= d
             desc_at = data_at + abs(bpe) * count
+            if desc_at > n:
+                return done(f"parameter {label} holds {count} elements, more than the parameter section has room for")
             key = label.upper()
-            if key in ("USED", "FRAMES", "SCALE") and count and bpe > 0:
+            if key in ("USED", "FRAMES", "SCALE", "RATE") and count and bpe > 0:
                 found[(gid, key)] = (_decode_number(buf[data_at:desc_at], bpe, processor), data_at, bpe)
         else:
             groups[-gid] = name.upper()
@@ -252,6 +270,28 @@ def _walk_parameters(buf: bytes, start: int, processor: int) -> tuple[str | None
             return done(f"parameter {label} points backwards ({offset})")
         pos = q + offset
     return done("parameter section has no end")
+
+
+def _analog_problem(params: dict, room: int) -> str | None:
+    """Why ezc3d would allocate without bound for the analog channels, or None.
+
+    ezc3d sizes every frame's analog block from ANALOG:RATE / POINT:RATE x ANALOG:USED before
+    reading a byte: a mutated rate of 1e9 made it spin and allocate gigabytes (fuzzing).
+    """
+    rate = params.get("ANALOG_RATE", (None,))[0]
+    used = params.get("ANALOG_USED", (None,))[0]
+    point_rate = params.get("RATE", (None,))[0]
+    if rate is None or not used:
+        return None
+    if not np.isfinite(rate) or rate < 0:
+        return f"ANALOG:RATE is {rate}"
+    if point_rate is None or not np.isfinite(point_rate) or point_rate <= 0:
+        return None
+    per_frame = used * rate / point_rate
+    if per_frame * 2 > max(room, 0):   # 2 bytes: the smallest analog sample
+        return (f"ANALOG:RATE {rate:g} Hz and ANALOG:USED {used:g} give {per_frame:.0f} analog samples per "
+                f"frame, more than the {room}-byte data section holds")
+    return None
 
 
 def _point_count_repair(layout: "_Layout", point: dict, analog_words: int) -> tuple[int, bytes] | None:
@@ -316,6 +356,7 @@ def _layout(path: Path) -> _Layout:
     except OSError as exc:
         raise C3DError(path, f"cannot open: {exc.strerror or exc}") from None
     problem, point = _walk_parameters(buf, start, processor)
+    problem = problem or _analog_problem(point, size - data_start)
     frames = point.get("FRAMES", (None,))[0]
     layout = _Layout(size=size, data_start=data_start, processor=processor, first_frame=words[3],
                      last_frame=words[4], n_points=words[1], ezc3d_problem=problem,
@@ -355,10 +396,7 @@ def _ezc3d_param(groups: dict, group: str, name: str):
     return [_text(str(v)) for v in value] if isinstance(value, list) else np.asarray(value)
 
 
-def _read_ezc3d(path: Path) -> _Raw:
-    import ezc3d
-
-    c = ezc3d.c3d(str(path))
+def _read_ezc3d(path: Path, c) -> _Raw:
     groups = c["parameters"]
     data = c["data"]
     pts = data["points"]                               # (4, M, F)
@@ -405,7 +443,7 @@ def _c3d_param(reader, group: str, name: str):
     return flat.ravel().reshape(dims[::-1]).T if len(dims) > 1 else flat.ravel()
 
 
-def _read_c3d_package(path: Path, repair: tuple[int, bytes] | None = None) -> _Raw:
+def _read_c3d_package(path: Path, repair: tuple[int, bytes] | None = None):
     import c3d
 
     if repair:
@@ -429,7 +467,238 @@ def _read_c3d_package(path: Path, repair: tuple[int, bytes] | None = None) -> _R
     xyz[invalid] = np.nan
     residual = arr[..., 3]
     residual[invalid] = np.nan
-    return _Raw(lambda g, n: _c3d_param(reader, g, n), xyz, residual, frame_bytes)
+    return _Raw(lambda g, n: _c3d_param(reader, g, n), xyz, residual, frame_bytes), reader
+
+
+# --------------------------------------------------------------------------------------
+# Isolation: the native readers run in a worker process
+# --------------------------------------------------------------------------------------
+# Fuzzing the corpus showed ezc3d segfaulting on about 1 % of mutated files and spinning or
+# allocating gigabytes on others; the checks above cannot prove a file safe for a C++ reader.
+# So both backends run in one long-lived worker process (started on first use, about 0.15 s)
+# with an address-space limit and a deadline: a crash or a hang costs that worker, never the
+# caller, and becomes a C3DError naming the file. The worker is reused across files, so the
+# normal path pays only a pipe round trip.
+
+#: Seconds a worker may spend on one file before it is killed: a base plus one second per
+#: 8 MiB (ezc3d reads ~50 MB/s here, so a sound file is far below the deadline).
+READ_TIMEOUT_S = 3.0
+#: Address space a worker may add while reading one file: a base plus a multiple of the file
+#: size (a sound file decodes to about 3x its size in float64).
+READ_MEMORY_BASE = 768 << 20
+READ_MEMORY_PER_BYTE = 16
+
+_GROUPS_EXPORTED = ("POINT", "EVENT")
+
+
+def _read_deadline(size: int) -> float:
+    return READ_TIMEOUT_S + size / (8 << 20)
+
+
+def _export_params(get, names_of) -> dict:
+    """``{"GROUP:NAME": value}`` of the groups _assemble reads, as JSON-able values."""
+    out = {}
+    for group in _GROUPS_EXPORTED:
+        for name in names_of(group):
+            v = get(group, name)
+            if v is None:
+                continue
+            key = f"{group}:{str(name).upper()}"
+            if isinstance(v, list):
+                out[key] = {"s": [str(x) for x in v]}
+            else:
+                a = np.asarray(v)
+                kind = "f8" if a.dtype.kind == "f" else "i8"
+                out[key] = {"a": a.astype(kind).ravel().tolist(), "shape": list(a.shape), "dtype": kind}
+    return out
+
+
+def _import_params(doc: dict):
+    values = {}
+    for key, v in doc.items():
+        if "s" in v:
+            values[key] = list(v["s"])
+        else:
+            values[key] = np.array(v["a"], dtype=v["dtype"]).reshape(v["shape"])
+    return lambda g, n: values.get(f"{g.upper()}:{n.upper()}")
+
+
+def _worker_read(path: Path, backend: str, repair) -> tuple[dict, list[np.ndarray]]:
+    """Decode one file in the worker: the JSON-able part and the arrays."""
+    if backend == "ezc3d":
+        import ezc3d
+
+        c = ezc3d.c3d(str(path))
+        raw = _read_ezc3d(path, c)
+        groups = c["parameters"]
+
+        def names_of(g):
+            return [k for k, v in groups.get(g, {}).items() if isinstance(v, dict) and "value" in v]
+    else:
+        raw, reader = _read_c3d_package(path, repair)
+
+        def names_of(g):
+            grp = reader.get(g)
+            return [] if grp is None else list(grp.param_keys())
+    doc = {"params": _export_params(raw.params, names_of), "frame_bytes": int(raw.frame_bytes),
+           "shapes": [list(raw.xyz.shape), list(raw.residual.shape)]}
+    return doc, [np.ascontiguousarray(raw.xyz, np.float64), np.ascontiguousarray(raw.residual, np.float64)]
+
+
+def _worker_main() -> None:
+    """Serve read requests on stdin (one JSON line each), answer on stdout (length-prefixed
+    JSON, then the raw float64 arrays). Ends on EOF, i.e. when the caller goes away."""
+    import resource  # POSIX only, and only the worker needs it
+
+    import c3d  # noqa: F401 - imported once here, not per request
+    import ezc3d  # noqa: F401
+
+    out = sys.stdout.buffer
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    base = _vm_size()
+    for line in sys.stdin.buffer:
+        req = json.loads(line)
+        # SIGALRM's default action ends the process even inside C++ code: a worker left
+        # behind by a killed caller cannot spin for ever.
+        signal.alarm(int(req["timeout"]) + 2)
+        limit = base + int(req["memory"])
+        if hard == resource.RLIM_INFINITY or limit < hard:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+        arrays: list[np.ndarray] = []
+        try:
+            repair = req["repair"] and (req["repair"][0], bytes.fromhex(req["repair"][1]))
+            doc, arrays = _worker_read(Path(req["path"]), req["backend"], repair)
+            doc["ok"] = True
+        except C3DError as exc:
+            doc = {"ok": False, "error": exc.reason}
+        except MemoryError:
+            doc = {"ok": False, "error": "out of memory"}
+        except Exception as exc:  # noqa: BLE001 - any backend failure is reported, not fatal
+            doc = {"ok": False, "error": str(exc).split("\n")[0][:200] or type(exc).__name__}
+        body = json.dumps(doc).encode()
+        # The answer is built before the limit is lifted: sending it must not need more memory.
+        out.write(len(body).to_bytes(8, "little") + body)
+        for a in arrays:
+            if a.size:  # memoryview refuses to cast an empty view
+                out.write(memoryview(a.reshape(-1)).cast("B"))
+        out.flush()
+        signal.alarm(0)
+        if hard == resource.RLIM_INFINITY or limit < hard:
+            resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
+
+
+def _vm_size() -> int:
+    """Address space of this process in bytes (Linux; 0 where /proc is missing)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError):
+        return 0
+
+
+class _Worker:
+    """The caller's handle on one worker process (restarted after a crash or a hang)."""
+
+    def __init__(self) -> None:
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
+                   PYTHONDONTWRITEBYTECODE="1")
+        self.owner = os.getpid()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from synergy.c3d import _worker_main; _worker_main()"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env,
+            close_fds=True)
+
+    def alive(self) -> bool:
+        return self.owner == os.getpid() and self.proc.poll() is None
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for fh in (self.proc.stdin, self.proc.stdout):
+            try:
+                fh.close()
+            except OSError:
+                pass
+
+    def _read_exact(self, n: int, deadline: float) -> bytes:
+        fd = self.proc.stdout.fileno()
+        chunks, got = [], 0
+        while got < n:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                raise TimeoutError
+            b = os.read(fd, min(n - got, 1 << 20))
+            if not b:
+                raise EOFError
+            chunks.append(b)
+            got += len(b)
+        return b"".join(chunks)
+
+    def request(self, req: dict, timeout: float):
+        deadline = time.monotonic() + timeout
+        self.proc.stdin.write(json.dumps(req).encode() + b"\n")
+        self.proc.stdin.flush()
+        head = self._read_exact(8, deadline)
+        doc = json.loads(self._read_exact(int.from_bytes(head, "little"), deadline))
+        arrays = []
+        for shape in doc.get("shapes", []) if doc.get("ok") else []:
+            count = int(np.prod(shape, dtype=np.int64))
+            arrays.append(np.frombuffer(self._read_exact(8 * count, deadline), np.float64).reshape(shape).copy())
+        return doc, arrays
+
+
+_worker: _Worker | None = None
+
+
+def _worker_handle() -> _Worker:
+    global _worker
+    if _worker is None or not _worker.alive():
+        if _worker is not None and _worker.owner == os.getpid():
+            _worker.kill()
+        _worker = _Worker()  # a forked child never touches its parent's worker
+    return _worker
+
+
+def _stop_worker() -> None:
+    global _worker
+    if _worker is not None and _worker.owner == os.getpid():
+        _worker.kill()
+    _worker = None
+
+
+def _signal_name(code: int) -> str:
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        return f"signal {-code}"
+
+
+def _read_isolated(path: Path, backend: str, layout: "_Layout") -> _Raw:
+    """One backend's :class:`_Raw` for ``path``, decoded in the worker process."""
+    req = {"path": str(path.resolve()), "backend": backend,
+           "repair": layout.repair and [layout.repair[0], layout.repair[1].hex()],
+           "timeout": _read_deadline(layout.size),
+           "memory": READ_MEMORY_BASE + READ_MEMORY_PER_BYTE * layout.size}
+    with _worker_lock:
+        w = _worker_handle()
+        try:
+            doc, arrays = w.request(req, req["timeout"])
+        except TimeoutError:
+            w.kill()
+            raise C3DError(path, f"the {backend} reader took over {req['timeout']:.0f} s and was stopped "
+                                 f"(the file is malformed)") from None
+        except (EOFError, BrokenPipeError, ValueError, OSError):
+            w.kill()
+            code = w.proc.returncode
+            how = f"crashed ({_signal_name(code)})" if code and code < 0 else f"failed (exit {code})"
+            raise C3DError(path, f"the {backend} reader {how} on this file (the file is malformed)") from None
+    if not doc["ok"]:
+        raise C3DError(path, doc["error"])
+    return _Raw(_import_params(doc["params"]), arrays[0], arrays[1], doc["frame_bytes"])
+
+
+_worker_lock = threading.Lock()
 
 
 # --------------------------------------------------------------------------------------
@@ -611,8 +880,7 @@ def read_c3d(path: str | os.PathLike, *, backend: str = "auto") -> MarkerData:
             reasons.append(f"ezc3d: skipped, {layout.ezc3d_problem}")
             continue
         try:
-            raw = _read_ezc3d(path) if name == "ezc3d" else _read_c3d_package(path, layout.repair)
-            return _assemble(path, raw, layout, name)
+            return _assemble(path, _read_isolated(path, name, layout), layout, name)
         except C3DError as exc:
             reasons.append(f"{name}: {exc.reason}")
         except MemoryError:
