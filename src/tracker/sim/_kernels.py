@@ -38,14 +38,13 @@ def lbs(rest, idx, w, B, out):
 
 
 @njit(cache=True, nogil=True)
-def _keep_nearer(depth, label, face_id, v, u, z, lab, fid):
-    """The z-buffer test of every pass: pixel ``(v, u)`` takes ``z`` (float32) and its label and face
-    where it is nearer than what is there or nothing is there yet (NaN)."""
-    d = depth[v, u]
-    if z < d or d != d:
-        depth[v, u] = z
-        label[v, u] = lab
-        face_id[v, u] = fid
+def _nearer(z, d):
+    """The z-buffer test of every pass: ``z`` wins over the stored ``d`` if nearer or if nothing is
+    stored yet (NaN).
+
+    The writes stay in the passes: a helper that takes the image arrays keeps numba from vectorising
+    the pixel loops (the table pass went from 0.14 to 11 ms per 640×480 frame)."""
+    return z < d or d != d
 
 
 @njit(cache=True, nogil=True)
@@ -129,7 +128,11 @@ def raster(P, faces, face_label, face_offset, fx, fy, cx, cy, near, cull, depth,
                 iz = iA * fu + iB * fv + iC
                 if iz <= 0.0:
                     continue
-                _keep_nearer(depth, label, face_id, v, u, np.float32(1.0 / iz), lab, fid)
+                z = np.float32(1.0 / iz)
+                if _nearer(z, depth[v, u]):
+                    depth[v, u] = z
+                    label[v, u] = lab
+                    face_id[v, u] = fid
 
 
 @njit(cache=True, nogil=True)
@@ -145,7 +148,11 @@ def plane_pass(n, dn, fx, fy, cx, cy, zmax, depth, label, lab, face_id, fid):
             z = dn / nd
             if z <= 0.0 or z > zmax:
                 continue
-            _keep_nearer(depth, label, face_id, v, u, np.float32(z), lab, fid)
+            z32 = np.float32(z)
+            if _nearer(z32, depth[v, u]):
+                depth[v, u] = z32
+                label[v, u] = lab
+                face_id[v, u] = fid
 
 
 @njit(cache=True, nogil=True)
