@@ -46,6 +46,7 @@ def synth(
     if not fps > 0:
         raise TrackerError("--fps", f"must be positive, got {fps}")
 
+    # the lab's libraries (numba kernels, pandas) load here, not at the top: ``tracker --help`` stays fast
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from handmodel import HandModel
@@ -123,7 +124,7 @@ def experiments(
     from rich.progress import Progress
     from rich.table import Table
 
-    from .report import report
+    from .report import report  # here, not at the top: it loads the tracker, numba and matplotlib
 
     with Progress(console=Console(stderr=True), transient=True) as p:
         bar = p.add_task("experiments", total=None)
