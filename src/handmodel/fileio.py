@@ -1,11 +1,14 @@
 """Atomic, non-clobbering file output and lookup of shipped resources."""
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
+import math
 import os
 import sys
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -37,46 +40,138 @@ def schema_path(name: str) -> Path:
     return resource_dir("data_schema") / f"{name}.schema.json"
 
 
-@contextmanager
-def atomic_path(path: str | os.PathLike, *, overwrite: bool = True, suffix: str = ".tmp"):
-    """Yield a temporary path beside ``path``; when the block succeeds, the file written there is
-    synced and moved into place (``os.replace``, or with ``overwrite=False`` a hard link, which fails
-    atomically if the name exists: ``FileExistsError``). On any error the temporary file is removed
-    and ``path`` is left as it was."""
+def _os_error(exc: OSError, path) -> OSError:
+    """The same OS error, naming ``path`` (the output the user asked for, not a temporary name)."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path))
+
+
+def check_output(path: str | os.PathLike, *, overwrite: bool = False, folder: bool = False) -> Path:
+    """Fail now, not after the long work, if ``path`` cannot be written.
+
+    Checks that ``path`` is not an existing folder (or, with ``folder=True``, not an existing
+    file), is not there already unless ``overwrite``, and that the folder it goes into can
+    take a new file: a probe file is created and removed there, which also catches a
+    read-only file system for root (who passes every permission check).
+
+    Raises
+    ------
+    FileExistsError, IsADirectoryError, NotADirectoryError, OSError
+        Naming ``path`` (``err.filename``) and the problem (``err.strerror``).
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(path))
+        target = path
+    else:
+        if path.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"{path}: exists and is never overwritten")
+        target = path.parent
+    probe_in = target
+    while not probe_in.exists():  # the nearest folder that exists must let us create the rest
+        probe_in = probe_in.parent
+    if not probe_in.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, f"{probe_in} is not a folder", str(path))
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=probe_in)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise _os_error(exc, path) from None
+    return path
+
+
+def _verify_default(tmp: Path, final: Path, empty_ok: bool = False) -> None:
+    """What any output must satisfy: not empty (unless a caller's check knows better), and a
+    ``.npz`` must be a sound zip."""
+    if not empty_ok and tmp.stat().st_size == 0:
+        raise OSError(errno.EIO, "the write produced an empty file", str(final))
+    if final.suffix.lower() == ".npz":
+        try:
+            with zipfile.ZipFile(tmp) as zf:
+                bad = zf.testzip()
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise OSError(errno.EIO, f"the written archive is unreadable ({exc})", str(final)) from None
+        if bad is not None:
+            raise OSError(errno.EIO, f"the written archive has a corrupt member {bad}", str(final))
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = True, suffix: str = ".tmp", verify=None):
+    """Yield a temporary path beside ``path``; when the block succeeds, the file written there is
+    checked, synced and moved into place (``os.replace``, or with ``overwrite=False`` a hard link,
+    which fails atomically if the name exists: ``FileExistsError``). On any error the temporary
+    file is removed and ``path`` is left as it was.
+
+    The check is: not empty, a ``.npz`` a sound zip, and ``verify(tmp)`` if given (raise to
+    refuse the file) -- a writer that fails silently on a full disk (ezc3d does) must not get a
+    truncated file published. OS errors come out naming ``path``, not the temporary name.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _os_error(exc, path) from None
     if not overwrite and path.exists():
         raise FileExistsError(f"{path}: exists and is never overwritten")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    except OSError as exc:
+        raise _os_error(exc, path) from None
     os.close(fd)
     try:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
-        yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError:
-                raise FileExistsError(f"{path}: exists and is never overwritten") from None
-            os.unlink(tmp)
+        try:
+            yield Path(tmp)
+            _verify_default(Path(tmp), path, empty_ok=verify is not None)
+            if verify is not None:
+                verify(Path(tmp))
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                try:
+                    os.link(tmp, path)
+                except FileExistsError:
+                    raise FileExistsError(f"{path}: exists and is never overwritten") from None
+                os.unlink(tmp)
+        except FileExistsError:
+            raise
+        except OSError as exc:
+            if exc.filename == str(path):
+                raise
+            raise _os_error(exc, path) from None
     finally:
         if os.path.exists(tmp):
-            os.unlink(tmp)
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass  # a read-only remount after the write: nothing more can be done
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
-    """Write ``data`` to ``path`` through a temporary file and a rename (see :func:`atomic_path`)."""
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_bytes(data)
+    """Write ``data`` to ``path`` through a temporary file and a rename (see :func:`atomic_path`);
+    the temporary file is read back and compared before it is published."""
+
+    def same(tmp: Path) -> None:
+        if tmp.stat().st_size != len(data) or tmp.read_bytes() != data:
+            raise OSError(errno.EIO, "the written file differs from the data (short write)", str(path))
+
+    with atomic_path(path, overwrite=overwrite, verify=same) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
     return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = True) -> Path:
+    """Write UTF-8 ``text`` like :func:`atomic_write_bytes`."""
     return atomic_write_bytes(path, text.encode("utf-8"), overwrite=overwrite)
 
 
@@ -91,9 +186,35 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def _first_nan(doc, at=()):
+    """Path and value of the first NaN in a parsed document, or None."""
+    if isinstance(doc, float) and math.isnan(doc):
+        return at, doc
+    if isinstance(doc, dict):
+        items = doc.items()
+    elif isinstance(doc, (list, tuple)):
+        items = enumerate(doc)
+    else:
+        return None
+    for k, v in items:
+        found = _first_nan(v, (*at, k))
+        if found:
+            return found
+    return None
+
+
 def schema_errors(doc, name: str) -> str | None:
-    """The first violation of ``data_schema/<name>.schema.json`` as ``field a/b: message``, or None."""
+    """The first violation of ``data_schema/<name>.schema.json`` as ``field a/b: message``, or None.
+
+    A NaN is a violation in any schema: JSON-schema bounds cannot catch it (every comparison
+    with NaN is false) and YAML writes it as plain ``.nan``. Infinities are left to the bounds
+    (``.inf`` is over any ``maximum``; a hand model's joint limits may be infinite).
+    """
     import jsonschema
+
+    bad = _first_nan(doc)
+    if bad:
+        return f"field {'/'.join(map(str, bad[0])) or '(top level)'}: {bad[1]} is not a number"
 
     schema = json.loads(schema_path(name).read_text())
     errs = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
@@ -118,14 +239,160 @@ def resolve_model_file(kind: str, name_or_path, error_cls, what: str) -> Path:
     return p
 
 
-def load_yaml(path, error_cls):
-    """Parse a YAML file; unreadable or invalid YAML → ``error_cls(path, reason)``."""
+#: Largest YAML file read (metadata, task maps, models are a few KiB): a bigger one is refused
+#: before parsing, so parsing time and memory stay bounded.
+MAX_YAML_BYTES = 4 << 20
+
+
+def _no_alias_loader():
     import yaml
 
+    class NoAliasLoader(yaml.SafeLoader):
+        """SafeLoader that refuses aliases: a 400-byte "billion laughs" document of nested
+        aliases expands to gigabytes (measured: 49-103 s, > 3.9 GB). Our files never need them."""
+
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.events.AliasEvent):
+                event = self.peek_event()
+                raise yaml.composer.ComposerError(
+                    None, None, f"YAML aliases (*{event.anchor}) are not allowed", event.start_mark)
+            return super().compose_node(parent, index)
+
+    return NoAliasLoader
+
+
+def parse_yaml(data: bytes, where, error_cls):
+    """Parse YAML bytes: UTF-8 only, no aliases, at most :data:`MAX_YAML_BYTES`.
+
+    Returns the document; anything else is ``error_cls(where, reason)`` with a one-line reason.
+    ``yaml.YAMLError`` is not caught here if the caller wants its own message: see
+    :func:`load_yaml`.
+    """
+    import yaml
+
+    if len(data) > MAX_YAML_BYTES:
+        raise error_cls(where, f"{len(data)} bytes, too large for a YAML file here (limit {MAX_YAML_BYTES})")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error_cls(where, f"not UTF-8 text (byte {data[exc.start]:#04x} at offset {exc.start})") from None
+    try:
+        return yaml.load(text, Loader=_no_alias_loader())  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        hint = " (quote globs and other values that start with '*')" if "alias" in str(exc) else ""
+        raise error_cls(where, f"not valid YAML{at}: {problem}{hint}") from None
+    except RecursionError:
+        raise error_cls(where, "not valid YAML: nested too deeply") from None
+
+
+def read_limited(path, limit: int, error_cls) -> bytes:
+    """The bytes of a file of at most ``limit`` bytes; a bigger, missing or unreadable file is
+    ``error_cls(path, reason)``."""
     path = Path(path)
     try:
-        return yaml.safe_load(path.read_text())
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except FileNotFoundError:
+        raise error_cls(path, "file not found") from None
+    except IsADirectoryError:
+        raise error_cls(path, "is a folder, not a file") from None
     except OSError as exc:
         raise error_cls(path, f"cannot read: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise error_cls(path, f"not valid YAML: {str(exc).splitlines()[0]}") from None
+    if len(data) > limit:
+        raise error_cls(path, f"larger than {limit} bytes, too large for this kind of file")
+    return data
+
+
+def load_yaml(path, error_cls):
+    """Parse a YAML file (see :func:`parse_yaml`); unreadable, non-UTF-8, oversized or invalid
+    YAML, or YAML with aliases → ``error_cls(path, reason)``."""
+    path = Path(path)
+    return parse_yaml(read_limited(path, MAX_YAML_BYTES, error_cls), path, error_cls)
+
+
+#: Largest total of the uncompressed arrays of a ``.npz`` read by :func:`load_npz` by default.
+MAX_NPZ_BYTES = 256 << 20
+
+
+class NpzArrays(dict):
+    """``{name: ndarray}`` read by :func:`load_npz`; usable where ``np.load``'s ``NpzFile`` was
+    (``.files``, ``z[name]``, ``with``)."""
+
+    @property
+    def files(self) -> list[str]:
+        return list(self)
+
+    def __enter__(self) -> "NpzArrays":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+
+def load_npz(path, error_cls, max_bytes: int = MAX_NPZ_BYTES, what: str = ".npz archive") -> NpzArrays:
+    """The arrays of a ``.npz`` file, checked before anything is decompressed.
+
+    A 1.9 MB archive can unpack to 2 GB, so the zip members' declared sizes and each ``.npy``
+    header (dtype and shape) are checked against ``max_bytes`` first; object arrays (pickles)
+    are refused; a file that is not a zip (say a ``.npy`` renamed) is refused by name.
+
+    Returns
+    -------
+    NpzArrays
+        ``{name: ndarray}`` (names without ``.npy``).
+
+    Raises
+    ------
+    error_cls
+        ``error_cls(path, "not a readable <what> (<why>)")``.
+    """
+    import numpy as np
+    from numpy.lib import format as npformat
+
+    path = Path(path)
+
+    def bad(why: str):
+        return error_cls(path, f"not a readable {what} ({why})")
+
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+        if magic[:4] != b"PK\x03\x04" and magic[:4] != b"PK\x05\x06":
+            kind = "a .npy array" if magic == b"\x93NUM" else "not a zip archive"
+            raise bad(f"the file is {kind}")
+        with zipfile.ZipFile(path) as zf:
+            members = zf.infolist()
+            declared = sum(m.file_size for m in members)
+            if declared > max_bytes:
+                raise bad(f"unpacks to {declared} bytes, over the limit of {max_bytes}")
+            out, total = NpzArrays(), 0
+            for m in members:
+                if not m.filename.endswith(".npy"):
+                    raise bad(f"member {m.filename!r} is not a .npy array")
+                with zf.open(m) as fh:
+                    version = npformat.read_magic(fh)
+                    # version 3.0 differs from 2.0 only in the header's text encoding
+                    read_header = npformat.read_array_header_1_0 if version == (1, 0) else npformat.read_array_header_2_0
+                    shape, _, dtype = read_header(fh)
+                    if dtype.hasobject:
+                        raise bad(f"{m.filename}: object arrays (pickles) are never loaded")
+                    n = dtype.itemsize * int(np.prod(shape, dtype=object))
+                    total += n
+                    if total > max_bytes or n > m.file_size:
+                        raise bad(f"{m.filename}: array of {n} bytes "
+                                  f"{'over the limit' if total > max_bytes else 'larger than its member'}")
+            for m in members:
+                with zf.open(m) as fh:
+                    out[m.filename[:-4]] = npformat.read_array(fh, allow_pickle=False)
+            return out
+    except error_cls:
+        raise
+    except FileNotFoundError:
+        raise error_cls(path, "file not found") from None
+    except OSError as exc:
+        raise error_cls(path, f"cannot read: {exc.strerror or exc}") from None
+    except (zipfile.BadZipFile, ValueError, EOFError, NotImplementedError) as exc:
+        raise bad(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None

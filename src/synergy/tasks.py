@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
 
-from handmodel.fileio import schema_path
+from handmodel.fileio import MAX_YAML_BYTES, parse_yaml, read_limited, schema_path
 from synergy.errors import TaskMapError
 
 __all__ = ["TaskRule", "TaskMap", "load_task_map", "task_map_from_rules", "label_for", "glob_match"]
@@ -96,22 +96,19 @@ def task_map_from_rules(doc, source: str | os.PathLike | None = None) -> TaskMap
 
 
 def load_task_map(path: str | os.PathLike) -> TaskMap:
-    """Read and validate a task-map YAML file (bad file → :class:`TaskMapError`)."""
-    import yaml
+    """Read and validate a task-map YAML file (bad file → :class:`TaskMapError`).
 
+    Read through :func:`handmodel.fileio.parse_yaml`: UTF-8 only, size-limited, no aliases (an
+    unquoted glob ``*.c3d`` is an alias in YAML, hence the hint in that message).
+    """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TaskMapError(path, f"cannot read ({exc.__class__.__name__}: {exc})") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}" if mark is not None else ""
-        hint = " (quote globs that start with '*')" if "alias" in str(exc) else ""
-        raise TaskMapError(path, f"not valid YAML{at}: {getattr(exc, 'problem', exc)}{hint}") from None
-    return task_map_from_rules(doc, path)
+    data = read_limited(path, MAX_YAML_BYTES, _CannotRead)
+    return task_map_from_rules(parse_yaml(data, path, TaskMapError), path)
+
+
+class _CannotRead(TaskMapError):
+    def __init__(self, where, reason):
+        super().__init__(where, reason if reason.startswith("cannot read") else f"cannot read ({reason})")
 
 
 @lru_cache(maxsize=256)

@@ -17,22 +17,7 @@ app = typer.Typer(name="tracker", help="Synergistic hand tracking in depth recor
 from handmodel.cliutil import errors_exit_2 as _errors_exit_2  # noqa: E402
 
 
-def _errors(fn):
-    """The shared one-line error wrapper, plus OS errors (unreadable or unwritable paths)."""
-    import functools
-
-    inner = _errors_exit_2(fn)
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return inner(*args, **kwargs)
-        except OSError as err:
-            where = f"{err.filename}: " if getattr(err, "filename", None) else ""
-            typer.echo(f"error: {where}{err.strerror or err}", err=True)
-            raise typer.Exit(2) from None
-
-    return wrapper
+_errors = _errors_exit_2  # the shared wrapper turns OS errors into one line as well
 
 
 def _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding):

@@ -48,6 +48,18 @@ _OWN = {"recording.yaml", "truth.csv", "depth", "color"}
 
 DOF_COLUMNS = None  # the 26 DoF names, filled lazily from the default hand model
 
+#: Largest frame side (pixels). Depth sensors top out at 1024 (Azure Kinect WFOV) or 1280×720;
+#: 4096² float32 is 64 MiB a frame, and tracking keeps about ten such arrays, so a frame this
+#: size still fits in a few hundred MB, while an 8000×8000 frame drove ``track`` to ~10 GB.
+MAX_FRAME_SIDE = 4096
+
+
+def check_frame_size(width: int, height: int, where) -> None:
+    """Refuse a frame size over :data:`MAX_FRAME_SIDE` before anything of that size is built."""
+    if width > MAX_FRAME_SIDE or height > MAX_FRAME_SIDE:
+        raise RecordingError(where, f"frames of {width}×{height} pixels are larger than the supported "
+                                    f"{MAX_FRAME_SIDE}×{MAX_FRAME_SIDE}")
+
 
 def _dof_names() -> list[str]:
     global DOF_COLUMNS
@@ -237,21 +249,31 @@ def _as_camera(camera) -> Camera:
 
 # ----------------------------------------------------------------------------- reading
 def _frame_files(folder: Path, n: int, what: str) -> list[Path]:
-    """``folder/000000.png`` … for ``n`` frames; gaps and strays are errors naming the files."""
+    """``folder/000000.png`` … for ``n`` frames; gaps and strays are errors naming the files.
+
+    The count is checked against the files present before any list of ``n`` paths is built:
+    ``frames: 1000000000`` in recording.yaml must not cost 10⁹ paths.
+    """
     if not folder.is_dir():
         raise RecordingError(folder, f"missing folder (recording.yaml says {n} {what} frames)")
-    present = {p.name for p in folder.iterdir() if _FRAME_RE.match(p.name)}
-    files = [folder / f"{i:06d}.png" for i in range(n)]
-    missing = [p.name for p in files if p.name not in present]
-    if missing:
-        more = f" … ({len(missing)} missing)" if len(missing) > 5 else ""
-        raise RecordingError(folder, f"missing frame file(s) {', '.join(missing[:5])}{more} "
+    try:
+        present = {p.name for p in folder.iterdir() if _FRAME_RE.match(p.name)}
+    except OSError as exc:
+        raise RecordingError(folder, f"cannot list: {exc.strerror or exc}") from None
+    expected = {f"{i:06d}.png" for i in range(min(n, len(present)))}
+    in_range = present & expected
+    if n > len(present) or len(in_range) < n:
+        # the first gaps lie within the first len(present) + 5 numbers
+        missing = [f"{i:06d}.png" for i in range(min(n, len(present) + 5)) if f"{i:06d}.png" not in present][:5]
+        count = n - len(in_range)
+        more = f" … ({count} missing)" if count > 5 else ""
+        raise RecordingError(folder, f"missing frame file(s) {', '.join(missing)}{more} "
                                      f"of {n} in recording.yaml")
-    extra = natural_sorted(present - {p.name for p in files})
+    extra = natural_sorted(present - expected)
     if extra:
         raise RecordingError(folder, f"unexpected frame file(s) {', '.join(p.name for p in extra[:5])} "
                                      f"(recording.yaml says {n} frames)")
-    return files
+    return [folder / f"{i:06d}.png" for i in range(n)]
 
 
 def _read_truth(path: Path, n: int, fps: float):
@@ -340,6 +362,7 @@ class Recording:
                          c.get("name", "custom"))
         except TrackerError as exc:
             raise RecordingError(y, exc.reason) from None
+        check_frame_size(cam.width, cam.height, y)
         n = int(meta["frames"])
         depth = _frame_files(path / "depth", n, "depth")
         color = _frame_files(path / "color", n, "colour") if meta.get("color") else None
@@ -422,6 +445,7 @@ class RecordingWriter:
         if not (np.isfinite(fps) and fps > 0):
             raise RecordingError(self.path, f"fps must be positive, got {fps}")
         self.camera = _as_camera(camera)
+        check_frame_size(self.camera.width, self.camera.height, self.path)
         self.fps = fps
         self.handedness = handedness
         self.source = str(source)
