@@ -21,6 +21,7 @@ Why the extra work around the two backends (all measured on ``../shared/data``):
 """
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -996,7 +997,18 @@ def write_c3d(
 
     from handmodel.fileio import atomic_path
 
-    with atomic_path(path, overwrite=overwrite, suffix=".tmp.c3d") as tmp:
+    def reads_back(tmp: Path) -> None:
+        # ezc3d reports no failed write (a full disk left a 16 KB file that segfaults readers):
+        # the file is published only if it reads back whole.
+        try:
+            got = read_c3d(tmp)
+        except C3DError as exc:
+            raise OSError(errno.EIO, f"the written C3D file does not read back ({exc.reason})", str(path)) from None
+        if (got.n_frames, got.n_markers) != (n_frames, n_markers):
+            raise OSError(errno.EIO, f"the written C3D file reads back as {got.n_frames} frames × {got.n_markers} "
+                                     f"markers, not {n_frames} × {n_markers}", str(path))
+
+    with atomic_path(path, overwrite=overwrite, suffix=".tmp.c3d", verify=reads_back) as tmp:
         try:
             c.write(str(tmp))
         except Exception as exc:  # noqa: BLE001
