@@ -30,15 +30,16 @@ def frames(hand, bundle, cam, n):
     P = E.fingerfist_postures()
     truth = E.sequence(P[3000:3000 + n], bundle.model.mean_, lead=10, distance=0.75)
     ren = DepthRenderer(hand, cam)
-    obs = [observe(ren.render(t, labels=False).depth, cam, stride=3) for t in truth]
+    # the paper's sampling for every variant: every 3rd pixel, no smoothing
+    obs = [observe(ren.render(t, labels=False).depth, cam, TrackerSettings.paper().observe) for t in truth]
     return truth, obs
 
 
 def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
-    """``ours``: the defaults (silhouette term, Cauchy-weighted data term); else the paper's plain
-    least squares on data→model pairs."""
-    extra = dict(kw) if ours else {"silhouette_weight": 0.0, "robust_mm": 0.0}
-    tr = HandTracker(hand, TrackerSettings(mode=mode, target_points=None, **extra), synergies=bundle)
+    """``ours``: the defaults (silhouette term, Cauchy-weighted data term, normal test); else
+    ``TrackerSettings.paper()``: plain least squares on data→model pairs."""
+    base = TrackerSettings() if ours else TrackerSettings.paper()
+    tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
     ms, err = [], []
     for t, ob in zip(truth, obs):
         t0 = time.perf_counter()
@@ -50,17 +51,18 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
 
 def peer(hand, bundle, cam, truth, obs):
     """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
-    tr = HandTracker(hand, TrackerSettings(mode="full", target_points=None, silhouette_weight=0.0), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings.paper(mode="full"), synergies=bundle)
+    match = tr.context.matcher
     lo, hi = tr.limits[:, 0], tr.limits[:, 1]
     theta = truth[0].copy()
     ms, err = [], []
     for t, ob in zip(truth, obs):
         t0 = time.perf_counter()
         pts = ob.points
-        corr = tr._corr(theta, pts, ob.normals)
+        corr = match(theta, pts, ob.normals)
         theta = rigid_step(theta, pts, corr)
         for _ in range(4):
-            corr = tr._corr(theta, pts, ob.normals)
+            corr = match(theta, pts, ob.normals)
             v = corr.valid
             nodes, tgt = corr.nodes[v], pts[v]
             loc = local_offsets(hand, theta, nodes, corr.model[v])

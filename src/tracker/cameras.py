@@ -119,18 +119,6 @@ class Camera:
         y = (uv[..., 1] - self.cy) / self.fy * z
         return np.stack(np.broadcast_arrays(x, y, z), -1)
 
-    def backproject(self, depth) -> np.ndarray:
-        """Camera-frame points ``(H, W, 3)`` of a depth image ``(H, W)`` in metres (NaN where no depth).
-
-        float32 depth gives float32 points, anything else float64.
-        """
-        from .observe import backproject_image
-
-        d = np.asarray(depth)
-        if d.shape != self.shape:
-            raise ValueError(f"depth shape {d.shape} does not match the camera's {self.shape}")
-        return backproject_image(d, self)
-
     def to_dict(self) -> dict:
         return asdict(self)
 

@@ -1,11 +1,45 @@
-"""Model–data correspondences for ICP: closest points on the capsule model (compiled) or on dense
-LBS surface samples of the mesh (KD-tree), restricted to model surface facing the camera, with
-rejection beyond a distance."""
+"""Pipeline stage ``correspond``: model–data pairs for ICP.
+
+Data→model: closest points on the capsule model (compiled) or on dense LBS surface samples of the
+mesh (KD-tree), restricted to model surface facing the camera, rejected beyond a distance or when the
+data normal disagrees with the model's. Model→data: silhouette pairs that pull model parts projecting
+outside the hand silhouette back onto it.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from handmodel._geometry_kernels import closest_points_facing
+from handmodel.geometry import surface_samples
+
+from ._silhouette_kernels import silhouette_pairs_kernel
+from .errors import TrackerError
+
+
+@dataclass
+class CorrespondSettings:
+    """How data→model pairs are found and rejected.
+
+    ``model``: the surface, ``"capsules"`` (the paper's) or ``"mesh"``; ``reject_mm``: pairs this far
+    apart or farther are dropped (the paper's 50 mm); ``facing_only``: only model surface facing the
+    camera is a candidate; ``normal_agreement``: with data normals, pairs whose normals' cosine is below
+    this are dropped (−1 = off, the paper's).
+    """
+
+    model: str = "capsules"
+    reject_mm: float = 50.0
+    facing_only: bool = True
+    normal_agreement: float = 0.5
+
+    def check(self):
+        if self.model not in SURFACES:
+            raise TrackerError("settings", f"model must be one of {', '.join(SURFACES)}, got {self.model!r}")
+        if not self.reject_mm > 0:
+            raise TrackerError("settings", f"reject_mm must be positive, got {self.reject_mm!r}")
 
 
 @dataclass
@@ -37,8 +71,6 @@ class CapsuleModel:
         self.caps = hand.capsules
 
     def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
-        from handmodel._geometry_kernels import closest_points_facing
-
         G = self.hand.node_frames(theta)
         pts = np.ascontiguousarray(points, dtype=np.float64)
         P = len(pts)
@@ -71,8 +103,6 @@ class MeshModel:
         self._G0inv = np.linalg.inv(hand.node_frames(np.zeros(hand.n_dofs)))
 
     def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
-        from scipy.spatial import cKDTree
-
         B = self.hand.node_frames(theta) @ self._G0inv
         Bw = np.einsum("vn,nij->vij", self.weights, B[:, :3, :])
         S = np.einsum("vij,vj->vi", Bw[:, :, :3], self.rest_pts) + Bw[:, :, 3]
@@ -95,6 +125,28 @@ class MeshModel:
         return Correspondences(S[j], self.node[j], N[j], d, d < reject)
 
 
+SURFACES = {"capsules": CapsuleModel, "mesh": MeshModel}
+
+
+class Matcher:
+    """Data→model correspondences of one hand under one :class:`CorrespondSettings`; built once,
+    called every ICP iteration as ``matcher(theta, points, normals=None)``."""
+
+    def __init__(self, hand, settings: CorrespondSettings | None = None):
+        self.settings = settings = settings or CorrespondSettings()
+        settings.check()
+        self.surface = SURFACES[settings.model](hand)
+
+    def __call__(self, theta, points, normals=None) -> Correspondences:
+        st = self.settings
+        corr = self.surface(theta, points, reject=st.reject_mm / 1000.0, facing_only=st.facing_only)
+        if normals is not None and st.normal_agreement > -1:
+            # a data point on a surface facing another way than the model's is a wrong pair
+            cos = np.einsum("ij,ij->i", normals, corr.normals)
+            corr.valid &= ~(cos < st.normal_agreement)  # NaN (unknown normal) keeps the pair
+        return corr
+
+
 def local_offsets(hand, theta, nodes, world):
     """Offsets of world points in their nodes' frames at θ (so the solver can move them with the model)."""
     G = hand.node_frames(theta)[np.asarray(nodes, np.int64)]
@@ -106,8 +158,6 @@ class ModelSamples:
     (for the model→data silhouette term)."""
 
     def __init__(self, hand, spacing=0.004):
-        from handmodel.geometry import surface_samples
-
         theta0 = np.zeros(hand.n_dofs)
         P, S, N = surface_samples(hand, theta0, spacing=spacing)
         G0 = hand.node_frames(theta0)
@@ -130,8 +180,6 @@ class Silhouette:
     bounding box of the mask plus a margin)."""
 
     def __init__(self, mask, depth, camera, margin=48):
-        from scipy import ndimage
-
         self.mask = np.asarray(mask, bool)
         self.depth = depth
         self.camera = camera
@@ -154,8 +202,6 @@ def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
     empty = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
     if sil.empty:
         return empty
-    from ._silhouette_kernels import silhouette_pairs_kernel
-
     cam = sil.camera
     G = samples.hand.node_frames(theta)
     n = len(samples.nodes)

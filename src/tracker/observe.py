@@ -1,14 +1,45 @@
-"""From a depth frame to what the tracker fits: the segmented hand's 3-D points (every ``stride``-th
-pixel in x and y), their surface normals, and the silhouette. Pixel (u, v) has its centre at integer
-coordinates: x = (u − cx)/fx · z, y = (v − cy)/fy · z (camera frame: x right, y down, z forward)."""
+"""Pipeline stage ``observe``: from a depth frame to what the tracker fits — the segmented hand's 3-D
+points (every ``stride``-th pixel in x and y), their surface normals, and the silhouette.
+
+Pixel (u, v) has its centre at integer coordinates: x = (u − cx)/fx · z, y = (v − cy)/fy · z (camera
+frame: x right, y down, z forward, metres). "Stride K" keeps every K-th pixel in x and in y, starting
+at pixel (0, 0): ``ceil(H/K)·ceil(W/K)`` pixels, about 1/K² of the image (the paper's "linear
+subsampling 1/3" is K = 3 in the original code, i.e. 1/9 of the pixels).
+
+>>> import numpy as np
+>>> from types import SimpleNamespace
+>>> cam = SimpleNamespace(fx=2.0, fy=2.0, cx=1.5, cy=1.0)
+>>> backproject(np.full((3, 4), 2.0), cam)[0, 0].tolist()
+[-3.0, -2.0, 2.0]
+>>> kept_fraction((3, 4), 2)
+0.3333333333333333
+"""
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from .segment import Segmenter
 
-def backproject_image(depth, camera):
+
+@dataclass
+class ObserveSettings:
+    """Sampling of the hand's points: every ``stride``-th pixel in x and y, or, with ``target_points``,
+    the largest stride ≤ ``stride`` that keeps about that many points (a distant hand sampled densely
+    enough, a near one not oversampled); ``smooth``: radius (px) of the edge-preserving depth
+    smoothing before sampling (0 = off, the paper's); ``normal_max_jump``: depth step (m) across which
+    no normal is computed."""
+
+    stride: int = 3
+    target_points: int | None = 600
+    smooth: int = 1
+    normal_max_jump: float = 0.01
+
+
+def backproject(depth, camera):
     """Camera-frame points ``(H, W, 3)`` of a depth image in metres (NaN where no depth); any object with
     ``fx fy cx cy`` serves as the camera. float32 depth gives float32 points, anything else float64."""
     d = np.asarray(depth)
@@ -20,6 +51,25 @@ def backproject_image(depth, camera):
     out[..., 1] = d * ((np.arange(H, dtype=dt) - camera.cy) / camera.fy)[:, None]
     out[..., 2] = d
     return out
+
+
+def kept_fraction(shape, stride: int) -> float:
+    """Exact fraction of an image's pixels a stride keeps: ``ceil(H/K)·ceil(W/K) / (H·W)`` (≈ 1/K²)."""
+    H, W = shape
+    return math.ceil(H / stride) * math.ceil(W / stride) / (H * W)
+
+
+def stride_for_density(fraction: float) -> int:
+    """Largest stride K whose nominal density 1/K² is still at least ``fraction`` (0 < fraction ≤ 1).
+
+    >>> stride_for_density(1 / 9), stride_for_density(0.1), stride_for_density(1.0)
+    (3, 3, 1)
+    """
+    f = float(fraction)
+    if not 0 < f <= 1:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
+    # the tolerance keeps exact densities exact (1/sqrt(1/9) is 2.9999999999999996)
+    return max(int(math.floor(1.0 / math.sqrt(f) + 1e-9)), 1)
 
 
 def image_normals(X, max_jump=0.01):
@@ -69,24 +119,24 @@ class Observation:
     stride: int = 1
 
 
-def observe(depth, camera, *, stride=3, segmenter=None, color=None, target_points=None, smooth=0):
-    """Segment the hand and sample its points (every ``stride``-th pixel in x and y).
+def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter=None, color=None,
+            **changes) -> Observation:
+    """Segment the hand and sample its points.
 
-    With ``target_points`` the stride adapts to the hand's size in the image: the largest stride
-    (at most ``stride``) that still keeps about that many points, so a distant hand is sampled densely
-    enough and a near one is not oversampled. ``smooth`` > 0 applies :func:`smooth_depth` with that
-    radius first (for noisy sensors)."""
-    from .segment import Segmenter
-
+    ``settings`` (:class:`ObserveSettings`) with any of its fields replaced by ``changes`` (e.g.
+    ``observe(depth, camera, stride=1)``); ``segmenter``: a :class:`tracker.segment.Segmenter` (its
+    defaults when None); ``color``: the registered colour frame, for skin segmentation."""
+    st = dataclasses.replace(settings or ObserveSettings(), **changes)
     d = np.asarray(depth, np.float64)
-    if smooth:
-        d = smooth_depth(d, int(smooth))
+    if st.smooth:
+        d = smooth_depth(d, int(st.smooth))
     seg = segmenter or Segmenter()
-    X = backproject_image(d, camera)
+    X = backproject(d, camera)
     mask = seg(d, color, X)
-    N = image_normals(X)
-    if target_points:
-        stride = int(np.clip(np.floor(np.sqrt(mask.sum() / float(target_points))), 1, stride))
+    N = image_normals(X, st.normal_max_jump)
+    stride = int(st.stride)
+    if st.target_points:
+        stride = int(np.clip(np.floor(np.sqrt(mask.sum() / float(st.target_points))), 1, stride))
     sub = np.zeros_like(mask)
     sub[::stride, ::stride] = True
     keep = mask & sub & np.isfinite(X).all(-1)

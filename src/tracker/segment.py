@@ -1,4 +1,5 @@
-"""Hand segmentation in depth (and colour) frames: working volume, skin colour, nearest blob.
+"""Pipeline stage ``segment``: the hand's pixels in a depth (and colour) frame — working volume,
+skin colour, nearest blob.
 
 No wristband is needed: with colour, skin pixels (HSV range of the original detector) inside the
 working volume; without colour, the connected blob of pixels within ``band`` of the nearest valid
@@ -8,7 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import matplotlib.colors as mcolors
 import numpy as np
+from scipy import ndimage
 
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
@@ -31,10 +34,8 @@ class Segmenter:
         """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data)."""
         d = np.asarray(depth, float)
         valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
-        if self.box_min is not None and points is not None:
-            lo, hi = np.asarray(self.box_min), np.asarray(self.box_max)
-            with np.errstate(invalid="ignore"):
-                valid &= np.all((points >= lo) & (points <= hi), axis=-1)
+        if (self.box_min is not None or self.box_max is not None) and points is not None:
+            valid &= in_box(points, self.box_min, self.box_max)
         if not valid.any():
             return valid
         if color is not None and self.use_color:
@@ -44,19 +45,25 @@ class Segmenter:
         return nearest_blob(np.where(valid, d, np.nan), self.band, self.min_pixels)
 
 
+def in_box(points, box_min=None, box_max=None) -> np.ndarray:
+    """Boolean ``(...)``: points ``(..., 3)`` inside the axis-aligned box (bounds inclusive; None, a None
+    entry or ±inf = open; NaN points are outside)."""
+    p = np.asarray(points, float)
+    lo = np.array([-np.inf if v is None else v for v in np.broadcast_to(np.asarray(box_min, object), 3)], float)
+    hi = np.array([np.inf if v is None else v for v in np.broadcast_to(np.asarray(box_max, object), 3)], float)
+    with np.errstate(invalid="ignore"):
+        return np.all((p >= lo) & (p <= hi), axis=-1)
+
+
 def skin_mask(color):
     """Pixels inside the skin HSV range (colour ``(H, W, 3)`` uint8 RGB)."""
-    import matplotlib.colors as mc
-
-    hsv = mc.rgb_to_hsv(np.asarray(color, float) / 255.0)
+    hsv = mcolors.rgb_to_hsv(np.asarray(color, float) / 255.0)
     h, s, v = hsv[..., 0] * 179.0, hsv[..., 1] * 255.0, hsv[..., 2] * 255.0
     (h0, s0, v0), (h1, s1, v1) = SKIN_HSV
     return (h >= h0) & (h <= h1) & (s >= s0) & (s <= s1) & (v >= v0) & (v <= v1)
 
 
 def largest_component(mask):
-    from scipy import ndimage
-
     lab, n = ndimage.label(mask)
     if n <= 1:
         return mask
@@ -72,8 +79,6 @@ def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02, margin_px=25):
     smallest wins (the hand held towards the camera). Then everything within ``band`` of that depth
     that is connected to the biggest part of it, or lies within ``margin_px`` of that part (fingers cut
     off by sensor shadows), is kept — the hand, not the arm or body behind it."""
-    from scipy import ndimage
-
     d = np.asarray(depth, float)
     finite = np.isfinite(d)
     if not finite.any():

@@ -393,9 +393,9 @@ def test_sr305_frames_load_with_their_intrinsics(tmp_path):
         if f.stem != "20210326-230536_110":
             assert 0.600 - 0.015 <= z <= 0.800, (f.stem, z)
         # intrinsics × depth unit give a hand-sized blob: 10–25 cm across (a wrong unit or focal would not)
-        from tracker.pointcloud import backproject
+        from tracker.observe import backproject
 
-        pts, _ = backproject(frame.depth, cam, mask=blob)
+        pts = backproject(frame.depth, cam)[blob]
         extent = np.percentile(pts[:, :2], 99, axis=0) - np.percentile(pts[:, :2], 1, axis=0)
         assert np.all((0.10 <= extent) & (extent <= 0.25)), (f.stem, extent)
         # the hand is in front of the body

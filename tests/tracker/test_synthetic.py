@@ -9,6 +9,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tracker.errors import TrackerError
+from tracker.observe import backproject
 from tracker.sim.motions import make_motion
 from tracker.sim.raycast import raycast
 from tracker.sim.render import Clutter, DepthRenderer, render

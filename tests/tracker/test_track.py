@@ -9,6 +9,8 @@ from conftest import shared
 from handmodel import HandModel
 from tracker.sim import experiments as E
 from tracker.errors import TrackerError
+from tracker.icp import through
+from tracker.init import diverse
 from tracker.track import HandTracker, TrackerSettings
 
 HAND = HandModel.load()
@@ -31,7 +33,7 @@ def postures():
 
 def _run(bundle, postures, mode, start, n=40, distance=0.75, **kw):
     truth = E.sequence(postures[start:start + n], bundle.model.mean_, distance=distance)
-    tr = HandTracker(HAND, TrackerSettings(mode=mode, **kw), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(mode=mode, **kw), synergies=bundle)
     return E.run_sequence(HAND, truth, CAM, tr, lead=10), truth, tr
 
 
@@ -69,7 +71,7 @@ def test_reduced_with_projected_steps_stays_in_the_subspace_and_gains(bundle, po
 
 def test_subspace_oracle_recovers_postures_inside_the_subspace(bundle, postures):
     """On postures that lie in the subspace the geometric optimum is the posture itself."""
-    tr = HandTracker(HAND, TrackerSettings(mode="reduced"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(mode="reduced"), synergies=bundle)
     truth = tr.reduced.project(E.sequence(postures[1000:1012], bundle.model.mean_, lead=0))
     start = truth.copy()
     start[:, ~HAND.pose_mask] = bundle.model.mean_  # from the mean posture: the fit has to get there
@@ -91,7 +93,7 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
     th = make_motion("random", hand=HAND, frames=90, seed=3).theta
     err = {}
     for mode in ("full", "hierarchical"):
-        tr = HandTracker(HAND, TrackerSettings(mode=mode), synergies=bundle)
+        tr = HandTracker(HAND, TrackerSettings().replace(mode=mode), synergies=bundle)
         err[mode] = E.run_sequence(HAND, th, CAM, tr).mean_error
     print(f"\nrandom postures: full {err['full']:.2f} deg, hierarchical {err['hierarchical']:.2f} deg")
     assert err["hierarchical"] <= err["full"] + 1.0
@@ -101,12 +103,12 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
 def test_coarse_step_through_theta_keeps_theta_feasible(bundle):
     """A posture outside the PC limits (rarer than every training posture): the subspace through it
     must admit it (α = 0), else the coarse step would clamp it back."""
-    tr = HandTracker(HAND, TrackerSettings(mode="hierarchical"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(mode="hierarchical"), synergies=bundle)
     sp = tr.reduced
     theta = np.zeros(HAND.n_dofs)
     theta[~HAND.pose_mask] = bundle.model.mean_ + 3.0 * (sp.hi[6] + 0.1) * bundle.model.all_components_[0]
     assert sp.to_alpha(theta)[6] > sp.hi[6]
-    th = tr._through(sp, theta)
+    th = through(sp, theta, HAND.pose_mask)
     assert (th.lo <= 0).all() and (th.hi >= 0).all()
     np.testing.assert_allclose(th.to_theta(np.zeros(th.M.shape[1])), theta, atol=1e-12)
 
@@ -148,14 +150,14 @@ def test_finger_search_finds_a_finger_flexed_alone(bundle):
             truth[names.index(n)] = np.radians(-5.0)
     for n, deg in (("ring1_flex", -45.0), ("ring2_flex", -100.0), ("ring3_flex", -15.0)):
         truth[names.index(n)] = np.radians(deg)
-    ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM, stride=1)
+    ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM, stride=1, target_points=None, smooth=0)
     sil = Silhouette(ob.mask, ob.depth, CAM)
     start = truth.copy()
     start[~HAND.pose_mask] = bundle.model.mean_
     err = {}
     for fs in (False, True):
-        tr = HandTracker(HAND, TrackerSettings(finger_search=fs, init_icp_iterations=20), synergies=bundle)
-        th, _ = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", obs=sil, normals=ob.normals)
+        tr = HandTracker(HAND, TrackerSettings().replace(finger_search=fs, init_icp_iterations=20), synergies=bundle)
+        th, _ = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", silhouette=sil, normals=ob.normals)
         err[fs] = float(E.posture_error_deg(th, truth, HAND.pose_mask))
     print(f"\nring finger alone: without finger search {err[False]:.2f} deg, with {err[True]:.2f} deg")
     assert err[True] <= 1.0
@@ -172,10 +174,10 @@ def test_diverse_placements_keep_a_flipped_candidate():
     flipped = base.copy()
     flipped[3:6] = matrix_to_euler(euler_to_matrix([np.pi, 0.0, 0.0]))
     scored = [(1.0, near[0]), (1.1, near[1]), (1.2, near[2]), (5.0, flipped)]
-    picked = HandTracker._diverse(scored, 2)
+    picked = diverse(scored, 2)
     assert picked[0] is near[0] and picked[1] is flipped
     # fewer than k different ones: filled up in score order
-    assert [p is q for p, q in zip(HandTracker._diverse(scored[:3], 2), near[:2])] == [True, True]
+    assert [p is q for p, q in zip(diverse(scored[:3], 2), near[:2])] == [True, True]
 
 
 class _FlyingPixels:
@@ -203,7 +205,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
     ob = observe(depth, CAM, stride=3, target_points=600, smooth=0)
     err = {}
     for c in (0.0, 8.0):
-        tr = HandTracker(HAND, TrackerSettings(robust_mm=c, smooth=0), synergies=bundle)
+        tr = HandTracker(HAND, TrackerSettings().replace(robust_mm=c, smooth=0), synergies=bundle)
         tr.theta, tr.lost = truth.copy(), False
         r = tr.track(ob, CAM)
         assert r.status == "tracked"
@@ -215,7 +217,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
 
 def test_blank_frames_lost_then_recovered(bundle, postures):
     truth = E.sequence(postures[3000:3040], bundle.model.mean_)
-    tr = HandTracker(HAND, TrackerSettings(mode="full"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(mode="full"), synergies=bundle)
     r = E.run_sequence(HAND, truth, CAM, tr, lead=10, blank=(20, 30))
     assert (r.status[20:30] == "lost").all()
     back = r.error_deg[33:]
@@ -225,16 +227,16 @@ def test_blank_frames_lost_then_recovered(bundle, postures):
 
 @pytest.mark.parametrize("bad", [np.zeros((0, 3)), np.full((100, 3), np.nan), np.zeros((5, 3))])
 def test_bad_points_give_lost_not_crash(bad):
-    tr = HandTracker(HAND, TrackerSettings(mode="full"))
+    tr = HandTracker(HAND, TrackerSettings().replace(mode="full"))
     r = tr.step(bad)
     assert r.status == "lost"
 
 
 def test_bad_settings():
     with pytest.raises(TrackerError, match="mode must be one of"):
-        HandTracker(HAND, TrackerSettings(mode="fast"))
+        HandTracker(HAND, TrackerSettings().replace(mode="fast"))
     with pytest.raises(TrackerError, match="needs a synergy bundle"):
-        HandTracker(HAND, TrackerSettings(mode="reduced"))
+        HandTracker(HAND, TrackerSettings().replace(mode="reduced"))
 
 
 # ----------------------------------------------------------------------------- silhouette pairs (numba kernel)
@@ -278,7 +280,7 @@ def silhouette_scenes():
     for shift in [(0.0, 0.0, 0.0), (0.0, -0.25, 0.0), (0.45, 0.0, 0.0)]:
         th = base.copy()
         th[:3] += shift
-        ob = observe(ren.render(th, labels=False).depth, CAM, stride=3)
+        ob = observe(ren.render(th, labels=False).depth, CAM, stride=3, target_points=None, smooth=0)
         out.append((th, Silhouette(ob.mask, ob.depth, CAM)))
     return out
 

@@ -77,7 +77,7 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
                  blank=None):
     """Render each frame, observe it (segmentation, stride sampling, normals) and track it."""
     ren = renderer or DepthRenderer(hand, camera)
-    stride = stride or tracker.settings.stride
+    stride = stride or tracker.settings.observe.stride
     F = len(truth)
     err, ms, status, th = np.full(F, np.nan), np.zeros(F), np.empty(F, object), np.full((F, hand.n_dofs), np.nan)
     for f in range(F):
@@ -86,8 +86,7 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
             depth = noise.apply(depth, camera, rng=np.random.default_rng([seed, f]))
         if blank is not None and blank[0] <= f < blank[1]:
             depth = np.full_like(depth, np.nan)
-        ob = observe(depth, camera, stride=stride, target_points=tracker.settings.target_points,
-                     smooth=tracker.settings.smooth)
+        ob = observe(depth, camera, tracker.settings.observe, stride=stride)
         t0 = time.perf_counter()
         r = tracker.track(ob, camera)
         ms[f] = (time.perf_counter() - t0) * 1000.0
@@ -106,7 +105,7 @@ def segments(n, length, seed=0):
 
 # ----------------------------------------------------------------------------------------- report
 def _tracker(hand, bundle, **kw):
-    return HandTracker(hand, TrackerSettings(**kw), synergies=bundle)
+    return HandTracker(hand, TrackerSettings().replace(**kw), synergies=bundle)
 
 
 def _segment_truths(bundle, segs):
@@ -266,13 +265,13 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
     for i, row in enumerate(rows):
         truth = sequence(P[row:row + 1], bundle.model.mean_, lead=0, distance=0.6 + 0.3 * (i % 4) / 3)[0]
         depth = ren.render(truth, labels=False).depth
-        ob = observe(depth, camera, stride=1)
+        ob = observe(depth, camera, stride=1, target_points=None, smooth=0)
         sil = Silhouette(ob.mask, ob.depth, camera)
         start = truth.copy()
         start[~hand.pose_mask] = bundle.model.mean_
         for key, mode, search in methods:
             t0 = time.perf_counter()
-            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, obs=sil, normals=ob.normals,
+            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, silhouette=sil, normals=ob.normals,
                                         postures=None if search else [bundle.model.mean_], search=search)
             sec[key].append(time.perf_counter() - t0)
             out[key].append(float(posture_error_deg(th, truth, hand.pose_mask)))

@@ -1,4 +1,5 @@
-"""Camera projection and point clouds: round trips, a plane at known depth, stride sampling, crops."""
+"""Camera projection, back-projection and sampling (the observe stage): round trips, a plane at known
+depth, stride sampling, the segmentation box."""
 import math
 
 import numpy as np
@@ -6,8 +7,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from tracker.cameras import Camera, preset
-from tracker.pointcloud import (backproject, crop, crop_depth, depth_range, in_box, kept_fraction, stride_for_density,
-                                stride_mask)
+from tracker.observe import ObserveSettings, backproject, kept_fraction, observe, stride_for_density
+from tracker.segment import Segmenter, in_box
 
 cameras = st.builds(
     lambda w, h, fx, fy, cxr, cyr: Camera(w, h, fx, fy, cxr * (w - 1), cyr * (h - 1)),
@@ -28,32 +29,32 @@ def test_unproject_then_project_returns_the_pixel(cam, data):
 
 @given(cameras, st.integers(0, 2**32 - 1))
 @settings(max_examples=50, deadline=None)
-def test_backproject_image_then_project_returns_pixel_grid(cam, seed):
+def test_backproject_then_project_returns_pixel_grid(cam, seed):
     if cam.width * cam.height > 20_000:
         cam = cam.with_size(100, 80)
     rng = np.random.default_rng(seed)
     depth = rng.uniform(0.2, 5.0, cam.shape)
     depth[rng.random(cam.shape) < 0.3] = np.nan
-    pts, pix = backproject(depth, cam)
-    np.testing.assert_array_equal(pix, np.argwhere(np.isfinite(depth)))
-    uv = cam.project(pts)
+    X = backproject(depth, cam)
+    ok = np.isfinite(depth)
+    pix = np.argwhere(ok)
+    uv = cam.project(X[ok])
     np.testing.assert_allclose(uv[:, 0], pix[:, 1], atol=1e-8)
     np.testing.assert_allclose(uv[:, 1], pix[:, 0], atol=1e-8)
-    np.testing.assert_array_equal(pts[:, 2], depth[pix[:, 0], pix[:, 1]])
-    # the image-shaped variant agrees
-    X = cam.backproject(depth)
-    np.testing.assert_allclose(X[pix[:, 0], pix[:, 1]], pts, rtol=1e-12)
-    assert np.isnan(X[~np.isfinite(depth)]).all()
+    np.testing.assert_array_equal(X[ok][:, 2], depth[ok])
+    # the same points as unprojecting each pixel centre
+    np.testing.assert_allclose(X[ok], cam.unproject(pix[:, ::-1], depth[ok]), rtol=1e-12)
+    assert np.isnan(X[~ok]).all()
 
 
 def test_plane_at_known_depth():
     cam = preset("kinect1")
     z0 = 0.8
-    pts, pix = backproject(np.full(cam.shape, z0), cam)
+    pts = backproject(np.full(cam.shape, z0), cam).reshape(-1, 3)
     assert len(pts) == cam.width * cam.height
     np.testing.assert_allclose(pts[:, 2], z0)
     # x right, y down: the top-left pixel is left of and above the optical axis
-    assert pts[0, 0] < 0 and pts[0, 1] < 0 and tuple(pix[0]) == (0, 0)
+    assert pts[0, 0] < 0 and pts[0, 1] < 0
     lo, hi = pts.min(0), pts.max(0)
     assert lo[0] == pytest.approx(-cam.cx * z0 / cam.fx)
     assert hi[0] == pytest.approx((cam.width - 1 - cam.cx) * z0 / cam.fx)
@@ -63,30 +64,38 @@ def test_plane_at_known_depth():
     assert hi[0] - lo[0] == pytest.approx(0.877, abs=0.002) and hi[1] - lo[1] == pytest.approx(0.658, abs=0.002)
 
 
-def test_backproject_float32_and_mask():
+def test_backproject_keeps_float32():
     cam = Camera(8, 6, 10.0, 10.0, 3.5, 2.5)
-    depth = np.full(cam.shape, 1.0, np.float32)
-    depth[0, 0] = 0.0  # no data
-    mask = np.zeros(cam.shape, bool)
-    mask[:, :4] = True
-    pts, pix = backproject(depth, cam, mask=mask, dtype=np.float32)
-    assert pts.dtype == np.float32 and len(pts) == 6 * 4 - 1 and pix[:, 1].max() == 3
-    assert cam.backproject(depth).dtype == np.float32
-    with pytest.raises(ValueError, match="does not match"):
-        backproject(np.ones((5, 5)), cam)
-    with pytest.raises(ValueError, match="stride"):
-        backproject(depth, cam, stride=0)
+    assert backproject(np.full(cam.shape, 1.0, np.float32), cam).dtype == np.float32
+    assert backproject(np.full(cam.shape, 1.0), cam).dtype == np.float64
 
 
 @pytest.mark.parametrize("H, W, K", [(480, 640, 1), (480, 640, 3), (424, 512, 5), (7, 11, 2), (5, 5, 7)])
-def test_stride_keeps_ceil_h_over_k_times_ceil_w_over_k(H, W, K):
+def test_observe_keeps_every_kth_pixel_from_the_origin(H, W, K):
+    """Fixed stride, no smoothing: ceil(H/K)·ceil(W/K) points, on pixels whose row and column are
+    multiples of K, at exactly the back-projected positions."""
     cam = Camera(W, H, 500.0, 500.0, (W - 1) / 2, (H - 1) / 2)
-    pts, pix = backproject(np.full((H, W), 0.7), cam, stride=K)
-    assert len(pts) == math.ceil(H / K) * math.ceil(W / K) == stride_mask((H, W), K).sum()
-    assert np.all(pix % K == 0)
-    assert kept_fraction((H, W), K) == len(pts) / (H * W)
+    d = np.full((H, W), 0.7)
+    ob = observe(d, cam, ObserveSettings(stride=K, target_points=None, smooth=0),
+                 segmenter=Segmenter(min_pixels=1))
+    assert len(ob.points) == math.ceil(H / K) * math.ceil(W / K)
+    X = backproject(d, cam)[::K, ::K].reshape(-1, 3)
+    np.testing.assert_allclose(np.sort(ob.points, axis=0), np.sort(X, axis=0))
+    assert kept_fraction((H, W), K) == len(ob.points) / (H * W) == pytest.approx(ob.density)
     if H % K == 0 and W % K == 0:
         assert kept_fraction((H, W), K) == pytest.approx(1 / K**2)
+
+
+def test_observe_adapts_the_stride_to_the_target_points():
+    cam = preset("kinect1")
+    d = np.full(cam.shape, np.nan)
+    d[100:200, 300:400] = 0.7  # 10,000 hand pixels
+    ob = observe(d, cam, stride=3, target_points=2500, smooth=0)
+    assert ob.stride == 2 and len(ob.points) == 50 * 50
+    ob = observe(d, cam, stride=3, target_points=None, smooth=0)
+    assert ob.stride == 3 and len(ob.points) == len(range(102, 200, 3)) * len(range(300, 400, 3))
+    with pytest.raises(TypeError):
+        observe(d, cam, strid=3)  # a misspelt setting is an error, not ignored
 
 
 def test_stride_for_density():
@@ -100,29 +109,17 @@ def test_stride_for_density():
         stride_for_density(0)
 
 
-def test_crops():
+def test_in_box_and_segmenter_box():
     rng = np.random.default_rng(1)
     pts = rng.uniform(-1, 1, (1000, 3))
-    pix = np.arange(1000)
-    inside, ip = crop(pts, (-0.5, -0.5, 0.0), (0.5, 0.5, 0.5), pix)
     m = np.all((pts >= [-0.5, -0.5, 0.0]) & (pts <= 0.5), axis=1)
-    np.testing.assert_array_equal(inside, pts[m])
-    np.testing.assert_array_equal(ip, pix[m])
-    np.testing.assert_array_equal(crop_depth(pts, 0.2, 0.4), pts[(pts[:, 2] >= 0.2) & (pts[:, 2] <= 0.4)])
-    np.testing.assert_array_equal(in_box(pts, (None, None, 0.9), (None, None, None)), pts[:, 2] >= 0.9)
-    d = np.array([[0.3, np.nan], [0.9, 1.6]])
-    np.testing.assert_array_equal(depth_range(d, 0.5, 1.5), [[np.nan, np.nan], [0.9, np.nan]])
-    assert d[0, 0] == 0.3 and d[1, 1] == 1.6  # input untouched
-
-
-def test_observe_stride_matches_pointcloud_stride():
-    """The tracker's observation sampling uses the same grid (every K-th pixel from (0, 0))."""
-    from tracker.observe import observe
-
-    cam = preset("kinect1")
-    d = np.full(cam.shape, np.nan)
-    d[100:200, 300:400] = 0.7
-    ob = observe(d, cam, stride=3)
-    pts, _ = backproject(d, cam, stride=3)
-    assert len(ob.points) == len(pts) == len(range(102, 200, 3)) * len(range(300, 400, 3))
-    np.testing.assert_allclose(np.sort(ob.points, axis=0), np.sort(pts, axis=0))
+    np.testing.assert_array_equal(in_box(pts, (-0.5, -0.5, 0.0), (0.5, 0.5, 0.5)), m)
+    np.testing.assert_array_equal(in_box(pts, (None, None, 0.9), None), pts[:, 2] >= 0.9)
+    assert not in_box([np.nan, 0.0, 0.0], None, None)
+    # a box in the camera frame keeps only the pixels whose points lie in it
+    cam = Camera(40, 30, 50.0, 50.0, 19.5, 14.5)
+    d = np.full(cam.shape, 0.8)
+    d[:, 20:] = 0.6
+    X = backproject(d, cam)
+    mask = Segmenter(box_min=(0.0, None, None), box_max=(None, None, 0.7), band=1.0, min_pixels=1)(d, None, X)
+    np.testing.assert_array_equal(mask, (X[..., 0] >= 0) & (d <= 0.7))

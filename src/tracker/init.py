@@ -1,0 +1,289 @@
+"""Pipeline stage ``init``: fit one frame without temporal prior (the start of tracking, and its
+re-initialisation after a loss).
+
+The search: candidate placements of the hand from the cloud's principal axes, each briefly fitted;
+the best few that differ in orientation go on. From each, a coarse search over a grid of synergy
+postures (and finger variants of the mean: one finger in another shape) on a thinned cloud; the best
+starts are refined fully (hierarchically when synergies exist), the best-scoring fit wins, then
+finger-wise restarts (one finger at a time set to a few shapes and refitted) keep any improvement.
+
+Everything here works on a :class:`FitContext`, the parts of one hand's fits that a tracker builds once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from handmodel.geometry import surface_samples
+from handmodel.rigid import euler_to_matrix, matrix_to_euler
+
+from .correspond import Matcher, ModelSamples, silhouette_pairs
+from .icp import IcpSettings, fit, search_schedule
+
+
+@dataclass
+class InitSettings:
+    """The single-frame search.
+
+    ``icp_iterations``: ICP iterations refining each start on the full cloud; ``postures``: starts from
+    the mean and ±σ along this many PCs; ``search``: the coarse synergy-grid search (our addition; off =
+    the paper's fit from the mean); ``finger_search``: finger variants and finger-wise restarts (ours);
+    ``finger_search_icp``: ICP iterations of a finger's best restart on the full cloud; ``placements``:
+    how many orientation-diverse placements go on; ``coarse_points``: size of the thinned cloud that
+    ranks candidates.
+    """
+
+    icp_iterations: int = 12
+    postures: int = 2
+    search: bool = True
+    finger_search: bool = True
+    finger_search_icp: int = 10
+    placements: int = 3
+    coarse_points: int = 800
+
+
+@dataclass
+class FitContext:
+    """What every fit of one hand shares: the model, its joint limits, the correspondence
+    ``matcher``, the model samples of the silhouette term, the ICP settings, the subspaces (all DoF,
+    the synergy subspace, the hierarchical ladder) and the synergy model (or None)."""
+
+    hand: object
+    limits: np.ndarray
+    matcher: Matcher
+    icp: IcpSettings
+    full: object
+    reduced: object = None
+    ladder: list = field(default_factory=list)
+    synergies: object = None          # a fitted synergy.pca.SynergyModel
+    samples: ModelSamples | None = None
+    finger_shapes: list = field(default_factory=list)
+
+    def fit(self, theta, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False):
+        """One ICP fit without temporal prior (see :func:`tracker.icp.search_schedule`)."""
+        stages = search_schedule(mode, n_icp, self.full, self.reduced, self.ladder, through=through)
+        return fit(self.hand, points, theta, stages, self.matcher, self.icp, n_rigid=n_rigid, normals=normals,
+                   samples=self.samples, silhouette=silhouette)
+
+
+def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
+    """Lower is better: mean data→model distance (mm) plus the share of rejected data points
+    (× 100 mm) and of front-facing model samples outside the silhouette (× 20 mm)."""
+    s = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
+    if silhouette is not None and ctx.samples is not None and not silhouette.empty:
+        n_out = len(silhouette_pairs(ctx.samples, theta, silhouette)[0])
+        s += 20.0 * n_out / max(len(ctx.samples.nodes), 1)
+    return s
+
+
+def placements(hand, points, posture) -> list[np.ndarray]:
+    """Candidate global poses from the cloud: the model's palm-side surface centroid on the data
+    centroid, its principal axes on the data's (the four sign choices, each rolled about the main
+    axis by 0, ±45 and ±90°: a curled hand's main axis need not be the fingers')."""
+    base = np.zeros(hand.n_dofs)
+    base[~hand.pose_mask] = posture
+    S, _, N = surface_samples(hand, base, spacing=0.004)
+    # what a camera in front of the palm sees: the palm-side half
+    ms = S[N[:, 2] < 0]
+    mc = ms.mean(0)
+    dc = points.mean(0)
+    _, _, Vm = np.linalg.svd(ms - mc, full_matrices=False)
+    _, _, Vd = np.linalg.svd(points - dc, full_matrices=False)
+    A = np.stack([Vm[0], np.cross(Vm[2], Vm[0]), Vm[2]], 1)
+    out = []
+    for s1 in (1, -1):
+        for s3 in (1, -1):
+            d1, d3 = s1 * Vd[0], s3 * Vd[2]
+            B = np.stack([d1, np.cross(d3, d1), d3], 1)
+            for roll in (0.0, 45.0, -45.0, 90.0, -90.0):
+                R = Rotation.from_rotvec(np.radians(roll) * d1).as_matrix() @ B @ A.T
+                th = base.copy()
+                th[3:6] = matrix_to_euler(R)
+                th[:3] = dc - R @ mc
+                out.append(th)
+    return out
+
+
+def posture_candidates(synergies, k, n_posture) -> list[np.ndarray]:
+    """Start postures: the synergy mean and ±1.5σ along PC1, ±1.2σ along PC2 and PC3 (the first
+    ``k`` PCs); zeros without synergies."""
+    if synergies is None:
+        return [np.zeros(n_posture)]
+    out = [synergies.mean_.copy()]
+    for pc, amp in ((0, 1.5), (1, 1.2), (2, 1.2))[:k]:
+        for sgn in (1, -1):
+            coef = np.zeros(pc + 1)
+            coef[pc] = sgn * amp
+            out.append(synergies.posture(coef))
+    return out
+
+
+def posture_grid(synergies) -> list[np.ndarray]:
+    """The coarse search space: PC1 at −2…+2σ, PC2 and PC3 at −1, 0, +1σ, inside the PC limits."""
+    return [synergies.posture(np.array([a1, a2, a3]), clip=True)
+            for a1 in (-2.0, -1.0, 0.0, 1.0, 2.0) for a2 in (-1.0, 0.0, 1.0) for a3 in (-1.0, 0.0, 1.0)]
+
+
+def diverse(scored, k, min_deg=60.0) -> list[np.ndarray]:
+    """The best ``k`` of ``(score, θ)`` sorted by score whose global rotations differ pairwise by at
+    least ``min_deg`` (a palm-facing and a back-facing placement both go on when the cloud alone cannot
+    tell them apart), filled up with the next best if fewer are that different."""
+    picked, Rs = [], []
+    for _, th in scored:
+        R = euler_to_matrix(th[3:6])
+        if all(np.degrees(np.arccos(np.clip((np.trace(R @ Q.T) - 1) / 2, -1, 1))) >= min_deg for Q in Rs):
+            picked.append(th)
+            Rs.append(R)
+            if len(picked) == k:
+                return picked
+    rest = [th for _, th in scored if not any(th is p for p in picked)]
+    return picked + rest[: k - len(picked)]
+
+
+# finger shapes for finger-wise restarts: flexion (°) of the first, second and third flexion joint
+# (MCP, PIP, DIP; for the thumb CMC, MCP, IP): straight, evenly curled, PIP-led curl (a finger flexed
+# alone, as in fingerfist), MCP-led bend, hook
+FINGER_SHAPES_DEG = ((5.0, 5.0, 5.0), (-25.0, -25.0, -25.0), (-55.0, -55.0, -55.0), (-85.0, -85.0, -85.0),
+                     (-45.0, -100.0, -10.0), (-80.0, -20.0, -10.0), (0.0, -90.0, -60.0))
+
+
+def finger_shapes(hand, limits) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per finger (thumb … pinky): the θ indices of its flexion joints and FINGER_SHAPES_DEG as values
+    for them, inside ``limits`` — one row per shape."""
+    names = list(hand.dof_names)
+    lo, hi = limits[:, 0], limits[:, 1]
+    out = []
+    for f in ("thumb", "index", "middle", "ring", "pinky"):
+        fi = np.array([i for i, n in enumerate(names) if n.startswith(f) and "flex" in n], np.int64)
+        if fi.size:
+            vals = np.radians([np.resize(shape, fi.size) for shape in FINGER_SHAPES_DEG])
+            out.append((fi, np.clip(vals, lo[fi], hi[fi])))
+    return out
+
+
+def finger_variants(theta, shapes, finger=None) -> list[np.ndarray]:
+    """Copies of ``theta`` with one finger's flexion joints set to each of its ``shapes``, every
+    finger in turn (or only ``finger``, an index into ``shapes``), the rest unchanged."""
+    out = []
+    for k, (fi, vals) in enumerate(shapes):
+        if finger is None or finger == k:
+            for v in vals:
+                th = np.array(theta, float)
+                th[fi] = v
+                out.append(th)
+    return out
+
+
+def finger_search(ctx: FitContext, best, points, settings: InitSettings, *, silhouette=None, normals=None,
+                  sweeps=2):
+    """Finger-wise restarts: synergies couple the fingers, so a finger flexed alone (a ring finger
+    curled into the palm, a thumb tucked under) lies outside every start the synergy grid gives. Each
+    finger in turn is set to a few shapes (the rest of the hand as found), refitted briefly with all
+    DoF on a thinned cloud; the best is refitted on the full cloud and kept only when the whole-frame
+    score improves. Repeated while a sweep improves something. ``best``: ``(score, θ, corr)``."""
+    sub = _thin(points, settings.coarse_points)
+    nsub = None if normals is None else normals[sub]
+    s_best, theta, corr = best
+    for _ in range(sweeps):
+        improved = False
+        for k, (fi, _) in enumerate(ctx.finger_shapes):
+            tried = []
+            for th in finger_variants(theta, ctx.finger_shapes, k):
+                if np.max(np.abs(th[fi] - theta[fi])) < np.radians(12.0):
+                    continue  # the finger has that shape already
+                th, c = ctx.fit(th, points[sub], "full", 0, 4, silhouette=silhouette, normals=nsub)
+                tried.append((score(ctx, th, c, silhouette), th))
+            if not tried:
+                continue
+            tried.sort(key=lambda x: x[0])
+            th, c = ctx.fit(tried[0][1], points, "full", 0, settings.finger_search_icp, silhouette=silhouette,
+                            normals=normals)
+            s = score(ctx, th, c, silhouette)
+            if s < s_best - 1e-3:
+                s_best, theta, corr, improved = s, th, c, True
+        if not improved:
+            break
+    return s_best, theta, corr
+
+
+def _thin(points, n):
+    """Every k-th point, about ``n`` of them: the cloud that ranks candidates."""
+    return slice(None, None, max(1, len(points) // n))
+
+
+def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = None, *, theta0=None, mode=None,
+                     silhouette=None, postures=None, normals=None, extra=(), search=True):
+    """Fit one frame without temporal prior; returns ``(θ, Correspondences)``.
+
+    From ``theta0``'s global pose (or candidate placements from the cloud) and several synergy
+    postures (or ``postures``), each refined by ICP (``mode``: hierarchical by default when synergies
+    exist); ``extra`` θ (e.g. the last good estimate before a loss) are refined through themselves,
+    as they are and re-placed on the cloud. ``search`` False skips the coarse and finger-wise searches.
+    """
+    st = settings or InitSettings()
+    hand = ctx.hand
+    mode = mode or ("hierarchical" if ctx.synergies is not None else "full")
+    sub = _thin(points, st.coarse_points)
+    nsub = None if normals is None else normals[sub]
+    post = ~hand.pose_mask
+    n_post = int(post.sum())
+    if theta0 is not None:
+        poses = [np.array(theta0, float)]
+    else:
+        # many candidate placements, each briefly fitted; the best few that differ in orientation go on
+        quick = []
+        mean = ctx.synergies.mean_ if ctx.synergies is not None else np.zeros(n_post)
+        for pose in placements(hand, points, mean):
+            for p in posture_candidates(ctx.synergies, 1, n_post):
+                th = pose.copy()
+                th[post] = p
+                th, corr = ctx.fit(th, points[sub], mode, 2, 4, silhouette=silhouette, normals=nsub)
+                quick.append((score(ctx, th, corr, silhouette), th))
+        quick.sort(key=lambda x: x[0])
+        poses = diverse(quick, st.placements)
+    posts = posture_candidates(ctx.synergies, st.postures, n_post) if postures is None else postures
+    starts = []
+    for pose in poses:
+        for p in posts:
+            th = pose.copy()
+            if theta0 is None or len(posts) > 1:
+                th[post] = p
+            starts.append((th, False))
+    for th in extra:
+        starts.append((np.array(th, float), True))
+        moved = np.array(th, float)
+        centre = hand.keypoints(moved)[[0, 5, 9, 13, 17]].mean(0)
+        moved[:3] += points.mean(0) - centre
+        starts.append((moved, True))
+    if search and st.search and ctx.synergies is not None and postures is None:
+        # coarse search: short fits from a synergy grid on a thinned cloud, the best few refined fully
+        coarse = []
+        grid = posture_grid(ctx.synergies)
+        for pose in poses:
+            for p in grid:
+                th = pose.copy()
+                th[post] = p
+                th, corr = ctx.fit(th, points[sub], "reduced" if mode != "full" else "full", 1, 4,
+                                   silhouette=silhouette, normals=nsub)
+                coarse.append((score(ctx, th, corr, silhouette), th))
+            if st.finger_search:
+                # and the synergy mean with one finger in another shape (what no synergy posture holds)
+                at_mean = pose.copy()
+                at_mean[post] = ctx.synergies.mean_
+                for th in finger_variants(at_mean, ctx.finger_shapes):
+                    th, corr = ctx.fit(th, points[sub], "full", 1, 4, silhouette=silhouette, normals=nsub)
+                    coarse.append((score(ctx, th, corr, silhouette), th))
+        coarse.sort(key=lambda x: x[0])
+        starts = [(th, True) for _, th in coarse[:3]] + starts
+    best = None
+    for th, refine in starts:
+        th, corr = ctx.fit(th, points, mode, 2, st.icp_iterations, silhouette=silhouette, normals=normals,
+                           through=refine)
+        s = score(ctx, th, corr, silhouette)
+        if best is None or s < best[0]:
+            best = (s, th, corr)
+    if search and st.finger_search:
+        best = finger_search(ctx, best, points, st, silhouette=silhouette, normals=normals)
+    return best[1], best[2]
