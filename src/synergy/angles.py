@@ -35,8 +35,132 @@ def lowpass_markers(points, rate, cutoff_hz, order=4):
     return out
 
 
-def markers_to_angles(data, markerset, *, hand: str = "left", model="default", calibration="trial",
-                      settings=None, poor_residual_mm: float = 10.0, min_markers: int = 4, smooth_hz=None):
+#: A joint on a limit in more than this share of frames is reported.
+LIMIT_SHARE_WARN = 0.05
+#: Frames whose residual exceeds this multiple of the trial's noise floor are ``poor`` …
+POOR_FACTOR = 3.0
+#: … and also exceed the floor by this much (mm): sub-millimetre floors would flag good frames.
+POOR_MARGIN_MM = 2.0
+#: Automatic calibration keeps the bone and marker fit when its held-out residual is below this
+#: share of the scale-only one.
+AUTO_GAIN = 0.8
+#: A trial with more poor frames than this share is a poor trial.
+POOR_TRIAL_SHARE = 0.10
+#: The other hand "fits clearly better" when its residual is below this share of the chosen one's.
+HAND_CLEARLY_BETTER = 0.5
+
+
+def _targets(data, ms, where):
+    idx, extra = ms.match(list(data.labels), where=where)
+    pts = np.asarray(data.points, float)
+    return np.where((idx >= 0)[None, :, None], pts[:, np.maximum(idx, 0)], np.nan), extra
+
+
+def check_handedness(data, markerset, hand, *, model="default", frames=60, where=None):
+    """Fit both hands (hand scale only) on a sample of frames; which one explains the markers?
+
+    Returns a dict: ``chosen``, ``residual_mm`` (median, chosen hand), ``other_residual_mm``,
+    ``limit_share`` / ``other_limit_share`` (share of joint values on a limit), ``verdict``
+    ('ok', 'other hand fits better', 'wrong hand').
+    """
+    from handmodel import HandModel
+
+    from .calibrate import _golden, sample_frames
+
+    ms = markerset.for_hand(hand)
+    tg, _ = _targets(data, ms, where)
+    tg = tg[sample_frames(tg, frames)]
+    weights = np.array([m.weight for m in ms.markers])
+    out = {"chosen": hand}
+    for key, h in (("", hand), ("other_", "left" if hand == "right" else "right")):
+        right = h == "right"
+        base = HandModel.load(model, right=right)
+
+        def fit(scale, base=base, right=right):
+            hm = base.scaled(scale)
+            hm = hm.with_limits(anatomical_limits(hm))
+            n, l = ms.attachments(hm, right, scale=scale)
+            return _solve(hm, n, l, tg, weights)
+
+        scale = _golden(lambda s: float(np.nanmedian(fit(s)[1].rms_mm)), 0.6, 1.6, iterations=10)
+        _, rep = fit(scale)
+        out[f"{key}residual_mm"] = float(np.nanmedian(rep.rms_mm))
+        out[f"{key}limit_share"] = float(rep.at_limit[:, 6:].mean())
+    ratio = out["other_residual_mm"] / max(out["residual_mm"], 1e-9)
+    out["verdict"] = ("wrong hand" if ratio < HAND_CLEARLY_BETTER and out["residual_mm"] - out["other_residual_mm"] > 1.0
+                      else "other hand fits better" if ratio < 0.8 and out["residual_mm"] - out["other_residual_mm"] > 0.5
+                      else "ok")
+    return out
+
+
+def _solve(hm, nodes, local, tg, weights):
+    from handmodel.solver import SolverSettings, fit_points
+
+    return fit_points(hm, nodes, local, tg, weights=weights, settings=SolverSettings(iterations=15, damping=0.1),
+                      restarts=1)
+
+
+def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None):
+    """Per-trial diagnostics of a conversion (fills ``df['quality']``; returns a dict for ``df.attrs``).
+
+    ``residuals`` is ``(F, M)`` per-marker distances (mm, NaN where missing); ``rep`` the solver report.
+    """
+    solved = rep.iterations >= 0
+    rms = rep.rms_mm
+    floor = float(np.nanmedian(rms[solved])) if solved.any() else float("nan")
+    thr = (float(poor_residual_mm) if poor_residual_mm is not None
+           else max(POOR_FACTOR * floor, floor + POOR_MARGIN_MM))
+    q = np.where(~solved, "gap", np.where(rms > thr, "poor", "ok"))
+    df["quality"] = q
+    with np.errstate(all="ignore"):
+        per_marker = {lab: [_r(np.nanmedian(residuals[:, i])), _r(np.nanpercentile(residuals[:, i], 95))]
+                      for i, lab in enumerate(labels) if np.isfinite(residuals[:, i]).any()}
+    dofs = list(df.columns[2:2 + rep.at_limit.shape[1]])
+    share = rep.at_limit[solved].mean(0) if solved.any() else np.zeros(len(dofs))
+    limits = {d: round(float(v), 4) for d, v in zip(dofs, share) if v > 0 and d not in dofs[:6]}
+    warnings = []
+    pinned = {d: v for d, v in limits.items() if v > LIMIT_SHARE_WARN}
+    if pinned:
+        warnings.append("on a joint limit in more than 5 % of frames: "
+                        + ", ".join(f"{d} {100 * v:.0f} %" for d, v in sorted(pinned.items(), key=lambda x: -x[1])))
+    th = df[dofs[6:]].to_numpy()
+    jumps = 0
+    if len(th) > 1 and rate >= 50:
+        d = np.abs(np.diff(th, axis=0))
+        jumps = int(np.nansum(d > np.radians(30)))
+        if jumps:
+            warnings.append(f"{jumps} jump(s) of more than 30° between consecutive frames (a joint flipping "
+                            "between two solutions: marker places or calibration?)")
+    poor_share = float((q == "poor").mean())
+    if poor_share > POOR_TRIAL_SHARE:
+        warnings.append(f"{100 * poor_share:.0f} % of frames poor (residual > {thr:.1f} mm)")
+    if per_marker:
+        worst = max(per_marker.items(), key=lambda x: x[1][0])
+        med = np.median([v[0] for v in per_marker.values()])
+        if worst[1][0] > 3 * med + 1.0:
+            warnings.append(f"marker {worst[0]} fits worst (median {worst[1][0]:.1f} mm vs {med:.1f} mm): "
+                            "misplaced, mislabelled or on a loose spot?")
+    return {"noise_floor_mm": _r(floor), "poor_threshold_mm": _r(thr), "poor_share": round(poor_share, 4),
+            "marker_residuals_mm": per_marker, "limit_share": limits, "jumps": jumps, "warnings": warnings}
+
+
+def _r(x, nd=3):
+    x = float(x)
+    return round(x, nd) if np.isfinite(x) else None
+
+
+def verdict(diag) -> str:
+    """'poor' (do not use without a look), 'check' (warnings) or 'good'."""
+    h = diag.get("handedness", {})
+    if (diag.get("poor_share", 0) > POOR_TRIAL_SHARE or h.get("verdict") == "wrong hand"
+            or any(v > 0.25 for v in diag.get("limit_share", {}).values()) or diag.get("calibration_overfit")):
+        return "poor"
+    return "check" if diag.get("warnings") else "good"
+
+
+def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibration="trial",
+                      settings=None, poor_residual_mm: float | None = None, min_markers: int = 4, smooth_hz=None,
+                      check_hand="stop", static=None):
     """Joint angles of every frame of a trial.
 
     Parameters
@@ -44,19 +168,25 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model="default", c
     data : marker data (from :func:`synergy.c3d.read_c3d`) or a path to a C3D file
     markerset : :class:`~synergy.markers.MarkerSet` or its name/path
     hand : 'left' or 'right'
-    model : hand model name/path or a :class:`~handmodel.HandModel`
+    model : hand model name/path or a :class:`~handmodel.HandModel`; default: the marker set's
+        ``hand_model``
     calibration : 'trial' (estimate from this trial), None (the model as it is), a
-        :class:`~synergy.calibrate.Calibration`, or marker data of a static trial
-    poor_residual_mm : frames whose RMS marker residual exceeds this are flagged ``poor``
+        :class:`~synergy.calibrate.Calibration` (e.g. from ``synergy calibrate``), or marker data
+        of a static trial
+    poor_residual_mm : frames whose RMS marker residual exceeds this are ``poor``; default relative
+        to the trial's own noise floor (its median residual): above 3× the floor and 2 mm above it
     min_markers : frames with fewer markers are not solved (NaN, flagged ``gap``)
     smooth_hz : optional zero-phase low-pass cut-off (Hz) for the marker trajectories before IK
+    check_hand : 'stop' (raise when the other hand fits clearly better), 'warn', or None
+    static : a static trial in the flat-hand posture calibrated together with this one (``'trial'``)
 
     Returns
     -------
     pandas.DataFrame
         ``frame, time_s``, the 26 DoF columns (radians, metres), ``residual_mm``, ``markers``,
         ``quality`` (ok / poor / gap); ``df.attrs`` holds the metadata (rate, source, units,
-        marker set, hand, calibration, extra markers).
+        marker set, hand, calibration, extra markers) and ``diagnostics`` (noise floor, per-marker
+        residuals, share of frames on each limit, handedness check, warnings, ``verdict``).
     """
     import pandas as pd
 
@@ -65,33 +195,57 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model="default", c
     from handmodel.subspace import Subspace
 
     from .calibrate import Calibration, calibrate
+    from .errors import SynergyError
     from .markers import MarkerSet, load_markerset
 
     if isinstance(data, (str, Path)):
         from .c3d import read_c3d
 
         data = read_c3d(data)
-    ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
-    ms = ms.for_hand(hand)
+    ms0 = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
+    ms = ms0.for_hand(hand)
     right = hand == "right"
+    model = ms.hand_model if model is None else model
     base = model if isinstance(model, HandModel) else HandModel.load(model, right=right)
+    ms.check_model(base)
     where = getattr(data, "path", None)
-    idx, extra = ms.match(list(data.labels), where=where)
-    if calibration == "trial":
-        cal = calibrate(data, ms, base, right=right)
+    targets, extra = _targets(data, ms, where)
+    warnings = []
+    hand_check = {}
+    if check_hand:
+        hand_check = check_handedness(data, ms0, hand, model=base.path if not isinstance(model, str) else model,
+                                      where=where)
+        if hand_check["verdict"] != "ok":
+            msg = (f"the {'left' if right else 'right'} hand fits these markers better "
+                   f"({hand_check['other_residual_mm']:.1f} mm vs {hand_check['residual_mm']:.1f} mm as {hand})")
+            if hand_check["verdict"] == "wrong hand" and check_hand == "stop":
+                raise SynergyError(where or "trial", msg + "; use --hand, or --no-hand-check to convert anyway")
+            warnings.append(msg)
+    if isinstance(calibration, str) and calibration == "trial":
+        # automatic: the bone and marker fit is kept only where it clearly beats the hand scale on
+        # held-out frames (a trial without a range of motion or a static posture leaves some of
+        # it to the priors, and then the simpler hand is the safer one)
+        cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN)
     elif calibration is None:
         cal = Calibration(method="none")
     elif isinstance(calibration, Calibration):
         cal = calibration
+        if cal.hand and cal.hand != hand:
+            raise SynergyError(cal.source or "calibration", f"calibrated for the {cal.hand} hand, not the {hand}")
+        if cal.markerset and cal.markerset != ms.name:
+            warnings.append(f"calibration made with marker set {cal.markerset!r}, used with {ms.name!r}")
+        unknown = sorted(set(cal.offsets) - {m.label for m in ms.markers})
+        if unknown:
+            raise SynergyError(cal.source or "calibration", f"calibration places markers the set {ms.name!r} "
+                                                            f"does not have: {', '.join(unknown)}")
     else:
-        cal = calibrate(calibration, ms, base, right=right)
+        cal = calibrate(calibration, ms, base, right=right, subject=False)
         cal.source = str(getattr(calibration, "path", "static trial"))
+    warnings += [f"calibration: {w}" for w in cal.warnings]
     hm = cal.model(base)
     lim = anatomical_limits(hm)
     hm = hm.with_limits(lim)
     nodes, local = ms.attachments(hm, right, cal.offsets or None, scale=cal.scale)
-    pts = np.asarray(data.points, float)
-    targets = np.where((idx >= 0)[None, :, None], pts[:, np.maximum(idx, 0)], np.nan)
     rate = float(getattr(data, "rate", 1.0) or 1.0)
     if smooth_hz:
         targets = lowpass_markers(targets, rate, smooth_hz)
@@ -109,13 +263,21 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model="default", c
     df.insert(0, "frame", np.arange(F) + first)
     df["residual_mm"] = rep.rms_mm
     df["markers"] = n_present
-    q = np.where(rep.iterations < 0, "gap", np.where(rep.rms_mm > poor_residual_mm, "poor", "ok"))
-    df["quality"] = q
+    solved = rep.iterations >= 0
+    res = np.full(targets.shape[:2], np.nan)
+    if solved.any():
+        res[solved] = 1000.0 * np.linalg.norm(hm.points(theta[solved], nodes, local) - targets[solved], axis=-1)
+    diag = diagnose(df, res, [m.label for m in ms.markers], rep, rate=rate, poor_residual_mm=poor_residual_mm)
+    diag["warnings"] = warnings + diag["warnings"]
+    if hand_check:
+        diag["handedness"] = {k: (_r(v) if isinstance(v, float) else v) for k, v in hand_check.items()}
+    diag["calibration_overfit"] = bool(cal.held_out.get("overfit", False))
+    diag["verdict"] = verdict(diag)
     df.attrs.update({
         "source": str(where) if where else "", "rate_hz": rate, "units": {"angles": "rad", "translation": "m"},
         "markerset": ms.name, "hand": hand, "hand_model": base.name, "calibration": cal.to_dict(),
         "extra_markers": extra, "frames": F, "smooth_hz": smooth_hz,
-        "gap_fraction": float(np.isnan(targets[..., 0]).mean()),
+        "gap_fraction": float(np.isnan(targets[..., 0]).mean()), "diagnostics": diag,
     })
     return df
 

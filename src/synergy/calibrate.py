@@ -1,28 +1,64 @@
-"""Subject calibration from the trial itself (or a static trial): hand scale, bone lengths, marker offsets.
+"""Subject calibration: the subject's hand (bone lengths, finger bases) and where each marker sits on it.
 
-The paper scaled its model by hand; here:
+Anchors: OpenSim's Scale tool (scale, then place markers) and the functional calibrations of finger
+mocap (Cerveri et al. 2007, Gustus et al. 2012), which fit joint centres and segment lengths to the
+markers' motion. Three routes, chosen by what the marker set makes observable:
 
-1. **Bone lengths** where the protocol makes them observable (markers at the joint centres at both ends
-   of a bone, e.g. ART's joint-centre export): median distance over frames ÷ the model's bone.
-2. **Hand scale** for skin-marker protocols: the scale that minimises the median marker-IK residual
-   over a sample of frames (golden-section search); markers' explicit offsets and dorsal heights
-   scale with the hand.
-3. **Marker offsets** flagged ``calibrate_offset`` (e.g. a glove's): alternate marker IK on the sample
-   frames and the median offset of each marker in its node's frame.
+1. **Joint-centre protocols** (a marker at the joint centre at both ends of every bone, e.g. ART's
+   export): bone lengths are measured directly, finger bases placed and oriented where the data has them.
+2. **Skin or glove markers**: first one hand scale (golden-section search on the marker-IK residual),
+   then a joint estimate of every observable bone length (each phalanx, the thumb's bones), each finger
+   base's place on the palm (the metacarpals) and each marker's place on its bone, together with the
+   postures of the calibration frames (Gauss-Newton on all of it, the postures eliminated by a Schur
+   complement). Each marker's nominal place and its uncertainty (``offset_sd`` in the marker set) and
+   a prior on bone lengths (``bone_sd``) are part of the objective, so weakly observed quantities stay
+   at their nominal values instead of absorbing noise.
+3. **Held-out check**: the calibration frames are blocks of the trial; other blocks are held out. The
+   marker-IK residual on them, for the calibrated hand and for the scale-only hand, says whether the
+   extra freedom generalises. A calibration whose held-out residual is clearly above its training
+   residual is flagged ``overfit`` (and :func:`markers_to_angles` falls back to the scale-only hand).
+
+Examples
+--------
+>>> from synergy.simulate import motion, simulate_markers
+>>> from handmodel import HandModel
+>>> from synergy.markers import load_markerset
+>>> th, _ = motion("open_close", duration_s=1.0, seed=1)
+>>> tr = simulate_markers(th, "hand16", scale=1.1)
+>>> cal = calibrate(tr, load_markerset("hand16"), HandModel.load(), subject=False)
+>>> round(cal.scale, 2)
+1.1
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .errors import MarkerSetError
+from handmodel.dofs import anatomical_limits
+from handmodel.solver import SolverSettings, fit_points
+
+from .errors import MarkerSetError, SynergyError
+
+#: Version of the subject-calibration file (``data_schema/subject-calibration.schema.json``).
+CALIBRATION_VERSION = 1
+#: Default prior SD (mm) of a marker's place on its bone, by how the marker set places it.
+OFFSET_SD_MM = {"skin": 5.0, "calibrate_offset": 15.0, "joint_centre": 2.0}
+#: Default prior SD of a bone's length relative to the hand-scaled model (fraction).
+BONE_SD = 0.25
 
 
 @dataclass
 class Calibration:
-    """The subject's hand: ``scale`` of the whole hand, per-bone factors (node → factor) on top,
-    calibrated marker offsets (label → metres in the node frame), and the fit it gave."""
+    """The subject's hand and marker placement as estimated, with uncertainties and checks.
+
+    ``scale`` resizes the whole hand; ``bone_scales`` (node → factor) resize single bones on top;
+    ``joint_positions`` (finger base → metres in the palm frame) and ``joint_rotations`` place the
+    finger bases; ``offsets`` (label → metres in its node's frame) place markers. ``uncertainty``
+    holds one SD per estimated number (same keys; mm for positions); ``held_out`` the check on
+    frames not used for fitting; ``warnings`` what a user should know.
+    """
 
     scale: float = 1.0
     bone_scales: dict = field(default_factory=dict)
@@ -33,6 +69,15 @@ class Calibration:
     median_residual_mm: float = float("nan")
     method: str = "none"
     source: str = ""
+    source_sha256: str = ""
+    static_source: str = ""
+    hand: str = ""
+    markerset: str = ""
+    hand_model: str = ""
+    uncertainty: dict = field(default_factory=dict)
+    marker_shift_mm: dict = field(default_factory=dict)
+    held_out: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
 
     def model(self, hand):
         """The calibrated hand model."""
@@ -43,12 +88,38 @@ class Calibration:
             m = m.with_rest_rotations(self.joint_rotations)
         return m
 
+    @property
+    def overfit(self) -> bool:
+        return bool(self.held_out.get("overfit", False))
+
+    def summary(self) -> str:
+        """One line: what was estimated and how well it generalises."""
+        parts = [self.method]
+        if self.bone_scales:
+            f = np.array(list(self.bone_scales.values()))
+            parts.append(f"{len(f)} bones {f.min():.2f}–{f.max():.2f}×")
+        if self.joint_positions:
+            parts.append(f"{len(self.joint_positions)} finger bases")
+        if self.marker_shift_mm:
+            s = np.array(list(self.marker_shift_mm.values()))
+            parts.append(f"markers moved median {np.median(s):.1f} mm (max {s.max():.1f})")
+        h = self.held_out
+        if h:
+            parts.append(f"held-out {h['residual_mm']:.2f} mm (train {h['train_residual_mm']:.2f}, "
+                         f"scale only {h['scale_only_residual_mm']:.2f})")
+        return "; ".join(parts)
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["offsets"] = {k: [float(x) for x in v] for k, v in self.offsets.items()}
         d["bone_scales"] = {k: float(v) for k, v in self.bone_scales.items()}
         d["joint_positions"] = {k: [float(x) for x in v] for k, v in self.joint_positions.items()}
         d["joint_rotations"] = {k: np.asarray(v, float).tolist() for k, v in self.joint_rotations.items()}
+        d["marker_shift_mm"] = {k: float(v) for k, v in self.marker_shift_mm.items()}
+        d["uncertainty"] = _plain(self.uncertainty)
+        d["held_out"] = _plain(self.held_out)
+        d["scale"] = float(self.scale)
+        d["median_residual_mm"] = float(self.median_residual_mm)
         return d
 
     @classmethod
@@ -56,6 +127,21 @@ class Calibration:
         return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
 
 
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    if isinstance(x, (np.integer, int)) and not isinstance(x, bool):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+# ------------------------------------------------------------------------------------------ frames
 def sample_frames(points, count):
     """Up to ``count`` frames spread over the trial, preferring frames with every marker present."""
     present = ~np.isnan(points[..., 0])
@@ -67,6 +153,34 @@ def sample_frames(points, count):
     return np.unique(pool[take])
 
 
+def split_frames(points, count, held_out=0.25, blocks=8):
+    """Training and held-out frame indices: the trial cut into ``blocks`` runs, every
+    ``round(1 / held_out)``-th run held out, so held-out frames are not neighbours of training
+    frames (neighbouring frames share the same posture and would hide overfitting).
+
+    >>> tr, ho = split_frames(np.zeros((400, 5, 3)), 100)
+    >>> len(tr) > 0 and len(ho) > 0 and not set(tr) & set(ho)
+    True
+    """
+    present = ~np.isnan(points[..., 0])
+    pool = np.flatnonzero(present.sum(1) >= 3)
+    if len(pool) == 0 or held_out <= 0:
+        return sample_frames(points, count), np.zeros(0, np.int64)
+    every = max(int(round(1 / held_out)), 2)
+    nb = max(blocks, every)
+    block = np.minimum((np.arange(len(pool)) * nb) // len(pool), nb - 1)
+    hold = (block % every) == every - 1
+    tr_pool, ho_pool = pool[~hold], pool[hold]
+    n_ho = max(int(round(count * held_out / (1 - held_out))), 1)
+    sub = np.zeros_like(points[..., 0], bool)
+    sub[tr_pool] = True
+    pts_tr = np.where(sub[..., None], points, np.nan)
+    train = sample_frames(pts_tr, count)
+    take = np.linspace(0, len(ho_pool) - 1, min(n_ho, len(ho_pool))).round().astype(int)
+    return train, np.unique(ho_pool[take]) if len(ho_pool) else np.zeros(0, np.int64)
+
+
+# ------------------------------------------------------------------------------------ joint centres
 def _joint_centre_bones(hand, markerset, nodes, local, targets):
     """Bone factors from markers sitting at the joint centres at both ends of a bone."""
     at_centre = {int(n): i for i, (n, l) in enumerate(zip(nodes, local)) if not np.any(l)}
@@ -121,28 +235,345 @@ def _descends(hand, node, base):
     return False
 
 
+# ------------------------------------------------------------------------------ skin-marker subject
+def marker_offset_sd_mm(marker) -> float:
+    """Prior SD (mm) of a marker's place on its bone: the marker set's ``offset_sd`` (metres) or a
+    default by kind (a calibrated glove offset is loose, a joint centre tight, a skin marker 5 mm)."""
+    if getattr(marker, "offset_sd", None) is not None:
+        return 1000.0 * float(marker.offset_sd)
+    if marker.calibrate_offset:
+        return OFFSET_SD_MM["calibrate_offset"]
+    if marker.landmark is not None and marker.landmark["type"] in ("joint_centre", "fingertip"):
+        return OFFSET_SD_MM["joint_centre"]
+    return OFFSET_SD_MM["skin"]
+
+
+@dataclass
+class _Layout:
+    """Which numbers a skin-marker calibration estimates, and how each marker depends on them."""
+
+    bases: list          # finger-base nodes (free 3-D place on the palm, mm)
+    lengths: list        # nodes whose bone (parent → node) gets a length factor
+    markers: list        # marker indices with a free place (3-D, mm)
+    anc: np.ndarray      # (N, N): anc[n, k] = k is n or one of its ancestors
+    seg_child: np.ndarray  # (M,) the child node whose bone a segment landmark's place follows, or −1
+    along: np.ndarray    # (M,) fraction along that bone
+    prior_sd: np.ndarray  # (n_s,)
+    base_sd_mm: float
+
+    @property
+    def size(self):
+        return 3 * len(self.bases) + len(self.lengths) + 3 * len(self.markers)
+
+
+def _layout(model, ms, nodes, *, bone_sd, offset_scale, base_sd_fraction=0.15):
+    N = model.n_nodes
+    par = model.parents
+    anc = np.zeros((N, N), bool)
+    for n in range(N):
+        k = n
+        while k >= 0:
+            anc[n, k] = True
+            k = int(par[k])
+    M = len(nodes)
+    seg_child = np.full(M, -1, np.int64)
+    along = np.zeros(M)
+    for i, m in enumerate(ms.markers):
+        if m.landmark is not None and m.landmark["type"] == "segment":
+            kids = [k for k in range(N) if par[k] == nodes[i]]
+            if len(kids) == 1:
+                seg_child[i], along[i] = kids[0], m.landmark.get("along", 0.5)
+    carried = anc[nodes].any(0)  # nodes some marker rides on or below
+    bases = [k for k in range(N) if par[k] == 0 and carried[k]]
+    lengths = [k for k in range(N) if par[k] > 0 and (carried[k] or k in seg_child)]
+    sd_m = np.array([marker_offset_sd_mm(m) * offset_scale for m in ms.markers])
+    free = [i for i in range(M) if sd_m[i] > 0]
+    bsd = [max(base_sd_fraction * 1000.0 * np.linalg.norm(model.rest[k, :3, 3]), 5.0) for k in bases]
+    prior = np.r_[np.repeat(bsd, 3), np.full(len(lengths), bone_sd), np.repeat(sd_m[free], 3)]
+    return _Layout(bases, lengths, free, anc, seg_child, along, prior, float(np.mean(bsd)) if bsd else 0.0)
+
+
+def _apply(model0, ms, right, scale, lay, s):
+    """Model and marker places (node frames, metres) for the subject vector ``s``."""
+    nb, nl = 3 * len(lay.bases), len(lay.lengths)
+    factors = {model0.node_names[k]: float(f) for k, f in zip(lay.lengths, 1.0 + s[nb:nb + nl])}
+    model = model0.scaled(1.0, factors)
+    pos = {model0.node_names[k]: model0.rest[k, :3, 3] + s[3 * j:3 * j + 3] / 1000.0 for j, k in enumerate(lay.bases)}
+    if pos:
+        model = model.with_joint_positions(pos)
+    nodes, local = ms.attachments(model, right, scale=scale)
+    local = local.copy()
+    for j, i in enumerate(lay.markers):
+        local[i] += s[nb + nl + 3 * j:nb + nl + 3 * j + 3] / 1000.0
+    return model, nodes, local, factors, pos
+
+
+def _jacobians(model0, model, nodes, local, theta, lay):
+    """Marker positions (mm) and their Jacobians w.r.t. θ and the subject vector (mm per unit)."""
+    G = model.node_frames(theta)                       # (F, N, 4, 4)
+    Gm = G[:, nodes]                                   # (F, M, 4, 4)
+    p = np.einsum("fmij,mj->fmi", Gm[..., :3, :3], local) + Gm[..., :3, 3]
+    Jt = 1000.0 * model.jacobian(theta, nodes, local)  # (F, M, 3, n)
+    F, M = p.shape[:2]
+    Js = np.zeros((F, M, 3, lay.size))
+    col = 0
+    for k in lay.bases:
+        on = lay.anc[nodes, k]
+        Js[:, on, :, col:col + 3] = G[:, None, 0, :3, :3]
+        col += 3
+    for k in lay.lengths:
+        t0 = 1000.0 * model0.rest[k, :3, 3]
+        on = lay.anc[nodes, k]
+        Jc = Js[..., col]  # a view: boolean indexing next to a scalar index would reorder the axes
+        Jc[:, on] = (G[:, int(model.parents[k]), :3, :3] @ t0)[:, None, :]
+        seg = lay.seg_child == k
+        if seg.any():
+            Jc[:, seg] += np.einsum("fmij,j->fmi", Gm[:, seg, :3, :3], t0) * lay.along[seg][None, :, None]
+        col += 1
+    for i in lay.markers:
+        Js[:, i, :, col:col + 3] = Gm[:, i, :3, :3]
+        col += 3
+    return 1000.0 * p, Jt, Js
+
+
+def _gauss_newton(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, data_sd_mm, iterations, huber_mm,
+                  theta_ref=None, theta_w=None, s0=None):
+    """Joint Levenberg-Marquardt over the postures of the calibration frames and the subject vector;
+    the postures are eliminated per frame (Schur complement), so a step costs F small solves.
+    ``theta_ref``/``theta_w`` (F, n): a known posture and its weight (1/SD, 0 = unknown) per frame,
+    e.g. the neutral posture of a static trial."""
+    n_s = lay.size
+    if theta_w is None:
+        theta_w = np.zeros_like(theta)
+        theta_ref = np.zeros_like(theta)
+    tw2 = theta_w ** 2
+    s = np.zeros(n_s)
+    present = np.isfinite(tg_mm[..., 0])
+    y = np.nan_to_num(tg_mm)
+    mu = 1e-3
+
+    def evaluate(s, theta):
+        model, nodes, local, _, _ = _apply(model0, ms, right, scale, lay, s)
+        p, Jt, Js = _jacobians(model0, model, nodes, local, theta, lay)
+        r = np.where(present[..., None], p - y, 0.0)
+        d = np.linalg.norm(r, axis=-1)
+        hub = np.where(d > huber_mm, huber_mm / np.maximum(d, 1e-12), 1.0)  # robust to swapped/ghost markers
+        ww = (w[None, :] * present * np.sqrt(hub)) / data_sd_mm
+        prior = s / lay.prior_sd
+        cost = float(np.sum((ww[..., None] * r) ** 2) + prior @ prior + np.sum(tw2 * (theta - theta_ref) ** 2))
+        return cost, r, Jt, Js, ww
+
+    cost, r, Jt, Js, ww = evaluate(s, theta)
+    F, M = r.shape[:2]
+    n = theta.shape[1]
+    H_s = None
+    for _ in range(iterations):
+        rw = (ww[..., None] * r).reshape(F, 3 * M)
+        At = (ww[..., None, None] * Jt).reshape(F, 3 * M, n)
+        As = (ww[..., None, None] * Js).reshape(F, 3 * M, n_s)
+        AtT = At.transpose(0, 2, 1)
+        A = AtT @ At
+        A += tw2[..., None] * np.eye(n)
+        A += (mu * (np.einsum("fii->fi", A) + 1e-6))[..., None] * np.eye(n)
+        B = AtT @ As
+        As2 = As.reshape(-1, n_s)
+        C = As2.T @ As2 + np.diag(1.0 / lay.prior_sd ** 2)
+        gt = (AtT @ rw[..., None])[..., 0] + tw2 * (theta - theta_ref)
+        gs = As2.T @ rw.reshape(-1) + s / lay.prior_sd ** 2
+        Ainv_B = np.linalg.solve(A, B)
+        Ainv_g = np.linalg.solve(A, gt[..., None])[..., 0]
+        S = C - np.einsum("fij,fik->jk", B, Ainv_B, optimize=True)
+        H_s = S.copy()
+        S[np.diag_indices(n_s)] *= 1.0 + mu
+        rhs = gs - np.einsum("fij,fi->j", B, Ainv_g)
+        try:
+            ds = -np.linalg.solve(S, rhs)
+        except np.linalg.LinAlgError:
+            break
+        dth = -(Ainv_g + np.einsum("fij,j->fi", Ainv_B, ds))
+        th_new = np.clip(theta + dth, lim[:, 0], lim[:, 1])
+        s_new = s + ds
+        nb = 3 * len(lay.bases)
+        s_new[nb:nb + len(lay.lengths)] = np.clip(s_new[nb:nb + len(lay.lengths)], -0.5, 1.0)
+        c_new, r_new, Jt_new, Js_new, ww_new = evaluate(s_new, th_new)
+        if c_new < cost:
+            done = cost - c_new < 1e-6 * cost
+            s, theta, cost, r, Jt, Js, ww = s_new, th_new, c_new, r_new, Jt_new, Js_new, ww_new
+            mu = max(mu / 3, 1e-7)
+            if done:
+                break
+        else:
+            mu *= 10
+            if mu > 1e4:
+                break
+    return s, theta, H_s, cost
+
+
+def _ik(model, nodes, local, tg, weights, lim, theta0=None):
+    """Marker IK over sample frames; returns θ, per-frame RMS (mm) and the share of frames per DoF at a limit."""
+    hm = model.with_limits(lim)
+    th, rep = fit_points(hm, nodes, local, tg, theta0, weights=weights,
+                         settings=SolverSettings(iterations=20, damping=0.1), restarts=2, restart_rms_mm=3.0)
+    return th, rep
+
+
+def _median(x):
+    x = np.asarray(x, float)
+    return float(np.nanmedian(x)) if np.isfinite(x).any() else float("nan")
+
+
+def _refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_sd, offset_scale, data_sd_mm,
+                    iterations, cal, tg_static=None, static_posture=None, static_sd_deg=3.0, rounds=3):
+    """Route 2 of the module docstring, on top of the hand scale in ``cal``; fills ``cal``.
+    Frames of a static trial (``tg_static``) are fitted with their posture pulled to
+    ``static_posture`` (default: the model's zero, a flat hand): a marker on the last bone of a
+    chain can turn about its joint together with that joint's angle without changing any marker
+    position, so only a known posture fixes where such a joint's zero is."""
+    model0 = hand.scaled(scale)
+    lim = anatomical_limits(model0)
+    nodes0, local0 = ms.attachments(model0, right, scale=scale)
+    lay = _layout(model0, ms, nodes0, bone_sd=bone_sd, offset_scale=offset_scale)
+    th0, rep0 = _ik(model0, nodes0, local0, tg_train, weights, lim)
+    ok = rep0.iterations >= 0
+    if ok.sum() < 3:
+        raise SynergyError(cal.source or ms.name, "fewer than 3 calibration frames could be solved")
+    tg_fit, th_fit = 1000.0 * tg_train[ok], th0[ok]
+    th_ref = np.zeros_like(th_fit)
+    th_w = np.zeros_like(th_fit)
+    if tg_static is not None and len(tg_static):
+        post = ~model0.pose_mask
+        ref = np.zeros(model0.n_dofs)
+        if static_posture is not None:
+            ref[post] = static_posture
+        st0 = _ik(model0, nodes0, local0, tg_static, weights, lim)[0]
+        st0[:, post] = ref[post]
+        ws = np.zeros((len(tg_static), model0.n_dofs))
+        ws[:, post] = 1.0 / np.radians(static_sd_deg)
+        tg_fit = np.concatenate([tg_fit, 1000.0 * tg_static])
+        th_fit = np.concatenate([th_fit, st0])
+        th_ref = np.concatenate([th_ref, np.broadcast_to(ref, st0.shape)])
+        th_w = np.concatenate([th_w, ws])
+        cal.method += " + static posture"
+    n_tr = int(ok.sum())
+    s = None
+    for rnd in range(rounds):
+        if s is not None:
+            # postures that started in the wrong branch (a finger read hyperextended, say) keep the
+            # joint fit in a local minimum: re-solve every frame from scratch on the current hand
+            # and keep whichever posture fits better
+            m_, n_, l_, _, _ = _apply(model0, ms, right, scale, lay, s)
+            fresh, rep_f = _ik(m_, n_, l_, tg_fit[:n_tr] / 1000.0, weights, lim)
+            warm, rep_w = _ik(m_, n_, l_, tg_fit[:n_tr] / 1000.0, weights, lim, theta0=th_fit[:n_tr])
+            better = (rep_f.rms_mm < rep_w.rms_mm - 1e-3) & (rep_f.iterations >= 0)
+            th_fit = th_fit.copy()
+            th_fit[:n_tr] = np.where(better[:, None], fresh, warm)
+            if not better.any():
+                break
+        s, th_fit, H, _cost = _gauss_newton(model0, ms, right, scale, lay, th_fit, tg_fit, weights, lim,
+                                            data_sd_mm=data_sd_mm, iterations=iterations,
+                                            huber_mm=max(3.0 * data_sd_mm, 2.0), theta_ref=th_ref, theta_w=th_w, s0=s)
+    model, nodes, local, factors, pos = _apply(model0, ms, right, scale, lay, s)
+    th_tr, rep_tr = _ik(model, nodes, local, tg_train, weights, lim)
+    train = _median(rep_tr.rms_mm)
+    # uncertainty: the inverse reduced Hessian, rescaled by how far the residuals are from the assumed noise
+    sd = np.full(lay.size, np.nan)
+    if H is not None:
+        dof = max(int(np.isfinite(tg_train[ok][..., 0]).sum()) * 3 - ok.sum() * model.n_dofs - lay.size, 1)
+        rms = np.sqrt(np.nanmean(rep_tr.rms_mm[ok] ** 2))
+        with np.errstate(invalid="ignore"):
+            sd = np.sqrt(np.clip(np.diag(np.linalg.pinv(H)), 0, None)) * max(rms / data_sd_mm, 1.0) * np.sqrt(
+                max(dof, 1) / max(dof, 1))
+    nb, nl = 3 * len(lay.bases), len(lay.lengths)
+    unc = {"joint_positions_mm": {model0.node_names[k]: sd[3 * j:3 * j + 3].tolist() for j, k in enumerate(lay.bases)},
+           "bone_scales": {model0.node_names[k]: float(sd[nb + j]) for j, k in enumerate(lay.lengths)},
+           "offsets_mm": {ms.markers[i].label: sd[nb + nl + 3 * j:nb + nl + 3 * j + 3].tolist()
+                          for j, i in enumerate(lay.markers)}}
+    cal.bone_scales = factors
+    cal.joint_positions = pos
+    cal.offsets = {m.label: local[i].copy() for i, m in enumerate(ms.markers)}
+    cal.marker_shift_mm = {ms.markers[i].label: float(np.linalg.norm(s[nb + nl + 3 * j:nb + nl + 3 * j + 3]))
+                           for j, i in enumerate(lay.markers)}
+    cal.uncertainty = unc
+    cal.method += " + bone lengths, finger bases and marker places (joint fit with priors)"
+    held = {"frames": int(len(tg_held)), "train_frames": int(ok.sum()), "train_residual_mm": train,
+            "residual_mm": float("nan"), "scale_only_residual_mm": float("nan"), "overfit": False}
+    if len(tg_held):
+        _, rep_h = _ik(model, nodes, local, tg_held, weights, lim)
+        _, rep_h0 = _ik(model0, nodes0, local0, tg_held, weights, lim)
+        held["residual_mm"] = _median(rep_h.rms_mm)
+        held["scale_only_residual_mm"] = _median(rep_h0.rms_mm)
+        _, rep_tr0 = _ik(model0, nodes0, local0, tg_train, weights, lim)
+        held["scale_only_train_residual_mm"] = _median(rep_tr0.rms_mm)
+        # fitting noise lowers the training residual but not the held-out one: a gap between them
+        # (beyond what per-frame posture freedom explains) is freedom the data did not support
+        held["overfit"] = bool(held["residual_mm"] > 1.5 * train + 0.3
+                               or held["residual_mm"] > held["scale_only_residual_mm"] + 0.3)
+        if held["overfit"]:
+            cal.warnings.append(f"calibration does not generalise: held-out residual {held['residual_mm']:.2f} mm "
+                                f"vs {train:.2f} mm on the fitted frames (scale only: "
+                                f"{held['scale_only_residual_mm']:.2f} mm); too much freedom for this trial")
+    cal.held_out = held
+    return cal
+
+
+def _golden(f, lo, hi, iterations=14):
+    g = (np.sqrt(5) - 1) / 2
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    for _ in range(iterations):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = f(d)
+    return float((a + b) / 2)
+
+
 def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iterations=3, scale_range=(0.6, 1.6),
-              settings=None, orient_bases=True) -> Calibration:
+              settings=None, orient_bases=True, subject=True, held_out=0.25, bone_sd=BONE_SD, offset_scale=1.0,
+              data_sd_mm=1.0, iterations=25, static=None, static_posture=None, static_sd_deg=3.0,
+              require_gain=None) -> Calibration:
     """Estimate the subject's hand from a trial (``data``: marker data with ``labels``/``points``).
+
+    Parameters
+    ----------
+    data : marker data (a range-of-motion trial, a static trial or the trial itself)
+    markerset : :class:`~synergy.markers.MarkerSet` for the chosen hand
+    hand : the (mirrored, for right) hand model to calibrate
+    frames : calibration frames (spread over the trial)
+    subject : for skin/glove markers, also estimate bone lengths, finger bases and marker places
+        (route 2); False stops after the hand scale (and the ``calibrate_offset`` markers)
+    held_out : share of the sampled frames held out to check the calibration (0: no check)
+    bone_sd, offset_scale : prior SD of bone lengths (fraction), multiplier on every marker's
+        ``offset_sd`` (a large value gives the calibration too much freedom; the held-out check says so)
+    data_sd_mm : assumed marker noise that weighs the data against the priors
+    require_gain : keep the subject fit only if its held-out residual is below this share of the
+        scale-only one (automatic calibration: extra freedom must pay for itself); None keeps it
+    static : marker data of a static trial in a known posture (``static_posture``, 20 angles; default
+        the flat hand) to fit together with ``data`` (a static + range-of-motion pair)
 
     Returns a :class:`Calibration`; ``Calibration.model(hand)`` is the calibrated model and its
     ``scale`` and ``offsets`` go to :meth:`MarkerSet.attachments`.
     """
-    from handmodel.solver import SolverSettings, fit_points
-
     ms = markerset
-    idx, _ = ms.match(list(data.labels), where=getattr(data, "path", None))
+    where = getattr(data, "path", None)
+    idx, _ = ms.match(list(data.labels), where=where)
     pts = np.asarray(data.points, float)
     targets = np.where((idx >= 0)[None, :, None], pts[:, np.maximum(idx, 0)], np.nan)
-    sel = sample_frames(targets, frames)
+    sel, held = split_frames(targets, frames, held_out if subject else 0.0)
     if len(sel) == 0:
-        raise MarkerSetError(getattr(data, "path", ms.name), "no frame with at least 3 markers to calibrate on")
+        raise MarkerSetError(where or ms.name, "no frame with at least 3 markers to calibrate on")
     tg = targets[sel]
     settings = settings or SolverSettings(iterations=15, damping=0.1)
     nodes, local = ms.attachments(hand, right)
     weights = np.array([m.weight for m in ms.markers])
     bones = _joint_centre_bones(hand, ms, nodes, local, tg)
-    cal = Calibration(source=str(getattr(data, "path", "")), frames_used=int(len(sel)))
+    cal = Calibration(source=str(where or ""), frames_used=int(len(sel)), hand="right" if right else "left",
+                      markerset=ms.name, hand_model=hand.name, source_sha256=_sha256_of(data))
 
     def residual(scale, bone_scales, offsets, positions=None, rotations=None, frames_sel=None, markers_sel=None):
         model = hand.scaled(scale, bone_scales)
@@ -181,24 +612,32 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
             cal.joint_rotations = _orient_finger_bases(hand, nodes, local, palm, residual, cal)
             cal.method += " + finger base orientations"
     else:
-        lo, hi = scale_range
-        g = (np.sqrt(5) - 1) / 2
-        a, b = lo, hi
-        c, d = b - g * (b - a), a + g * (b - a)
-        fc, fd = residual(c, {}, None)[0], residual(d, {}, None)[0]
-        for _ in range(14):
-            if fc < fd:
-                b, d, fd = d, c, fc
-                c = b - g * (b - a)
-                fc = residual(c, {}, None)[0]
-            else:
-                a, c, fc = c, d, fd
-                d = a + g * (b - a)
-                fd = residual(d, {}, None)[0]
-        cal.scale = float((a + b) / 2)
+        cal.scale = _golden(lambda s: residual(s, {}, None)[0], *scale_range)
         cal.method = "hand scale by marker-IK residual"
+        if subject:
+            tg_static = None
+            if static is not None:
+                sidx, _ = ms.match(list(static.labels), where=getattr(static, "path", None))
+                sp = np.asarray(static.points, float)
+                st = np.where((sidx >= 0)[None, :, None], sp[:, np.maximum(sidx, 0)], np.nan)
+                tg_static = st[sample_frames(st, 30)]
+                cal.static_source = str(getattr(static, "path", "") or "")
+            _refine_subject(hand, ms, right, cal.scale, tg, targets[held], weights, bone_sd=bone_sd,
+                            offset_scale=offset_scale, data_sd_mm=data_sd_mm, iterations=iterations, cal=cal,
+                            tg_static=tg_static, static_posture=static_posture, static_sd_deg=static_sd_deg)
+            h = cal.held_out
+            if cal.overfit or (require_gain is not None and h["frames"]
+                               and not h["residual_mm"] < require_gain * h["scale_only_residual_mm"]):
+                why = ("it does not generalise" if cal.overfit else
+                       f"held-out residual {h['residual_mm']:.2f} mm vs {h['scale_only_residual_mm']:.2f} mm "
+                       "with the hand scale alone")
+                kept = scale_only(cal)
+                kept.warnings = [w for w in cal.warnings]
+                kept.method += f" (bone and marker fit not used: {why})"
+                kept.held_out = h
+                cal = kept
     flagged = [i for i, m in enumerate(ms.markers) if m.calibrate_offset and idx[i] >= 0]
-    if flagged and offset_iterations:
+    if flagged and offset_iterations and not cal.offsets:
         offsets = None
         for _ in range(offset_iterations):
             _, th, model, n, l = residual(cal.scale, cal.bone_scales, offsets, cal.joint_positions)
@@ -215,3 +654,55 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
     cal.median_residual_mm = residual(cal.scale, cal.bone_scales, cal.offsets or None, cal.joint_positions,
                                       cal.joint_rotations)[0]
     return cal
+
+
+def scale_only(cal: Calibration) -> Calibration:
+    """The hand-scale part of a skin-marker calibration (the fallback when the full one overfits)."""
+    return Calibration(scale=cal.scale, frames_used=cal.frames_used, method="hand scale by marker-IK residual",
+                       source=cal.source, source_sha256=cal.source_sha256, hand=cal.hand, markerset=cal.markerset,
+                       hand_model=cal.hand_model, median_residual_mm=cal.held_out.get("scale_only_train_residual_mm",
+                                                                                       cal.median_residual_mm),
+                       warnings=list(cal.warnings))
+
+
+def _sha256_of(data) -> str:
+    from pathlib import Path
+
+    p = getattr(data, "path", None)
+    if p and Path(p).is_file():
+        from handmodel.fileio import sha256_file
+
+        return sha256_file(p)
+    pts = np.ascontiguousarray(np.asarray(data.points, float))
+    return hashlib.sha256(pts.tobytes()).hexdigest()
+
+
+# ------------------------------------------------------------------------------------------ files
+def save_calibration(cal: Calibration, path, *, overwrite=False):
+    """Write a subject calibration (YAML, ``data_schema/subject-calibration.schema.json``); atomic,
+    never overwrites unless asked."""
+    import yaml
+
+    from handmodel.fileio import atomic_write_text, schema_errors
+
+    doc = {"schema_version": CALIBRATION_VERSION, "kind": "subject-calibration", **cal.to_dict()}
+    problem = schema_errors(doc, "subject-calibration")
+    if problem:  # a bug here, not the user's input
+        raise SynergyError(path, f"calibration does not match its schema: {problem}")
+    return atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False, allow_unicode=True), overwrite=overwrite)
+
+
+def load_calibration(path) -> Calibration:
+    """Read a subject calibration written by :func:`save_calibration` (validated)."""
+    from handmodel.fileio import load_yaml, schema_errors
+
+    doc = load_yaml(path, SynergyError)
+    if not isinstance(doc, dict):
+        raise SynergyError(path, "not a subject calibration (top level must be a mapping)")
+    problem = schema_errors(doc, "subject-calibration")
+    if problem:
+        raise SynergyError(path, problem)
+    d = {k: v for k, v in doc.items() if k not in ("schema_version", "kind")}
+    d["offsets"] = {k: np.asarray(v, float) for k, v in d.get("offsets", {}).items()}
+    d["joint_positions"] = {k: np.asarray(v, float) for k, v in d.get("joint_positions", {}).items()}
+    return Calibration.from_dict(d)

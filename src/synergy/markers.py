@@ -34,6 +34,7 @@ class Marker:
     weight: float = 1.0
     optional: bool = False
     calibrate_offset: bool = False
+    offset_sd: float | None = None
 
     def names(self) -> list:
         return [self.label, *self.aliases]
@@ -104,6 +105,12 @@ class MarkerSet:
             local.append(off)
         return np.asarray(nodes, np.int64), np.asarray(local, float).reshape(-1, 3)
 
+    def check_model(self, hand_model) -> None:
+        """Raise :class:`MarkerSetError` naming the marker if a node it rides on is not in
+        ``hand_model`` or a landmark does not fit the node (a fingertip that has children, a
+        segment landmark on a joint without exactly one child)."""
+        self.attachments(hand_model)
+
     def match(self, labels, where=None):
         """Column of each marker in ``labels`` (−1 for a missing optional marker), and the unused labels.
 
@@ -139,7 +146,9 @@ def _node(hand_model, name, ms):
     try:
         return hand_model.node_names.index(name)
     except ValueError:
-        raise MarkerSetError(ms.path or ms.name, f"unknown joint {name!r} (hand model {hand_model.name!r} has "
+        users = [m.label for m in ms.markers if _joint_of(m) == name]
+        raise MarkerSetError(ms.path or ms.name, f"marker {', '.join(users) or '?'}: unknown joint {name!r} "
+                                                 f"(hand model {hand_model.name!r} has "
                                                  f"{', '.join(hand_model.node_names)})") from None
 
 
@@ -169,12 +178,26 @@ def markerset_from_dict(doc, where="<dict>") -> MarkerSet:
         ms.append(Marker(label=m["label"], aliases=tuple(m.get("aliases", ())), joint=m.get("joint"),
                          offset=tuple(m["offset"]) if "offset" in m else None, landmark=m.get("landmark"),
                          weight=float(m.get("weight", 1.0)), optional=bool(m.get("optional", False)),
-                         calibrate_offset=bool(m.get("calibrate_offset", False))))
+                         calibrate_offset=bool(m.get("calibrate_offset", False)),
+                         offset_sd=float(m["offset_sd"]) if "offset_sd" in m else None))
     if "{side}" in json.dumps(doc["markers"]) and "sides" not in doc:
         raise MarkerSetError(where, "field sides: labels use {side} but no side codes are given")
-    return MarkerSet(name=doc["name"], markers=tuple(ms), path=str(where), description=doc.get("description", ""),
-                     hand=doc.get("hand", "either"), sides=dict(doc.get("sides", {})), ignore=tuple(doc.get("ignore", ())),
-                     hand_model=doc.get("hand_model", "default"))
+    out = MarkerSet(name=doc["name"], markers=tuple(ms), path=str(where), description=doc.get("description", ""),
+                    hand=doc.get("hand", "either"), sides=dict(doc.get("sides", {})), ignore=tuple(doc.get("ignore", ())),
+                    hand_model=doc.get("hand_model", "default"))
+    out.check_model(_hand_model(out.hand_model, where))
+    return out
+
+
+def _hand_model(name, where):
+    """The hand model a marker set names (``hand_model:``), or a one-line error about it."""
+    from handmodel import HandModel
+    from handmodel.errors import HandModelError
+
+    try:
+        return HandModel.load(name)
+    except HandModelError as err:
+        raise MarkerSetError(where, f"field hand_model: {err}") from None
 
 
 def load_markerset(name_or_path) -> MarkerSet:

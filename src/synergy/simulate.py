@@ -20,6 +20,11 @@ MOTIONS = {
     "power_grasp": ("grasp", "reach open, wrap all fingers around a cylinder, hold, release"),
     "precision_grasp": ("grasp", "thumb–index(–middle) pinch of a small object, others relaxed"),
 }
+#: Motions for calibration, not part of ``--motions all`` (they are not tasks a synergy should learn).
+CALIBRATION_MOTIONS = {
+    "rom": ("calibration", "range of motion: every joint sweeps its range at its own pace (flexion, spread, "
+                           "thumb circles), so each joint moves independently of its neighbours"),
+}
 
 
 def _smooth(t):
@@ -29,8 +34,9 @@ def _smooth(t):
 
 def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int = 0):
     """θ trajectory ``(F, 26)`` of a named procedural motion; returns ``(theta, task_label)``."""
-    if name not in MOTIONS:
-        raise SynergyError(name, f"unknown motion (known: {', '.join(MOTIONS)})")
+    known = {**MOTIONS, **CALIBRATION_MOTIONS}
+    if name not in known:
+        raise SynergyError(name, f"unknown motion (known: {', '.join(known)})")
     rng = np.random.default_rng(seed)
     F = max(int(round(duration_s * rate)), 2)
     t = np.arange(F) / rate
@@ -97,17 +103,37 @@ def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int
         th[:, col["thumb1_flex"]] = -0.95 * close
         th[:, col["thumb2_flex"]] = -0.2 * close
         th[:, col["thumb3_flex"]] = -0.3 * close
+    elif name == "rom":
+        # incommensurate frequencies: over a few seconds every pair of joints meets in many combinations
+        freq = rng.uniform(0.35, 1.1, 20) * (4.0 / duration_s) ** 0.5
+        phase = rng.random(20)
+        wave = 0.5 - 0.5 * np.cos(2 * np.pi * (freq * t[:, None] + phase))  # 0..1
+        for k, f in enumerate(("thumb",) + fingers):
+            a, f1, f2, f3 = (col[f"{f}1_abd"], col[f"{f}1_flex"], col[f"{f}2_flex"], col[f"{f}3_flex"])
+            if f == "thumb":
+                th[:, a] = -0.5 + 1.0 * wave[:, 0]
+                th[:, f1] = -0.9 * wave[:, 1] + 0.2
+                th[:, f2] = -0.8 * wave[:, 2] + 0.1
+                th[:, f3] = -1.0 * wave[:, 3] + 0.2
+            else:
+                j = 4 * k
+                th[:, a] = (0.3 - 0.15 * (k - 1)) * (2 * wave[:, j] - 1) * (1 - 0.6 * wave[:, j + 1])
+                th[:, f1] = -1.3 * wave[:, j + 1] + 0.2
+                th[:, f2] = -1.5 * wave[:, j + 2] + 0.05
+                th[:, f3] = -0.9 * wave[:, j + 3] + 0.05
     # natural variability and a moving, turning hand in the lab (metres)
     th[:, 6:] += rng.normal(0, 0.02, (1, 20)) + 0.01 * np.sin(2 * np.pi * (u[:, None] * rng.uniform(0.5, 2, 20) + rng.random(20)))
     th[:, 0:3] = [0.3, 0.2, 1.0] + 0.05 * np.sin(2 * np.pi * (u[:, None] * [0.5, 0.7, 0.3] + rng.random(3)))
     th[:, 3:6] = rng.uniform(-0.5, 0.5, 3) + 0.3 * np.sin(2 * np.pi * (u[:, None] * [0.4, 0.3, 0.5] + rng.random(3)))
-    return th, MOTIONS[name][0]
+    return th, known[name][0]
 
 
 @dataclass
 class SimulatedTrial:
     """Marker trajectories with ground truth; has the fields of :class:`synergy.c3d.MarkerData` that
-    the IK needs (``labels``, ``points`` in metres with NaN gaps, ``rate``, ``first_frame``)."""
+    the IK needs (``labels``, ``points`` in metres with NaN gaps, ``rate``, ``first_frame``).
+    ``bone_scales`` and ``marker_shift`` are the subject's truth (node → factor on top of ``scale``;
+    label → metres in the node frame, added to the marker's nominal place)."""
 
     labels: list
     points: np.ndarray
@@ -120,23 +146,60 @@ class SimulatedTrial:
     first_frame: int = 1
     path: str = ""
     residuals: np.ndarray = field(default=None)
+    bone_scales: dict = field(default_factory=dict)
+    marker_shift: dict = field(default_factory=dict)
 
 
-def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, gap_fraction=0.0, rate=100.0,
-                     seed=0, motion_name="", task=""):
-    """Markers of ``markerset`` on the (scaled) default hand following ``theta``; noise and gaps.
+def random_subject(markerset, *, bone_range=0.2, marker_shift_mm=5.0, seed=0):
+    """A subject unlike the model: every bone (including the metacarpals, i.e. the finger bases'
+    distance from the wrist) × a factor uniform in ``1 ± bone_range``, every marker moved from its
+    nominal place by up to ``marker_shift_mm`` along each axis of its node frame.
+    Returns ``(bone_scales, marker_shift)`` for :func:`simulate_markers`.
 
-    Gaps are contiguous runs (occlusions) totalling ``gap_fraction`` of each marker's samples.
+    >>> b, m = random_subject("hand16", seed=1)
+    >>> len(b), len(m), max(abs(v - 1) for v in b.values()) <= 0.2
+    (20, 16, True)
     """
     from handmodel import HandModel
 
     from .markers import MarkerSet, load_markerset
 
     ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
+    hm = HandModel.load()
+    rng = np.random.default_rng(seed)
+    bones = {hm.node_names[k]: float(1 + rng.uniform(-bone_range, bone_range)) for k in range(1, hm.n_nodes)}
+    shift = {m.label: rng.uniform(-marker_shift_mm, marker_shift_mm, 3) / 1000.0 for m in ms.markers}
+    return bones, shift
+
+
+def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, gap_fraction=0.0, rate=100.0,
+                     seed=0, motion_name="", task="", bone_scales=None, marker_shift=None):
+    """Markers of ``markerset`` on the (scaled) default hand following ``theta``; noise and gaps.
+
+    ``bone_scales`` (node → factor on top of ``scale``) and ``marker_shift`` (label → metres in the
+    node frame, labels as in the marker set before ``{side}`` is filled) make a subject whose hand
+    and marker placement differ from the model (see :func:`random_subject`); segment landmarks
+    follow the subject's bones. Gaps are contiguous runs (occlusions) totalling ``gap_fraction`` of
+    each marker's samples.
+    """
+    from handmodel import HandModel
+
+    from .markers import MarkerSet, load_markerset
+
+    ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
+    raw_labels = [m.label for m in ms.markers]
     ms = ms.for_hand(hand)
     right = hand == "right"
-    hm = HandModel.load(right=right).scaled(scale)
+    hm = HandModel.load(right=right).scaled(scale, bone_scales or {})
     nodes, local = ms.attachments(hm, right, scale=scale)
+    if marker_shift:
+        local = local.copy()
+        for i, lab in enumerate(raw_labels):
+            if lab in marker_shift:
+                d = np.asarray(marker_shift[lab], float).copy()
+                if right:
+                    d[0] = -d[0]
+                local[i] += d
     pts = hm.points(theta, nodes, local)
     rng = np.random.default_rng(seed)
     if noise_mm:
@@ -152,4 +215,5 @@ def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, 
                 todo = int(round(gap_fraction * F)) - int(np.isnan(pts[:, p, 0]).sum())
     res = np.where(np.isnan(pts[..., 0]), -1.0, 0.0)
     return SimulatedTrial(labels=[m.label for m in ms.markers], points=pts, rate=rate, theta=np.asarray(theta),
-                          task=task, motion=motion_name, scale=scale, hand=hand, residuals=res)
+                          task=task, motion=motion_name, scale=scale, hand=hand, residuals=res,
+                          bone_scales=dict(bone_scales or {}), marker_shift=dict(marker_shift or {}))

@@ -11,7 +11,8 @@ from synergy.markers import load_markerset, markerset_from_dict
 HAND = HandModel.load()
 
 
-@pytest.mark.parametrize("name,count", [("hand16", 16), ("dfki-glove13", 13), ("art-joint-centres", 21)])
+@pytest.mark.parametrize("name,count", [("hand16", 16), ("hand19", 19), ("dfki-glove13", 13),
+                                        ("art-joint-centres", 21)])
 def test_shipped_marker_sets_load(name, count):
     ms = load_markerset(name)
     assert len(ms.markers) == count
@@ -94,13 +95,34 @@ def test_malformed_marker_sets(tmp_path, mutate, msg):
 def test_unknown_joint_and_set():
     d = _doc()
     d["markers"][0]["joint"] = "elbow"
-    ms = markerset_from_dict(d, "x.yaml")
-    with pytest.raises(MarkerSetError, match="unknown joint 'elbow'"):
-        ms.attachments(HAND)
+    # a reference to a node the hand model lacks fails when the set is read, naming the marker
+    with pytest.raises(MarkerSetError, match=r"x.yaml.*marker WRR: unknown joint 'elbow'"):
+        markerset_from_dict(d, "x.yaml")
     with pytest.raises(MarkerSetError, match="no such marker set"):
         load_markerset("nope")
     with pytest.raises(MarkerSetError, match="is for the left hand"):
-        markerset_from_dict({**d, "hand": "left"}).for_hand("right")
+        markerset_from_dict({**_doc(), "hand": "left"}).for_hand("right")
+
+
+def test_hand_model_is_honoured_and_checked():
+    with pytest.raises(MarkerSetError, match="field hand_model: .*no such hand model"):
+        markerset_from_dict({**_doc(), "hand_model": "gorilla"}, "x.yaml")
+    assert markerset_from_dict({**_doc(), "hand_model": "default"}).hand_model == "default"
+    # a landmark that does not fit its node: a fingertip landmark on a joint with children
+    d = _doc()
+    d["markers"][0] = {"label": "WRR", "landmark": {"type": "fingertip", "joint": "index2"}}
+    with pytest.raises(MarkerSetError, match="fingertip landmark needs an end joint"):
+        markerset_from_dict(d, "x.yaml")
+
+
+def test_hand19_three_per_digit():
+    ms = load_markerset("hand19")
+    nodes, _ = ms.attachments(HAND)
+    names = [HAND.node_names[n] for n in nodes]
+    assert len(ms.markers) == 19 and names.count("wrist") == 4
+    for f in ("index", "middle", "ring", "pinky"):
+        assert [n for n in names if n.startswith(f)] == [f"{f}1", f"{f}2", f"{f}3"]
+    assert [n for n in names if n.startswith("thumb")] == ["thumb1", "thumb2", "thumb3"]
 
 
 def test_unseen_protocol_is_expressible():
