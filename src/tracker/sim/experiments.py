@@ -15,6 +15,7 @@ import numpy as np
 from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from handmodel.solver import SolverSettings, fit_points
+from handmodel.subspace import Subspace
 from synergy import simulate
 from synergy.pca import SynergyModel
 
@@ -218,14 +219,20 @@ def grasp_bundle(n_pcs_variance=0.99, seed=0):
                    for m in ("power_grasp", "precision_grasp") for k in range(6)])
     model = SynergyModel().fit(X)
 
-    class _B:  # the parts of synergy.bundle.Bundle the tracker uses
-        pass
+    return _InMemoryBundle(model, "simulated-grasps (in memory)", model.n_components_for(n_pcs_variance))
 
-    b = _B()
-    b.model = model
-    b.spec = "simulated-grasps (in memory)"
-    b.n_pcs = model.n_components_for(n_pcs_variance)
-    return b
+
+class _InMemoryBundle:
+    """The parts of :class:`synergy.bundle.Bundle` the tracker uses, over a model fitted in memory."""
+
+    def __init__(self, model, spec, n_pcs):
+        self.model, self.spec, self.n_pcs = model, spec, n_pcs
+
+    def subspace(self, n_components=None, hand=None):
+        """Pose DoF + the first PCs, as :meth:`synergy.bundle.Bundle.subspace` (``hand`` is required)."""
+        m = self.model
+        return Subspace.from_synergies(hand, m.all_components_, m.mean_, m.pc_min_, m.pc_max_,
+                                       n_components=m.n_components_for(n_components))
 
 
 def experiment_occlusion(hand, camera, frames=45, seed=0):
