@@ -31,23 +31,24 @@ import zipfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from functools import lru_cache
+from importlib.metadata import PackageNotFoundError, version as _dist_version
 from pathlib import Path
 from typing import Sequence
 
+import jsonschema
 import numpy as np
 
-from handmodel.fileio import atomic_write_bytes, models_dir, schema_path, sha256_file
-from synergy.errors import BundleError, SynergyError
-from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
+from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.errors import HandModelError
+from handmodel.fileio import atomic_write_bytes, load_npz, models_dir, schema_path, sha256_file
 from handmodel.model import HandModel
 from handmodel.subspace import Subspace
-from synergy.pca import SufficientStats, SynergyModel, heldout_curve
+from synergy.errors import BundleError, SynergyError
+from synergy.pca import SynergyModel
 
 __all__ = [
-    "ARRAY_NAMES", "Bundle", "BundleRef", "Trial", "arrays_sha256", "bundle_from_trials",
-    "fit_trials", "hand_model_ref", "list_bundles", "load_bundle", "next_version", "read_bundle",
-    "read_trial", "registry_paths", "save_bundle", "select_bundle",
+    "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
+    "next_version", "read_bundle", "registry_paths", "save_bundle", "select_bundle",
 ]
 
 #: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
@@ -122,8 +123,6 @@ def next_version(name: str, folder: str | os.PathLike) -> str:
 # ----------------------------------------------------------------------------- manifest helpers
 @lru_cache(maxsize=1)
 def _validator():
-    import jsonschema
-
     with open(schema_path("synergy-bundle"), encoding="utf-8") as fh:
         return jsonschema.Draft202012Validator(json.load(fh))
 
@@ -157,10 +156,8 @@ def hand_model_ref(name: str = "default", sha256: str | None = None) -> dict:
 
 
 def _generator_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
-        return version(GENERATOR)
+        return _dist_version(GENERATOR)
     except PackageNotFoundError:
         return "unknown"
 
@@ -323,7 +320,7 @@ def read_bundle(path: str | os.PathLike) -> Bundle:
     if not path.is_file():
         raise BundleError(path, "no such bundle file")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with load_npz(path, BundleError, what="bundle .npz") as z:  # bounded: declared sizes checked before unpacking
             missing = [n for n in (*ARRAY_NAMES, "manifest") if n not in z.files]
             if missing:
                 raise BundleError(path, f"missing array(s): {', '.join(missing)}")
@@ -423,153 +420,3 @@ def select_bundle(task: str, registries: Sequence[str | os.PathLike] | None = No
             f"task {task}", f"no bundle is labelled with this task (tasks: {', '.join(sorted(known)) or 'none'})"
         )
     return min(cands, key=lambda b: (len(b.tasks), -b.manifest["n_samples"], b.name))
-
-
-# ----------------------------------------------------------------------------- training data
-@dataclass(frozen=True, eq=False)
-class Trial:
-    """Posture frames of one source file (radians, F × D) with provenance."""
-
-    path: str
-    postures: np.ndarray
-    dof_names: tuple[str, ...] = POSTURE_DOF_NAMES
-    task: str | None = None
-    sha256: str | None = None
-
-    @property
-    def frames(self) -> int:
-        return int(self.postures.shape[0])
-
-    def source(self) -> dict:
-        return {"path": self.path, "sha256": self.sha256, "task": self.task, "frames": self.frames}
-
-
-FORMATS = ("auto", "csv", "schroeder26", "c3d")
-
-
-def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
-               markers: str | None = None, hand: str = "left", smooth_hz=None) -> Trial:
-    """Read the posture frames of one file.
-
-    Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
-    rows with a missing posture angle are dropped), ``schroeder26`` (whitespace table
-    of 26 columns, 7–26 are the posture), ``c3d`` (markers → angles, needs ``markers``).
-    ``auto`` picks by suffix: .csv, .txt/.dat, .c3d.
-    """
-    p = Path(path)
-    if fmt == "auto":
-        fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
-            p.suffix.lower(), "")
-        if not fmt:
-            raise SynergyError(p, "unknown file type: give the format (csv, schroeder26, c3d)")
-    if fmt not in FORMATS:
-        raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
-    if not p.is_file():
-        raise SynergyError(p, "no such file")
-    if fmt == "csv":
-        X = _read_csv_postures(p)
-    elif fmt == "schroeder26":
-        X = _read_schroeder26(p)
-    else:
-        X, stored_task = _read_c3d_postures(p, markers, hand, smooth_hz)
-        task = task or stored_task
-    return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p))
-
-
-def _postures_from_table(table, where) -> np.ndarray:
-    missing = [c for c in POSTURE_DOF_NAMES if c not in table.columns]
-    if missing:
-        raise SynergyError(where, f"missing posture column(s): {', '.join(missing)}")
-    try:
-        X = table.loc[:, list(POSTURE_DOF_NAMES)].to_numpy(dtype=float)
-    except (ValueError, TypeError) as exc:
-        raise SynergyError(where, f"non-numeric posture values ({exc})") from None
-    X = X[np.isfinite(X).all(axis=1)]  # frames where marker IK failed carry NaN
-    if X.shape[0] == 0:
-        raise SynergyError(where, "no complete posture rows")
-    return X
-
-
-def _read_csv_postures(p: Path) -> np.ndarray:
-    import pandas as pd
-
-    try:
-        table = pd.read_csv(p, comment="#", skipinitialspace=True)
-    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise SynergyError(p, f"cannot read CSV ({exc})") from None
-    return _postures_from_table(table, p)
-
-
-def _read_schroeder26(p: Path) -> np.ndarray:
-    try:
-        A = np.loadtxt(p, dtype=float, ndmin=2)
-    except (ValueError, OSError, UnicodeDecodeError) as exc:
-        raise SynergyError(p, f"cannot read whitespace table ({exc})") from None
-    n = len(POSE_DOF_NAMES) + len(POSTURE_DOF_NAMES)
-    if A.shape[1] != n or A.shape[0] == 0:
-        raise SynergyError(p, f"expected rows of {n} values (pose + posture), got shape {A.shape}")
-    if not np.isfinite(A).all():
-        raise SynergyError(p, "holds NaN or infinity")
-    return A[:, len(POSE_DOF_NAMES):]
-
-
-# >>> C3D INPUT PLUGS IN HERE ------------------------------------------------------------
-# `synergy fit mocap/*.c3d --markers hand16` reaches this function. It expects
-# `synergy.angles.markers_to_angles(c3d_path, markerset_name)` to return a joint-angle
-# table (pandas DataFrame, columns = DoF names, radians; see DESIGN.md). Adapt the call
-# below once that function exists; nothing else needs to change.
-def _read_c3d_postures(p: Path, markers: str | None, hand: str = "left", smooth_hz=None):
-    """C3D → marker IK → the frames of good quality; also the task label stored in the file, if any."""
-    if not markers:
-        raise SynergyError(p, "C3D input needs a marker set (--markers NAME)")
-    from synergy.angles import markers_to_angles
-    from synergy.c3d import read_c3d, task_from_events
-
-    data = read_c3d(p)
-    table = markers_to_angles(data, markers, hand=hand, smooth_hz=smooth_hz)
-    table = table[table["quality"] == "ok"]
-    if table.empty:
-        raise SynergyError(p, "no frame converted with good quality (check the marker set and --hand)")
-    return _postures_from_table(table, p), task_from_events(data)
-# <<< C3D INPUT ------------------------------------------------------------------------------
-
-
-def fit_trials(trials: Sequence[Trial], n_components=None, stats=None) -> SynergyModel:
-    """Fit a :class:`SynergyModel` (with PC limits) on all trials' postures; ``stats`` are the trials'
-    sufficient statistics when already computed elsewhere (e.g. as Dask tasks)."""
-    if not trials:
-        raise SynergyError(None, "no trials to fit")
-    names = trials[0].dof_names
-    for t in trials:
-        if t.dof_names != names:
-            raise SynergyError(t.path, f"DoF names differ from {trials[0].path}")
-    if stats is None:
-        stats = [SufficientStats.from_array(t.postures) for t in trials]
-    model = SufficientStats.merge_all(stats).finalize(n_components)
-    for t in trials:
-        model.update_limits(t.postures)
-    return model
-
-
-def bundle_from_trials(
-    trials: Sequence[Trial], name: str, *, n_components=None, registry=None, version=None,
-    tasks: Sequence[str] | None = None, hand_model: str = "default",
-    hand_model_sha256: str | None = None, heldout: bool = True, stats=None,
-) -> Bundle:
-    """Fit, estimate held-out reconstruction error, save and return the new bundle."""
-    model = fit_trials(trials, n_components, stats)
-    ho = None
-    if heldout:
-        try:
-            rms, method = heldout_curve([t.postures for t in trials])
-            ho = {"method": method, "rms_rad": rms.tolist()}
-        except SynergyError:
-            ho = None  # too little data to hold any out; the bundle is still valid
-    if tasks is None:
-        tasks = sorted({t.task for t in trials if t.task})
-    path = save_bundle(
-        model, name, version, registry=registry, dof_names=trials[0].dof_names, tasks=tasks,
-        sources=[t.source() for t in trials], n_trials=len(trials), hand_model=hand_model,
-        hand_model_sha256=hand_model_sha256, heldout=ho,
-    )
-    return read_bundle(path)

@@ -1,7 +1,8 @@
 """``synergy`` command line: fit, list, inspect, select, compare and plot synergy bundles.
 
-Heavy libraries (numpy, scikit-learn, pandas, matplotlib) are imported inside the
-commands so that ``synergy --help`` answers at once.
+The commands only parse, call the library (``synergy.fit``, ``synergy.bundle``, ``synergy.plots``),
+print and draw progress. Library modules (and numpy, scikit-learn, pandas, matplotlib) are imported
+inside the commands so that ``synergy --help`` answers at once.
 """
 from __future__ import annotations
 
@@ -66,9 +67,9 @@ def fit(
     """Fit synergies on posture files and save a new bundle version."""
     from rich.progress import Progress
 
-    from synergy.bundle import bundle_from_trials, read_trial
-    from synergy.errors import SynergyError, TaskMapError
-    from synergy.tasks import label_for, load_task_map
+    from synergy.errors import SynergyError
+    from synergy.fit import bundle_from_trials, group_by_task, read_trial, task_labels
+    from synergy.tasks import load_task_map
 
     _check_variance(variance)
     inputs = [*(angles or []), *(files or [])]
@@ -77,11 +78,7 @@ def fit(
     if task and tasks:
         raise SynergyError("fit", "give either --task or --tasks, not both")
     task_map = load_task_map(tasks) if tasks else None
-    labels = {}
-    for f in inputs:
-        labels[f] = task if task_map is None else label_for(f, task_map)
-        if task_map is not None and labels[f] is None:
-            raise TaskMapError(tasks, f"no rule matches {f}")
+    labels = task_labels(inputs, task, task_map)
 
     trials = []
     stats_of = {}
@@ -101,15 +98,7 @@ def fit(
                 trials.append(read_trial(f, fmt, task=labels[f], markers=markers, hand=hand, smooth_hz=smooth_hz))
                 progress.advance(bar)
 
-    groups = {name: trials}
-    if per_task:
-        unlabelled = [tr.path for tr in trials if not tr.task]
-        if unlabelled:
-            raise SynergyError(unlabelled[0], "--per-task: no task label (give --tasks map.yaml, or files that "
-                                              "carry a task:<label> event)")
-        order = list(task_map.tasks) if task_map is not None else sorted({tr.task for tr in trials})
-        groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in order}
-        groups = {k: v for k, v in groups.items() if v}
+    groups = group_by_task(trials, name, per_task=per_task, order=task_map.tasks if task_map is not None else None)
     console = _console()
     for bname, group in groups.items():
         bundle = bundle_from_trials(
@@ -273,78 +262,14 @@ def plot(
     error vs PCs if held-out data exist."""
     import numpy as np
 
-    from synergy.bundle import load_bundle, read_trial
+    from synergy.bundle import load_bundle
+    from synergy.fit import read_trial
+    from synergy.plots import bundle_figures
 
     b = load_bundle(spec, registry)
-    stem = f"{b.name}-{b.version}"
-    from synergy.plots import synergy_hands
-
-    written = [_plot_scree(b, out / f"{stem}-scree.png"), synergy_hands(b, out / f"{stem}-hands.png")]
-    curves = {}
-    if "heldout" in b.manifest:
-        curves[f"stored ({b.manifest['heldout']['method']})"] = np.degrees(b.manifest["heldout"]["rms_rad"])
-    if heldout:
-        X = np.vstack([read_trial(f, fmt).postures for f in heldout])
-        c = b.model.reconstruction_curve(X)
-        curves[f"--heldout files ({X.shape[0]} frames)"] = np.degrees(np.sqrt((c**2).mean(axis=1)))
-    if curves:
-        written.append(_plot_reconstruction(b, curves, out / f"{stem}-reconstruction.png"))
-    for p in written:
+    X = np.vstack([read_trial(f, fmt).postures for f in heldout]) if heldout else None
+    for p in bundle_figures(b, out, heldout=X):
         typer.echo(str(p))
-
-
-def _save_fig(fig, path: Path) -> Path:
-    import io
-
-    import matplotlib.pyplot as plt
-
-    from handmodel.fileio import atomic_write_bytes
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    return atomic_write_bytes(path, buf.getvalue())
-
-
-def _plot_scree(bundle, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    r = bundle.model.all_explained_variance_ratio_
-    k = np.arange(1, r.size + 1)
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
-    ax.bar(k, 100 * r, color="tab:blue", alpha=0.7, label="per PC")
-    ax.plot(k, 100 * np.cumsum(r), "o-", color="tab:red", ms=4, label="cumulative")
-    n = bundle.model.n_components_
-    ax.axvline(n + 0.5, color="0.4", ls="--", lw=1, label=f"default: {n} PCs")
-    ax.set(xlabel="principal component", ylabel="variance explained (%)", ylim=(0, 102),
-           title=f"{bundle.spec}: {bundle.manifest['n_samples']} postures", xticks=k)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="center right")
-    return _save_fig(fig, path)
-
-
-def _plot_reconstruction(bundle, curves: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import matplotlib.ticker
-    import numpy as np
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
-    for label, rms_deg in curves.items():
-        ax.plot(np.arange(len(rms_deg)), rms_deg, "o-", ms=4, label=label)
-    ax.axvline(bundle.model.n_components_, color="0.4", ls="--", lw=1, label="default PCs")
-    ax.set(xlabel="number of PCs", ylabel="held-out RMS error (deg, all DoF)",
-           title=f"{bundle.spec}: reconstruction error", ylim=(0, None))
-    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
-    ax.grid(alpha=0.3)
-    ax.legend()
-    return _save_fig(fig, path)
 
 
 from synergy import cli_mocap  # noqa: E402

@@ -1,4 +1,8 @@
-"""``synergy simulate`` and ``synergy angles``: mocap trials in, C3D or joint-angle tables out."""
+"""``synergy simulate``, ``synergy calibrate`` and ``synergy angles``: mocap trials in; C3D, a subject
+calibration or joint-angle tables out.
+
+Library modules (and numpy, pandas) are imported inside the commands so that ``synergy --help`` answers at once.
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,7 +20,55 @@ def _console(stderr: bool = False):
 def register(app, errors_exit_2) -> None:
     """Add the commands to the ``synergy`` typer app (works when cli.py runs as __main__ too)."""
     app.command()(errors_exit_2(simulate))
+    app.command()(errors_exit_2(calibrate))
     app.command()(errors_exit_2(angles))
+
+
+def fit_table(title, columns, rows, *, wrap_first=True):
+    """A rich table that fits the terminal (80 columns at least): numbers are never cut; the
+    first column (names) folds onto more lines, headers wrap."""
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left", pad_edge=False, collapse_padding=True)
+    for i, c in enumerate(columns):
+        if i == 0 and wrap_first:
+            table.add_column(c, overflow="fold", ratio=1, min_width=8)
+        else:
+            table.add_column(c, justify="right", no_wrap=True)
+    for r in rows:
+        table.add_row(*map(str, r))
+    return table
+
+
+def describe_trial(name, df) -> list:
+    """Lines a user reads under the summary table: calibration as estimated, the worst markers,
+    joints on limits, the handedness check, warnings."""
+    import numpy as np
+
+    d = df.attrs.get("diagnostics", {})
+    cal = df.attrs.get("calibration", {})
+    out = [f"[bold]{name}[/bold] ({d.get('verdict', '?')}): noise floor {d.get('noise_floor_mm', float('nan')):.2f} mm, "
+           f"poor above {d.get('poor_threshold_mm', float('nan')):.2f} mm"]
+    line = f"  calibration: {cal.get('method', 'none')}, hand scale {cal.get('scale', 1.0):.3f}"
+    if cal.get("bone_scales"):
+        f = np.array([v * cal.get("scale", 1.0) for v in cal["bone_scales"].values()])
+        line += f", bones {f.min():.2f}–{f.max():.2f}× the model"
+    h = cal.get("held_out") or {}
+    if h.get("frames"):
+        line += (f"; held-out residual {h['residual_mm']:.2f} mm (scale only "
+                 f"{h['scale_only_residual_mm']:.2f} mm)")
+    out.append(line)
+    mr = d.get("marker_residuals_mm", {})
+    if mr:
+        worst = sorted(mr.items(), key=lambda kv: -(kv[1][0] or 0))[:4]
+        out.append("  worst markers (median/95th mm): " + ", ".join(f"{k} {v[0]:.1f}/{v[1]:.1f}" for k, v in worst))
+    hc = d.get("handedness")
+    if hc:
+        out.append(f"  hand check: {hc['chosen']} {hc['residual_mm']:.2f} mm, other hand {hc['other_residual_mm']:.2f} mm"
+                   f" ({hc['verdict']})")
+    for w in d.get("warnings", []):
+        out.append(f"  [yellow]warning:[/yellow] {w}")
+    return out
 
 
 def simulate(
@@ -30,6 +82,8 @@ def simulate(
     noise_mm: float = typer.Option(0.3, "--noise-mm", help="Marker noise σ (mm)."),
     gaps: float = typer.Option(0.02, "--gaps", help="Fraction of each marker's samples lost in occlusion gaps."),
     scale: float = typer.Option(1.0, "--scale", help="Subject's hand size relative to the default hand."),
+    bone_range: float = typer.Option(0.0, "--bone-range", help="Each bone × a random factor in 1 ± this."),
+    marker_shift_mm: float = typer.Option(0.0, "--marker-shift-mm", help="Move each marker up to this far (mm, per axis) from its nominal place."),
     units: str = typer.Option("mm", "--units", help="C3D length unit: mm, cm or m."),
     prefix: str = typer.Option("Sim", "--prefix", help="Subject prefix of the labels ('' for none)."),
     seed: int = typer.Option(0, "--seed"),
@@ -39,18 +93,20 @@ def simulate(
     import pandas as pd
     import yaml
     from rich.progress import Progress
-    from rich.table import Table
 
     from handmodel import HandModel
     from handmodel.fileio import atomic_write_text
     from synergy.c3d import TASK_EVENT, write_c3d
     from synergy.errors import SynergyError
-    from synergy.simulate import MOTIONS, motion, simulate_markers
+    from synergy.simulate import CALIBRATION_MOTIONS, MOTIONS, motion, random_subject, simulate_markers
 
+    known = {**MOTIONS, **CALIBRATION_MOTIONS}
     names = list(MOTIONS) if motions == "all" else [m.strip() for m in motions.split(",") if m.strip()]
     for n in names:
-        if n not in MOTIONS:
-            raise SynergyError(n, f"unknown motion (known: {', '.join(MOTIONS)})")
+        if n not in known:
+            raise SynergyError(n, f"unknown motion (known: {', '.join(known)})")
+    bones, shift = (random_subject(markers, bone_range=bone_range, marker_shift_mm=marker_shift_mm, seed=seed)
+                    if bone_range or marker_shift_mm else (None, None))
     if units not in ("mm", "cm", "m"):
         raise SynergyError("--units", f"must be mm, cm or m, got {units!r}")
     if trials < 1 or duration <= 0 or rate <= 0:
@@ -58,14 +114,15 @@ def simulate(
     dof = HandModel.load().dof_names
     rows = []
     task_rules = []
-    with Progress(console=_console(stderr=True), transient=True) as progress:
+    with Progress(console=(c := _console(stderr=True)), transient=True, disable=not c.is_terminal) as progress:
         bar = progress.add_task("simulating", total=len(names) * trials)
         for n in names:
             for k in range(trials):
-                s = seed * 1000 + names.index(n) * 100 + k
+                s = seed * 1000 + list(known).index(n) * 100 + k
                 th, task = motion(n, duration_s=duration, rate=rate, seed=s)
                 tr = simulate_markers(th, markers, hand=hand, scale=scale, noise_mm=noise_mm, gap_fraction=gaps,
-                                      rate=rate, seed=s + 7, motion_name=n, task=task)
+                                      rate=rate, seed=s + 7, motion_name=n, task=task, bone_scales=bones,
+                                      marker_shift=shift)
                 stem = f"{n}_{k + 1:02d}"
                 path = out / f"{stem}.c3d"
                 if path.exists():
@@ -81,12 +138,63 @@ def simulate(
                 task_rules.append({"glob": f"{stem}.c3d", "task": task})
                 progress.advance(bar)
     atomic_write_text(out / "tasks.yaml", yaml.safe_dump({"rules": task_rules}, sort_keys=False), overwrite=True)
-    table = Table(title=f"simulated {len(rows)} trials → {out}")
-    for c in ("file", "motion", "task", "frames", "gap %"):
-        table.add_column(c)
-    for r in rows:
-        table.add_row(*map(str, r))
-    _console().print(table)
+    _console().print(fit_table(f"simulated {len(rows)} trials → {out}", ("file", "motion", "task", "frames", "gap %"),
+                               rows))
+
+
+def calibrate(
+    trial: Path = typer.Argument(..., help="Range-of-motion trial (C3D) to calibrate on (or the trial itself)."),
+    markers: str = typer.Option(..., "--markers", help="Marker set name or YAML file."),
+    hand: str = typer.Option("left", "--hand", help="left or right."),
+    out: Path = typer.Option(..., "-o", "--out", help="Subject calibration YAML (never overwritten)."),
+    static: Optional[Path] = typer.Option(None, "--static", help="Static trial in the flat-hand posture, fitted together with TRIAL."),
+    frames: int = typer.Option(150, "--frames", help="Calibration frames sampled from the trial."),
+    held_out: float = typer.Option(0.25, "--held-out", help="Share of frames held out to check the calibration."),
+    force: bool = typer.Option(False, "--force", help="Write the calibration even if the held-out check fails."),
+):
+    """Estimate the subject's bone lengths, finger bases and marker places (synergy angles/fit --subject)."""
+    from handmodel import HandModel
+    from synergy.c3d import read_c3d
+    from synergy.calibrate import calibrate as run, save_calibration
+    from synergy.errors import SynergyError
+    from synergy.markers import load_markerset
+
+    if out.exists():
+        raise SynergyError(out, "exists and is never overwritten (choose another -o)")
+    ms = load_markerset(markers)
+    msh = ms.for_hand(hand)
+    base = HandModel.load(ms.hand_model, right=hand == "right")
+    data = read_c3d(trial)
+    st = read_c3d(static) if static is not None else None
+    with _console(stderr=True).status("calibrating"):
+        cal = run(data, msh, base, right=hand == "right", frames=frames, held_out=held_out, static=st)
+    con = _console()
+    con.print(f"[bold]{trial.name}[/bold]: {cal.method}")
+    rows = [("hand scale", f"{cal.scale:.3f}", "")]
+    unc = cal.uncertainty
+    for k, v in cal.bone_scales.items():
+        sd = unc.get("bone_scales", {}).get(k)
+        rows.append((f"bone to {k}", f"{v * cal.scale:.3f}", f"{sd * cal.scale:.3f}" if sd is not None else ""))
+    for k, v in cal.joint_positions.items():
+        sd = unc.get("joint_positions_mm", {}).get(k)
+        rows.append((f"{k} on palm (mm)", " ".join(f"{1000 * x:.1f}" for x in v),
+                     f"{max(sd):.1f}" if sd else ""))
+    for k, v in cal.marker_shift_mm.items():
+        sd = unc.get("offsets_mm", {}).get(k)
+        rows.append((f"marker {k} moved (mm)", f"{v:.1f}", f"{max(sd):.1f}" if sd else ""))
+    con.print(fit_table("estimated (× the model; SD)", ("what", "estimate", "SD"), rows))
+    h = cal.held_out
+    if h.get("frames"):
+        con.print(f"fit on {h['train_frames']} frames: residual {h['train_residual_mm']:.2f} mm; held out "
+                  f"{h['frames']} frames: {h['residual_mm']:.2f} mm (hand scale only: "
+                  f"{h['scale_only_residual_mm']:.2f} mm)")
+    for w in cal.warnings:
+        _console(stderr=True).print(f"warning: {w}")
+    if cal.overfit and not force:
+        raise SynergyError(trial, "calibration failed its held-out check (not written; record a longer range "
+                                  "of motion, add --static, or --force)")
+    save_calibration(cal, out)
+    con.print(f"wrote {out}")
 
 
 def angles(
@@ -95,20 +203,22 @@ def angles(
     hand: str = typer.Option("left", "--hand", help="left or right."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: one CSV per trial (never overwritten)."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="Low-pass the markers (Hz) before IK."),
-    static: Optional[Path] = typer.Option(None, "--static", help="Calibrate on this static trial instead of each trial."),
+    subject: Optional[Path] = typer.Option(None, "--subject", help="Subject calibration from 'synergy calibrate'."),
+    static: Optional[Path] = typer.Option(None, "--static", help="Calibrate (hand scale) on this static trial instead of each trial."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Use the model as it is."),
+    plot: bool = typer.Option(False, "--plot", help="Also write a PNG per trial: angles and per-marker residuals."),
+    no_hand_check: bool = typer.Option(False, "--no-hand-check", help="Convert even if the other hand fits clearly better."),
 ):
     """Convert C3D trials to joint-angle tables (marker IK), with a summary per trial."""
     import time
 
     import numpy as np
     from rich.progress import Progress
-    from rich.table import Table
 
     from handmodel import HandModel
     from synergy.angles import markers_to_angles, write_angles_csv
     from synergy.c3d import read_c3d
-    from synergy.calibrate import calibrate
+    from synergy.calibrate import calibrate as run, load_calibration
     from synergy.errors import SynergyError
     from synergy.markers import load_markerset
 
@@ -117,14 +227,18 @@ def angles(
     for f, dst in targets:
         if dst.exists():
             raise SynergyError(dst, "exists and is never overwritten (choose another -o)")
+    if sum(x is not None for x in (subject, static)) + no_calibration > 1:
+        raise SynergyError("angles", "give at most one of --subject, --static and --no-calibration")
     cal = "trial"
     if no_calibration:
         cal = None
+    elif subject is not None:
+        cal = load_calibration(subject)
     elif static is not None:
-        cal = calibrate(read_c3d(static), ms.for_hand(hand), HandModel.load(right=hand == "right"),
-                        right=hand == "right")
+        cal = run(read_c3d(static), ms.for_hand(hand), HandModel.load(ms.hand_model, right=hand == "right"),
+                  right=hand == "right", subject=False)
         cal.source = str(static)
-    rows = []
+    rows, notes = [], []
     failed = 0
     with Progress(console=_console(stderr=True), transient=True) as progress:
         bar = progress.add_task("converting", total=len(files))
@@ -133,25 +247,72 @@ def angles(
             try:
                 data = read_c3d(f)
                 t0 = time.perf_counter()
-                df = markers_to_angles(data, ms, hand=hand, calibration=cal, smooth_hz=smooth_hz)
+                df = markers_to_angles(data, ms, hand=hand, calibration=cal, smooth_hz=smooth_hz,
+                                       check_hand=None if no_hand_check else "stop")
                 dt = time.perf_counter() - t0
                 write_angles_csv(df, dst)
+                if plot:
+                    plot_trial(df, dst.with_suffix(".png"))
             except SynergyError as err:  # one bad trial does not stop the others
                 _console(stderr=True).print(f"error: {err}")
                 failed += 1
                 progress.advance(bar)
                 continue
             r = df["residual_mm"].to_numpy()
-            rows.append((f.name, len(df), f"{100 * df.attrs['gap_fraction']:.1f}",
-                         f"{np.nanmedian(r):.2f}", f"{np.nanpercentile(r, 95):.2f}",
-                         f"{100 * (df['quality'] == 'ok').mean():.1f}", f"{df.attrs['calibration']['scale']:.3f}",
-                         f"{len(df) / dt:,.0f}"))
+            d = df.attrs["diagnostics"]
+            rows.append((f.name, len(df), f"{100 * df.attrs['gap_fraction']:.1f}", f"{np.nanmedian(r):.2f}",
+                         f"{np.nanpercentile(r, 95):.2f}", f"{100 * (df['quality'] == 'ok').mean():.1f}",
+                         d["verdict"], f"{len(df) / dt:,.0f}"))
+            notes += describe_trial(f.name, df)
             progress.advance(bar)
-    table = Table(title=f"marker IK ({ms.name}, {hand} hand) → {out}")
-    for c in ("trial", "frames", "gap %", "residual median mm", "residual 95th mm", "ok %", "hand scale", "frames/s"):
-        table.add_column(c, justify="right")
-    for r in rows:
-        table.add_row(*map(str, r))
-    _console().print(table)
+    con = _console()
+    con.print(fit_table(f"marker IK ({ms.name}, {hand} hand) → {out}",
+                        ("trial", "frames", "gap %", "res. med mm", "res. 95th mm", "ok %", "verdict", "frames/s"),
+                        rows))
+    for line in notes:
+        con.print(line)
     if failed:
         raise typer.Exit(2)
+
+
+def plot_trial(df, path: Path) -> Path:
+    """PNG of a converted trial: the 20 joint angles over time (one panel per digit) and each
+    marker's residual (median and 95th percentile); written atomically, never overwritten."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from handmodel.fileio import atomic_path
+    from synergy.errors import SynergyError
+
+    if path.exists():
+        raise SynergyError(path, "exists and is never overwritten (choose another -o)")
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7), constrained_layout=True)
+    t = df["time_s"].to_numpy()
+    for ax, f in zip(axes.flat[:5], ("thumb", "index", "middle", "ring", "pinky")):
+        for c in ("1_abd", "1_flex", "2_flex", "3_flex"):
+            ax.plot(t, np.degrees(df[f"{f}{c}"].to_numpy()), lw=1, label=c)
+        poor = df["quality"].to_numpy() != "ok"
+        if poor.any():
+            ax.plot(t[poor], np.zeros(poor.sum()), "|", color="red", ms=8, label="poor/gap")
+        ax.set_title(f)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("angle (°)")
+        ax.legend(fontsize=7, loc="lower left")
+    ax = axes.flat[5]
+    mr = df.attrs.get("diagnostics", {}).get("marker_residuals_mm", {})
+    labels = list(mr)
+    ax.bar(range(len(labels)), [mr[k][1] for k in labels], color="0.8", label="95th percentile")
+    ax.bar(range(len(labels)), [mr[k][0] for k in labels], color="C0", label="median")
+    ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=7)
+    ax.set_ylabel("marker residual (mm)")
+    ax.legend(fontsize=7)
+    d = df.attrs.get("diagnostics", {})
+    fig.suptitle(f"{Path(df.attrs.get('source', '')).name}: {d.get('verdict', '')}, noise floor "
+                 f"{d.get('noise_floor_mm') or float('nan'):.2f} mm")
+    with atomic_path(path, overwrite=False) as tmp:
+        fig.savefig(tmp, dpi=80, format="png")
+    plt.close(fig)
+    return path

@@ -1,30 +1,45 @@
-"""Pictures of synergies: the hand at μ − 2σ, μ and μ + 2σ along the first principal components
-(the paper's Fig. 6)."""
+"""Pictures of a synergy bundle: the scree / cumulative-variance chart, the hand at μ − 2σ, μ and μ + 2σ
+along the first principal components (the paper's Fig. 6) and the reconstruction error against the
+number of PCs. Each function writes one PNG (atomically) and returns its path.
+
+Figures are built on matplotlib's object API with an Agg canvas, so nothing here touches pyplot's
+global state or the user's backend.
+"""
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
+import mpl_toolkits.mplot3d  # noqa: F401  (registers the "3d" projection)
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from handmodel.fileio import atomic_write_bytes
+from handmodel.model import HandModel
+from handmodel.plots import draw_mesh
 
 
-def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="default"):
+def _figure(**kw) -> Figure:
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save_png(fig: Figure, path, dpi: int) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="default") -> Path:
     """A grid of shaded hand meshes: one row per PC, one column per multiple of σ."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from handmodel import HandModel
-    from handmodel.fileio import atomic_write_bytes
-    from handmodel.plots import draw_mesh
-
     hand = HandModel.load(hand_model)
     m = bundle.model
     k = min(n_pcs, m.all_components_.shape[0])
     mesh = hand.mesh()
-    fig = plt.figure(figsize=(2.6 * len(sigmas), 2.5 * k))
+    fig = _figure(figsize=(2.6 * len(sigmas), 2.5 * k))
     for r in range(k):
         for c, s in enumerate(sigmas):
             th = np.zeros(hand.n_dofs)
@@ -36,7 +51,60 @@ def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="de
                          if c == 0 else ("μ" if s == 0 else f"μ {s:+g}σ"), fontsize=8)
     fig.suptitle(f"{bundle.name}@{bundle.version}: synergies (hand at μ ± 2σ)", fontsize=10)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return atomic_write_bytes(Path(path), buf.getvalue())
+    return _save_png(fig, path, dpi=90)
+
+
+def scree_plot(bundle, path) -> Path:
+    """Variance explained per PC (bars) and cumulative (line), with the bundle's default PC count."""
+    r = bundle.model.all_explained_variance_ratio_
+    k = np.arange(1, r.size + 1)
+    fig = _figure(figsize=(6.4, 4.0), layout="constrained")
+    ax = fig.subplots()
+    ax.bar(k, 100 * r, color="tab:blue", alpha=0.7, label="per PC")
+    ax.plot(k, 100 * np.cumsum(r), "o-", color="tab:red", ms=4, label="cumulative")
+    n = bundle.model.n_components_
+    ax.axvline(n + 0.5, color="0.4", ls="--", lw=1, label=f"default: {n} PCs")
+    ax.set(xlabel="principal component", ylabel="variance explained (%)", ylim=(0, 102),
+           title=f"{bundle.spec}: {bundle.manifest['n_samples']} postures", xticks=k)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="center right")
+    return _save_png(fig, path, dpi=120)
+
+
+def reconstruction_curves(bundle, heldout=None) -> dict[str, np.ndarray]:
+    """Label → RMS reconstruction error (degrees, all DoF pooled) for k = 0..D PCs: the curve stored
+    in the manifest (if any) and that of ``heldout`` postures (N × D, if given)."""
+    curves = {}
+    if "heldout" in bundle.manifest:
+        curves[f"stored ({bundle.manifest['heldout']['method']})"] = np.degrees(bundle.manifest["heldout"]["rms_rad"])
+    if heldout is not None:
+        c = bundle.model.reconstruction_curve(heldout)
+        curves[f"--heldout files ({heldout.shape[0]} frames)"] = np.degrees(np.sqrt((c**2).mean(axis=1)))
+    return curves
+
+
+def reconstruction_plot(bundle, curves: dict, path) -> Path:
+    """The curves of :func:`reconstruction_curves` against the number of PCs."""
+    fig = _figure(figsize=(6.4, 4.0), layout="constrained")
+    ax = fig.subplots()
+    for label, rms_deg in curves.items():
+        ax.plot(np.arange(len(rms_deg)), rms_deg, "o-", ms=4, label=label)
+    ax.axvline(bundle.model.n_components_, color="0.4", ls="--", lw=1, label="default PCs")
+    ax.set(xlabel="number of PCs", ylabel="held-out RMS error (deg, all DoF)",
+           title=f"{bundle.spec}: reconstruction error", ylim=(0, None))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save_png(fig, path, dpi=120)
+
+
+def bundle_figures(bundle, out, heldout=None) -> list[Path]:
+    """Scree, hands and (when any held-out data exist) reconstruction PNGs of ``bundle`` in folder
+    ``out``, named ``<name>-<version>-<kind>.png``; ``heldout`` are extra held-out postures (N × D)."""
+    out = Path(out)
+    stem = f"{bundle.name}-{bundle.version}"
+    written = [scree_plot(bundle, out / f"{stem}-scree.png"), synergy_hands(bundle, out / f"{stem}-hands.png")]
+    curves = reconstruction_curves(bundle, heldout)
+    if curves:
+        written.append(reconstruction_plot(bundle, curves, out / f"{stem}-reconstruction.png"))
+    return written

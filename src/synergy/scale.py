@@ -4,12 +4,11 @@ same as a local fit (``synergy fit … --dask local[:N]|ADDRESS``). Needs the op
 from __future__ import annotations
 
 from .errors import SynergyError
+from .fit import read_trial
+from .pca import SufficientStats
 
 
 def _convert(path, fmt, task, markers, hand, smooth_hz):
-    from .bundle import read_trial
-    from .pca import SufficientStats
-
     trial = read_trial(path, fmt, task=task, markers=markers, hand=hand, smooth_hz=smooth_hz)
     return trial, SufficientStats.from_array(trial.postures).as_arrays()
 
@@ -17,7 +16,7 @@ def _convert(path, fmt, task, markers, hand, smooth_hz):
 def client_for(address: str):
     """A ``distributed.Client`` for ``local`` / ``local:N`` (a LocalCluster of N worker processes) or a
     scheduler address; returns ``(client, cluster_or_None)``."""
-    try:
+    try:  # an optional extra: imported only when asked for
         from distributed import Client, LocalCluster
     except ImportError:
         raise SynergyError("--dask", "dask is not installed (pip install 'synergistic-hand-tracking[dask]')") from None
@@ -33,8 +32,6 @@ def client_for(address: str):
 
 def read_trials_dask(files, fmt, labels, *, markers=None, hand="left", smooth_hz=None, address="local", client=None):
     """Convert ``files`` as Dask tasks; returns ``(trials, stats)`` in the order of ``files``."""
-    from .pca import SufficientStats
-
     own = None
     if client is None:
         client, own = client_for(address)

@@ -1,4 +1,5 @@
-"""Tests of synergy.bundle (files, registries, readers) and of the ``synergy`` CLI."""
+"""Tests of synergy.bundle (files, registries), synergy.fit / synergy.postures (readers, fitting) and of
+the ``synergy`` CLI."""
 from __future__ import annotations
 
 import io
@@ -19,17 +20,16 @@ from synergy.bundle import (
     ARRAY_NAMES,
     Bundle,
     arrays_sha256,
-    fit_trials,
     list_bundles,
     load_bundle,
     read_bundle,
-    read_trial,
     registry_paths,
     save_bundle,
     select_bundle,
 )
 from synergy.cli import app
 from synergy.errors import BundleError, SynergyError
+from synergy.fit import fit_trials, read_trial
 from handmodel import HandModel
 from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
 from handmodel.subspace import Subspace
@@ -457,3 +457,51 @@ def test_shipped_bundle_command(reg):
     np.testing.assert_allclose(cum[[0, 2, 5]], [0.713, 0.854, 0.968], atol=1e-3)
     assert b.manifest["n_samples"] == 6000 and b.model.n_components_ == 10
     assert "71.3 %" in r.stdout and "85.4 %" in r.stdout and "96.8 %" in r.stdout
+
+
+# ----------------------------------------------------------------------------- module boundaries
+def test_bundle_module_does_not_pull_in_marker_ik():
+    code = ("import sys, synergy.bundle; print(sorted(m for m in ('synergy.c3d', 'synergy.angles', 'synergy.fit', "
+            "'synergy.markers', 'handmodel.solver') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_read_schroeder26_errors_name_the_file(tmp_path):
+    from synergy.postures import read_schroeder26
+
+    ok = tmp_path / "ok.txt"
+    full = np.hstack([np.ones((4, 6)), postures(4)])
+    np.savetxt(ok, full)
+    np.testing.assert_array_equal(read_schroeder26(ok), full[:, 6:])
+    cases = {"missing.txt": (None, "no such file"), "short.txt": ("1 2 3\n", "expected rows of 26 values"),
+             "text.txt": ("a " * 26 + "\n", "cannot read"), "nan.txt": (" ".join(["nan"] * 26) + "\n", "NaN"),
+             "empty.txt": ("", "expected rows of 26 values")}
+    for name, (content, fragment) in cases.items():
+        p = tmp_path / name
+        if content is not None:
+            p.write_text(content)
+        with pytest.raises(SynergyError) as info:
+            read_schroeder26(p)
+        msg = str(info.value)
+        assert msg.startswith(f"{p}: ") and fragment in msg and "\n" not in msg, (name, msg)
+
+
+def test_task_labels_and_per_task_groups(tmp_path):
+    from synergy.errors import TaskMapError
+    from synergy.fit import Trial, group_by_task, task_labels
+    from synergy.tasks import task_map_from_rules
+
+    files = [Path("grasp/a.csv"), Path("free/b.csv"), Path("grasp/c.csv")]
+    assert task_labels(files, "x") == dict.fromkeys(files, "x")
+    tm = task_map_from_rules([{"glob": "grasp/*.csv", "task": "grasp"}, {"glob": "free/*", "task": "free"}], "m.yaml")
+    assert list(task_labels(files, task_map=tm).values()) == ["grasp", "free", "grasp"]
+    with pytest.raises(TaskMapError, match=r"^m.yaml: no rule matches other/d.csv"):
+        task_labels([*files, Path("other/d.csv")], task_map=tm)
+    trials = [Trial(str(f), postures(5), task=t) for f, t in zip(files, ["grasp", "free", "grasp"])]
+    assert group_by_task(trials, "n") == {"n": trials}
+    groups = group_by_task(trials, "n", per_task=True, order=["grasp", "sign", "free"])
+    assert list(groups) == ["n-grasp", "n-free"] and [t.path for t in groups["n-grasp"]] == ["grasp/a.csv", "grasp/c.csv"]
+    assert list(group_by_task(trials, "n", per_task=True)) == ["n-free", "n-grasp"]
+    with pytest.raises(SynergyError, match="no task label"):
+        group_by_task([*trials, Trial("u.csv", postures(5))], "n", per_task=True)

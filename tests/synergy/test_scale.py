@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from synergy.bundle import fit_trials, load_bundle, read_trial
+from synergy.bundle import load_bundle
 from synergy.cli import app
+from synergy.fit import fit_trials, read_trial
 
 distributed = pytest.importorskip("distributed", reason="the optional dask extra is not installed")
 

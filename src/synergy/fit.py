@@ -1,0 +1,167 @@
+"""Fitting synergies from trials: files (angle tables, schroeder26 postures, C3D) → trials →
+sufficient statistics → a new bundle, optionally one bundle per task.
+
+Examples
+--------
+>>> import numpy as np, tempfile, os
+>>> folder = tempfile.mkdtemp()
+>>> rng = np.random.default_rng(0)
+>>> for i in range(2):
+...     np.savetxt(os.path.join(folder, f"t{i}.txt"), rng.normal(size=(60, 26)) * 0.1)
+>>> trials = [read_trial(os.path.join(folder, f"t{i}.txt"), task="grasp") for i in range(2)]
+>>> b = bundle_from_trials(trials, "demo", n_components=0.9, registry=folder)
+>>> b.spec, b.manifest["n_trials"], b.manifest["heldout"]["method"]
+('demo@1.0.0', 2, 'leave-one-trial-out')
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from handmodel.dofs import POSTURE_DOF_NAMES
+from handmodel.fileio import sha256_file
+from synergy.angles import markers_to_angles
+from synergy.bundle import Bundle, read_bundle, save_bundle
+from synergy.c3d import read_c3d, task_from_events
+from synergy.errors import SynergyError, TaskMapError
+from synergy.pca import SufficientStats, SynergyModel, heldout_curve
+from synergy.postures import postures_from_table, read_csv_postures, read_schroeder26
+from synergy.tasks import TaskMap, label_for
+
+__all__ = ["FORMATS", "Trial", "bundle_from_trials", "fit_trials", "group_by_task", "read_trial", "task_labels"]
+
+#: Input formats of :func:`read_trial` (``auto`` picks by suffix).
+FORMATS = ("auto", "csv", "schroeder26", "c3d")
+
+
+@dataclass(frozen=True, eq=False)
+class Trial:
+    """Posture frames of one source file (radians, F × D) with provenance."""
+
+    path: str
+    postures: np.ndarray
+    dof_names: tuple[str, ...] = POSTURE_DOF_NAMES
+    task: str | None = None
+    sha256: str | None = None
+
+    @property
+    def frames(self) -> int:
+        return int(self.postures.shape[0])
+
+    def source(self) -> dict:
+        """The manifest's record of this trial: ``{path, sha256, task, frames}``."""
+        return {"path": self.path, "sha256": self.sha256, "task": self.task, "frames": self.frames}
+
+
+def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
+               markers: str | None = None, hand: str = "left", smooth_hz=None) -> Trial:
+    """Read the posture frames of one file.
+
+    Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
+    rows with a missing posture angle are dropped), ``schroeder26`` (whitespace table
+    of 26 columns, 7–26 are the posture), ``c3d`` (markers → angles, needs ``markers``).
+    ``auto`` picks by suffix: .csv, .txt/.dat, .c3d.
+    """
+    p = Path(path)
+    if fmt == "auto":
+        fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
+            p.suffix.lower(), "")
+        if not fmt:
+            raise SynergyError(p, "unknown file type: give the format (csv, schroeder26, c3d)")
+    if fmt not in FORMATS:
+        raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
+    if not p.is_file():
+        raise SynergyError(p, "no such file")
+    if fmt == "csv":
+        X = read_csv_postures(p)
+    elif fmt == "schroeder26":
+        X = read_schroeder26(p)
+    else:
+        X, stored_task = _read_c3d_postures(p, markers, hand, smooth_hz)
+        task = task or stored_task
+    return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p))
+
+
+def _read_c3d_postures(p: Path, markers: str | None, hand: str = "left", smooth_hz=None):
+    """C3D → marker IK → the frames of good quality; also the task label stored in the file, if any."""
+    if not markers:
+        raise SynergyError(p, "C3D input needs a marker set (--markers NAME)")
+    data = read_c3d(p)
+    table = markers_to_angles(data, markers, hand=hand, smooth_hz=smooth_hz)
+    table = table[table["quality"] == "ok"]
+    if table.empty:
+        raise SynergyError(p, "no frame converted with good quality (check the marker set and --hand)")
+    return postures_from_table(table, p), task_from_events(data)
+
+
+def task_labels(files: Sequence, task: str | None = None, task_map: TaskMap | None = None) -> dict:
+    """``file -> task label``: ``task`` for every file, or the first matching rule of ``task_map``
+    (a file no rule matches is an error: a silent ``None`` would drop it from ``--per-task``)."""
+    if task_map is None:
+        return {f: task for f in files}
+    labels = {}
+    for f in files:
+        labels[f] = label_for(f, task_map)
+        if labels[f] is None:
+            raise TaskMapError(task_map.source or "task map", f"no rule matches {f}")
+    return labels
+
+
+def group_by_task(trials: Sequence[Trial], name: str, *, per_task: bool = False,
+                  order: Sequence[str] | None = None) -> dict[str, list[Trial]]:
+    """Bundle name → its trials: all under ``name``, or with ``per_task`` one ``NAME-TASK`` group per
+    task label (in ``order``, default sorted), empty groups left out."""
+    if not per_task:
+        return {name: list(trials)}
+    unlabelled = [tr.path for tr in trials if not tr.task]
+    if unlabelled:
+        raise SynergyError(unlabelled[0], "--per-task: no task label (give --tasks map.yaml, or files that "
+                                          "carry a task:<label> event)")
+    order = list(order) if order is not None else sorted({tr.task for tr in trials})
+    groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in order}
+    return {k: v for k, v in groups.items() if v}
+
+
+def fit_trials(trials: Sequence[Trial], n_components=None, stats=None) -> SynergyModel:
+    """Fit a :class:`SynergyModel` (with PC limits) on all trials' postures; ``stats`` are the trials'
+    sufficient statistics when already computed elsewhere (e.g. as Dask tasks)."""
+    if not trials:
+        raise SynergyError(None, "no trials to fit")
+    names = trials[0].dof_names
+    for t in trials:
+        if t.dof_names != names:
+            raise SynergyError(t.path, f"DoF names differ from {trials[0].path}")
+    if stats is None:
+        stats = [SufficientStats.from_array(t.postures) for t in trials]
+    model = SufficientStats.merge_all(stats).finalize(n_components)
+    for t in trials:
+        model.update_limits(t.postures)
+    return model
+
+
+def bundle_from_trials(
+    trials: Sequence[Trial], name: str, *, n_components=None, registry=None, version=None,
+    tasks: Sequence[str] | None = None, hand_model: str = "default",
+    hand_model_sha256: str | None = None, heldout: bool = True, stats=None,
+) -> Bundle:
+    """Fit, estimate held-out reconstruction error, save and return the new bundle."""
+    model = fit_trials(trials, n_components, stats)
+    ho = None
+    if heldout:
+        try:
+            rms, method = heldout_curve([t.postures for t in trials])
+            ho = {"method": method, "rms_rad": rms.tolist()}
+        except SynergyError:
+            ho = None  # too little data to hold any out; the bundle is still valid
+    if tasks is None:
+        tasks = sorted({t.task for t in trials if t.task})
+    path = save_bundle(
+        model, name, version, registry=registry, dof_names=trials[0].dof_names, tasks=tasks,
+        sources=[t.source() for t in trials], n_trials=len(trials), hand_model=hand_model,
+        hand_model_sha256=hand_model_sha256, heldout=ho,
+    )
+    return read_bundle(path)
