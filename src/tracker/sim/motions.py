@@ -27,6 +27,8 @@ import pandas as pd
 
 from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
+from synergy import postures as synergy_postures
+from synergy.errors import SynergyError
 
 from ..errors import TrackerError
 
@@ -267,19 +269,12 @@ def from_table(table, *, hand=None, fps: float = 30.0, path: GlobalPath | None =
 
 
 def read_schroeder26(path) -> np.ndarray:
-    """The 20 posture columns (7–26) of a schroeder26 posture file, ``(F, 20)`` radians."""
-    p = Path(path)
-    if not p.is_file():
-        raise TrackerError(p, "no such file")
+    """The 20 posture columns (7–26) of a schroeder26 posture file, ``(F, 20)`` radians
+    (:func:`synergy.postures.read_schroeder26`, failing with a :class:`~tracker.errors.TrackerError`)."""
     try:
-        A = np.loadtxt(p, dtype=float, ndmin=2)
-    except (ValueError, OSError, UnicodeDecodeError) as exc:
-        raise TrackerError(p, f"cannot read whitespace table ({exc})") from None
-    if A.shape[0] == 0 or A.shape[1] != N_POSE + 20:
-        raise TrackerError(p, f"expected rows of 26 values (pose + posture), got shape {A.shape}")
-    if not np.isfinite(A).all():
-        raise TrackerError(p, "holds NaN or infinity")
-    return A[:, N_POSE:]
+        return synergy_postures.read_schroeder26(path)
+    except SynergyError as exc:
+        raise TrackerError(exc.where, exc.reason) from None
 
 
 def from_postures_file(file, *, hand=None, fps: float = 30.0, path: GlobalPath | None = None,
