@@ -10,7 +10,7 @@ subsampling 1/3" is K = 3 in the original code, i.e. 1/9 of the pixels).
 >>> from types import SimpleNamespace
 >>> cam = SimpleNamespace(fx=2.0, fy=2.0, cx=1.5, cy=1.0)
 >>> backproject(np.full((3, 4), 2.0), cam)[0, 0].tolist()
-[-3.0, -2.0, 2.0]
+[-1.5, -1.0, 2.0]
 >>> kept_fraction((3, 4), 2)
 0.3333333333333333
 """
