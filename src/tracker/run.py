@@ -1,9 +1,8 @@
 """Pipeline stage ``run``: a tracker over a whole recording, and the tracking-output file.
 
-The tracking output (``data_schema/tracking-output.schema.json`` describes its metadata) is a CSV with
-``# key: value`` header lines (recording, mode, synergies, PCs, settings, hand model and its hash,
-units), then one row per frame: ``frame, time_s, status, fit_mm, points_used, points, ms`` and the 26
-DoF columns (metres, radians). :func:`write_tracking` and :func:`read_tracking` are its one writer and
+The tracking output is a CSV with ``# key: value`` header lines (recording, mode, synergies, PCs,
+settings, hand model and its hash, units), then one row per frame: ``frame, time_s, status, fit_mm,
+points_used, points, ms`` and the 26 DoF columns (metres, radians). :func:`write_tracking` and :func:`read_tracking` are its one writer and
 reader (``tracker track`` writes it; ``tracker eval``, the experiments and users read it).
 
 >>> import io, numpy as np, pandas as pd
