@@ -41,7 +41,6 @@ def track(
 ):
     """Track the hand through a recording; writes per-frame hand parameters and a summary."""
     # heavy modules load here, not at import time, so `tracker --help` answers at once
-    import numpy as np
     from rich.console import Console
     from rich.table import Table
 

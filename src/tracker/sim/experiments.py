@@ -8,15 +8,17 @@ Everything runs in memory (render → observe → track), so the same code serve
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from handmodel import HandModel
+from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.rigid import euler_to_matrix
 from handmodel.solver import SolverSettings, fit_points
-from handmodel.subspace import Subspace
 from synergy import simulate
+from synergy.bundle import Bundle
 from synergy.pca import SynergyModel
 
 from ..cameras import preset
@@ -212,41 +214,28 @@ def experiment_scenarios(hand, bundle, camera, names=SCENARIO_NAMES, modes=("ful
     return out
 
 
-def grasp_bundle(n_pcs_variance=0.99, seed=0):
+def grasp_bundle(seed=0):
     """A grasp-only synergy bundle fitted in memory from our simulator's grasp trials (power and
     precision grasps, several seeds), like the paper's grasp data set."""
     X = np.vstack([simulate.motion(m, duration_s=3.0, seed=seed + k)[0][:, 6:]
                    for m in ("power_grasp", "precision_grasp") for k in range(6)])
-    model = SynergyModel().fit(X)
-
-    return _InMemoryBundle(model, "simulated-grasps (in memory)", model.n_components_for(n_pcs_variance))
-
-
-class _InMemoryBundle:
-    """The parts of :class:`synergy.bundle.Bundle` the tracker uses, over a model fitted in memory."""
-
-    def __init__(self, model, spec, n_pcs):
-        self.model, self.spec, self.n_pcs = model, spec, n_pcs
-
-    def subspace(self, n_components=None, hand=None):
-        """Pose DoF + the first PCs, as :meth:`synergy.bundle.Bundle.subspace` (``hand`` is required)."""
-        m = self.model
-        return Subspace.from_synergies(hand, m.all_components_, m.mean_, m.pc_min_, m.pc_max_,
-                                       n_components=m.n_components_for(n_components))
+    manifest = {"name": "simulated-grasps", "version": "0.0.0", "tasks": ["grasp"]}
+    return Bundle(SynergyModel().fit(X), manifest, Path("(in memory)"), POSTURE_DOF_NAMES)
 
 
 def experiment_occlusion(hand, camera, frames=45, seed=0):
     """Grasp seen from the back of the hand (fingers self-occluded): full vs reduced (grasp synergies)."""
     gb = grasp_bundle(seed=100)
+    n_pcs = gb.model.n_components_for(0.99)
     th, _ = simulate.motion("power_grasp", duration_s=frames / 30.0, rate=30.0, seed=seed + 50)
     path = GlobalPath(facing="back", tilt_deg=(-15.0, 0.0, 0.0), wobble_deg=(0.0, 0.0, 0.0))
     truth = with_path(th[:, 6:], hand, 30.0, path)
     res = {}
     for label in ("full", "reduced", "reduced, 2 steps projected"):
-        tr = _tracker(hand, gb, n_pcs=gb.n_pcs, variance=None, **VARIANTS[label])
+        tr = _tracker(hand, gb, n_pcs=n_pcs, variance=None, **VARIANTS[label])
         r = run_sequence(hand, truth, camera, tr, lead=5)
         res[label] = r.mean_error
-    res["n_pcs"] = gb.n_pcs
+    res["n_pcs"] = n_pcs
     return res
 
 
