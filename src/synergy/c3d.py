@@ -490,6 +490,7 @@ READ_MEMORY_BASE = 768 << 20
 READ_MEMORY_PER_BYTE = 16
 
 _GROUPS_EXPORTED = ("POINT", "EVENT")
+_STARTUP_TIMEOUT_S = 60.0
 
 
 def _read_deadline(size: int) -> float:
@@ -557,6 +558,8 @@ def _worker_main() -> None:
     out = sys.stdout.buffer
     _, hard = resource.getrlimit(resource.RLIMIT_AS)
     base = _vm_size()
+    out.write(b"R")  # ready: start-up (imports) is not charged to the first file's deadline
+    out.flush()
     for line in sys.stdin.buffer:
         req = json.loads(line)
         # SIGALRM's default action ends the process even inside C++ code: a worker left
@@ -608,6 +611,13 @@ class _Worker:
             [sys.executable, "-c", "from synergy.c3d import _worker_main; _worker_main()"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env,
             close_fds=True)
+        try:  # a loaded machine may take seconds to import numpy and the readers
+            ready = self._read_exact(1, time.monotonic() + _STARTUP_TIMEOUT_S)
+        except (TimeoutError, EOFError, OSError):
+            ready = b""
+        if ready != b"R":
+            self.kill()
+            raise C3DError(None, "the C3D reader process did not start")
 
     def alive(self) -> bool:
         return self.owner == os.getpid() and self.proc.poll() is None
