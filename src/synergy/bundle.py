@@ -1,8 +1,8 @@
 """Synergy bundles: immutable, versioned ``<name>-<version>.npz`` files, and their registries.
 
 A bundle holds the full PCA of a training set (arrays listed in :data:`ARRAY_NAMES`)
-plus a JSON ``manifest`` (``data_schema/synergy-bundle.schema.json``) with provenance
-and a hash of the arrays. A registry is a folder of bundles; lookups search the
+plus a JSON ``manifest`` (``data_schema/synergy-bundle.schema.json``) with provenance,
+a hash of the arrays and a hash of the manifest itself (so neither can be edited unnoticed). A registry is a folder of bundles; lookups search the
 folders given by the caller, then ``SYNERGY_PATH`` (``os.pathsep``-separated), then the
 shipped ``models/synergies``.
 
@@ -48,7 +48,7 @@ from synergy.pca import SynergyModel
 
 __all__ = [
     "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
-    "next_version", "read_bundle", "registry_paths", "save_bundle", "select_bundle",
+    "manifest_sha256", "next_version", "read_bundle", "registry_paths", "save_bundle", "select_bundle",
 ]
 
 #: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
@@ -56,7 +56,7 @@ ARRAY_NAMES = (
     "components", "mean", "explained_variance", "explained_variance_ratio",
     "pc_min", "pc_max", "joint_min", "joint_max", "dof_names",
 )
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: the manifest carries manifest_sha256
 GENERATOR = "synergistic-hand-tracking"
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _VERSION_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
@@ -145,6 +145,14 @@ def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
         h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
         h.update(a.tobytes())
     return h.hexdigest()
+
+
+def manifest_sha256(manifest: dict) -> str:
+    """SHA-256 of the manifest without its ``manifest_sha256`` field, as canonical JSON (keys sorted,
+    no spaces, UTF-8). The manifest holds ``arrays_sha256``, so this one hash seals the whole bundle."""
+    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def hand_model_ref(name: str = "default", sha256: str | None = None) -> dict:
@@ -299,6 +307,7 @@ def save_bundle(
     for attempt in range(20):
         ver = version or next_version(name, folder)
         manifest["version"] = ver
+        manifest["manifest_sha256"] = manifest_sha256(manifest)
         _check_manifest(manifest, name)
         buf = io.BytesIO()
         np.savez(buf, **arrays, manifest=np.array(json.dumps(manifest, indent=1)))
@@ -315,7 +324,7 @@ def save_bundle(
 
 
 def read_bundle(path: str | os.PathLike) -> Bundle:
-    """Load and verify one bundle file (schema, shapes, arrays hash)."""
+    """Load and verify one bundle file (schema, manifest hash, shapes, arrays hash)."""
     path = Path(path)
     if not path.is_file():
         raise BundleError(path, "no such bundle file")
@@ -336,7 +345,12 @@ def read_bundle(path: str | os.PathLike) -> Bundle:
         manifest = json.loads(str(raw[()]))
     except json.JSONDecodeError as exc:
         raise BundleError(path, f"malformed manifest: not JSON ({exc.msg} at char {exc.pos})") from None
+    if isinstance(manifest, dict) and manifest.get("schema_version") == 1:
+        raise BundleError(path, "schema_version 1 bundle: its manifest is not hashed; refit it with this version "
+                                "of synergy (the sources are listed in its manifest)")
     _check_manifest(manifest, path)
+    if manifest_sha256(manifest) != manifest["manifest_sha256"]:
+        raise BundleError(path, "manifest does not match its manifest_sha256 (manifest edited?)")
     _check_arrays(arrays, manifest, path)
     if arrays_sha256(arrays) != manifest["arrays_sha256"]:
         raise BundleError(path, "arrays do not match the manifest's arrays_sha256 (file modified?)")

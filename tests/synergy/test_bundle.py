@@ -22,6 +22,7 @@ from synergy.bundle import (
     arrays_sha256,
     list_bundles,
     load_bundle,
+    manifest_sha256,
     read_bundle,
     registry_paths,
     save_bundle,
@@ -206,6 +207,53 @@ def test_malformed_manifest(model, reg, change, fragment):
     assert fragment in str(info.value) and "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda m: {**m, "tasks": [*m["tasks"], "sign"]},
+        lambda m: {**m, "tasks": []},
+        lambda m: {**m, "n_components": m["n_components"] + 1},
+        lambda m: {**m, "sources": [{**m["sources"][0], "sha256": "0" * 64}]},
+        lambda m: {**m, "heldout": {**m["heldout"], "rms_rad": [x * 0.5 for x in m["heldout"]["rms_rad"]]}},
+        lambda m: {**m, "manifest_sha256": "0" * 64},
+    ],
+    ids=["add-task", "drop-tasks", "n-components", "source-hash", "heldout", "hash-itself"],
+)
+def test_edited_manifest_is_refused(model, reg, change):
+    src = {"path": "a.csv", "sha256": "a" * 64, "task": "grasp", "frames": 400}
+    path = save_bundle(model, "grip", registry=reg, tasks=["grasp"], sources=[src],
+                       heldout={"method": "x", "rms_rad": [0.2, 0.1]})
+    assert read_bundle(path).manifest["manifest_sha256"] == manifest_sha256(_manifest(path))
+    rewrite(path, manifest=np.array(json.dumps(change(_manifest(path)), indent=1)))
+    with pytest.raises(BundleError, match="manifest_sha256") as info:
+        read_bundle(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: manifest does not match") and "\n" not in msg
+    # the registry views skip or flag it; the CLI names the file on one line and exits 2
+    with pytest.raises(BundleError, match="no bundle is labelled"):
+        select_bundle("grasp", [reg])
+    r = run("list", "-r", reg, env={"COLUMNS": "400"})  # wide enough that no cell wraps
+    assert r.exit_code == 0 and "invalid: manifest does not match its manifest_sha256" in r.stdout
+    assert_one_line_error(run("info", path), f"{path}: manifest does not match its manifest_sha256")
+    assert_one_line_error(run("info", "grip", "-r", reg), "manifest_sha256")
+
+
+def test_manifest_hash_is_canonical(model, reg):
+    man = _manifest(save_bundle(model, "grip", registry=reg, tasks=["grasp"]))
+    reordered = dict(reversed(list(man.items())))
+    assert manifest_sha256(reordered) == manifest_sha256(man) == man["manifest_sha256"]
+    assert manifest_sha256({**man, "manifest_sha256": "f" * 64}) == man["manifest_sha256"]  # the field itself is out
+    assert manifest_sha256({**man, "tasks": ["grasp "]}) != man["manifest_sha256"]
+
+
+def test_old_schema_bundle_is_refused_with_a_reason(model, reg):
+    path = save_bundle(model, "grip", registry=reg)
+    old = {k: v for k, v in _manifest(path).items() if k != "manifest_sha256"}
+    rewrite(path, manifest=np.array(json.dumps({**old, "schema_version": 1})))
+    with pytest.raises(BundleError, match=r"schema_version 1 bundle: its manifest is not hashed; refit"):
+        read_bundle(path)
+
+
 def test_wrong_array_shapes(model, reg):
     path = save_bundle(model, "grip", registry=reg)
     with np.load(path, allow_pickle=False) as z:
@@ -213,6 +261,7 @@ def test_wrong_array_shapes(model, reg):
     arrays["pc_min"] = arrays["pc_min"][:5]
     man = _manifest(path)
     man["arrays_sha256"] = arrays_sha256(arrays)  # only the shape is wrong
+    man["manifest_sha256"] = manifest_sha256(man)
     rewrite(path, pc_min=arrays["pc_min"], manifest=np.array(json.dumps(man)))
     with pytest.raises(BundleError, match=r"array pc_min has shape \(5,\)"):
         load_bundle(path)
@@ -457,6 +506,13 @@ def test_shipped_bundle_command(reg):
     np.testing.assert_allclose(cum[[0, 2, 5]], [0.713, 0.854, 0.968], atol=1e-3)
     assert b.manifest["n_samples"] == 6000 and b.model.n_components_ == 10
     assert "71.3 %" in r.stdout and "85.4 %" in r.stdout and "96.8 %" in r.stdout
+    # the shipped bundle holds these arrays (sealed as schema 2 with tools/reseal_bundle.py, arrays kept
+    # bit for bit; a refit reproduces them to the eigen-solver's rounding)
+    shipped = read_bundle(ROOT / "models" / "synergies" / "fingerfist-1.0.0.npz")
+    assert shipped.manifest["schema_version"] == 2
+    assert shipped.manifest["sources"][0]["sha256"] == b.manifest["sources"][0]["sha256"]
+    for a in ("all_components_", "all_explained_variance_", "pc_min_", "pc_max_", "mean_", "joint_min_", "joint_max_"):
+        np.testing.assert_allclose(getattr(shipped.model, a), getattr(b.model, a), rtol=0, atol=1e-12, err_msg=a)
 
 
 # ----------------------------------------------------------------------------- module boundaries
