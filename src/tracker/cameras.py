@@ -169,3 +169,22 @@ def preset(name: str) -> Camera:
         return PRESETS[key]
     except KeyError:
         raise TrackerError(f"camera {name}", f"unknown preset (valid: {', '.join(PRESETS)})") from None
+
+
+def as_camera(camera) -> Camera:
+    """A :class:`Camera` from a preset name, a Camera, or any object with pinhole intrinsics
+    (``width height fx fy cx cy``; ``depth_scale_m``, ``depth_encoding`` and ``name`` if it has them).
+
+    >>> as_camera("kinect1").name, as_camera(as_camera("sr305")).depth_scale_m
+    ('kinect1', 0.000125)
+    """
+    if isinstance(camera, Camera):
+        return camera
+    if isinstance(camera, str):
+        return preset(camera)
+    try:
+        return Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+                      getattr(camera, "depth_scale_m", getattr(camera, "depth_scale", 0.001)),
+                      getattr(camera, "depth_encoding", "uint16"), getattr(camera, "name", "custom"))
+    except AttributeError as exc:
+        raise TrackerError("camera", f"needs pinhole intrinsics ({exc})") from None

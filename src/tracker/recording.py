@@ -37,7 +37,7 @@ import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, atomic_write_text, load_yaml, schema_errors
 
-from .cameras import MAX_UNITS, Camera
+from .cameras import MAX_UNITS, Camera, as_camera
 from .errors import RecordingError, TrackerError
 
 SCHEMA_VERSION = 1
@@ -234,17 +234,6 @@ def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
 def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
     """Metres → the image stored in a depth PNG (see :func:`metres_to_units`)."""
     return encode_units(metres_to_units(depth_m, camera, where), camera)
-
-
-def _as_camera(camera) -> Camera:
-    if isinstance(camera, Camera):
-        return camera
-    try:
-        return Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
-                      getattr(camera, "depth_scale_m", getattr(camera, "depth_scale", 0.001)),
-                      getattr(camera, "depth_encoding", "uint16"), getattr(camera, "name", "custom"))
-    except AttributeError as exc:
-        raise TrackerError("camera", f"needs pinhole intrinsics ({exc})") from None
 
 
 # ----------------------------------------------------------------------------- reading
@@ -444,7 +433,7 @@ class RecordingWriter:
             raise RecordingError(self.path, f"fps must be a number, got {fps!r}") from None
         if not (np.isfinite(fps) and fps > 0):
             raise RecordingError(self.path, f"fps must be positive, got {fps}")
-        self.camera = _as_camera(camera)
+        self.camera = as_camera(camera)
         check_frame_size(self.camera.width, self.camera.height, self.path)
         self.fps = fps
         self.handedness = handedness
@@ -589,7 +578,7 @@ def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *
     files = list_pngs(src)
     if not files:
         raise RecordingError(src, "no PNG files to import")
-    camera = _as_camera(camera)
+    camera = as_camera(camera)
     if Path(dst).resolve() == src.resolve():
         raise RecordingError(dst, "the recording folder must differ from the source folder")
     with RecordingWriter(dst, camera, fps, handedness, overwrite=overwrite, source=f"import of {src}") as w:

@@ -53,7 +53,8 @@ def synth(
 
     from .motions import make_motion
     from .noise import NoiseModel
-    from .render import Clutter, as_camera
+    from ..cameras import as_camera
+    from .render import Clutter
     from .synthesize import synthesize
 
     clut = Clutter.parse(clutter)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..cameras import preset
+from ..cameras import as_camera
 from ..errors import TrackerError
 from ._kernels import lbs, plane_pass, raster, shade
 
@@ -157,16 +157,6 @@ class Rendered:
     def hand_mask(self) -> np.ndarray:
         """Pixels showing the hand."""
         return (self.face >= 0) & (self.face < self.n_hand_faces)
-
-
-def as_camera(camera):
-    """A camera object from a preset name, or the object itself if it has pinhole intrinsics."""
-    if isinstance(camera, str):
-        return preset(camera)
-    for a in ("width", "height", "fx", "fy", "cx", "cy"):
-        if not hasattr(camera, a):
-            raise TrackerError("camera", f"needs attribute {a!r} (pinhole intrinsics)")
-    return camera
 
 
 # ----------------------------------------------------------------------------- renderer

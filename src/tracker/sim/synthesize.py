@@ -21,7 +21,8 @@ from ..errors import TrackerError
 from ..recording import RecordingWriter
 from .motions import Motion, hand_centre, make_motion
 from .noise import NoiseModel
-from .render import Clutter, DepthRenderer, as_camera
+from ..cameras import as_camera
+from .render import Clutter, DepthRenderer
 
 
 @dataclass(frozen=True)
