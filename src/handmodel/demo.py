@@ -38,6 +38,7 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=2000)
     ap.add_argument("--noise-mm", type=float, default=1.0)
     args = ap.parse_args(argv)
+    # a command-line entry point: the libraries load after parsing, so that --help answers at once
     from rich.console import Console
     from rich.table import Table
 

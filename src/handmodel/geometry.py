@@ -12,8 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
+from ._geometry_kernels import closest_local, closest_points as _closest_points_kernel
 from .errors import HandModelError
+from .fileio import atomic_write_bytes
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,8 +59,6 @@ def closest_points(hand, theta, points):
     normal : (P, 3) outward unit surface normals at ``closest``
     distance : (P,) signed distance of each point to the surface (negative inside)
     """
-    from ._geometry_kernels import closest_points as kern
-
     G = hand.node_frames(theta)
     if G.ndim != 3:
         raise HandModelError("theta", "closest_points takes one parameter vector")
@@ -67,7 +68,7 @@ def closest_points(hand, theta, points):
     out_n = np.empty((P, 3))
     out_s = np.empty(P, np.int64)
     out_d = np.empty(P)
-    kern(G, *hand.capsules.kernel_args(), pts, out_p, out_n, out_s, out_d)
+    _closest_points_kernel(G, *hand.capsules.kernel_args(), pts, out_p, out_n, out_s, out_d)
     return out_p, out_s, out_n, out_d
 
 
@@ -124,8 +125,6 @@ def _capsule_profile(L, ra, rb, cap_rings, per_m):
 
 def _slab_mesh(L, w0, w1, th, n):
     """A rounded slab (trapezoid ⊕ sphere) as the convex hull of dense surface samples."""
-    from scipy.spatial import ConvexHull
-
     pts = _slab_samples(L, w0, w1, th, n)
     hull = ConvexHull(pts)
     V = pts[hull.vertices]
@@ -204,15 +203,13 @@ class SkinnedMesh:
         return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
 
     def to_trimesh(self, theta=None):
-        import trimesh
+        import trimesh  # ~0.9 s to import, and only mesh export needs it: kept out of every model load
 
         V = self.vertices if theta is None else self.pose(theta)
         return trimesh.Trimesh(vertices=V, faces=self.faces, process=False)
 
     def export(self, path, theta=None) -> Path:
         """Write the (posed) mesh as GLB, PLY, OBJ or STL (by suffix), atomically."""
-        from .fileio import atomic_write_bytes
-
         path = Path(path)
         fmt = path.suffix.lstrip(".").lower()
         if fmt not in ("glb", "ply", "obj", "stl"):
@@ -273,8 +270,6 @@ def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
     """Area-uniform points on the posed capsule surface, about one per ``spacing``², with their
     segment and outward normal. Samples are drawn on each segment's mesh and snapped onto the exact
     primitive, so they lie on the surface that :func:`closest_points` uses."""
-    from ._geometry_kernels import closest_local
-
     theta = np.zeros(hand.n_dofs) if theta is None else theta
     G = hand.node_frames(theta)
     rng = np.random.default_rng(seed)

@@ -17,6 +17,7 @@ Examples
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
@@ -25,7 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinematics
 from .errors import HandModelError
+from .fileio import load_yaml, resolve_model_file, schema_errors, sha256_file
+from .geometry import Capsules, build_mesh
 
 ROTATION, TRANSLATION = 0, 1
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0),
@@ -34,8 +38,6 @@ _MIRROR = np.diag([-1.0, 1.0, 1.0])
 
 
 def _validate_schema(doc, path: Path) -> None:
-    from .fileio import schema_errors
-
     problem = schema_errors(doc, "hand-model")
     if problem:
         raise HandModelError(path, problem)
@@ -93,16 +95,10 @@ class HandModel:
         A right hand is the mirror image of the left one for the same θ (x → −x in the hand frame);
         the global pose is not mirrored.
         """
-        from .fileio import load_yaml, resolve_model_file
-
         p = resolve_model_file("hands", name_or_path, HandModelError, "hand model")
         doc = load_yaml(p, HandModelError)
         model = cls.from_dict(doc, where=p)
         # the model's identity is the hash of its file (what bundles and outputs record)
-        from .fileio import sha256_file
-
-        import dataclasses
-
         model = dataclasses.replace(model, sha256=sha256_file(p))
         if right != (model.handedness == "right"):
             model = model.mirrored()
@@ -278,8 +274,6 @@ class HandModel:
             rest[self.node_index(name), :3, 3] = v
         key = json.dumps({"base": self.sha256, "positions": {k: list(map(float, v)) for k, v in positions.items()}},
                          sort_keys=True).encode()
-        import dataclasses
-
         return dataclasses.replace(self, rest=_ro(rest), sha256=hashlib.sha256(key).hexdigest())
 
     def with_rest_rotations(self, rotations: dict) -> "HandModel":
@@ -292,8 +286,6 @@ class HandModel:
             rest[self.node_index(name), :3, :3] = R
         key = json.dumps({"base": self.sha256, "rotations": {k: np.asarray(v).round(12).tolist()
                                                              for k, v in rotations.items()}}, sort_keys=True).encode()
-        import dataclasses
-
         return dataclasses.replace(self, rest=_ro(rest), sha256=hashlib.sha256(key).hexdigest())
 
     def with_limits(self, limits) -> "HandModel":
@@ -301,8 +293,6 @@ class HandModel:
         lim = np.asarray(limits, float)
         if lim.shape != (self.n_dofs, 2) or np.any(lim[:, 0] >= lim[:, 1]):
             raise HandModelError(self.path, f"limits must be ({self.n_dofs}, 2) with lower < upper")
-        import dataclasses
-
         return dataclasses.replace(self, limits=_ro(lim.copy()))
 
     # ------------------------------------------------------------------ names and masks
@@ -373,8 +363,6 @@ class HandModel:
 
     def node_frames(self, theta) -> np.ndarray:
         """Global 4×4 frames of every node, ``(..., n_nodes, 4, 4)``."""
-        from . import kinematics
-
         th = self.check_theta(theta)
         flat = th.reshape(-1, self.n_dofs)
         G = kinematics.fk_batch(flat, self.parents, self.rest, self.dof_ptr, self.dof_idx, self.dof_types, self.dof_axes)
@@ -403,8 +391,6 @@ class HandModel:
         ``a_w`` the DoF's axis in world coordinates and ``o`` its joint origin; a translation
         column is ``a_w``.
         """
-        from . import kinematics
-
         th = self.check_theta(theta)
         if nodes is None:
             nodes = np.arange(self.n_nodes)
@@ -427,14 +413,10 @@ class HandModel:
     # ------------------------------------------------------------------ geometry shortcuts
     @cached_property
     def capsules(self):
-        from .geometry import Capsules
-
         return Capsules.from_model(self)
 
     def mesh(self):
         """The procedurally generated rest mesh with skinning weights (:class:`handmodel.geometry.SkinnedMesh`)."""
-        from .geometry import build_mesh
-
         return build_mesh(self)
 
     def __repr__(self) -> str:

@@ -1,18 +1,27 @@
-"""Matplotlib (Agg) drawings of the hand: skeleton views and a shaded mesh."""
+"""Matplotlib drawings of the hand: skeleton views and a shaded mesh.
+
+Figures are built on matplotlib's object API with an Agg canvas, so nothing here touches pyplot's
+global state or the user's backend.
+"""
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+from .fileio import atomic_write_bytes
 
 FINGER_COLOURS = {"thumb": "#d62728", "index": "#1f77b4", "middle": "#2ca02c", "ring": "#9467bd", "pinky": "#ff7f0e"}
 
 
-def _agg():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+def _figure(**kw) -> Figure:
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def draw_skeleton(ax, hand, theta, view=(0, 1), colour=None, alpha=1.0, label=None):
@@ -33,8 +42,6 @@ def draw_skeleton(ax, hand, theta, view=(0, 1), colour=None, alpha=1.0, label=No
 
 def draw_mesh(ax, hand, theta, mesh=None, light=(0.3, -0.4, -1.0), colour=(0.93, 0.76, 0.64)):
     """A shaded, LBS-posed mesh on a 3-D axis (orthographic, millimetres)."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     mesh = mesh or hand.mesh()
     V = mesh.pose(theta) * 1000.0
     tri = V[mesh.faces]
@@ -56,9 +63,9 @@ def draw_mesh(ax, hand, theta, mesh=None, light=(0.3, -0.4, -1.0), colour=(0.93,
 
 def skeleton_figure(hand, thetas, titles, path, estimates=None):
     """One column per posture: front (x–y) and side (z–y) views; estimates drawn dashed in grey."""
-    plt = _agg()
     k = len(thetas)
-    fig, axes = plt.subplots(2, k, figsize=(2.6 * k, 5.2), squeeze=False)
+    fig = _figure(figsize=(2.6 * k, 5.2))
+    axes = fig.subplots(2, k, squeeze=False)
     for j, (th, title) in enumerate(zip(thetas, titles)):
         for r, view in enumerate([(0, 1), (2, 1)]):
             ax = axes[r, j]
@@ -76,9 +83,8 @@ def skeleton_figure(hand, thetas, titles, path, estimates=None):
 
 
 def mesh_figure(hand, thetas, titles, path, elev=-55, azim=-95):
-    plt = _agg()
     k = len(thetas)
-    fig = plt.figure(figsize=(3.0 * k, 3.4))
+    fig = _figure(figsize=(3.0 * k, 3.4))
     mesh = hand.mesh()
     for j, (th, title) in enumerate(zip(thetas, titles)):
         ax = fig.add_subplot(1, k, j + 1, projection="3d", proj_type="ortho")
@@ -90,14 +96,6 @@ def mesh_figure(hand, thetas, titles, path, elev=-55, azim=-95):
 
 
 def _save(fig, path):
-    import io
-    from pathlib import Path
-
-    from .fileio import atomic_write_bytes
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
     atomic_write_bytes(Path(path), buf.getvalue())

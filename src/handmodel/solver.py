@@ -24,7 +24,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import _solver_kernels as K
 from .errors import SolverError
+from .model import ROTATION, TRANSLATION
+from .rigid import horn, matrix_to_euler
 from .subspace import Subspace
 
 
@@ -52,15 +55,6 @@ class SolverSettings:
     def paper(cls, **kw) -> "SolverSettings":
         """The paper's values: λ = 1 on posture, 0 on pose, 5 GN iterations."""
         return cls(**{"iterations": 5, "damping": 1.0, "pose_damping": 0.0, **kw})
-
-    @classmethod
-    def original_code(cls, hand, **kw) -> "SolverSettings":
-        """htrack's LegacyTracker: λ = 5 squared on every rotation, 1 on translations, 5 iterations."""
-        from .model import TRANSLATION
-
-        vec = np.where(np.asarray(hand.dof_types) == TRANSLATION, 1.0, 25.0)
-        return cls(**{"iterations": 5, "damping": 25.0, "pose_damping": 25.0, "damping_vector": vec,
-                      "clamp_margin": 1e-3, **kw})
 
 
 @dataclass
@@ -157,8 +151,6 @@ def solve(hand, theta0, nodes, local, targets, *, weights=None, normals=None, su
     report : SolveReport
     """
     settings = settings or SolverSettings()
-    from . import _solver_kernels as K
-
     tg = np.asarray(targets, float)
     single = tg.ndim == 2
     tg = np.ascontiguousarray(tg[None] if single else tg)
@@ -218,13 +210,6 @@ def solve(hand, theta0, nodes, local, targets, *, weights=None, normals=None, su
     return out, rep
 
 
-def attached_points(hand, theta, nodes, world):
-    """Offsets in node frames of world points (e.g. closest model points at the current θ)."""
-    G = hand.node_frames(theta)[np.asarray(nodes, np.int64)]
-    d = np.asarray(world, float) - G[:, :3, 3]
-    return np.einsum("pji,pj->pi", G[:, :3, :3], d)
-
-
 # ---------------------------------------------------------------------------------- keypoints
 def rigid_pose_from_keypoints(hand, targets, posture=None):
     """Global pose aligning the model's keypoints at ``posture`` to ``targets`` (Horn), batched.
@@ -241,8 +226,6 @@ def rigid_pose(hand, nodes, local, targets, posture=None):
     children, e.g. the wrist and the finger bases) where at least three are present in a frame,
     else every present point. Returns full θ ``(..., n_dofs)`` with the given posture (default zeros).
     """
-    from .rigid import horn, matrix_to_euler
-
     _check_pose_layout(hand)
     nodes = np.asarray(nodes, np.int64)
     local = np.asarray(local, float).reshape(-1, 3)
@@ -267,8 +250,6 @@ def rigid_pose(hand, nodes, local, targets, posture=None):
 
 
 def _check_pose_layout(hand):
-    from .model import ROTATION, TRANSLATION
-
     root = hand.dof_idx[hand.dof_ptr[0]:hand.dof_ptr[1]]
     ok = len(root) == 6 and list(root) == list(range(6))
     if ok:

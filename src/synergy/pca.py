@@ -23,6 +23,7 @@ from numbers import Integral, Real
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
+from scipy.linalg import subspace_angles
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted
 
@@ -485,8 +486,6 @@ def principal_angles(A, B, k: int | None = None) -> np.ndarray:
 
     ``A`` and ``B`` are fitted :class:`SynergyModel` s or arrays whose rows are PCs.
     """
-    from scipy.linalg import subspace_angles
-
     def rows(M):
         if isinstance(M, SynergyModel):
             check_is_fitted(M, "all_components_")

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
 
+import jsonschema
+
 from handmodel.fileio import MAX_YAML_BYTES, parse_yaml, read_limited, schema_path
 from synergy.errors import TaskMapError
 
@@ -49,8 +51,6 @@ class TaskMap:
 
 @lru_cache(maxsize=1)
 def _validator():
-    import jsonschema
-
     with open(schema_path("task-map"), encoding="utf-8") as fh:
         schema = json.load(fh)
     return jsonschema.Draft202012Validator(schema)
