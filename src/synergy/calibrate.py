@@ -568,14 +568,18 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
     idx, _ = ms.match(list(data.labels), where=where)
     pts = np.asarray(data.points, float)
     targets = np.where((idx >= 0)[None, :, None], pts[:, np.maximum(idx, 0)], np.nan)
-    sel, held = split_frames(targets, frames, held_out if subject else 0.0)
+    sel = sample_frames(targets, frames)
     if len(sel) == 0:
         raise MarkerSetError(where or ms.name, "no frame with at least 3 markers to calibrate on")
+    nodes, local = ms.attachments(hand, right)
+    bones = _joint_centre_bones(hand, ms, nodes, local, targets[sel])
+    held = np.zeros(0, np.int64)
+    if subject and not (len(bones) >= len(nodes) - 1 and bones):
+        # skin markers: calibration frames and held-out frames come from different blocks
+        sel, held = split_frames(targets, frames, held_out)
     tg = targets[sel]
     settings = settings or SolverSettings(iterations=15, damping=0.1)
-    nodes, local = ms.attachments(hand, right)
     weights = np.array([m.weight for m in ms.markers])
-    bones = _joint_centre_bones(hand, ms, nodes, local, tg)
     cal = Calibration(source=str(where or ""), frames_used=int(len(sel)), hand="right" if right else "left",
                       markerset=ms.name, hand_model=hand.name, source_sha256=_sha256_of(data))
 
