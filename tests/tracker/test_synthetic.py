@@ -12,7 +12,7 @@ from tracker.errors import TrackerError
 from tracker.observe import backproject
 from tracker.sim.motions import make_motion
 from tracker.sim.raycast import raycast
-from tracker.sim.render import Clutter, DepthRenderer, render
+from tracker.sim.render import CLUTTER_LABELS, Clutter, DepthRenderer, render
 
 
 def kinect_camera():
@@ -218,7 +218,8 @@ def test_clutter_forearm_and_table(hand, cam, scenes):
     assert not (kept & ~hand_px).any()
     assert (forearm[hand_px & ~kept]).all() and (hand_px & ~kept).sum() < 0.1 * hand_px.sum()
     assert np.array_equal(r.depth[kept], plain.depth[kept])
-    assert forearm.sum() > 500 and (r.labels[forearm] == -1).all()
+    assert forearm.sum() > 500 and (r.labels[forearm] == CLUTTER_LABELS["forearm"]).all()
+    assert (r.labels[r.face == -2] == CLUTTER_LABELS["table"]).all()
     assert (r.face == -2).sum() > 0.5 * r.face.size
     # the forearm continues below the wrist (fingers point up in the image)
     assert np.nonzero(forearm)[0].mean() > np.nonzero(hand_px)[0].mean()

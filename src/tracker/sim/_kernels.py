@@ -181,11 +181,13 @@ def projector_shadow(depth, fb, side, out):
 
 
 @njit(cache=True, nogil=True)
-def shade(P, faces, face_id, n_hand, n_table, fx, fy, cx, cy, light, materials, background, color, cos_out):
+def shade(P, faces, face_id, face_material, plane_material, n_table, fx, fy, cx, cy, light, materials, background,
+          color, cos_out):
     """Per-pixel flat shading and incidence from the visible-face buffer.
 
-    ``face_id`` ≥ 0 indexes ``faces`` (hand faces first, ``n_hand`` of them, then clutter), −2 is the
-    plane with normal ``n_table``. ``materials`` rows: hand, other triangles, plane (RGB). Writes
+    ``face_id`` ≥ 0 indexes ``faces`` (hand faces first, then clutter), −2 is the plane with normal
+    ``n_table``. ``materials`` rows are RGB colours: face ``f`` has ``materials[face_material[f]]``,
+    the plane ``materials[plane_material]``. Writes
     ``color`` (H, W, 3) uint8 when it has pixels and ``cos_out`` (H, W) float32 (|cos| between normal
     and ray, NaN where nothing) when it has pixels.
     """
@@ -210,10 +212,10 @@ def shade(P, faces, face_id, n_hand, n_table, fx, fy, cx, cy, light, materials, 
                 nx = e1y * e2z - e1z * e2y
                 ny = e1z * e2x - e1x * e2z
                 nz = e1x * e2y - e1y * e2x
-                m = 0 if f < n_hand else 1
+                m = face_material[f]
             else:
                 nx, ny, nz = n_table[0], n_table[1], n_table[2]
-                m = 2
+                m = plane_material
             nn = np.sqrt(nx * nx + ny * ny + nz * nz)
             if nn == 0.0:
                 nn = 1.0

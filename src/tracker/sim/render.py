@@ -4,8 +4,10 @@ The LBS-posed hand mesh (θ's global pose places the hand in the camera frame: x
 z forward, metres) is rasterised through a pinhole camera by a numba kernel. Depth is the exact
 z of the ray–triangle intersection (1/z is interpolated, not z), so it agrees with ray casting
 (:mod:`tracker.sim.raycast`, the independent reference). Optional clutter (:class:`Clutter`: a
-forearm and a table plane), segment labels, a shaded colour image and the incidence cosine
-(which the sensor noise of :mod:`tracker.sim.noise` uses) come from the same pass.
+bare or sleeved forearm, a torso behind the hand, a table plane, a box or cylinder beside the
+hand), labels (hand segments ≥ 0, each clutter element its own negative label), a shaded colour
+image, the incidence cosine and the infrared reflectance (which the sensor noise of
+:mod:`tracker.sim.noise` uses) come from the same pass.
 
 Pixel convention: pixel centres sit at integer coordinates; pixel ``(v, u)`` (row, column) samples
 the ray ``((u − cx)/fx, (v − cy)/fy, 1)``, and a point projects to ``u = fx·x/z + cx``. Back-project
@@ -36,49 +38,156 @@ from ._kernels import lbs, plane_pass, raster, shade
 SKIN_RGB = (226, 178, 150)
 SLEEVE_RGB = (48, 66, 128)
 TABLE_RGB = (178, 172, 160)
+TORSO_RGB = (96, 120, 104)
+OBJECT_RGB = (200, 90, 60)
 BACKGROUND_RGB = (36, 40, 48)
 LIGHT_DIR = np.array([-0.3, -0.5, -1.0]) / np.linalg.norm([-0.3, -0.5, -1.0])  # toward the light (camera frame)
-TABLE_FACE = -2  # face id of table pixels; hand faces are 0..T-1, forearm faces follow
-_MATERIALS = np.array([SKIN_RGB, SLEEVE_RGB, TABLE_RGB], float)
+TABLE_FACE = -2  # face id of table pixels; hand faces are 0..T-1, clutter triangles follow
+
+#: Label of every pixel that is not the hand (hand pixels carry their segment index ≥ 0).
+BACKGROUND_LABEL = -1
+#: One label per clutter element, all negative and distinct, so a test can tell what a pixel shows.
+CLUTTER_LABELS = {"forearm": -2, "sleeve": -3, "torso": -4, "table": -5, "object": -6}
+
+# Materials: colour (RGB) and near-infrared reflectance (0–1, what an active depth sensor sees; the
+# noise model drops pixels on dark surfaces). Skin reflects ≈ 0.5–0.6 of 850 nm light (Anderson &
+# Parrish 1981, J Invest Dermatol 77:13); dark cloth far less — the values are round figures, not
+# measurements, chosen so the sleeve counts as dark and everything else as bright.
+MATERIALS = {  # name: (index, RGB, IR reflectance)
+    "skin": (0, SKIN_RGB, 0.55), "sleeve": (1, SLEEVE_RGB, 0.08), "torso": (2, TORSO_RGB, 0.35),
+    "table": (3, TABLE_RGB, 0.5), "object": (4, OBJECT_RGB, 0.6),
+}
+_MATERIALS = np.array([m[1] for m in sorted(MATERIALS.values())], float)
+_REFLECTANCE = np.array([m[2] for m in sorted(MATERIALS.values())], np.float32)
 _BACKGROUND = np.array(BACKGROUND_RGB, np.uint8)
+_CLUTTER_PARTS = ("forearm", "sleeve", "torso", "table", "object")
 
 
 # ----------------------------------------------------------------------------- scene pieces
 @dataclass(frozen=True)
 class Clutter:
-    """Non-hand geometry: a forearm continuing from the wrist and a table plane.
+    """Non-hand geometry: a forearm (bare or sleeved), a torso behind the hand, a table plane and a
+    second object beside the hand.
 
     The forearm is a tapered elliptic tube in the wrist frame along −y (half-width along the hand's
     x, half-thickness along z, at the wrist and at the far end); it moves rigidly with the wrist.
+    With ``sleeve`` a wider tube (``sleeve_scale`` × the forearm's half-axes + ``sleeve_ease_m``)
+    covers it from ``sleeve_start_m`` behind the wrist to its far end: dark cloth (low infrared
+    reflectance), blue in the colour image.
+
+    The torso is a rounded box (superellipsoid with exponent ``torso_roundness``; half-extents
+    ``torso_size_m`` along camera x, y, z) whose front surface lies ``torso_gap_m`` (0.03–0.30 m)
+    behind the hand centre along the optical axis, offset by ``torso_offset_m`` in x and y (default:
+    the hand in front of the upper chest).
+
     The table is an infinite plane through ``table_point`` with unit normal ``table_normal``
     (camera frame, pointing to the camera's side); when they are ``None`` the plane lies
     ``table_gap_m`` below/behind the hand centre, seen from ``table_view_deg`` above it
-    (90°: a wall facing the camera). Pixels of clutter get label −1.
+    (90°: a wall facing the camera).
+
+    The object (``"box"`` or ``"cylinder"``, axis along camera y) stands with its centre at the hand
+    centre + ``object_offset_m``; ``object_size_m`` is the box's half-extents, or the cylinder's
+    (radius, half-height, —).
+
+    Torso, table and object are placed from each frame's hand centre unless ``torso_centre`` /
+    ``table_point`` / ``object_centre`` are given (:meth:`fixed` sets them once for a sequence).
+    Pixels of clutter carry the labels of :data:`CLUTTER_LABELS`.
     """
 
     forearm: bool = True
     forearm_length_m: float = 0.25
     forearm_wrist_m: tuple = (0.027, 0.02)
     forearm_far_m: tuple = (0.033, 0.028)
+    sleeve: bool = False
+    sleeve_start_m: float = 0.05
+    sleeve_scale: float = 1.25
+    sleeve_ease_m: float = 0.006
+    torso: bool = False
+    torso_gap_m: float = 0.15
+    torso_size_m: tuple = (0.17, 0.28, 0.11)
+    torso_offset_m: tuple = (0.0, 0.16)
+    torso_roundness: float = 0.35
+    torso_centre: tuple | None = None
     table: bool = False
     table_point: tuple | None = None
     table_normal: tuple | None = None
     table_view_deg: float = 45.0
     table_gap_m: float = 0.12
+    object: str | None = None
+    object_offset_m: tuple = (0.14, 0.03, 0.03)
+    object_size_m: tuple = (0.035, 0.07, 0.035)
+    object_centre: tuple | None = None
     max_depth_m: float = 4.0
+
+    def __post_init__(self):
+        if not 0.03 <= self.torso_gap_m <= 0.30:
+            raise TrackerError("clutter", f"torso gap must be 0.03–0.30 m behind the hand, got {self.torso_gap_m}")
+        if self.object not in (None, "box", "cylinder"):
+            raise TrackerError("clutter", f"object must be box or cylinder, got {self.object!r}")
+        if self.sleeve and not self.forearm:
+            raise TrackerError("clutter", "a sleeve needs the forearm")
+        if not 0.0 <= self.sleeve_start_m < self.forearm_length_m:
+            raise TrackerError("clutter", "sleeve_start_m must lie on the forearm")
+        if min(*self.torso_size_m, *self.object_size_m, self.forearm_length_m, self.sleeve_scale) <= 0:
+            raise TrackerError("clutter", "sizes must be positive")
 
     @classmethod
     def parse(cls, spec: str | None) -> "Clutter | None":
-        """``"none"``, ``"forearm"``, ``"table"`` or ``"forearm,table"``."""
+        """A comma-separated list of ``forearm``, ``sleeve`` (a sleeved forearm), ``torso`` or
+        ``torso=GAP`` (metres behind the hand, 0.03–0.30), ``table``, ``object`` / ``box`` /
+        ``cylinder`` (``object`` is a box); ``none`` or empty: no clutter.
+
+        >>> Clutter.parse("sleeve,torso=0.05").torso_gap_m, Clutter.parse("forearm,table").object
+        (0.05, None)
+        """
         if spec is None:
             return None
-        parts = {p.strip().lower() for p in str(spec).split(",") if p.strip()}
-        if not parts or parts == {"none"}:
+        parts = [p.strip().lower() for p in str(spec).split(",") if p.strip()]
+        if not parts or parts == ["none"]:
             return None
-        bad = parts - {"forearm", "table"}
-        if bad:
-            raise TrackerError("clutter", f"unknown clutter {', '.join(sorted(bad))} (forearm, table, none)")
-        return cls(forearm="forearm" in parts, table="table" in parts)
+        kw = {"forearm": False}
+        for p in parts:
+            name, _, value = p.partition("=")
+            if value and name != "torso":
+                raise TrackerError("clutter", f"{p!r}: only the torso takes a value (torso=GAP_M)")
+            if name in ("forearm", "sleeve"):
+                kw["forearm"] = True
+                kw["sleeve"] = kw.get("sleeve", False) or name == "sleeve"
+            elif name == "torso":
+                kw["torso"] = True
+                if value:
+                    try:
+                        kw["torso_gap_m"] = float(value)
+                    except ValueError:
+                        raise TrackerError("clutter", f"{p!r}: the torso gap must be a number of metres") from None
+            elif name == "table":
+                kw["table"] = True
+            elif name in ("object", "box", "cylinder"):
+                kw["object"] = "cylinder" if name == "cylinder" else "box"
+            else:
+                raise TrackerError("clutter", f"unknown clutter {p!r} (forearm, sleeve, torso[=gap], table, "
+                                              "object, box, cylinder, none)")
+        return cls(**kw)
+
+    @property
+    def parts(self) -> tuple:
+        """The clutter elements present, in :data:`CLUTTER_LABELS` order (``sleeve`` implies ``forearm``)."""
+        on = {"forearm": self.forearm, "sleeve": self.sleeve, "torso": self.torso, "table": self.table,
+              "object": self.object is not None}
+        return tuple(k for k in _CLUTTER_PARTS if on[k])
+
+    def describe(self) -> str:
+        """A short text for metadata, e.g. ``forearm+sleeve,torso@0.15m,box``."""
+        out = []
+        if self.forearm:
+            out.append("forearm+sleeve" if self.sleeve else "forearm")
+        if self.torso:
+            out.append(f"torso@{self.torso_gap_m:g}m")
+        if self.table:
+            out.append("table")
+        if self.object is not None:
+            out.append(self.object)
+        return ",".join(out) or "none"
 
     def plane(self, hand_centre) -> tuple[np.ndarray, float]:
         """The table plane as ``(n, dn)`` with ``n·p = dn`` in the camera frame."""
@@ -92,40 +201,98 @@ class Clutter:
               else np.asarray(hand_centre, float) - self.table_gap_m * n)
         return n, float(n @ p0)
 
+    def torso_center(self, hand_centre) -> np.ndarray:
+        """Centre of the torso (camera frame) for a hand centred at ``hand_centre``."""
+        if self.torso_centre is not None:
+            return np.asarray(self.torso_centre, float)
+        c = np.asarray(hand_centre, float)
+        return c + np.array([self.torso_offset_m[0], self.torso_offset_m[1], self.torso_gap_m + self.torso_size_m[2]])
+
+    def object_center(self, hand_centre) -> np.ndarray:
+        """Centre of the second object (camera frame) for a hand centred at ``hand_centre``."""
+        if self.object_centre is not None:
+            return np.asarray(self.object_centre, float)
+        return np.asarray(hand_centre, float) + np.asarray(self.object_offset_m, float)
+
     def fixed(self, hand_centre) -> "Clutter":
-        """A copy whose table no longer follows the hand (placed from ``hand_centre``)."""
-        if not self.table or self.table_point is not None:
-            return self
-        n, dn = self.plane(hand_centre)
-        return replace(self, table_point=tuple(n * dn), table_normal=tuple(n))
+        """A copy whose table, torso and object no longer follow the hand (placed from ``hand_centre``)."""
+        out = self
+        if self.table and self.table_point is None:
+            n, dn = self.plane(hand_centre)
+            out = replace(out, table_point=tuple(n * dn), table_normal=tuple(n))
+        if self.torso and self.torso_centre is None:
+            out = replace(out, torso_centre=tuple(self.torso_center(hand_centre)))
+        if self.object is not None and self.object_centre is None:
+            out = replace(out, object_centre=tuple(self.object_center(hand_centre)))
+        return out
 
 
-def _forearm_mesh(c: Clutter, n_around: int = 24, n_rings: int = 8):
-    """Closed tube in the wrist frame (vertices, faces with outward orientation)."""
-    s = np.linspace(0.0, 1.0, n_rings)
-    y = 0.004 - s * (c.forearm_length_m + 0.004)
-    hw = c.forearm_wrist_m[0] + s * (c.forearm_far_m[0] - c.forearm_wrist_m[0])
-    ht = c.forearm_wrist_m[1] + s * (c.forearm_far_m[1] - c.forearm_wrist_m[1])
-    phi = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
-    ring = np.stack([hw[:, None] * np.cos(phi), np.broadcast_to(y[:, None], (n_rings, n_around)),
-                     ht[:, None] * np.sin(phi)], -1).reshape(-1, 3)
-    V = np.concatenate([ring, [[0.0, y[0], 0.0], [0.0, y[-1], 0.0]]])
-    k = np.arange(n_around)
-    k1 = (k + 1) % n_around
+def _closed_mesh(rings):
+    """Triangles over ``rings`` (R, A, 3) of A points each, closed by a fan at each end around the
+    ring's centroid; faces oriented outward (positive signed volume)."""
+    R, A = rings.shape[:2]
+    V = np.concatenate([rings.reshape(-1, 3), rings[0].mean(0, keepdims=True), rings[-1].mean(0, keepdims=True)])
+    k = np.arange(A)
+    k1 = (k + 1) % A
     F = []
-    for i in range(n_rings - 1):
-        a, b = i * n_around, (i + 1) * n_around
+    for i in range(R - 1):
+        a, b = i * A, (i + 1) * A
         F += [np.stack([a + k, a + k1, b + k], 1), np.stack([a + k1, b + k1, b + k], 1)]
-    top, bot = len(V) - 2, len(V) - 1
-    F.append(np.stack([np.full(n_around, top), a * 0 + k1, k], 1))
-    last = (n_rings - 1) * n_around
-    F.append(np.stack([np.full(n_around, bot), last + k, last + k1], 1))
+    top, bot, last = R * A, R * A + 1, (R - 1) * A
+    F.append(np.stack([np.full(A, top), k1, k], 1))
+    F.append(np.stack([np.full(A, bot), last + k, last + k1], 1))
     F = np.concatenate(F).astype(np.int64)
-    tri = V[F]
+    tri = V[F] - V.mean(0)
     vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()
-    if vol < 0:  # make the normals point outward
+    if vol < 0:  # make the normals point outward (back-face culling relies on it)
         F = F[:, ::-1].copy()
     return np.ascontiguousarray(V), np.ascontiguousarray(F)
+
+
+def _tube(y0, y1, half0, half1, n_around=24, n_rings=8):
+    """Closed elliptic tube along y from ``y0`` to ``y1``, half-axes (x, z) tapering from ``half0`` to ``half1``."""
+    s = np.linspace(0.0, 1.0, n_rings)
+    y = y0 + s * (y1 - y0)
+    hw = half0[0] + s * (half1[0] - half0[0])
+    ht = half0[1] + s * (half1[1] - half0[1])
+    phi = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    rings = np.stack([hw[:, None] * np.cos(phi), np.broadcast_to(y[:, None], (n_rings, n_around)),
+                      ht[:, None] * np.sin(phi)], -1)
+    return _closed_mesh(rings)
+
+
+def _forearm_mesh(c: Clutter):
+    """Closed forearm tube in the wrist frame (vertices, outward faces)."""
+    return _tube(0.004, -c.forearm_length_m, c.forearm_wrist_m, c.forearm_far_m)
+
+
+def _sleeve_mesh(c: Clutter):
+    """The sleeve over the forearm from ``sleeve_start_m`` to 1 cm past its far end (wrist frame)."""
+    s0 = c.sleeve_start_m / c.forearm_length_m
+    half0 = [c.sleeve_scale * (w + s0 * (f - w)) + c.sleeve_ease_m for w, f in zip(c.forearm_wrist_m, c.forearm_far_m)]
+    half1 = [c.sleeve_scale * f + c.sleeve_ease_m for f in c.forearm_far_m]
+    return _tube(-c.sleeve_start_m, -c.forearm_length_m - 0.01, half0, half1, n_rings=6)
+
+
+def _superellipsoid(half, e, n_lat=28, n_lon=56):
+    """Closed superellipsoid about the origin (half-extents ``half`` along x, y, z, exponent ``e``:
+    1 an ellipsoid, towards 0 a box); y is the polar axis."""
+    def spow(x, p):
+        return np.sign(x) * np.abs(x) ** p
+    eta = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 2)[1:-1]
+    om = np.linspace(-np.pi, np.pi, n_lon, endpoint=False)
+    ce, se = spow(np.cos(eta), e)[:, None], spow(np.sin(eta), e)[:, None]
+    rings = np.stack([half[0] * ce * spow(np.cos(om), e)[None], np.broadcast_to(half[1] * se, (n_lat, n_lon)),
+                      half[2] * ce * spow(np.sin(om), e)[None]], -1)
+    return _closed_mesh(rings)
+
+
+def _object_mesh(c: Clutter):
+    """The second object about its centre: a rounded box or an upright cylinder."""
+    if c.object == "cylinder":
+        r, h = c.object_size_m[0], c.object_size_m[1]
+        return _tube(h, -h, (r, r), (r, r), n_around=32, n_rings=4)
+    return _superellipsoid(c.object_size_m, 0.12, n_lat=16, n_lon=32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,13 +304,17 @@ class Rendered:
     depth : (H, W) float32
         z in metres along the optical axis, NaN where no surface.
     labels : (H, W) int16 or None
-        Hand segment index (``hand.segments`` order), −1 elsewhere (background, clutter).
+        Hand segment index (``hand.segments`` order) on the hand, :data:`CLUTTER_LABELS` on clutter,
+        −1 (:data:`BACKGROUND_LABEL`) where nothing.
     color : (H, W, 3) uint8 or None
-        Shaded colour image registered to the depth image (skin hand, blue sleeve, grey table).
+        Shaded colour image registered to the depth image (skin hand and forearm, blue sleeve, green
+        torso, grey table, red object).
     face : (H, W) int32
-        Visible triangle: hand faces 0…T−1 (``T = n_hand_faces``), forearm faces T…, −2 table, −1 none.
+        Visible triangle: hand faces 0…T−1 (``T = n_hand_faces``), clutter triangles T…, −2 table, −1 none.
     cos_incidence : (H, W) float32 or None
         |cos| of the angle between surface normal and pixel ray (NaN where no surface).
+    reflectance : (H, W) float32 or None
+        Near-infrared reflectance of the visible material (:data:`MATERIALS`), NaN where no surface.
     """
 
     depth: np.ndarray
@@ -152,6 +323,7 @@ class Rendered:
     face: np.ndarray
     cos_incidence: np.ndarray | None = None
     n_hand_faces: int = 0
+    reflectance: np.ndarray | None = None
 
     @property
     def hand_mask(self) -> np.ndarray:
@@ -212,7 +384,7 @@ class DepthRenderer:
         self._p = _prepared(hand_or_mesh)
         self.camera = as_camera(camera)
         self.near = float(near)
-        self._forearm = {}
+        self._meshes = {}
 
     @property
     def hand(self):
@@ -245,50 +417,77 @@ class DepthRenderer:
         return depth, labels, face
 
     def render(self, theta, *, labels: bool = True, color: bool = False, clutter: Clutter | str | None = None,
-               incidence: bool = False) -> Rendered:
+               incidence: bool = False, reflectance: bool = False) -> Rendered:
         """Render one frame at parameters ``theta`` (26,); see :func:`render`."""
         if isinstance(clutter, str):
             clutter = Clutter.parse(clutter)
         P = self.pose(theta)
         depth, lab, face = self.rasterize(P)
         c = self.camera
-        verts, faces = P, self._p.faces
-        if clutter is not None and clutter.forearm:
-            G0 = self._p.hand.node_frames(theta)[0]
-            Vf, Ff = self._forearm_mesh(clutter)
-            Pf = np.ascontiguousarray(Vf @ G0[:3, :3].T + G0[:3, 3])
-            raster(Pf, Ff, np.full(len(Ff), -1, np.int16), self.n_faces, float(c.fx), float(c.fy), float(c.cx),
-                   float(c.cy), self.near, True, depth, lab, face)
-            if color or incidence:
-                verts = np.concatenate([P, Pf])
-                faces = np.concatenate([faces, Ff + len(P)])
+        verts, faces, mats = [P], [self._p.faces], [np.full(self.n_faces, MATERIALS["skin"][0], np.int64)]
+        n_v, n_f = len(P), self.n_faces
         n_table = None
-        if clutter is not None and clutter.table:
+        if clutter is not None:
             centre = P.mean(axis=0)
-            n_table, dn = clutter.plane(centre)
-            plane_pass(n_table, dn, float(c.fx), float(c.fy), float(c.cx), float(c.cy), clutter.max_depth_m,
-                       depth, lab, np.int16(-1), face, np.int32(TABLE_FACE))
-        cosi = col = None
+            for V, F, label, material in self._clutter_meshes(clutter, theta, centre):
+                raster(V, F, np.full(len(F), label, np.int16), n_f, float(c.fx), float(c.fy), float(c.cx),
+                       float(c.cy), self.near, True, depth, lab, face)
+                verts.append(V)
+                faces.append(F + n_v)
+                mats.append(np.full(len(F), material, np.int64))
+                n_v += len(V)
+                n_f += len(F)
+            if clutter.table:
+                n_table, dn = clutter.plane(centre)
+                plane_pass(n_table, dn, float(c.fx), float(c.fy), float(c.cx), float(c.cy), clutter.max_depth_m,
+                           depth, lab, np.int16(CLUTTER_LABELS["table"]), face, np.int32(TABLE_FACE))
+        face_mat = np.concatenate(mats)
+        cosi = col = refl = None
         if color or incidence:
             H, W = depth.shape
             col = np.empty((H, W, 3) if color else (0, 0, 3), np.uint8)
             cosi = np.empty((H, W) if incidence else (0, 0), np.float32)
-            shade(np.ascontiguousarray(verts), faces, face, self.n_faces,
-                  np.zeros(3) if n_table is None else n_table, float(c.fx), float(c.fy), float(c.cx), float(c.cy),
-                  LIGHT_DIR, _MATERIALS, _BACKGROUND, col, cosi)
+            shade(np.ascontiguousarray(np.concatenate(verts)), np.ascontiguousarray(np.concatenate(faces)), face,
+                  face_mat, MATERIALS["table"][0], np.zeros(3) if n_table is None else n_table, float(c.fx),
+                  float(c.fy), float(c.cx), float(c.cy), LIGHT_DIR, _MATERIALS, _BACKGROUND, col, cosi)
             col = col if color else None
             cosi = cosi if incidence else None
-        return Rendered(depth, lab if labels else None, col, face, cosi, self.n_faces)
+        if reflectance:
+            m = np.where(face >= 0, face_mat[np.maximum(face, 0)], MATERIALS["table"][0])
+            refl = np.where(face == -1, np.float32(np.nan), _REFLECTANCE[m]).astype(np.float32)
+        return Rendered(depth, lab if labels else None, col, face, cosi, self.n_faces, refl)
 
-    def _forearm_mesh(self, clutter: Clutter):
-        key = (clutter.forearm_length_m, clutter.forearm_wrist_m, clutter.forearm_far_m)
-        if key not in self._forearm:
-            self._forearm[key] = _forearm_mesh(clutter)
-        return self._forearm[key]
+    def _clutter_meshes(self, clutter: Clutter, theta, centre):
+        """The triangle clutter in the camera frame: ``(vertices, faces, label, material)`` per element."""
+        out = []
+        if clutter.forearm:
+            G0 = self._p.hand.node_frames(theta)[0]
+            pieces = [("forearm", "skin", _forearm_mesh)] + ([("sleeve", "sleeve", _sleeve_mesh)] if clutter.sleeve
+                                                             else [])
+            for name, material, build in pieces:
+                V, F = self._mesh(name, clutter, build)
+                out.append((np.ascontiguousarray(V @ G0[:3, :3].T + G0[:3, 3]), F, CLUTTER_LABELS[name],
+                            MATERIALS[material][0]))
+        if clutter.torso:
+            V, F = self._mesh("torso", clutter, lambda c: _superellipsoid(c.torso_size_m, c.torso_roundness))
+            out.append((np.ascontiguousarray(V + clutter.torso_center(centre)), F, CLUTTER_LABELS["torso"],
+                        MATERIALS["torso"][0]))
+        if clutter.object is not None:
+            V, F = self._mesh("object", clutter, _object_mesh)
+            out.append((np.ascontiguousarray(V + clutter.object_center(centre)), F, CLUTTER_LABELS["object"],
+                        MATERIALS["object"][0]))
+        return out
+
+    def _mesh(self, name, clutter: Clutter, build):
+        """A clutter mesh in its own frame, built once per shape."""
+        key = (name, replace(clutter, torso_centre=None, table_point=None, table_normal=None, object_centre=None))
+        if key not in self._meshes:
+            self._meshes[key] = build(clutter)
+        return self._meshes[key]
 
 
 def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = False,
-           clutter: Clutter | str | None = None, incidence: bool = False) -> Rendered:
+           clutter: Clutter | str | None = None, incidence: bool = False, reflectance: bool = False) -> Rendered:
     """Render the LBS-posed hand mesh at ``theta`` through ``camera``.
 
     Parameters
@@ -297,13 +496,13 @@ def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = Fa
         The mesh is built once per model and cached.
     theta : (26,) parameters; the global pose places the hand in the camera frame.
     camera : camera object with ``width height fx fy cx cy`` or a preset name (``tracker.cameras``).
-    labels, color, incidence : bool
-        Also return the segment-label image, a shaded colour image, the incidence cosine.
-    clutter : Clutter, "forearm", "table", "forearm,table" or None
+    labels, color, incidence, reflectance : bool
+        Also return the label image, a shaded colour image, the incidence cosine, the infrared reflectance.
+    clutter : Clutter, a :meth:`Clutter.parse` spec ("forearm,table", "sleeve,torso=0.1,box", …) or None
 
     Returns
     -------
     Rendered
     """
     return DepthRenderer(hand_or_mesh, camera).render(theta, labels=labels, color=color, clutter=clutter,
-                                                      incidence=incidence)
+                                                      incidence=incidence, reflectance=reflectance)
