@@ -1,4 +1,6 @@
-"""Depth-sensor noise for synthetic frames: a :class:`NoiseModel` with switchable parts and presets.
+"""Depth-sensor noise for synthetic frames: a :class:`NoiseModel` with switchable parts and presets
+(``kinect1``: Kinect v1 structured light; ``sr305``: RealSense SR305/SR300 coded light, alias
+``realsense``; ``d4xx``: RealSense D400 active stereo).
 
 Parts (applied in this order by :meth:`NoiseModel.apply`; each can be switched off):
 
@@ -6,23 +8,50 @@ Parts (applied in this order by :meth:`NoiseModel.apply`; each can be switched o
    a band of width ``f·b·(1/z_near − 1/z_far)`` pixels beside each depth step, on the side away
    from the projector (Kinect v1: projector ≈ 7.5 cm to the right of the IR camera in the image,
    so shadows fall left of objects).
-2. **Lateral noise** — each pixel takes the depth of a neighbour displaced by a Gaussian offset of
+2. **Holes on grazing and dark surfaces** — active sensors lose the pattern where the surface is
+   seen at a grazing angle or reflects little infrared: pixels are lost with a probability rising
+   linearly from 0 at incidence ``grazing_deg[0]`` to 1 at ``grazing_deg[1]``, and with
+   ``dark_drop_prob`` where the renderer's infrared reflectance is below ``dark_reflectance``.
+   The thresholds are our assumptions (no vendor figure); they make the dark sleeve and the rim
+   of the fingers patchy, as on real RealSense frames.
+3. **Lateral noise** — each pixel takes the depth of a neighbour displaced by a Gaussian offset of
    σ_L pixels; this frays silhouettes. Nguyen, Izadi & Lovell (2012, Fig. 6):
    σ_L(θ) = 0.8 + 0.035·θ/(π/2 − θ) px, θ the angle between the surface normal and the ray.
-3. **Edge dropout** — valid pixels within ``edge_width_px`` of a silhouette or a depth jump larger
+4. **Edge dropout** — valid pixels within ``edge_width_px`` of a silhouette or a depth jump larger
    than ``edge_jump_m`` are lost with probability ``edge_drop_prob`` (our defaults, not measured).
-4. **Axial noise** growing with z², Nguyen, Izadi & Lovell (2012), "Modeling Kinect sensor noise for
+5. **Flying pixels** — a pixel beside a depth jump larger than ``edge_jump_m`` (a valid neighbour
+   on both sides of it) takes, with probability ``flying_prob``, a depth between its own and its
+   neighbour's (uniform fraction 0.1–0.9): the mixed-pixel artefact of stereo matching windows
+   and of the sensors' edge filters, which puts points in mid-air between hand and background.
+6. **Axial noise** growing with z², Nguyen, Izadi & Lovell (2012), "Modeling Kinect sensor noise for
    improved 3D reconstruction and tracking", 3DIMPVT, eq. (2): σ_z(z) = 0.0012 + 0.0019 (z − 0.4)² m
    for 10° ≤ θ ≤ 60°, plus 0.0001/√z · θ²/(π/2 − θ)² m beyond 60° (we add this term at every θ: it
    is below 0.12 mm up to 45°; θ is clipped at 85°). Their σ was measured on real Kinect depth,
    quantisation included, so with quantisation on the Gaussian part is reduced to
    ``sqrt(σ_z² − Δz²/12)`` and the total spread stays σ_z.
-5. **Disparity quantisation** — Kinect v1 reports disparity in 1/8-pixel steps with baseline
+   Triangulating sensors in general follow σ_z = z²·σ_d/(f·b) (σ_d the disparity error in pixels):
+   :meth:`NoiseModel.triangulation_coeffs` writes it in the same ``a + b (z − z0)²`` form. For the
+   D400 Intel's white paper gives the RMS error z²·subpixel/(f·B) with subpixel ≈ 0.08 px
+   (Grunnet-Jepsen, Sweetser & Woodfill, "Best-known-methods for tuning Intel RealSense D400 depth
+   cameras for best performance", Intel white paper rev. 1.9, sec. 3), f = ½·Xres/tan(HFOV/2):
+   D415 at 1280 px, HFOV 65°, B = 55 mm → f ≈ 1005 px, σ_z = 0.71 mm at 0.7 m, 1.45 mm at 1 m.
+   The SR305 has no published formula: we use the same z² law with 3 mm/m² (0.75 mm at 0.5 m,
+   1.5 mm at 0.7 m), our assumption of the order of the plane-fit residuals reported for the SR300.
+7. **Disparity quantisation** — Kinect v1 reports disparity in 1/8-pixel steps with baseline
    b ≈ 7.5 cm and focal length f ≈ 580 px (Konolige & Mihelich 2011, "Technical description of
    Kinect calibration", ROS wiki), so depth comes in steps Δz = z²·Δd/(f·b) (Khoshelham &
    Elberink 2012, Sensors 12:1437, eq. 9): 1.4 mm at 0.7 m, 2.9 mm at 1 m.
-6. **Range** — no depth outside ``range_m`` (Kinect v1: 0.5–5 m, Khoshelham & Elberink 2012).
-7. **Random dropout** of single pixels with ``random_drop_prob``.
+8. **Depth quantisation** — depth comes in multiples of ``depth_step_m``: 0.125 mm for the SR300/SR305
+   (Zabatani et al. 2020, "Intel RealSense SR300 coded light depth camera", IEEE TPAMI 42:2333),
+   1 mm for the D400's default depth unit.
+9. **Range** — no depth outside ``range_m`` (Kinect v1: 0.5–5 m, Khoshelham & Elberink 2012; SR300:
+   0.2–1.5 m, librealsense camera_specs.md; D400: from MinZ = f·B/126 px ≈ 0.3 m at 848 px).
+10. **Random dropout** of single pixels with ``random_drop_prob``.
+
+Shadows: Kinect v1's projector sits 7.5 cm beside the camera; the D400 computes depth in the left
+imager, so the region the right imager cannot see (a band f·B·(1/z_near − 1/z_far) wide, B = 55 mm)
+has no depth — the same geometry with the right imager as "projector"; for the SR305 the
+projector–camera distance is not published and we assume 4 cm.
 
 Randomness comes only from the ``rng`` passed in, so frames are reproducible from a seed.
 
@@ -35,6 +64,8 @@ Examples
 >>> d = k.apply(np.full((4, 4), 1.0, np.float32), rng=np.random.default_rng(0))
 >>> d.dtype, bool(np.isfinite(d).all())
 (dtype('float32'), True)
+>>> round(float(NoiseModel.preset("d4xx").sigma_z(1.0)) * 1000, 2)   # D415 at 1 m
+1.45
 """
 from __future__ import annotations
 
@@ -76,6 +107,16 @@ class NoiseModel:
         Probability of losing any valid pixel.
     range_m : (float, float)
         Depths outside are lost.
+    depth_step_m : float
+        Quantise depth itself to multiples of this (0: off).
+    flying_prob : float
+        Probability that a pixel beside a depth jump (> ``edge_jump_m``) becomes a flying pixel.
+    grazing_deg : (float, float) or None
+        Incidence angles (degrees) between which the loss probability rises from 0 to 1 (needs the
+        renderer's incidence image).
+    dark_reflectance, dark_drop_prob : float
+        Pixels whose infrared reflectance (the renderer's ``reflectance``) is below the threshold are
+        lost with this probability.
     """
 
     name: str = "custom"
@@ -95,9 +136,18 @@ class NoiseModel:
     edge_jump_m: float = 0.02
     random_drop_prob: float = 0.0
     range_m: tuple = (0.0, float("inf"))
+    depth_step_m: float = 0.0
+    flying_prob: float = 0.0
+    grazing_deg: tuple | None = None
+    dark_reflectance: float = 0.0
+    dark_drop_prob: float = 0.0
 
     def __post_init__(self):
-        for p in ("edge_drop_prob", "random_drop_prob"):
+        if self.depth_step_m < 0:
+            raise TrackerError(f"noise {self.name}", f"depth_step_m must be >= 0, got {self.depth_step_m}")
+        if self.grazing_deg is not None and not 0 <= self.grazing_deg[0] < self.grazing_deg[1] <= 90:
+            raise TrackerError(f"noise {self.name}", f"grazing_deg must be 0 <= start < end <= 90, got {self.grazing_deg}")
+        for p in ("edge_drop_prob", "random_drop_prob", "flying_prob", "dark_drop_prob"):
             v = getattr(self, p)
             if not 0.0 <= v <= 1.0:
                 raise TrackerError(f"noise {self.name}", f"{p} must be in [0, 1], got {v}")
@@ -110,11 +160,26 @@ class NoiseModel:
     # ------------------------------------------------------------------ presets
     @classmethod
     def preset(cls, name: str) -> "NoiseModel":
-        """A named preset (:data:`PRESETS`): ``none`` or ``kinect1``."""
+        """A named preset (:data:`PRESETS`: ``none``, ``kinect1``, ``sr305``, ``d4xx``; ``realsense``
+        is ``sr305``)."""
         try:
-            return PRESETS[name]
+            return PRESETS[ALIASES.get(name, name)]
         except KeyError:
-            raise TrackerError(f"noise {name}", f"unknown noise preset (known: {', '.join(PRESETS)})") from None
+            raise TrackerError(f"noise {name}", f"unknown noise preset (known: {', '.join([*PRESETS, *ALIASES])})"
+                               ) from None
+
+    @staticmethod
+    def triangulation_coeffs(disparity_sigma_px: float, focal_px: float, baseline_m: float) -> tuple:
+        """``axial_coeffs`` of σ_z = z²·σ_d/(f·b), the error of any triangulating sensor (Intel's RMS
+        formula with σ_d the subpixel accuracy).
+
+        >>> a, b, z0 = NoiseModel.triangulation_coeffs(0.08, 1005.0, 0.055)
+        >>> (a, z0), round(b * 1e3, 3)
+        ((0.0, 0.0), 1.447)
+        """
+        if not (disparity_sigma_px > 0 and focal_px > 0 and baseline_m > 0):
+            raise TrackerError("noise", "disparity σ, focal length and baseline must be positive")
+        return (0.0, float(disparity_sigma_px / (focal_px * baseline_m)), 0.0)
 
     def with_(self, **changes) -> "NoiseModel":
         """A copy with some parts changed, e.g. ``kinect1.with_(shadow=False)``."""
@@ -127,12 +192,28 @@ class NoiseModel:
     @property
     def is_noise_free(self) -> bool:
         return not (self.axial or self.lateral_px > 0 or self.quantize or self.shadow or self.edge_drop_prob > 0
-                    or self.random_drop_prob > 0 or self.range_m[0] > 0 or np.isfinite(self.range_m[1]))
+                    or self.random_drop_prob > 0 or self.range_m[0] > 0 or np.isfinite(self.range_m[1])
+                    or self.depth_step_m > 0 or self.flying_prob > 0 or self.grazing_deg is not None
+                    or self.dark_drop_prob > 0)
 
     @property
     def needs_incidence(self) -> bool:
         """Whether :meth:`apply` uses the incidence-angle image (``cos_incidence``)."""
-        return self.angle_terms and (self.axial or self.lateral_px > 0)
+        return (self.angle_terms and (self.axial or self.lateral_px > 0)) or self.grazing_deg is not None
+
+    @property
+    def needs_reflectance(self) -> bool:
+        """Whether :meth:`apply` uses the infrared reflectance image (``reflectance``)."""
+        return self.dark_drop_prob > 0 and self.dark_reflectance > 0
+
+    def grazing_loss(self, cos_incidence) -> np.ndarray:
+        """Probability of losing a pixel at this incidence (0 when the part is off)."""
+        c = np.asarray(cos_incidence, float)
+        if self.grazing_deg is None:
+            return np.zeros_like(c)
+        th = np.degrees(np.arccos(np.clip(np.abs(np.nan_to_num(c, nan=1.0)), 0.0, 1.0)))
+        lo, hi = self.grazing_deg
+        return np.clip((th - lo) / (hi - lo), 0.0, 1.0)
 
     # ------------------------------------------------------------------ the documented curves
     def sigma_z(self, z, cos_incidence=None) -> np.ndarray:
@@ -171,11 +252,13 @@ class NoiseModel:
         return z ** 2 * self.disparity_step_px / (self.focal(camera) * self.baseline_m)
 
     # ------------------------------------------------------------------ applying
-    def apply(self, depth, camera=None, rng=None, cos_incidence=None) -> np.ndarray:
+    def apply(self, depth, camera=None, rng=None, cos_incidence=None, reflectance=None) -> np.ndarray:
         """A noisy copy of ``depth`` ((H, W) metres, NaN = no data) as float32.
 
         ``camera`` supplies fx when ``focal_px`` is None; ``rng`` a :class:`numpy.random.Generator`
-        (default: seed 0); ``cos_incidence`` (H, W) the cosine between surface normal and ray.
+        (default: seed 0); ``cos_incidence`` (H, W) the cosine between surface normal and ray;
+        ``reflectance`` (H, W) the surfaces' infrared reflectance. Parts that need an image which is
+        not given are skipped.
         """
         d = np.array(depth, dtype=np.float64)
         if d.ndim != 2:
@@ -201,11 +284,19 @@ class NoiseModel:
             sh = np.zeros(d.shape, np.bool_)
             projector_shadow(d, self.focal(camera) * self.baseline_m, self.projector_side, sh)
             d[sh] = np.nan
+        if self.grazing_deg is not None and cosi is not None:
+            d[rng.random(d.shape) < self.grazing_loss(cosi)] = np.nan
+        if self.needs_reflectance and reflectance is not None:
+            with np.errstate(invalid="ignore"):
+                dark = np.asarray(reflectance, float)[win] < self.dark_reflectance
+            d[dark & (rng.random(d.shape) < self.dark_drop_prob)] = np.nan
         if self.lateral_px > 0:
             d, cosi = _lateral(d, cosi, self.lateral_px, self.angle_terms, max(jitter, 1), rng)
         if self.edge_drop_prob > 0 and self.edge_width_px > 0:
             near_edge = _edge_band(d, self.edge_width_px, self.edge_jump_m)
             d[near_edge & (rng.random(d.shape) < self.edge_drop_prob)] = np.nan
+        if self.flying_prob > 0:
+            d = _flying(d, self.edge_jump_m, self.flying_prob, rng)
         ok = np.isfinite(d)
         z = d[ok]
         if self.axial:
@@ -219,6 +310,8 @@ class NoiseModel:
             step = self.disparity_step_px
             disp = np.round(fb / np.maximum(z, 1e-6) / step) * step
             z = np.where(disp > 0, fb / np.maximum(disp, 1e-12), np.nan)
+        if self.depth_step_m > 0:
+            z = np.round(z / self.depth_step_m) * self.depth_step_m
         lo, hi = self.range_m
         z = np.where((z >= lo) & (z <= hi), z, np.nan)
         d[ok] = z
@@ -242,6 +335,31 @@ def _lateral(d, cosi, sigma0, angle, reach, rng):
     out_c = np.empty_like(c)
     lateral_resample(np.ascontiguousarray(d), c, nu, nv, float(sigma0), bool(angle), int(reach), out_d, out_c)
     return out_d, (None if cosi is None else out_c)
+
+
+def _flying(d, jump, prob, rng):
+    """Pixels beside a depth jump > ``jump`` (both neighbours valid) moved, with probability ``prob``,
+    a uniform 10–90 % of the way towards the neighbour across the largest jump."""
+    ok = np.isfinite(d)
+    partner = np.full(d.shape, np.nan)
+    best = np.zeros(d.shape)
+    for axis in (0, 1):
+        for shift in (1, -1):
+            nb = np.roll(d, shift, axis=axis)
+            edge = 0 if shift == 1 else -1
+            if axis == 0:
+                nb[edge, :] = np.nan  # the image border wraps around: no neighbour there
+            else:
+                nb[:, edge] = np.nan
+            with np.errstate(invalid="ignore"):
+                gap = np.abs(nb - d)
+                take = ok & np.isfinite(nb) & (gap > jump) & (gap > best)
+            partner[take] = nb[take]
+            best[take] = gap[take]
+    fly = np.isfinite(partner) & (rng.random(d.shape) < prob)
+    out = d.copy()
+    out[fly] = d[fly] + rng.uniform(0.1, 0.9, int(fly.sum())) * (partner[fly] - d[fly])
+    return out
 
 
 def _edge_band(d, width, jump):
@@ -272,4 +390,21 @@ PRESETS: dict[str, NoiseModel] = {
         quantize=True, disparity_step_px=0.125, baseline_m=0.075, focal_px=580.0, shadow=True, projector_side=1,
         edge_drop_prob=0.5, edge_width_px=2, edge_jump_m=0.02, random_drop_prob=0.0, range_m=(0.5, 5.0),
     ),
+    # RealSense SR305 / SR300 coded light (sources and assumptions in the module docstring)
+    "sr305": NoiseModel(
+        name="sr305", axial=True, axial_coeffs=(0.0, 0.003, 0.0), angle_terms=False, axial_includes_quantization=False,
+        lateral_px=0.5, quantize=False, baseline_m=0.04, focal_px=None, shadow=True, projector_side=1,
+        edge_drop_prob=0.4, edge_width_px=1, edge_jump_m=0.02, flying_prob=0.2, grazing_deg=(65.0, 82.0),
+        dark_reflectance=0.15, dark_drop_prob=0.8, depth_step_m=0.000125, range_m=(0.2, 1.5),
+    ),
+    # RealSense D415 active stereo at 1280×720 (Intel's RMS formula, subpixel 0.08, B = 55 mm, HFOV 65°)
+    "d4xx": NoiseModel(
+        name="d4xx", axial=True, axial_coeffs=NoiseModel.triangulation_coeffs(0.08, 1005.0, 0.055), angle_terms=False,
+        axial_includes_quantization=False, lateral_px=0.6, quantize=False, baseline_m=0.055, focal_px=None,
+        shadow=True, projector_side=1, edge_drop_prob=0.3, edge_width_px=1, edge_jump_m=0.02, flying_prob=0.35,
+        grazing_deg=(70.0, 86.0), dark_reflectance=0.15, dark_drop_prob=0.5, depth_step_m=0.001, range_m=(0.3, 10.0),
+    ),
 }
+
+#: Other names of presets.
+ALIASES: dict[str, str] = {"realsense": "sr305"}
