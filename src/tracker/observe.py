@@ -132,7 +132,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
         d = smooth_depth(d, int(st.smooth))
     seg = segmenter or Segmenter()
     X = backproject(d, camera)
-    mask = seg(d, color, X)
+    mask = seg(d, color, X, focal=0.5 * (camera.fx + camera.fy))
     N = image_normals(X, st.normal_max_jump)
     stride = int(st.stride)
     if st.target_points:

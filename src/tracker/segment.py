@@ -1,9 +1,32 @@
 """Pipeline stage ``segment``: the hand's pixels in a depth (and colour) frame — working volume,
-skin colour, nearest blob.
+nearest hand-sized surface, fingertip blobs, wrist cut, skin colour.
 
-No wristband is needed: with colour, skin pixels (HSV range of the original detector) inside the
-working volume; without colour, the connected blob of pixels within ``band`` of the nearest valid
-depth (the hand is usually the closest object to the camera in hand-tracking set-ups).
+No wristband is needed. The steps, each a small function over arrays:
+
+1. working volume: valid depth within ``[z_min, z_max]`` (and inside ``box`` when given);
+2. :func:`surfaces`: pixels grouped into surfaces by depth continuity (neighbours closer than
+   ``jump``), so the body and objects behind or beside the hand, and a table the hand rests on
+   but stands out of, fall into other surfaces;
+3. :func:`pick_hand_surface`: among surfaces of at least ``min_area`` square metres (flying pixels
+   and specks do not count), the one whose nearest part is nearest to the camera;
+4. that surface, cut to ``band`` metres behind its nearest part, plus the small surfaces in that
+   depth band within ``margin_px`` of it (fingertips curled towards the camera that the sensor
+   cuts off by a depth jump or a no-data gap);
+5. :func:`cut_forearm` (``forearm="cut"``): the palm is the largest inscribed circle of the
+   region, the forearm the wide part leaving it; the cut goes across the arm where the width
+   profile along the arm narrows most (the wrist);
+6. with a colour frame (``use_color``), only skin-coloured pixels (HSV range of htrack's
+   detector) are kept, when enough of them are.
+
+The body-sized surface of a person standing behind the hand is never picked over the hand
+because its nearest part lies behind the hand; a surface that merely touches the hand in the
+image is a different surface as soon as a depth step separates them.
+
+>>> d = np.full((60, 80), 0.9)          # a wall
+>>> d[10:40, 20:40] = 0.5               # a hand-sized patch (≈ 6 × 4 cm at f = 500 px) in front
+>>> m = Segmenter(min_area=1e-4)(d, focal=500.0)
+>>> int(m.sum()), bool(m[20, 30]), bool(m[5, 5])
+(600, True, False)
 """
 from __future__ import annotations
 
@@ -15,34 +38,78 @@ from scipy import ndimage
 
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
+FOREARM_CHOICES = ("cut", "keep")
+DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 
 
 @dataclass
 class Segmenter:
-    """Settings: depth range (m), optional box in the camera frame (m), nearest-blob band (m),
-    minimum blob size (pixels), whether to use colour when present."""
+    """Settings of the hand segmentation (metres, pixels).
+
+    Parameters
+    ----------
+    z_min, z_max : working depth range
+    box_min, box_max : optional axis-aligned box in the camera frame (None entries are open)
+    band : how far behind the hand's nearest part the hand may reach
+    min_pixels : smallest surface considered, in pixels
+    min_area : smallest surface considered as the hand, in m² (a hand seen from the front is
+        about 0.01–0.015 m²; specks, flying pixels and thin edges are smaller)
+    jump : depth step between neighbouring pixels that separates two surfaces
+    margin_px : how far (pixels) a fingertip blob may lie from the hand and still belong to it
+    blob_area : surfaces smaller than this (m²) near the hand are fingertip blobs, larger ones are
+        other objects
+    reach : how far (m, 3-D) the hand may extend from its nearest part's centre (None: no limit)
+    forearm : ``"cut"`` (remove the forearm beyond the wrist) or ``"keep"``
+    use_color : keep only skin-coloured pixels when a colour frame is given
+    """
 
     z_min: float = 0.2
     z_max: float = 1.5
     box_min: tuple | None = None
     box_max: tuple | None = None
-    band: float = 0.15
+    band: float = 0.12
     min_pixels: int = 30
+    min_area: float = 0.004
+    jump: float = 0.02
+    margin_px: int = 25
+    blob_area: float = 0.0015
+    reach: float | None = 0.22
+    forearm: str = "cut"
     use_color: bool = True
 
-    def __call__(self, depth, color=None, points=None):
-        """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data)."""
+    def __post_init__(self):
+        if self.forearm not in FOREARM_CHOICES:
+            raise ValueError(f"forearm must be one of {', '.join(FOREARM_CHOICES)}, got {self.forearm!r}")
+        if not self.z_max > self.z_min:
+            raise ValueError(f"depth range must have far > near, got {self.z_min}, {self.z_max}")
+
+    def __call__(self, depth, color=None, points=None, *, focal=None):
+        """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data).
+
+        ``points``: the back-projected ``(H, W, 3)`` image (needed for ``box``); ``focal``: the
+        camera's focal length in pixels (for physical areas; read from ``points`` if None, else
+        :data:`DEFAULT_FOCAL_PX`)."""
         d = np.asarray(depth, float)
-        valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
-        if (self.box_min is not None or self.box_max is not None) and points is not None:
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
+        if self.box_min is not None or self.box_max is not None:
+            if points is None:
+                raise ValueError("a segmentation box needs the back-projected points")
             valid &= in_box(points, self.box_min, self.box_max)
         if not valid.any():
             return valid
         if color is not None and self.use_color:
             skin = skin_mask(color) & valid
             if skin.sum() >= self.min_pixels:
-                return largest_component(skin)
-        return nearest_blob(np.where(valid, d, np.nan), self.band, self.min_pixels)
+                valid = skin
+        f = float(focal) if focal else focal_from_points(points)
+        dv = np.where(valid, d, np.nan)
+        mask = hand_region(dv, f, band=self.band, jump=self.jump, min_pixels=self.min_pixels,
+                           min_area=self.min_area, margin_px=self.margin_px, blob_area=self.blob_area,
+                           reach=self.reach, points=points)
+        if self.forearm == "cut" and mask.any():
+            mask = cut_forearm(mask, dv, f)
+        return mask
 
 
 def in_box(points, box_min=None, box_max=None) -> np.ndarray:
@@ -64,46 +131,225 @@ def skin_mask(color):
 
 
 def largest_component(mask):
+    """The largest 4-connected component of a boolean mask."""
     lab, n = ndimage.label(mask)
     if n <= 1:
         return mask
-    sizes = ndimage.sum(mask, lab, index=np.arange(1, n + 1))
+    sizes = np.bincount(lab.ravel())[1:]
     return lab == (1 + int(np.argmax(sizes)))
 
 
-def nearest_blob(depth, band=0.15, min_pixels=30, jump=0.02, margin_px=25):
-    """The nearest sizeable surface, cut to ``band`` metres behind its nearest part.
-
-    Pixels are grouped into surfaces by depth continuity (neighbours closer than ``jump``); among
-    surfaces of at least ``min_pixels`` (and 5 % of the largest) the one whose 2nd-percentile depth is
-    smallest wins (the hand held towards the camera). Then everything within ``band`` of that depth
-    that is connected to the biggest part of it, or lies within ``margin_px`` of that part (fingers cut
-    off by sensor shadows), is kept — the hand, not the arm or body behind it."""
+def surfaces(depth, jump=0.02):
+    """``(labels, n)``: 4-connected surfaces of a depth image (NaN = no data); neighbours whose
+    depths differ by more than ``jump`` lie on different surfaces."""
     d = np.asarray(depth, float)
     finite = np.isfinite(d)
-    if not finite.any():
-        return finite
     with np.errstate(invalid="ignore"):
-        cut = np.zeros_like(finite)
-        cut[:, :-1] |= np.abs(d[:, 1:] - d[:, :-1]) > jump
-        cut[:-1, :] |= np.abs(d[1:, :] - d[:-1, :]) > jump
-    lab, n = ndimage.label(finite & ~cut)
+        # a pixel is cut off from its right / lower neighbour across a step; the step's far side
+        # is removed (one pixel), which splits the surfaces without changing the near one
+        far_right = np.zeros_like(finite)
+        far_down = np.zeros_like(finite)
+        dx = d[:, 1:] - d[:, :-1]
+        dy = d[1:, :] - d[:-1, :]
+        far_right[:, 1:] |= dx > jump
+        far_right[:, :-1] |= -dx > jump
+        far_down[1:, :] |= dy > jump
+        far_down[:-1, :] |= -dy > jump
+    core = finite & ~far_right & ~far_down
+    lab, n = ndimage.label(core)
+    if n:
+        # give the step pixels back to the surface of their nearest-in-depth labelled neighbour
+        # whose depth is within the jump (they are the far side of a step, not a surface of their own)
+        lab = _reattach(lab, d, finite & ~core, jump)
+    return lab, n
+
+
+def _reattach(lab, d, todo, jump):
+    out = lab.copy()
+    H, W = lab.shape
+    best = np.full(lab.shape, np.inf)
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nb_lab = np.zeros_like(lab)
+        nb_d = np.full(d.shape, np.nan)
+        ys = slice(max(dy, 0), H + min(dy, 0))
+        yd = slice(max(-dy, 0), H + min(-dy, 0))
+        xs = slice(max(dx, 0), W + min(dx, 0))
+        xd = slice(max(-dx, 0), W + min(-dx, 0))
+        nb_lab[yd, xd] = lab[ys, xs]
+        nb_d[yd, xd] = d[ys, xs]
+        with np.errstate(invalid="ignore"):
+            diff = np.abs(nb_d - d)
+            take = todo & (nb_lab > 0) & (diff <= jump) & (diff < best)
+        out[take] = nb_lab[take]
+        best[take] = diff[take]
+    return out
+
+
+def focal_from_points(points):
+    """The horizontal focal length (px) of back-projected points ``(H, W, 3)``: x/z grows by
+    exactly 1/fx from one column to the next; :data:`DEFAULT_FOCAL_PX` when it cannot be read."""
+    if points is None:
+        return DEFAULT_FOCAL_PX
+    P = np.asarray(points, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = np.nanmedian(np.diff(P[..., 0] / P[..., 2], axis=1)) if P.shape[1] > 1 else np.nan
+    return float(1.0 / step) if np.isfinite(step) and step > 0 else DEFAULT_FOCAL_PX
+
+
+def pixel_area(depth, focal):
+    """Area (m²) each pixel covers on a fronto-parallel surface at its depth."""
+    return (np.asarray(depth, float) / float(focal)) ** 2
+
+
+def surface_fronts(lab, n, depth, focal, min_pixels=30, min_area=0.004):
+    """``(ids, fronts)``: the surfaces of at least ``min_pixels`` pixels and ``min_area`` m², and the
+    depth of each one's nearest part (its 1st percentile, so flying pixels on its edge don't
+    count), nearest first."""
     if n == 0:
-        return np.zeros_like(finite)
-    ids = np.arange(1, n + 1)
-    sizes = ndimage.sum(np.ones_like(d), lab, index=ids)
-    big = ids[sizes >= max(min_pixels, 0.05 * sizes.max())]
-    if big.size == 0:
-        return np.zeros_like(finite)
-    fronts = [np.percentile(d[lab == k], 2) for k in big]
-    front = min(fronts)
-    near = finite & (d <= front + band)
-    lab2, n2 = ndimage.label(near)
-    if n2 == 0:
-        return np.zeros_like(finite)
-    sizes2 = ndimage.sum(np.ones_like(d), lab2, index=np.arange(1, n2 + 1))
-    main = lab2 == (1 + int(np.argmax(sizes2)))
-    zone = ndimage.binary_dilation(main, iterations=margin_px)
-    keep = np.unique(lab2[zone & near])
-    keep = keep[keep > 0]
-    return np.isin(lab2, keep)
+        return np.zeros(0, int), np.zeros(0)
+    d = np.asarray(depth, float)
+    on = lab > 0
+    L = lab[on]
+    z = d[on]
+    count = np.bincount(L, minlength=n + 1)
+    area = np.bincount(L, weights=pixel_area(z, focal), minlength=n + 1)
+    ok = (count >= max(int(min_pixels), 1)) & (area >= min_area)
+    ok[0] = False
+    ids = np.flatnonzero(ok)
+    if ids.size == 0:
+        return ids, np.zeros(0)
+    sel = ok[L]
+    Ls, zs = L[sel], z[sel]
+    order = np.lexsort((zs, Ls))
+    Ls, zs = Ls[order], zs[order]
+    starts = np.searchsorted(Ls, ids)
+    fronts = zs[starts + (0.01 * count[ids]).astype(int)]
+    o = np.argsort(fronts, kind="stable")
+    return ids[o], fronts[o]
+
+
+def _touches_border(mask, px=12):
+    return bool(mask[:px].any() or mask[-px:].any() or mask[:, :px].any() or mask[:, -px:].any())
+
+
+def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
+                blob_area=0.0015, reach=0.22, points=None):
+    """The hand's region before the wrist cut.
+
+    The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
+    ``min_area`` whose nearest part does not touch the image border (an object cut off by the
+    border is a poorer guess than a whole one; it is taken only when nothing else is there). The
+    region is that surface within ``band`` behind the front and within ``reach`` metres (3-D) of
+    the seed's centre — the arm leads to the body, so the body is reached along it only beyond
+    the reach of a hand — connected to the seed, plus the small surfaces (fingertip blobs) in
+    that band within ``margin_px`` pixels of it."""
+    d = np.asarray(depth, float)
+    lab, n = surfaces(d, jump)
+    ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
+    if ids.size == 0:
+        return np.zeros(d.shape, bool)
+    k, front, seed = 0, np.nan, None
+    for kk, ff in zip(ids, fronts):
+        with np.errstate(invalid="ignore"):
+            s = largest_component((lab == kk) & (d <= ff + 0.015))
+        if seed is None or not _touches_border(s):
+            k, front, seed = int(kk), float(ff), s
+            if not _touches_border(s):
+                break
+    with np.errstate(invalid="ignore"):
+        near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
+        if reach is not None:
+            X = _points(d, focal) if points is None else np.asarray(points, float)
+            centre = X[seed].mean(axis=0)
+            near &= np.sum((X - centre) ** 2, axis=-1) <= reach ** 2
+    core = (lab == k) & near
+    lab_c, _ = ndimage.label(core)
+    hit = np.unique(lab_c[seed])
+    core = np.isin(lab_c, hit[hit > 0])
+    # small surfaces close to the hand in the image and in depth: fingertip blobs
+    ys, xs = np.nonzero(core)
+    y0, y1 = max(ys.min() - margin_px, 0), min(ys.max() + margin_px + 1, d.shape[0])
+    x0, x1 = max(xs.min() - margin_px, 0), min(xs.max() + margin_px + 1, d.shape[1])
+    win = (slice(y0, y1), slice(x0, x1))
+    zone = ndimage.binary_dilation(core[win], iterations=int(margin_px)) if margin_px > 0 else core[win]
+    cand = zone & near[win] & ~core[win] & (lab[win] > 0) & (lab[win] != k)
+    out = core.copy()
+    if cand.any():
+        area = np.bincount(lab[win][near[win]], weights=pixel_area(d[win][near[win]], focal),
+                           minlength=lab.max() + 1)
+        small = np.unique(lab[win][cand])
+        small = small[area[small] < blob_area]
+        if small.size:
+            out[win] |= np.isin(lab[win], small) & near[win]
+    return out
+
+
+def _points(depth, focal):
+    """Back-projection with the principal point at the image centre (when no points are given)."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W]
+    return np.stack([(u - (W - 1) / 2) * depth / focal, (v - (H - 1) / 2) * depth / focal, depth], -1)
+
+
+def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6)):
+    """The hand mask without the forearm beyond the wrist.
+
+    The palm is the largest inscribed circle of the region (centre c, radius r). Outside 1.6 r, the
+    parts that leave the circle are fingers (narrow) or the forearm (at least 0.45 r wide); the
+    widest part, if wide enough, is the forearm, and its direction from c the arm axis a. The
+    region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
+    smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
+    Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it."""
+    m = np.asarray(mask, bool)
+    ys, xs = np.nonzero(m)
+    pad = 2
+    y0, x0 = max(ys.min() - pad, 0), max(xs.min() - pad, 0)
+    y1, x1 = min(ys.max() + pad + 1, m.shape[0]), min(xs.max() + pad + 1, m.shape[1])
+    sub = m[y0:y1, x0:x1]
+    # close one-pixel no-data cracks so they do not split the palm circle
+    solid = ndimage.binary_closing(sub, iterations=1) | sub
+    dt = ndimage.distance_transform_edt(solid)
+    cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
+    r = float(dt[cy, cx])
+    zc = np.nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
+    if not np.isfinite(zc):
+        zc = np.nanmedian(np.asarray(depth, float)[m])
+    r_m = r * zc / focal
+    if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
+        return m
+    yy, xx = np.mgrid[0:sub.shape[0], 0:sub.shape[1]]
+    vy, vx = yy - cy, xx - cx
+    rho = np.hypot(vy, vx)
+    outside = solid & (rho > 1.6 * r)
+    lab, n = ndimage.label(outside, structure=np.ones((3, 3)))
+    if n == 0:
+        return m
+    width = ndimage.maximum(dt, lab, index=np.arange(1, n + 1))
+    j = int(np.argmax(width))
+    if width[j] < 0.45 * r:
+        return m
+    arm = lab == j + 1
+    ring = arm & (rho < 2.6 * r)
+    if not ring.any():
+        ring = arm
+    ay, ax = vy[ring].mean(), vx[ring].mean()
+    norm = np.hypot(ay, ax)
+    if norm == 0:
+        return m
+    ay, ax = ay / norm, ax / norm
+    t = vy * ay + vx * ax
+    s = -vy * ax + vx * ay
+    strip = solid & (np.abs(s) <= 2.5 * r)
+    lo, hi = int(np.floor(wrist_range[0] * r)), int(np.ceil(wrist_range[1] * r))
+    ti = np.round(t[strip]).astype(int)
+    keep = (ti >= lo) & (ti <= hi)
+    if not keep.any():
+        return m
+    prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
+    prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
+    # the first minimum wins ties: the wrist, not a narrower forearm further out
+    t_w = lo + int(np.argmin(prof + 1e-6 * np.arange(prof.size)))
+    cut = strip & (t > t_w)
+    out = m.copy()
+    out[y0:y1, x0:x1] &= ~cut
+    return out

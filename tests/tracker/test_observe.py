@@ -77,7 +77,7 @@ def test_observe_keeps_every_kth_pixel_from_the_origin(H, W, K):
     cam = Camera(W, H, 500.0, 500.0, (W - 1) / 2, (H - 1) / 2)
     d = np.full((H, W), 0.7)
     ob = observe(d, cam, ObserveSettings(stride=K, target_points=None, smooth=0),
-                 segmenter=Segmenter(min_pixels=1))
+                 segmenter=Segmenter(min_pixels=1, min_area=0.0, reach=None))
     assert len(ob.points) == math.ceil(H / K) * math.ceil(W / K)
     X = backproject(d, cam)[::K, ::K].reshape(-1, 3)
     np.testing.assert_allclose(np.sort(ob.points, axis=0), np.sort(X, axis=0))
