@@ -121,13 +121,17 @@ def closest_local(shape, L, r0, r1, th, q, out):
     out[6] = nn - th
 
 
-@njit(cache=True)
-def closest_points(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, out_p, out_n, out_seg, out_d):
-    """Closest point on the union of primitives posed by node frames ``G`` for every point."""
+@njit(cache=True, inline="always")
+def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, signed,
+             out_p, out_n, out_seg, out_d):
+    """The closest candidate over all primitives for every point (see the two kernels below); the
+    smallest signed distance wins when ``signed``, else the smallest absolute one."""
     P = points.shape[0]
     S = seg_node.shape[0]
     q = np.empty(3)
     loc = np.empty(7)
+    wp = np.empty(3)
+    wn = np.empty(3)
     for i in range(P):
         best = 1e300
         bs = -1
@@ -140,40 +144,7 @@ def closest_points(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, poin
             for r in range(3):
                 q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
             closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
-            if loc[6] < best:
-                best = loc[6]
-                bs = s
-                for r in range(3):
-                    out_p[i, r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
-                    out_n[i, r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
-        out_seg[i] = bs
-        out_d[i] = best
-
-
-@njit(cache=True)
-def closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only,
-                          out_p, out_n, out_seg, out_d):
-    """Like :func:`closest_points`, but a candidate whose surface normal faces away from the camera
-    centre ``cam`` is skipped when ``facing_only`` (a depth camera sees only front surfaces).
-    Points with no front-facing candidate get segment −1 and distance +inf."""
-    P = points.shape[0]
-    S = seg_node.shape[0]
-    q = np.empty(3)
-    loc = np.empty(7)
-    wp = np.empty(3)
-    wn = np.empty(3)
-    for i in range(P):
-        best = 1e300
-        bs = -1
-        for s in range(S):
-            j = seg_node[s]
-            d0 = points[i, 0] - G[j, 0, 3]
-            d1 = points[i, 1] - G[j, 1, 3]
-            d2 = points[i, 2] - G[j, 2, 3]
-            for r in range(3):
-                q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
-            closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
-            dist = abs(loc[6])
+            dist = loc[6] if signed else abs(loc[6])
             if dist >= best:
                 continue
             for r in range(3):
@@ -190,3 +161,22 @@ def closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_t
                 out_n[i, r] = wn[r]
         out_seg[i] = bs
         out_d[i] = best if bs >= 0 else np.inf
+
+
+@njit(cache=True)
+def closest_points(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, out_p, out_n, out_seg, out_d):
+    """Closest point on the union of primitives posed by node frames ``G`` for every point; a point
+    inside the model takes the primitive it is deepest in (smallest signed distance)."""
+    _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, np.zeros(3), False, True,
+             out_p, out_n, out_seg, out_d)
+
+
+@njit(cache=True)
+def closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only,
+                          out_p, out_n, out_seg, out_d):
+    """Like :func:`closest_points`, but the smallest absolute distance wins and a candidate whose
+    surface normal faces away from the camera centre ``cam`` is skipped when ``facing_only`` (a depth
+    camera sees only front surfaces). Points with no front-facing candidate get segment −1 and
+    distance +inf."""
+    _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, False,
+             out_p, out_n, out_seg, out_d)

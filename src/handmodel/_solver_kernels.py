@@ -15,6 +15,24 @@ from .kinematics import fk_single, point_jacobian_col
 MM = 1000.0
 
 
+@njit(cache=True, inline="always")
+def _residual(G, j, local, target, normals, i, use_n):
+    """Where point ``i`` (at ``local`` in node ``j``'s frame) is, and its residual to ``target`` in mm.
+
+    Returns ``p0, p1, p2, e0, e1, e2, en, plane``: the world position (metres), the residual vector,
+    its component along the point's normal and whether that normal is set (point-to-plane term).
+    """
+    p0 = G[j, 0, 0] * local[0] + G[j, 0, 1] * local[1] + G[j, 0, 2] * local[2] + G[j, 0, 3]
+    p1 = G[j, 1, 0] * local[0] + G[j, 1, 1] * local[1] + G[j, 1, 2] * local[2] + G[j, 1, 3]
+    p2 = G[j, 2, 0] * local[0] + G[j, 2, 1] * local[1] + G[j, 2, 2] * local[2] + G[j, 2, 3]
+    e0 = (target[0] - p0) * MM
+    e1 = (target[1] - p1) * MM
+    e2 = (target[2] - p2) * MM
+    plane = use_n and (normals[i, 0] != 0.0 or normals[i, 1] != 0.0 or normals[i, 2] != 0.0)
+    en = normals[i, 0] * e0 + normals[i, 1] * e1 + normals[i, 2] * e2 if plane else 0.0
+    return p0, p1, p2, e0, e1, e2, en, plane
+
+
 @njit(cache=True)
 def energy(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
            pt_node, pt_local, targets, w, normals, G, wa, wo):
@@ -27,16 +45,9 @@ def energy(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
         wi = w[i]
         if wi == 0.0 or np.isnan(targets[i, 0]):
             continue
-        j = pt_node[i]
-        r0 = targets[i, 0] - (G[j, 0, 0] * pt_local[i, 0] + G[j, 0, 1] * pt_local[i, 1] + G[j, 0, 2] * pt_local[i, 2] + G[j, 0, 3])
-        r1 = targets[i, 1] - (G[j, 1, 0] * pt_local[i, 0] + G[j, 1, 1] * pt_local[i, 1] + G[j, 1, 2] * pt_local[i, 2] + G[j, 1, 3])
-        r2 = targets[i, 2] - (G[j, 2, 0] * pt_local[i, 0] + G[j, 2, 1] * pt_local[i, 1] + G[j, 2, 2] * pt_local[i, 2] + G[j, 2, 3])
-        if use_n and (normals[i, 0] != 0.0 or normals[i, 1] != 0.0 or normals[i, 2] != 0.0):
-            rn = normals[i, 0] * r0 + normals[i, 1] * r1 + normals[i, 2] * r2
-            E += wi * wi * rn * rn
-        else:
-            E += wi * wi * (r0 * r0 + r1 * r1 + r2 * r2)
-    return 0.5 * E * MM * MM
+        _, _, _, e0, e1, e2, en, plane = _residual(G, pt_node[i], pt_local[i], targets[i], normals, i, use_n)
+        E += wi * wi * (en * en if plane else e0 * e0 + e1 * e1 + e2 * e2)
+    return 0.5 * E
 
 
 @njit(cache=True)
@@ -57,11 +68,7 @@ def normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
         if wi == 0.0 or np.isnan(targets[i, 0]):
             continue
         j = pt_node[i]
-        for r in range(3):
-            p[r] = G[j, r, 0] * pt_local[i, 0] + G[j, r, 1] * pt_local[i, 1] + G[j, r, 2] * pt_local[i, 2] + G[j, r, 3]
-        e0 = (targets[i, 0] - p[0]) * MM
-        e1 = (targets[i, 1] - p[1]) * MM
-        e2 = (targets[i, 2] - p[2]) * MM
+        p[0], p[1], p[2], e0, e1, e2, en, plane = _residual(G, j, pt_local[i], targets[i], normals, i, use_n)
         # the DoFs that move this point: those of the node and its ancestors
         nd = 0
         k = j
@@ -76,10 +83,8 @@ def normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
                 nd += 1
             k = parents[k]
         w2 = wi * wi
-        plane = use_n and (normals[i, 0] != 0.0 or normals[i, 1] != 0.0 or normals[i, 2] != 0.0)
         if plane:
             nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-            en = nx * e0 + ny * e1 + nz * e2
             E += w2 * en * en
             for a in range(nd):
                 cols[a, 0] = nx * cols[a, 0] + ny * cols[a, 1] + nz * cols[a, 2]
