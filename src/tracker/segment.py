@@ -347,9 +347,22 @@ def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9
         return m
     prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
     prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
-    # the first minimum wins ties: the wrist, not a narrower forearm further out
-    t_w = lo + int(np.argmin(prof + 1e-6 * np.arange(prof.size)))
+    # the wrist is where the narrowing from the palm stops: the first distance beyond which the
+    # width shrinks by less than 5 % over the next 0.3 r (a forearm further out may still taper,
+    # recede or be cropped, so the global minimum would cut too late)
+    t_w = lo + _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
     cut = strip & (t > t_w)
     out = m.copy()
     out[y0:y1, x0:x1] &= ~cut
     return out
+
+
+
+def _end_of_narrowing(profile, window, drop=0.05):
+    """First index from which ``profile`` falls by less than ``drop`` (relative) over the next
+    ``window`` samples; the last index when it keeps falling."""
+    p = np.asarray(profile, float)
+    for i in range(p.size - window):
+        if p[i] - p[i + window] < drop * p[i]:
+            return i
+    return p.size - 1
