@@ -44,7 +44,7 @@ SCHEMA_VERSION = 1
 HANDEDNESS = ("left", "right")
 _FRAME_RE = re.compile(r"^(\d+)\.png$")
 # what a recording folder may hold; anything else makes overwrite=True refuse
-_OWN = {"recording.yaml", "truth.csv", "depth", "color"}
+_OWN = {"recording.yaml", "truth.csv", "depth", "color", "truth_hand.yaml"}  # truth_hand.yaml: tracker.sim.hands
 
 DOF_COLUMNS = None  # the 26 DoF names, filled lazily from the default hand model
 

@@ -19,11 +19,17 @@ MOTION_HELP = "Scenario name (see --list) or a motion file: .csv joint-angle tab
 def synth(
     motion: str = typer.Option("open-close", "--motion", "-m", help=MOTION_HELP),
     camera: str = typer.Option("kinect1", "--camera", "-c", help="Camera preset (tracker.cameras)."),
-    noise: str = typer.Option("kinect1", "--noise", "-n", help="Noise preset: none, kinect1."),
+    noise: str = typer.Option("kinect1", "--noise", "-n", help="Noise preset: none, kinect1, sr305 (= realsense), d4xx."),
     frames: Optional[int] = typer.Option(None, "--frames", "-f", help="Number of frames (default: the whole motion)."),
     fps: float = typer.Option(30.0, "--fps", help="Frame rate of the recording."),
     seed: int = typer.Option(0, "--seed", help="Seed of the noise (and of random scenarios)."),
-    clutter: str = typer.Option("none", "--clutter", help="Extra geometry: none, forearm, table, forearm,table."),
+    clutter: str = typer.Option("none", "--clutter", help="Extra geometry, comma-separated: forearm, sleeve (sleeved "
+                                "forearm), torso or torso=GAP_M (0.03-0.30 m behind the hand), table, object/box/cylinder; "
+                                "or none."),
+    hand_scale: float = typer.Option(1.0, "--hand-scale", help="Rendered hand size relative to the model (0.5-2; "
+                                     "real adult hands are about 0.8-1.7 x the default model)."),
+    finger_scale: Optional[str] = typer.Option(None, "--finger-scale", help="Finger length factors (0.7-1.3): one "
+                                               "for all, five (thumb,index,middle,ring,pinky) or name=factor pairs."),
     color: bool = typer.Option(False, "--color/--no-color", help="Also write skin-coloured colour frames."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     right: bool = typer.Option(False, "--right", help="Render the right hand (mirror image, same θ)."),
@@ -33,24 +39,29 @@ def synth(
     """Render a hand motion with sensor noise into a recording folder (depth, truth.csv)."""
     from rich.console import Console
 
+    from handmodel.fileio import check_output
+
     from ..errors import TrackerError
 
-    console = Console()
+    console = Console(markup=False)  # names and paths are shown as typed, never read as markup
     if list_:
         console.print(_listing())
         return
     if output is None:
         raise TrackerError("synth", "give the output folder with -o/--output")
+    check_output(output, folder=True)  # a read-only or full disk fails before anything is rendered
     if frames is not None and frames < 1:
         raise TrackerError("--frames", f"must be at least 1, got {frames}")
     if not fps > 0:
         raise TrackerError("--fps", f"must be positive, got {fps}")
 
     # the lab's libraries (numba kernels, pandas) load here, not at the top: ``tracker --help`` stays fast
+    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from handmodel import HandModel
 
+    from .hands import HandShape
     from .motions import make_motion
     from .noise import NoiseModel
     from ..cameras import as_camera
@@ -59,18 +70,19 @@ def synth(
 
     clut = Clutter.parse(clutter)
     nm = NoiseModel.preset(noise)
+    shape = HandShape.parse(hand_scale, finger_scale)
     hand = HandModel.load(hand_model, right=right)
-    m = make_motion(motion, hand=hand, frames=frames, fps=fps, seed=seed)
+    m = make_motion(motion, hand=shape.apply(hand), frames=frames, fps=fps, seed=seed)
     cam = as_camera(camera)
 
     err = Console(stderr=True)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())
     with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as progress:
-        bar = progress.add_task(f"rendering {m.name}", total=m.frames)
-        report = synthesize(m, cam, nm, output, fps=fps, seed=seed, hand=hand, clutter=clut, color=color,
+        bar = progress.add_task(f"rendering {escape(m.name)}", total=m.frames)
+        report = synthesize(m, cam, nm, output, fps=fps, seed=seed, hand=hand, clutter=clut, color=color, shape=shape,
                             progress=lambda done, total: progress.update(bar, completed=done))
-    console.print(_summary(report, clutter, color, hand))
+    console.print(_summary(report, "none" if clut is None else clut.describe(), color, hand))
 
 
 def _summary(rep, clutter: str, color: bool, hand):
@@ -81,13 +93,15 @@ def _summary(rep, clutter: str, color: bool, hand):
     t.add_column("", overflow="fold")
     t.add_row("motion", rep.motion)
     t.add_row("frames", f"{rep.frames} at {rep.fps:g} fps ({rep.frames / rep.fps:.1f} s)")
-    t.add_row("hand", f"{hand.name} ({hand.handedness})")
+    t.add_row("hand", f"{hand.name} ({hand.handedness}), rendered × {rep.hand_scale:g}: "
+                      f"{rep.hand_length_mm:.0f} mm wrist to middle tip")
     t.add_row("camera", rep.camera)
     t.add_row("noise", rep.noise)
     t.add_row("clutter", clutter)
     t.add_row("colour", "yes" if color else "no")
     t.add_row("hand pixels / frame", f"{rep.hand_pixels:.0f}")
     t.add_row("hand pixels with depth", f"{100 * rep.valid_fraction:.1f} %")
+    t.add_row("clutter pixels / frame", f"{rep.clutter_pixels:.0f}")
     lo, hi = rep.depth_range_m
     t.add_row("hand depth", f"{1000 * lo:.0f}–{1000 * hi:.0f} mm")
     t.add_row("render / noise", f"{rep.render_ms:.2f} ms / {rep.noise_ms:.2f} ms per frame")
@@ -110,7 +124,9 @@ def _listing():
     for nm in PRESETS.values():
         parts = [p for p, on in (("axial σ(z)", nm.axial), ("lateral", nm.lateral_px > 0),
                                  ("quantisation", nm.quantize), ("shadows", nm.shadow),
-                                 ("edge dropout", nm.edge_drop_prob > 0), ("random dropout", nm.random_drop_prob > 0))
+                                 ("edge dropout", nm.edge_drop_prob > 0), ("flying pixels", nm.flying_prob > 0),
+                                 ("grazing holes", nm.grazing_deg is not None), ("dark holes", nm.dark_drop_prob > 0),
+                                 ("depth steps", nm.depth_step_m > 0), ("random dropout", nm.random_drop_prob > 0))
                  if on]
         t.add_row("noise", nm.name, ", ".join(parts) or "noise-free")
     return t
@@ -121,6 +137,9 @@ def experiments(
     quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
 ):
     """Reproduce the paper's experiments on our renderer; writes report.md with tables and plots."""
+    from handmodel.fileio import check_output
+
+    check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -141,7 +160,7 @@ def experiments(
     sf = res["single"]
     t.add_row("single frame, hierarchical (mean / median)", f"{sf['hierarchical'][0]:.2f} / {sf['hierarchical'][1]:.2f}",
               "", "")
-    Console().print(t)
+    Console(markup=False).print(t)
 
 
 def register(app: typer.Typer, wrap=None) -> None:
