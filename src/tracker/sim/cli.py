@@ -135,8 +135,11 @@ def _listing():
 def experiments(
     output: Path = typer.Option(..., "-o", "--output", help="Report folder (report.md + PNGs)."),
     quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
+    only: Optional[str] = typer.Option(None, "--only", help="Run one part: paper (the paper's experiments) or "
+                                       "realistic (clutter x sensor noise x hand size)."),
 ):
-    """Reproduce the paper's experiments on our renderer; writes report.md with tables and plots."""
+    """Reproduce the paper's experiments on our renderer, and realistic scenes (clutter, RealSense and
+    Kinect v1 noise, hand sizes); writes report.md with tables and plots."""
     from handmodel.fileio import check_output
 
     check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
@@ -148,8 +151,18 @@ def experiments(
 
     with Progress(console=Console(stderr=True), transient=True) as p:
         bar = p.add_task("experiments", total=None)
-        res = report(output, quick=quick,
+        res = report(output, quick=quick, parts=None if only is None else [only],
                      progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
+    if res.get("realistic") is not None:
+        t = Table(title=f"realistic scenes (details: {output / 'report.md'})")
+        for c in ("scene", "sensor", "scale", "keypoints mm", "posture °", "first frame", "lost", "fps"):
+            t.add_column(c, justify="left" if c in ("scene", "sensor") else "right")
+        for r in res["realistic"]:
+            t.add_row(r["scene"], r["sensor"], f"{r['scale']:g}", f"{r['keypoint_mm']:.1f}", f"{r['posture_deg']:.1f}",
+                      "yes" if r["first_ok"] else "no", f"{100 * r['lost']:.0f} %", f"{r['fps']:.1f}")
+        Console().print(t)
+    if "modes" not in res:
+        return
     t = Table(title=f"experiments (details: {output / 'report.md'})")
     for c in ("variant", "noise-free °", "Kinect v1 noise °", "fps"):
         t.add_column(c, justify="left" if c == "variant" else "right")

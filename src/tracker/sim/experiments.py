@@ -1,6 +1,7 @@
 """The paper's experiments on our renderer with real trajectories (fingerfist postures):
 error and time vs ICP iterations (Fig. 8) and vs sampling density (Fig. 9), the occluded grasp (full
-vs reduced), single-frame hierarchical vs flat, capsules vs mesh, and the noise model.
+vs reduced), single-frame hierarchical vs flat, capsules vs mesh, and the noise model; and ours:
+realistic scenes (clutter × sensor noise × hand size, :func:`experiment_realistic`).
 
 Everything runs in memory (render → observe → track), so the same code serves the report
 (:mod:`tracker.sim.report`, ``tracker experiments -o report/``) and the tests (small sizes).
@@ -21,13 +22,15 @@ from synergy import simulate
 from synergy.bundle import Bundle
 from synergy.pca import SynergyModel
 
-from ..cameras import preset
+from ..cameras import as_camera, preset
 from ..correspond import ModelSamples, Silhouette
 from ..evaluate import posture_error_deg
 from ..observe import observe
 from ..track import HandTracker, TrackerSettings
-from .motions import GlobalPath, fingerfist_path, make_motion, read_schroeder26, with_path
-from .render import DepthRenderer
+from .hands import HandShape
+from .motions import GlobalPath, fingerfist_path, hand_centre, make_motion, read_schroeder26, with_path
+from .noise import NoiseModel
+from .render import Clutter, DepthRenderer
 
 PAPER = {
     "fig8_error_5icp_deg": 2.0, "fig9_ms_stride3": 40.0, "occluded_full_deg": 12.0, "occluded_reduced_deg": 4.0,
@@ -107,8 +110,10 @@ def segments(n, length, seed=0):
 
 
 # ----------------------------------------------------------------------------------------- report
-def _tracker(hand, bundle, **kw):
-    return HandTracker(hand, TrackerSettings().replace(**kw), synergies=bundle)
+def _tracker(hand, bundle, paper=False, **kw):
+    """A tracker with our defaults, or with ``TrackerSettings.paper()``, changed by ``kw``."""
+    base = TrackerSettings.paper() if paper else TrackerSettings()
+    return HandTracker(hand, base.replace(**kw), synergies=bundle)
 
 
 def _segment_truths(bundle, segs):
@@ -144,7 +149,8 @@ def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode
 
 
 # the tracking variants compared throughout: label → settings
-VARIANTS = {"full": {"mode": "full"}, "reduced": {"mode": "reduced"},
+VARIANTS = {"full, paper's method": {"paper": True, "mode": "full"},
+            "full": {"mode": "full"}, "reduced": {"mode": "reduced"},
             "reduced, 2 steps projected": {"mode": "reduced", "projected_steps": 2},
             "hierarchical": {"mode": "hierarchical"}}
 
@@ -239,15 +245,16 @@ def experiment_occlusion(hand, camera, frames=45, seed=0):
     return res
 
 
-SINGLE_METHODS = (  # key, mode, search: the paper's two (ICP from the mean posture only) and ours
+SINGLE_METHODS = (  # key, mode, search: the paper's two (its method from the mean posture only) and ours
     ("flat_plain", "full", False), ("hierarchical_plain", "hierarchical", False),
     ("flat", "full", True), ("hierarchical", "hierarchical", True))
 
 
 def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=SINGLE_METHODS):
     """Single frames from the global pose only (posture unknown), full cloud. The paper's flat (all
-    DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean (``*_plain``), and
-    ours: the same after the start search (synergy grid, finger-wise restarts).
+    DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean with
+    ``TrackerSettings.paper()`` (``*_plain``), and ours: our defaults after the start search (synergy
+    grid, finger-wise restarts).
 
     Returns per method ``(mean, median)`` degrees, ``<key>_frames`` (per frame), ``<key>_share``
     (share of frames ≤ 1, 2, 5°) and ``s_<key>`` (seconds per frame, mean and median)."""
@@ -255,7 +262,8 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(P), n, replace=False)
     ren = DepthRenderer(hand, camera)
-    tr = _tracker(hand, bundle, mode="full", init_icp_iterations=icp)
+    ours = _tracker(hand, bundle, mode="full", init_icp_iterations=icp)
+    paper = _tracker(hand, bundle, paper=True, mode="full", init_icp_iterations=icp)
     out = {k: [] for k, _, _ in methods}
     sec = {k: [] for k, _, _ in methods}
     for i, row in enumerate(rows):
@@ -267,6 +275,7 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
         start[~hand.pose_mask] = bundle.model.mean_
         for key, mode, search in methods:
             t0 = time.perf_counter()
+            tr = ours if search else paper
             th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, silhouette=sil, normals=ob.normals,
                                         postures=None if search else [bundle.model.mean_], search=search)
             sec[key].append(time.perf_counter() - t0)
@@ -279,3 +288,93 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
         res[key + "_frames"] = e
         res[key + "_share"] = {t: float(np.mean(e <= t)) for t in (1.0, 2.0, 5.0)}
     return res
+
+
+# ------------------------------------------------------------------------------ realistic scenes
+#: Scene label → clutter spec (:meth:`tracker.sim.render.Clutter.parse`); every cluttered scene has the forearm,
+#: as a real hand does.
+REALISTIC_SCENES = {"hand alone": None, "+forearm": "forearm", "+forearm+torso": "forearm,torso",
+                    "+table": "forearm,table", "+object": "forearm,box"}
+#: Sensor label → (camera preset, noise preset).
+REALISTIC_SENSORS = {"kinect1": ("kinect1", "kinect1"), "realsense": ("sr305", "sr305")}
+REALISTIC_SCALES = (0.8, 1.0, 1.3)
+FIRST_FRAME_MM = 20.0  # a first frame counts as found when its mean keypoint error is at most this
+
+
+def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, seed=0, color=True):
+    """Render the hand ``shown`` (possibly resized, :class:`~tracker.sim.hands.HandShape`) at each θ of
+    ``truth`` with ``clutter`` and ``noise``, observe it with the default segmentation (colour frame
+    included when ``color``) and track it with ``tracker``, whose model is ``hand``.
+
+    Returns a dict of per-frame arrays: ``keypoint_mm`` (mean distance of the 21 keypoints of the
+    tracker's hand at its θ to the rendered hand's at the truth, mm), ``posture_deg``, ``status``,
+    ``ms`` (tracker only) and ``scale`` (the tracker's hand size; NaN before it has one)."""
+    cam = as_camera(camera)
+    ren = DepthRenderer(shown, cam)
+    if isinstance(clutter, str):
+        clutter = Clutter.parse(clutter)
+    if clutter is not None:
+        R = euler_to_matrix(truth[:, 3:6])
+        clutter = clutter.fixed((truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+    F = len(truth)
+    out = {"keypoint_mm": np.full(F, np.nan), "posture_deg": np.full(F, np.nan), "status": np.empty(F, object),
+           "ms": np.zeros(F), "scale": np.full(F, np.nan)}
+    need_inc = noise is not None and noise.needs_incidence
+    need_refl = noise is not None and noise.needs_reflectance
+    for f in range(F):
+        r = ren.render(truth[f], labels=False, color=color, clutter=clutter, incidence=need_inc,
+                       reflectance=need_refl)
+        depth = r.depth
+        if noise is not None:
+            depth = noise.apply(depth, cam, np.random.default_rng([seed, f]), r.cos_incidence, r.reflectance)
+        ob = observe(depth, cam, tracker.settings.observe, color=r.color)
+        t0 = time.perf_counter()
+        res = tracker.track(ob, cam)
+        out["ms"][f] = (time.perf_counter() - t0) * 1000.0
+        out["status"][f] = res.status
+        if np.all(np.isfinite(res.theta)):
+            kp = tracker.hand.keypoints(res.theta) - shown.keypoints(truth[f])
+            out["keypoint_mm"][f] = float(np.linalg.norm(kp, axis=-1).mean() * 1000.0)
+            out["posture_deg"][f] = float(posture_error_deg(res.theta, truth[f], hand.pose_mask))
+        if tracker.scale_ is not None:
+            out["scale"][f] = tracker.scale_
+    return out
+
+
+def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REALISTIC_SCALES, frames=30,
+                         motion="open-close", settings=None, seed=0, progress=None):
+    """Realistic scenes: each scene (:data:`REALISTIC_SCENES`) × sensor (:data:`REALISTIC_SENSORS`) ×
+    rendered hand scale, tracked from its first frame by a fresh tracker of the model ``hand``
+    (``settings``: :class:`TrackerSettings` changes; default: today's defaults).
+
+    Returns one dict per run: ``scene``, ``sensor``, ``scale``, ``frames``, ``keypoint_mm`` (mean over
+    the frames with a θ), ``posture_deg``, ``first_frame_mm``, ``first_ok`` (≤ :data:`FIRST_FRAME_MM`),
+    ``lost`` (share of frames), ``fps`` (1000 / median tracker ms) and ``scale_found`` (the tracker's
+    final hand size relative to the rendered one, 1 = exact; NaN when the tracker does not estimate it)."""
+    scenes = REALISTIC_SCENES if scenes is None else scenes
+    sensors = REALISTIC_SENSORS if sensors is None else sensors
+    total = len(scenes) * len(sensors) * len(scales)
+    rows = []
+    for sensor, (cam_name, noise_name) in sensors.items():
+        cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
+        for scale in scales:
+            shown = HandShape(float(scale)).apply(hand)
+            truth = make_motion(motion, hand=shown, frames=frames, seed=seed).theta
+            for k, (scene, spec) in enumerate(scenes.items()):
+                tracker = HandTracker(hand, TrackerSettings().replace(**(settings or {})), synergies=bundle)
+                r = run_scene(hand, shown, truth, cam, tracker, clutter=spec, noise=nm, seed=seed + k)
+                ke = r["keypoint_mm"]
+                auto = tracker.settings.hand_scale == "auto"
+                rows.append({
+                    "scene": scene, "clutter": spec or "none", "sensor": sensor, "scale": float(scale),
+                    "frames": len(truth),
+                    "keypoint_mm": float(np.nanmean(ke)) if np.isfinite(ke).any() else float("nan"),
+                    "posture_deg": (float(np.nanmean(r["posture_deg"])) if np.isfinite(r["posture_deg"]).any()
+                                    else float("nan")),
+                    "first_frame_mm": float(ke[0]), "first_ok": bool(ke[0] <= FIRST_FRAME_MM),
+                    "lost": float(np.mean(r["status"] == "lost")), "fps": float(1000.0 / np.median(r["ms"])),
+                    "scale_found": float(r["scale"][-1] / scale) if auto else float("nan"),
+                })
+                if progress is not None:
+                    progress(len(rows), total, f"{sensor} ×{scale:g} {scene}")
+    return rows
