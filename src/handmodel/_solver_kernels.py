@@ -16,11 +16,18 @@ MM = 1000.0
 
 
 @njit(cache=True, inline="always")
-def _residual(G, j, local, target, normals, i, use_n):
+def _unused(w, targets, i):
+    """Point ``i`` contributes nothing: zero weight or a missing (NaN) target."""
+    return w[i] == 0.0 or np.isnan(targets[i, 0])
+
+
+@njit(cache=True, inline="always")
+def _residual(G, j, local, target, normals, i):
     """Where point ``i`` (at ``local`` in node ``j``'s frame) is, and its residual to ``target`` in mm.
 
     Returns ``p0, p1, p2, e0, e1, e2, en, plane``: the world position (metres), the residual vector,
-    its component along the point's normal and whether that normal is set (point-to-plane term).
+    its component along the point's normal and whether that normal is set (point-to-plane term;
+    ``normals`` has no rows when no point has one).
     """
     p0 = G[j, 0, 0] * local[0] + G[j, 0, 1] * local[1] + G[j, 0, 2] * local[2] + G[j, 0, 3]
     p1 = G[j, 1, 0] * local[0] + G[j, 1, 1] * local[1] + G[j, 1, 2] * local[2] + G[j, 1, 3]
@@ -28,7 +35,7 @@ def _residual(G, j, local, target, normals, i, use_n):
     e0 = (target[0] - p0) * MM
     e1 = (target[1] - p1) * MM
     e2 = (target[2] - p2) * MM
-    plane = use_n and (normals[i, 0] != 0.0 or normals[i, 1] != 0.0 or normals[i, 2] != 0.0)
+    plane = normals.shape[0] > i and (normals[i, 0] != 0.0 or normals[i, 1] != 0.0 or normals[i, 2] != 0.0)
     en = normals[i, 0] * e0 + normals[i, 1] * e1 + normals[i, 2] * e2 if plane else 0.0
     return p0, p1, p2, e0, e1, e2, en, plane
 
@@ -39,14 +46,11 @@ def energy(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     """½ Σ w² r² in mm² at θ (also leaves the frames in G)."""
     fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
     E = 0.0
-    P = pt_node.shape[0]
-    use_n = normals.shape[0] == P
-    for i in range(P):
-        wi = w[i]
-        if wi == 0.0 or np.isnan(targets[i, 0]):
+    for i in range(pt_node.shape[0]):
+        if _unused(w, targets, i):
             continue
-        _, _, _, e0, e1, e2, en, plane = _residual(G, pt_node[i], pt_local[i], targets[i], normals, i, use_n)
-        E += wi * wi * (en * en if plane else e0 * e0 + e1 * e1 + e2 * e2)
+        _, _, _, e0, e1, e2, en, plane = _residual(G, pt_node[i], pt_local[i], targets[i], normals, i)
+        E += w[i] * w[i] * (en * en if plane else e0 * e0 + e1 * e1 + e2 * e2)
     return 0.5 * E
 
 
@@ -61,14 +65,11 @@ def normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
         for c in range(n):
             A[r, c] = 0.0
     E = 0.0
-    P = pt_node.shape[0]
-    use_n = normals.shape[0] == P
-    for i in range(P):
-        wi = w[i]
-        if wi == 0.0 or np.isnan(targets[i, 0]):
+    for i in range(pt_node.shape[0]):
+        if _unused(w, targets, i):
             continue
         j = pt_node[i]
-        p[0], p[1], p[2], e0, e1, e2, en, plane = _residual(G, j, pt_local[i], targets[i], normals, i, use_n)
+        p[0], p[1], p[2], e0, e1, e2, en, plane = _residual(G, j, pt_local[i], targets[i], normals, i)
         # the DoFs that move this point: those of the node and its ancestors
         nd = 0
         k = j
@@ -82,7 +83,7 @@ def normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
                 dids[nd] = d
                 nd += 1
             k = parents[k]
-        w2 = wi * wi
+        w2 = w[i] * w[i]
         if plane:
             nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
             E += w2 * en * en
