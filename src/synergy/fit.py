@@ -24,15 +24,18 @@ import numpy as np
 
 from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.fileio import sha256_file
-from synergy.angles import markers_to_angles
+from synergy.angles import POOR_TRIAL_SHARE, check_handedness, markers_to_angles
 from synergy.bundle import Bundle, read_bundle, save_bundle
 from synergy.c3d import read_c3d, task_from_events
+from synergy.calibrate import Calibration
 from synergy.errors import SynergyError, TaskMapError
+from synergy.markers import MarkerSet, choose_markerset, load_markerset, shipped_markersets
 from synergy.pca import SufficientStats, SynergyModel, heldout_curve
 from synergy.postures import postures_from_table, read_csv_postures, read_schroeder26
 from synergy.tasks import TaskMap, label_for
 
-__all__ = ["FORMATS", "Trial", "bundle_from_trials", "fit_trials", "group_by_task", "read_trial", "task_labels"]
+__all__ = ["FORMATS", "Trial", "bundle_from_trials", "fit_trials", "group_by_task", "poor_reasons", "quality_problems",
+           "read_trial", "task_labels"]
 
 #: Input formats of :func:`read_trial` (``auto`` picks by suffix).
 FORMATS = ("auto", "csv", "schroeder26", "c3d")
@@ -47,6 +50,9 @@ class Trial:
     dof_names: tuple[str, ...] = POSTURE_DOF_NAMES
     task: str | None = None
     sha256: str | None = None
+    #: C3D input only: how the markers became angles (marker set, hand, how they were chosen, the
+    #: conversion's residuals, verdict, warnings and the reasons for a poor verdict).
+    conversion: dict | None = None
 
     @property
     def frames(self) -> int:
@@ -58,13 +64,22 @@ class Trial:
 
 
 def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
-               markers: str | None = None, hand: str = "left", smooth_hz=None) -> Trial:
+               markers: str | MarkerSet | None = None, hand: str | None = None, smooth_hz=None,
+               calibration="trial", check_hand: bool = True, markersets: Sequence[MarkerSet] | None = None) -> Trial:
     """Read the posture frames of one file.
 
     Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
     rows with a missing posture angle are dropped), ``schroeder26`` (whitespace table
-    of 26 columns, 7–26 are the posture), ``c3d`` (markers → angles, needs ``markers``).
+    of 26 columns, 7–26 are the posture), ``c3d`` (markers → angles by marker IK).
     ``auto`` picks by suffix: .csv, .txt/.dat, .c3d.
+
+    C3D only: ``markers`` (name, path or :class:`~synergy.markers.MarkerSet`) and ``hand`` ('left'
+    or 'right') are chosen from the file's labels when not given (among ``markersets``, default
+    the shipped ones; a hand the labels cannot tell is the one the handedness check prefers);
+    ``calibration`` is passed to :func:`~synergy.angles.markers_to_angles` (a subject
+    :class:`~synergy.calibrate.Calibration` also names the set and hand to use);
+    ``check_hand`` False skips the handedness check. A trial with a wrong hand is converted and
+    judged poor, not refused: :func:`quality_problems` decides. ``Trial.conversion`` records it all.
     """
     p = Path(path)
     if fmt == "auto":
@@ -76,26 +91,104 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
         raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
     if not p.is_file():
         raise SynergyError(p, "no such file")
+    conversion = None
     if fmt == "csv":
         X = read_csv_postures(p)
     elif fmt == "schroeder26":
         X = read_schroeder26(p)
     else:
-        X, stored_task = _read_c3d_postures(p, markers, hand, smooth_hz)
+        X, stored_task, conversion = _read_c3d_postures(p, markers, hand, smooth_hz, calibration, check_hand,
+                                                        markersets)
         task = task or stored_task
-    return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p))
+    return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p), conversion)
 
 
-def _read_c3d_postures(p: Path, markers: str | None, hand: str = "left", smooth_hz=None):
-    """C3D → marker IK → the frames of good quality; also the task label stored in the file, if any."""
-    if not markers:
-        raise SynergyError(p, "C3D input needs a marker set (--markers NAME)")
+def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
+    """Marker set, hand and the record of how they were chosen (see :func:`read_trial`)."""
+    labels = list(data.labels)
+    given = "given" if hand else ""
+    if isinstance(calibration, Calibration) and calibration.hand:
+        if hand and hand != calibration.hand:
+            raise SynergyError(calibration.source or "--subject", f"calibrated for the {calibration.hand} hand, "
+                                                                  f"not the {hand}")
+        hand, given = calibration.hand, given or "subject"
+    if markers is not None:
+        pool = [markers if isinstance(markers, MarkerSet) else load_markerset(markers)]
+    else:
+        pool = list(markersets) if markersets is not None else shipped_markersets()
+        if isinstance(calibration, Calibration) and calibration.markerset:
+            # the subject was calibrated with one set: a trial of that subject is read with it
+            pool = [m for m in pool if m.name == calibration.markerset] or pool
+    ms, hand, rep = choose_markerset(labels, pool, hand=hand, where=p)
+    rep = {**rep, "chosen": "given" if markers is not None else "labels",
+           "hand_from": given or ("labels" if hand else "")}
+    if not hand:
+        if check_hand:  # side-less labels: the hand whose fit explains the markers
+            hc = check_handedness(data, ms, "left", model=ms.hand_model, where=p)
+            hand = "right" if hc["verdict"] == "wrong hand" else "left"
+            rep["hand_from"] = "handedness check"
+        else:
+            hand, rep["hand_from"] = "left", "default"
+    rep["hand"] = hand
+    return ms, hand, rep
+
+
+def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_hand, markersets):
+    """C3D → marker IK → the frames of good quality; the task label stored in the file, if any; and
+    the record of the conversion (:attr:`Trial.conversion`)."""
     data = read_c3d(p)
-    table = markers_to_angles(data, markers, hand=hand, smooth_hz=smooth_hz)
+    ms, hand, rep = _choose(data, p, markers, hand, calibration, check_hand, markersets)
+    table = markers_to_angles(data, ms, hand=hand, smooth_hz=smooth_hz, calibration=calibration,
+                              check_hand="warn" if check_hand else None)
+    d = table.attrs["diagnostics"]
+    r = table["residual_mm"].to_numpy()
+    with np.errstate(all="ignore"):
+        med, p95 = (float(np.nanmedian(r)), float(np.nanpercentile(r, 95))) if np.isfinite(r).any() else (None, None)
+    conversion = {
+        "markerset": ms.name, "hand": hand, "chosen": rep["chosen"], "hand_from": rep["hand_from"],
+        "matched": rep["matched"], "total": rep["total"], "others": rep.get("others", []),
+        "residual_median_mm": med, "residual_p95_mm": p95, "ok_share": float((table["quality"] == "ok").mean()),
+        "verdict": d["verdict"], "warnings": list(d["warnings"]), "reasons": poor_reasons(d),
+        "calibration": table.attrs["calibration"].get("method", ""),
+    }
     table = table[table["quality"] == "ok"]
     if table.empty:
-        raise SynergyError(p, "no frame converted with good quality (check the marker set and --hand)")
-    return postures_from_table(table, p), task_from_events(data)
+        raise SynergyError(p, f"no frame converted with good quality (marker set {ms.name}, {hand} hand: "
+                              "check the marker set and --hand)")
+    return postures_from_table(table, p), task_from_events(data), conversion
+
+
+def poor_reasons(diag: dict) -> list:
+    """Why a conversion's diagnostics (``df.attrs["diagnostics"]``) have the verdict 'poor', in words
+    (the conditions of :func:`synergy.angles.verdict`); empty for other verdicts."""
+    out = []
+    h = diag.get("handedness") or {}
+    if h.get("verdict") == "wrong hand":
+        other = "left" if h["chosen"] == "right" else "right"
+        out.append(f"the {other} hand fits these markers better ({h['other_residual_mm']:.1f} mm vs "
+                   f"{h['residual_mm']:.1f} mm as {h['chosen']}; give --hand {other})")
+    if diag.get("poor_share", 0) > POOR_TRIAL_SHARE:
+        out.append(f"{100 * diag['poor_share']:.0f} % of frames poor (residual > {diag['poor_threshold_mm']:.1f} mm)")
+    pinned = sorted(((v, k) for k, v in diag.get("limit_share", {}).items() if v > 0.25), reverse=True)
+    if pinned:
+        out.append("on a joint limit in > 25 % of frames: " + ", ".join(f"{k} {100 * v:.0f} %" for v, k in pinned[:3])
+                   + (f" (+{len(pinned) - 3} more)" if len(pinned) > 3 else ""))
+    if diag.get("calibration_overfit"):
+        out.append("the calibration failed its held-out check")
+    return out
+
+
+def quality_problems(trials: Sequence[Trial]) -> list:
+    """One :class:`SynergyError` per trial whose conversion was judged poor (file and reasons), in the
+    order of ``trials``; the caller refuses them or fits them anyway."""
+    out = []
+    for t in trials:
+        c = t.conversion
+        if c and c["verdict"] == "poor":
+            why = "; ".join(c["reasons"]) or "judged poor"
+            out.append(SynergyError(t.path, f"poor conversion ({c['markerset']}, {c['hand']} hand): {why} "
+                                            "(--accept-poor fits it anyway)"))
+    return out
 
 
 def task_labels(files: Sequence, task: str | None = None, task_map: TaskMap | None = None) -> dict:

@@ -11,12 +11,17 @@ Examples
 >>> ms = load_markerset("hand16")
 >>> len(ms.markers), ms.markers[0].label
 (16, 'WRR')
+>>> labels = ["Sub:" + m.label for m in load_markerset("hand19").markers]
+>>> ms, hand, report = choose_markerset(labels, shipped_markersets())
+>>> ms.name, hand, report["matched"], report["total"]
+('hand19', None, 19, 19)
 """
 from __future__ import annotations
 
 import fnmatch
 import json
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -206,3 +211,76 @@ def load_markerset(name_or_path) -> MarkerSet:
 
     p = resolve_model_file("markersets", name_or_path, MarkerSetError, "marker set")
     return markerset_from_dict(load_yaml(p, MarkerSetError), p)
+
+
+def shipped_markersets() -> list:
+    """Every shipped marker set (``models/markersets/*.yaml``), loaded and validated, by name."""
+    from handmodel.fileio import models_dir
+
+    return [load_markerset(p) for p in sorted((models_dir() / "markersets").glob("*.yaml"))]
+
+
+def _hands_of(ms: MarkerSet) -> list:
+    """Hands whose labels can differ: both for ``{side}`` labels, the set's own hand otherwise
+    (None when the labels cannot tell the hands apart)."""
+    if ms.sides and any("{side}" in n for m in ms.markers for n in m.names()):
+        return [h for h in ("left", "right") if ms.hand in ("either", h)]
+    return [None if ms.hand == "either" else ms.hand]
+
+
+def score_markerset(ms: MarkerSet, labels, hand=None) -> dict:
+    """How well a trial's ``labels`` fit ``ms`` (for ``hand`` when its labels carry a side):
+    ``{name, hand, matched, total, missing, unused, full}``; ``full`` when no required marker is
+    missing; ``unused`` counts the file's labels neither matched nor ignored."""
+    sided = ms.for_hand(hand) if hand else ms
+    norm = [_norm(x) for x in labels]
+    found, missing = set(), []
+    for m in sided.markers:
+        hit = next((norm.index(_norm(c)) for c in m.names() if _norm(c) in norm), -1)
+        if hit >= 0:
+            found.add(hit)
+        elif not m.optional:
+            missing.append(m.label)
+    unused = [x for i, x in enumerate(labels) if i not in found
+              and not any(fnmatch.fnmatch(_norm(x), _norm(g)) for g in sided.ignore)]
+    return {"name": ms.name, "hand": hand, "matched": len(found), "total": len(sided.markers),
+            "missing": missing, "unused": len(unused), "full": not missing}
+
+
+def choose_markerset(labels, markersets, *, hand=None, where=None):
+    """The marker set (and hand) a trial's ``labels`` fit best.
+
+    Every set of ``markersets`` is tried for each hand its ``{side}`` labels distinguish (only
+    ``hand`` when given). Sets with all required markers present compete on the markers found,
+    then on the fewest labels left unexplained; a tie goes to the earlier candidate (left before
+    right). Returns ``(markerset, hand, report)``: ``hand`` is None when the labels cannot tell
+    (side-less labels and no ``hand`` given); ``report`` is the winner's :func:`score_markerset`
+    with ``others``, the other full matches (``name``/``hand``).
+
+    Raises :class:`MarkerSetError` (``where``) when no set fits, naming the three closest with
+    their match counts and first missing labels.
+    """
+    if hand not in (None, "left", "right"):
+        raise MarkerSetError(where or "--hand", f"hand must be 'left' or 'right', got {hand!r}")
+    scores = []
+    for ms in markersets:
+        for h in _hands_of(ms):
+            if hand and h not in (None, hand):
+                continue
+            if hand and h is None and ms.hand not in ("either", hand):
+                continue
+            scores.append((ms, h if h is not None else hand, score_markerset(ms, labels, h)))
+    full = [s for s in scores if s[2]["full"]]
+    if not full:
+        near = sorted(scores, key=lambda s: (-s[2]["matched"] / max(s[2]["total"], 1), -s[2]["matched"]))[:3]
+        parts = [f"{r['name']}{' ' + r['hand'] if r['hand'] else ''} ({r['matched']} of {r['total']}; missing "
+                 f"{', '.join(r['missing'][:4])}{', ...' if len(r['missing']) > 4 else ''})" for _, _, r in near]
+        raise MarkerSetError(where or "trial", "no marker set fits its labels"
+                             + (f"{' for the ' + hand + ' hand' if hand else ''}: closest " + "; ".join(parts)
+                                if parts else "")
+                             + "; give --markers NAME or a marker-set YAML")
+    best = min(range(len(full)), key=lambda i: (-full[i][2]["matched"], full[i][2]["unused"], i))
+    ms, h, report = full[best]
+    report = {**report, "hand": h,
+              "others": [{"name": s[0].name, "hand": s[1]} for i, s in enumerate(full) if i != best]}
+    return ms, h, report

@@ -8,8 +8,8 @@ from .fit import read_trial
 from .pca import SufficientStats
 
 
-def _convert(path, fmt, task, markers, hand, smooth_hz):
-    trial = read_trial(path, fmt, task=task, markers=markers, hand=hand, smooth_hz=smooth_hz)
+def _convert(path, fmt, task, read_kw):
+    trial = read_trial(path, fmt, task=task, **read_kw)
     return trial, SufficientStats.from_array(trial.postures).as_arrays()
 
 
@@ -30,13 +30,16 @@ def client_for(address: str):
         raise SynergyError(address, f"cannot reach the Dask scheduler ({exc})") from None
 
 
-def read_trials_dask(files, fmt, labels, *, markers=None, hand="left", smooth_hz=None, address="local", client=None):
-    """Convert ``files`` as Dask tasks; returns ``(trials, stats)`` in the order of ``files``."""
+def read_trials_dask(files, fmt, labels, *, address="local", client=None, **read_kw):
+    """Convert ``files`` as Dask tasks; returns ``(trials, stats)`` in the order of ``files``.
+
+    ``read_kw`` are :func:`synergy.fit.read_trial`'s keywords (markers, hand, smooth_hz,
+    calibration, check_hand, markersets): each task converts its file exactly as a local fit would."""
     own = None
     if client is None:
         client, own = client_for(address)
     try:
-        futs = [client.submit(_convert, str(f), fmt, labels.get(f), markers, hand, smooth_hz, pure=False)
+        futs = [client.submit(_convert, str(f), fmt, labels.get(f), read_kw, pure=False)
                 for f in files]
         results = client.gather(futs)
     finally:
