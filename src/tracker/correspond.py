@@ -210,3 +210,37 @@ def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
                                 float(cam.cx), float(cam.cy), sil.dist, sil.iv, sil.iu, sil.depth, int(sil.v0),
                                 int(sil.u0), float(tolerance_px), nodes, local, tgt)
     return nodes[:k], local[:k], tgt[:k]
+
+
+def model_to_data_mm(samples, theta, sil, *, tolerance_mm=6.0, cap_mm=30.0) -> np.ndarray:
+    """Per model sample, how far (mm) it is from anywhere the camera allows it to be: a sample
+    projecting outside the hand silhouette costs its distance to the silhouette (pixels × depth / f),
+    one inside costs how far it lies in front of the observed surface beyond ``tolerance_mm`` (free
+    space: the camera saw past that point, so nothing can be there); behind the surface is free
+    (self-occlusion). Capped at ``cap_mm`` so one stray finger does not outweigh the rest. Every
+    sample counts, hidden ones included: an upside-down or mirrored hand puts whole parts where the
+    camera saw background, which the data→model term alone cannot see."""
+    P, _ = samples.pose(theta)
+    out = np.full(len(P), cap_mm)
+    if sil.empty:
+        return out
+    cam = sil.camera
+    z = P[:, 2]
+    front = z > 1e-3
+    zs = np.where(front, z, 1.0)
+    u = np.rint(cam.fx * P[:, 0] / zs + cam.cx).astype(np.int64)
+    v = np.rint(cam.fy * P[:, 1] / zs + cam.cy).astype(np.int64)
+    h, w = sil.dist.shape
+    uu = np.clip(u - sil.u0, 0, w - 1)
+    vv = np.clip(v - sil.v0, 0, h - 1)
+    d_px = sil.dist[vv, uu] + np.hypot(u - sil.u0 - uu, v - sil.v0 - vv)
+    outside = d_px > 0
+    cost = np.where(outside, d_px * zs / cam.fx * 1000.0, 0.0)
+    H, W = sil.depth.shape
+    inside = front & ~outside & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    zo = sil.depth[np.clip(v, 0, H - 1), np.clip(u, 0, W - 1)]
+    with np.errstate(invalid="ignore"):
+        ahead = np.where(inside & np.isfinite(zo), (zo - z) * 1000.0 - tolerance_mm, 0.0)
+    cost = np.where(inside, np.maximum(ahead, 0.0), cost)
+    out[front] = np.minimum(cost[front], cap_mm)
+    return out

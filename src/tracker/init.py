@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from handmodel.geometry import surface_samples
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
-from .correspond import Matcher, ModelSamples, silhouette_pairs
+from .correspond import Matcher, ModelSamples, model_to_data_mm
 from .icp import IcpSettings, fit, search_schedule
 
 
@@ -60,6 +60,7 @@ class FitContext:
     synergies: object = None          # a fitted synergy.pca.SynergyModel
     samples: ModelSamples | None = None
     finger_shapes: list = field(default_factory=list)
+    score_samples: ModelSamples | None = None   # the model→data part of :func:`score`
 
     def fit(self, theta, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False):
         """One ICP fit without temporal prior (see :func:`tracker.icp.search_schedule`)."""
@@ -69,13 +70,21 @@ class FitContext:
 
 
 def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
-    """Lower is better: mean data→model distance (mm) plus the share of rejected data points
-    (× 100 mm) and of front-facing model samples outside the silhouette (× 20 mm)."""
+    """Lower is better (mm): mean data→model distance plus the share of rejected data points
+    (× 100 mm), plus, with a silhouette, the mean model→data cost (:func:`tracker.correspond.model_to_data_mm`:
+    model parts outside the silhouette or in front of the observed surface) × ``MODEL_TO_DATA_WEIGHT``.
+    Both directions: an upside-down or mirrored hand can cover the data as well as the right one, but
+    then puts fingers where the camera saw past them."""
     s = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
-    if silhouette is not None and ctx.samples is not None and not silhouette.empty:
-        n_out = len(silhouette_pairs(ctx.samples, theta, silhouette)[0])
-        s += 20.0 * n_out / max(len(ctx.samples.nodes), 1)
+    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
+    if silhouette is not None and samples is not None and not silhouette.empty:
+        s += MODEL_TO_DATA_WEIGHT * float(np.mean(model_to_data_mm(samples, theta, silhouette)))
     return s
+
+
+# the model→data cost is a mean over the whole surface, most of it hidden and costing nothing when
+# the fit is right: this weight makes a finger's worth of wrong surface count like a few mm of data error
+MODEL_TO_DATA_WEIGHT = 2.0
 
 
 def placements(hand, points, posture) -> list[np.ndarray]:
@@ -287,3 +296,88 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
     if search and st.finger_search:
         best = finger_search(ctx, best, points, st, silhouette=silhouette, normals=normals)
     return best[1], best[2]
+
+
+# ----------------------------------------------------------------------------------- hand size
+def extent_scale(hand, points, posture) -> float:
+    """A first guess of the hand's global scale: the spread of the cloud over that of the model's
+    palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
+    this only brackets the scale; :func:`fit_scale` finds it."""
+    base = np.zeros(hand.n_dofs)
+    base[~hand.pose_mask] = posture
+    S, _, N = surface_samples(hand, base, spacing=0.004)
+    ms = S[N[:, 2] < 0]
+    ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+    ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
+    return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
+
+
+def rescaled(hand_from, hand_to, theta) -> np.ndarray:
+    """θ for ``hand_to`` with the same posture and rotation and the same keypoint centroid as
+    ``theta`` on ``hand_from`` (a hand resized about its wrist would slide off the data)."""
+    th = np.array(theta, float)
+    th[:3] += hand_from.keypoints(theta).mean(0) - hand_to.keypoints(theta).mean(0)
+    return th
+
+
+def scale_score(context_for, s, theta_from, hand_from, points, *, silhouette=None, normals=None, n_icp=6):
+    """``(score, θ, corr)`` of a short all-DoF fit of the hand scaled by ``s`` from ``theta_from``
+    (found on ``hand_from``); ``context_for(s)`` gives that hand's :class:`FitContext`."""
+    ctx = context_for(s)
+    th = rescaled(hand_from, ctx.hand, theta_from)
+    th, corr = ctx.fit(th, points, "full", 2, n_icp, silhouette=silhouette, normals=normals)
+    return score(ctx, th, corr, silhouette), th, corr
+
+
+def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None, normals=None, tol=0.005,
+              n_icp=6):
+    """The global scale in ``[lo, hi]`` whose short fit from ``theta`` scores best (golden-section
+    search on log scale, each probe an all-DoF fit: a wrong size leaves either data uncovered or model
+    outside the silhouette). Returns ``(scale, θ, corr, score)``."""
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = np.log(lo), np.log(hi)
+    seen = {}
+
+    def f(x):
+        if x not in seen:
+            seen[x] = scale_score(context_for, float(np.exp(x)), theta, hand_from, points, silhouette=silhouette,
+                                  normals=normals, n_icp=n_icp)
+        return seen[x][0]
+
+    c, d = b - g * (b - a), a + g * (b - a)
+    while b - a > tol:
+        if f(c) < f(d):
+            b, d = d, c
+            c = b - g * (b - a)
+        else:
+            a, c = c, d
+            d = a + g * (b - a)
+    x = min(seen, key=lambda k: seen[k][0])
+    s_best, th, corr = seen[x]
+    return float(np.exp(x)), th, corr, s_best
+
+
+def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
+                    scale_range=(0.6, 2.0)):
+    """The user's hand size from one frame: a first guess from the cloud's extent, the single-frame
+    search at that size, then :func:`fit_scale` around it; when the size moved far, the search runs
+    again at the new size (a much wrong size can favour a wrong orientation) and the size is refined
+    once more. ``context_for(s)``: the :class:`FitContext` of the hand scaled by ``s``. Returns
+    ``(scale, θ, corr)``."""
+    st = settings or InitSettings()
+    base = context_for(1.0)
+    mean = base.synergies.mean_ if base.synergies is not None else np.zeros(int((~base.hand.pose_mask).sum()))
+    lo, hi = scale_range
+    s0 = float(np.clip(extent_scale(base.hand, points, mean), lo, hi))
+    sub = _thin(points, st.coarse_points)
+    nsub = None if normals is None else normals[sub]
+    th, corr = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
+    s1, th1, _, _ = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / 1.3),
+                              min(hi, s0 * 1.3), silhouette=silhouette, normals=nsub)
+    if abs(np.log(s1 / s0)) > 0.08:
+        th, corr = fit_single_frame(context_for(s1), points, st, silhouette=silhouette, normals=normals)
+        s1, th1, _, _ = fit_scale(context_for, th, context_for(s1).hand, points[sub], max(lo, s1 / 1.12),
+                                  min(hi, s1 * 1.12), silhouette=silhouette, normals=nsub)
+    ctx = context_for(s1)
+    th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
+    return s1, th, corr

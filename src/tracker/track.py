@@ -26,7 +26,7 @@ from handmodel.subspace import Subspace, hierarchical_schedule
 from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, fit, tracking_schedule
-from .init import FitContext, InitSettings, finger_shapes, fit_single_frame
+from .init import FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled
 from .observe import ObserveSettings
 
 LIMITS = ("anatomical", "data", "model")
@@ -42,7 +42,9 @@ class TrackerSettings:
     PCA on) or "model" (the model file's); ``prediction``: share of the last frame's change added
     before fitting (0 = off); a frame is lost when its fit error exceeds ``lost_fit_mm`` or more than
     ``lost_rejected`` of its points are rejected, or it has fewer than ``min_points``; ``max_points``
-    caps the points a frame fits (None = all).
+    caps the points a frame fits (None = all). ``hand_scale``: the user's hand size as a factor on
+    the model (:meth:`handmodel.HandModel.scaled`), or ``"auto"``: estimated on the first frame and
+    refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``.
     """
 
     mode: str = "full"
@@ -55,6 +57,9 @@ class TrackerSettings:
     lost_rejected: float = 0.6
     min_points: int = 30
     max_points: int | None = None
+    hand_scale: float | str = 1.0
+    scale_frames: int = 3
+    scale_range: tuple = (0.6, 2.0)
     observe: ObserveSettings = field(default_factory=ObserveSettings)
     correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
     icp: IcpSettings = field(default_factory=IcpSettings)
@@ -93,6 +98,14 @@ class TrackerSettings:
             raise TrackerError("settings", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.limits not in LIMITS:
             raise TrackerError("settings", f"limits must be one of {', '.join(LIMITS)}, got {self.limits!r}")
+        if isinstance(self.hand_scale, str):
+            if self.hand_scale != "auto":
+                raise TrackerError("settings", f"hand_scale must be a positive number or 'auto', got {self.hand_scale!r}")
+        elif not (np.isfinite(self.hand_scale) and self.hand_scale > 0):
+            raise TrackerError("settings", f"hand_scale must be a positive number or 'auto', got {self.hand_scale!r}")
+        lo, hi = self.scale_range
+        if not 0 < lo < hi or self.scale_frames < 1:
+            raise TrackerError("settings", "scale_range must be 0 < low < high and scale_frames ≥ 1")
         if self.observe.stride < 1:
             raise TrackerError("settings", "stride must be positive")
         self.correspond.check()
@@ -148,7 +161,9 @@ def fit_context(hand, settings: TrackerSettings, synergies=None):
                                        steps=settings.hierarchy, n_pcs=n_pcs)[:-1] + [full]
     matcher = Matcher(hand, settings.correspond)
     samples = ModelSamples(hand) if settings.icp.silhouette_weight > 0 else None
-    ctx = FitContext(hand, lim, matcher, settings.icp, full, reduced, ladder, model, samples, finger_shapes(hand, lim))
+    # the start search scores both directions even when the fit itself has no silhouette term
+    ctx = FitContext(hand, lim, matcher, settings.icp, full, reduced, ladder, model, samples, finger_shapes(hand, lim),
+                     score_samples=ModelSamples(hand, spacing=0.006))
     return ctx, n_pcs
 
 
@@ -160,21 +175,44 @@ class HandTracker:
     hand : HandModel
     settings : TrackerSettings
     synergies : a synergy bundle (``synergy.bundle.Bundle``) or ``None`` (full mode only)
+
+    Attributes
+    ----------
+    hand : the model tracked, ``base_hand`` scaled by ``scale_``
+    scale_ : the hand size in use (None while ``hand_scale="auto"`` has not seen a frame)
+    scale_estimates_ : the per-frame estimates an automatic calibration took the median of
     """
 
     def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None):
-        self.hand = hand
+        self.base_hand = hand
         self.settings = settings = settings or TrackerSettings()
         settings.check()
         if settings.mode != "full" and synergies is None:
             raise TrackerError("synergies", f"mode {settings.mode!r} needs a synergy bundle (--synergies)")
         self.synergies = synergies
-        self.context, self.n_pcs = fit_context(hand, settings, synergies)
-        self.limits, self.full, self.reduced = self.context.limits, self.context.full, self.context.reduced
-        st = settings.icp
-        self.stages = tracking_schedule(settings.mode, st.icp_iterations, self.full, self.reduced,
-                                        projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations)
+        self._contexts = {}
+        self.scale_estimates_ = []
+        auto = settings.hand_scale == "auto"
+        self._use_scale(1.0 if auto else float(settings.hand_scale))
+        self.scale_ = None if auto else float(settings.hand_scale)
         self.reset()
+
+    def context_for(self, scale):
+        """The :class:`tracker.init.FitContext` of the hand scaled by ``scale`` (built once per size)."""
+        key = round(float(scale), 5)
+        if key not in self._contexts:
+            hand = self.base_hand if key == 1.0 else self.base_hand.scaled(key)
+            self._contexts[key] = fit_context(hand, self.settings, self.synergies)
+        return self._contexts[key][0]
+
+    def _use_scale(self, scale):
+        self.context_for(scale)
+        self.context, self.n_pcs = self._contexts[round(float(scale), 5)]
+        self.hand = self.context.hand
+        self.limits, self.full, self.reduced = self.context.limits, self.context.full, self.context.reduced
+        st = self.settings.icp
+        self.stages = tracking_schedule(self.settings.mode, st.icp_iterations, self.full, self.reduced,
+                                        projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations)
 
     def reset(self):
         self.last_good = None
@@ -190,6 +228,23 @@ class HandTracker:
         """Track one :class:`tracker.observe.Observation`."""
         return self.step(observation.points, normals=observation.normals, mask=observation.mask,
                          depth=observation.depth, camera=camera)
+
+    def _refine_scale(self, pts, nrm, sil):
+        """One more frame's size estimate (a narrow search around the current size from this frame's
+        fit); the size becomes the median of the estimates so far, θ follows it."""
+        s = self.scale_
+        sub = slice(None, None, max(1, len(pts) // self.settings.init.coarse_points))
+        est, _, _, _ = fit_scale(self.context_for, self.theta, self.hand, pts[sub], s / 1.1, s * 1.1, silhouette=sil,
+                                 normals=None if nrm is None else nrm[sub])
+        self.scale_estimates_.append(est)
+        new = float(np.median(self.scale_estimates_))
+        if round(new, 5) != round(s, 5):
+            old = self.hand
+            self.scale_ = new
+            self._use_scale(new)
+            self.theta = rescaled(old, self.hand, self.theta)
+            self.prev = None if self.prev is None else rescaled(old, self.hand, self.prev)
+            self.last_good = self.theta
 
     def predict(self) -> np.ndarray:
         """The start of the next frame: the last θ plus ``prediction`` × its last change, except the
@@ -222,7 +277,15 @@ class HandTracker:
             self.lost = True
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
-        if self.lost or self.theta is None:
+        if self.settings.hand_scale == "auto" and self.scale_ is None:
+            s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
+                                             scale_range=st.scale_range)
+            self.scale_estimates_.append(s)
+            self.scale_ = s
+            self._use_scale(s)
+            status = "reinit"
+            self.prev = None
+        elif self.lost or self.theta is None:
             extra = () if self.last_good is None else (self.last_good,)
             theta, corr = self.fit_single_frame(pts, silhouette=sil, normals=nrm, extra=extra)
             status = "reinit"
@@ -238,6 +301,8 @@ class HandTracker:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
             self.last_good = theta
             self.lost = False
+            if status == "tracked" and len(self.scale_estimates_) < (st.scale_frames if st.hand_scale == "auto" else 0):
+                self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected))
