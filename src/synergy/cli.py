@@ -47,7 +47,7 @@ def _pct(x: float) -> str:
 @app.command()
 @_errors_exit_2
 def fit(
-    files: List[Path] = typer.Argument(None, help="Input files: angle tables, or C3D with --markers."),
+    files: List[Path] = typer.Argument(None, help="Input files: angle tables, or C3D (marker set and hand chosen from the labels unless given)."),
     angles: List[Path] = typer.Option(None, "--angles", help="Joint-angle file (repeatable; further files may follow as arguments)."),
     name: str = typer.Option(..., "--name", help="Bundle name."),
     task: Optional[str] = typer.Option(None, "--task", help="Task label of all inputs."),
@@ -55,8 +55,11 @@ def fit(
     per_task: bool = typer.Option(False, "--per-task", help="With --tasks: one bundle per task, named NAME-TASK."),
     variance: float = typer.Option(0.99, "--variance", help="Variance fraction that sets the default number of PCs."),
     fmt: str = typer.Option("auto", "--format", help="Input format: auto (by suffix), csv, schroeder26."),
-    markers: Optional[str] = typer.Option(None, "--markers", help="Marker set for C3D input."),
-    hand: str = typer.Option("left", "--hand", help="C3D input: which hand the markers are on (left/right)."),
+    markers: Optional[str] = typer.Option(None, "--markers", help="C3D input: marker set name or YAML (default: the shipped set the labels fit)."),
+    hand: Optional[str] = typer.Option(None, "--hand", help="C3D input: left or right (default: from the labels, else the handedness check)."),
+    subject: Optional[Path] = typer.Option(None, "--subject", help="C3D input: subject calibration from 'synergy calibrate'."),
+    accept_poor: bool = typer.Option(False, "--accept-poor", help="C3D input: fit trials whose conversion is judged poor."),
+    no_hand_check: bool = typer.Option(False, "--no-hand-check", help="C3D input: skip the handedness check."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
     dask: Optional[str] = typer.Option(None, "--dask", help="Convert files and compute statistics as Dask tasks: local, local:N or a scheduler address."),
@@ -68,7 +71,8 @@ def fit(
     from rich.progress import Progress
 
     from synergy.errors import SynergyError
-    from synergy.fit import bundle_from_trials, group_by_task, read_trial, task_labels
+    from synergy.calibrate import load_calibration
+    from synergy.fit import bundle_from_trials, group_by_task, quality_problems, read_trial, task_labels
     from synergy.tasks import load_task_map
 
     _check_variance(variance)
@@ -79,6 +83,8 @@ def fit(
         raise SynergyError("fit", "give either --task or --tasks, not both")
     task_map = load_task_map(tasks) if tasks else None
     labels = task_labels(inputs, task, task_map)
+    read_kw = dict(markers=markers, hand=hand, smooth_hz=smooth_hz, check_hand=not no_hand_check,
+                   calibration=load_calibration(subject) if subject is not None else "trial")
 
     trials = []
     stats_of = {}
@@ -87,19 +93,26 @@ def fit(
         from synergy.scale import read_trials_dask
 
         with err_console.status(f"converting {len(inputs)} file(s) on Dask ({dask})"):
-            trials, stats = read_trials_dask(inputs, fmt, labels, markers=markers, hand=hand, smooth_hz=smooth_hz,
-                                             address=dask)
+            trials, stats = read_trials_dask(inputs, fmt, labels, address=dask, **read_kw)
         stats_of = {id(t): s for t, s in zip(trials, stats)}
     else:
         with Progress(console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
             bar = progress.add_task("reading", total=len(inputs))
             for f in inputs:
                 progress.update(bar, description=f"reading {f.name}")
-                trials.append(read_trial(f, fmt, task=labels[f], markers=markers, hand=hand, smooth_hz=smooth_hz))
+                trials.append(read_trial(f, fmt, task=labels[f], **read_kw))
                 progress.advance(bar)
+    console = _console()
+    _print_conversions(console, trials, accept_poor)
+    problems = quality_problems(trials)
+    if problems and not accept_poor:
+        from handmodel.cliutil import print_error
+
+        for err in problems:  # after the table, one line each, nothing printed after them
+            print_error(err)
+        raise typer.Exit(2)
 
     groups = group_by_task(trials, name, per_task=per_task, order=task_map.tasks if task_map is not None else None)
-    console = _console()
     for bname, group in groups.items():
         bundle = bundle_from_trials(
             group, bname, n_components=variance, registry=registry, version=version,
@@ -107,6 +120,37 @@ def fit(
             stats=[stats_of[id(t)] for t in group] if stats_of else None,
         )
         console.print(_summary_table(bundle, variance))
+
+
+def _print_conversions(console, trials, accept_poor: bool) -> None:
+    """C3D trials: the marker set and hand chosen from the labels (one line per choice), the
+    per-trial conversion quality (a table that fits 80 columns), warnings and poor trials fitted."""
+    from rich.text import Text
+
+    from synergy.cli_mocap import fit_table
+
+    conv = [(Path(t.path).name, t.conversion) for t in trials if t.conversion]
+    if not conv:
+        return
+    chosen = {}
+    for f, c in conv:
+        if c["chosen"] == "labels" or c["hand_from"] in ("labels", "handedness check"):
+            how = f" by the {c['hand_from']}" if c["hand_from"] == "handedness check" else ""
+            key = (f"marker set {c['markerset']}, hand {c['hand']}{how} ({c['matched']} of {c['total']} labels matched)"
+                   + "".join(f"; the labels also fit {o['name']} {o['hand'] or ''}".rstrip() for o in c["others"]))
+            chosen.setdefault(key, []).append(f)
+    for key, names in chosen.items():
+        console.print(Text(f"{key}: {', '.join(names) if len(names) <= 3 else f'{len(names)} files'}"), soft_wrap=True)
+    mm = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+    rows = [(f, f"{c['markerset']} {c['hand'][0].upper()}", mm(c["residual_median_mm"]), mm(c["residual_p95_mm"]),
+             f"{100 * c['ok_share']:.1f}", c["verdict"]) for f, c in conv]
+    console.print(fit_table("C3D conversion (marker residuals)", ("trial", "set, hand", "med mm", "95th mm", "ok %",
+                                                                  "verdict"), rows))
+    for f, c in conv:
+        for w in c["warnings"] if c["verdict"] != "good" else ():
+            console.print(Text(f"{f}: warning: {w}"))
+        if c["verdict"] == "poor" and accept_poor:
+            console.print(Text(f"{f}: fitted despite a poor conversion (--accept-poor): {'; '.join(c['reasons'])}"))
 
 
 def _summary_table(bundle, variance: float):
