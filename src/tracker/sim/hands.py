@@ -71,6 +71,8 @@ class HandShape:
                 raise TrackerError("finger scale", f"unknown finger {name!r} ({', '.join(FINGERS)})")
             if not (np.isfinite(f) and FINGER_RANGE[0] <= f <= FINGER_RANGE[1]):
                 raise TrackerError("finger scale", f"{name} must be in {FINGER_RANGE[0]}–{FINGER_RANGE[1]}, got {f}")
+        # every finger spelled out: equal shapes compare equal however they were given
+        object.__setattr__(self, "fingers", {f: float(self.fingers.get(f, 1.0)) for f in FINGERS})
 
     def __hash__(self):
         return hash((self.scale, tuple(sorted(self.fingers.items()))))
@@ -154,7 +156,7 @@ def read_hand_truth(folder) -> tuple[HandShape, dict] | None:
         fingers = {str(k): float(v) for k, v in (doc.get("finger_scales") or {}).items()}
         shape = HandShape(float(doc["scale"]), fingers)
     except TrackerError as exc:  # before ValueError, which it is
-        raise RecordingError(path, exc.reason) from None
+        raise RecordingError(path, str(exc)) from None
     except (KeyError, TypeError, ValueError) as exc:
         raise RecordingError(path, f"bad scale or finger_scales ({exc})") from None
     return shape, doc

@@ -1,0 +1,242 @@
+"""Realistic synthetic scenes: clutter elements (sleeve, torso, table, object) against their
+specification, resized rendered hands and their truth file, the realistic-scenes experiment."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from handmodel import HandModel
+from tracker.cameras import preset
+from tracker.errors import RecordingError, TrackerError
+from tracker.sim.hands import (FINGERS, TRUTH_HAND_FILE, HandShape, read_hand_truth, truth_hand, wrist_to_middle_tip_mm,
+                               write_hand_truth)
+from tracker.sim.motions import hand_centre, make_motion
+from tracker.sim.render import CLUTTER_LABELS, MATERIALS, Clutter, DepthRenderer, render
+from handmodel.rigid import euler_to_matrix
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return preset("kinect1")
+
+
+@pytest.fixture(scope="module")
+def theta(hand):
+    return make_motion("open-close", hand=hand, frames=20).theta[12]
+
+
+def centre_of(hand, th):
+    return th[:3] + euler_to_matrix(th[3:6]) @ hand_centre(hand)
+
+
+# ----------------------------------------------------------------------------- clutter
+def test_every_clutter_element_has_its_own_label_and_the_hand_is_untouched(hand, cam, theta):
+    plain = render(hand, theta, cam)
+    r = render(hand, theta, cam, clutter="sleeve,torso=0.1,table,cylinder", color=True, reflectance=True)
+    present = {k for k, v in CLUTTER_LABELS.items() if (r.labels == v).sum() > 200}
+    assert present == set(CLUTTER_LABELS)  # forearm (bare near the wrist), sleeve, torso, table, object
+    assert len(set(CLUTTER_LABELS.values()) | {-1}) == len(CLUTTER_LABELS) + 1 and max(CLUTTER_LABELS.values()) < -1
+    hand_px = r.labels >= 0
+    assert np.array_equal(hand_px, r.hand_mask)
+    # clutter lies behind or beside the hand: only the forearm near the wrist may cover hand pixels
+    covered = (plain.labels >= 0) & ~hand_px
+    assert np.isin(r.labels[covered], [CLUTTER_LABELS["forearm"], CLUTTER_LABELS["sleeve"]]).all()
+    assert covered.sum() < 0.1 * (plain.labels >= 0).sum()
+    assert np.array_equal(r.depth[hand_px], plain.depth[hand_px])
+    # materials: skin hand and bare forearm, dark sleeve
+    assert np.allclose(r.reflectance[hand_px], MATERIALS["skin"][2])
+    assert np.allclose(r.reflectance[r.labels == CLUTTER_LABELS["forearm"]], MATERIALS["skin"][2])
+    assert np.allclose(r.reflectance[r.labels == CLUTTER_LABELS["sleeve"]], MATERIALS["sleeve"][2])
+    sleeve_rgb = r.color[r.labels == CLUTTER_LABELS["sleeve"]].astype(float)
+    assert (sleeve_rgb[:, 2] > sleeve_rgb[:, 0]).all()  # blue cloth, unlike skin
+
+
+def test_sleeve_starts_behind_the_wrist_and_is_wider(hand, cam, theta):
+    c = Clutter(sleeve=True, sleeve_start_m=0.06)
+    r = DepthRenderer(hand, cam).render(theta, clutter=c)
+    P = np.stack(np.nonzero(np.isfinite(r.depth)), 1)
+    v, u = P[:, 0], P[:, 1]
+    z = r.depth[v, u].astype(float)
+    X = np.stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z], 1)
+    G0 = hand.node_frames(theta)[0]
+    local = (X - G0[:3, 3]) @ G0[:3, :3]  # wrist frame: the forearm runs along −y
+    lab = r.labels[v, u]
+    bare, sleeve = local[lab == CLUTTER_LABELS["forearm"]], local[lab == CLUTTER_LABELS["sleeve"]]
+    assert len(bare) > 100 and len(sleeve) > 500
+    assert bare[:, 1].min() > -0.06 - 0.004  # bare skin only between the wrist and the cuff
+    assert sleeve[:, 1].max() < -0.06 + 1e-3 and sleeve[:, 1].min() < -0.2
+    # wider: its half-width at the cuff exceeds the forearm's there by the scale and ease
+    at_cuff = np.abs(sleeve[np.abs(sleeve[:, 1] + 0.08) < 0.01, 0]).max()
+    fw = c.forearm_wrist_m[0] + 0.08 / c.forearm_length_m * (c.forearm_far_m[0] - c.forearm_wrist_m[0])
+    assert at_cuff > fw * 1.15
+
+
+@pytest.mark.parametrize("gap", [0.03, 0.15, 0.30])
+def test_torso_front_lies_the_gap_behind_the_hand(hand, cam, theta, gap):
+    c = Clutter(forearm=False, torso=True, torso_gap_m=gap)
+    centre = centre_of(hand, theta)
+    c = c.fixed(centre)
+    r = render(hand, theta, cam, clutter=c)
+    torso = r.labels == CLUTTER_LABELS["torso"]
+    assert torso.sum() > 20000  # a body, not a thin object
+    # straight behind the hand centre the torso's front surface is at the hand centre's depth + gap
+    u, v = cam.project(np.array([centre[0] + 0.02, centre[1] + 0.02, centre[2] + gap]))  # beside the palm
+    patch = r.depth[int(v) - 40:int(v) + 40, int(u) - 40:int(u) + 40]
+    lab = r.labels[int(v) - 40:int(v) + 40, int(u) - 40:int(u) + 40]
+    front = np.median(patch[lab == CLUTTER_LABELS["torso"]])
+    assert abs(front - (centre[2] + gap)) < 0.004, (front, centre[2] + gap)
+    # the torso is wider than the hand and centred behind it (the hand in front of the chest)
+    cols = np.nonzero(torso.any(0))[0]
+    u0 = cam.project(centre)[0]
+    width_px = 2 * c.torso_size_m[0] * cam.fx / (centre[2] + gap)
+    assert abs(0.5 * (cols.min() + cols.max()) - u0) < 5 and abs(cols.max() - cols.min() - width_px) < 0.1 * width_px
+
+
+def test_object_beside_the_hand(hand, cam, theta):
+    for kind in ("box", "cylinder"):
+        c = Clutter(forearm=False, object=kind).fixed(centre_of(hand, theta))
+        r = render(hand, theta, cam, clutter=c)
+        obj = r.labels == CLUTTER_LABELS["object"]
+        assert obj.sum() > 1000
+        hand_cols = np.nonzero((r.labels >= 0).any(0))[0]
+        assert np.nonzero(obj.any(0))[0].min() > np.median(hand_cols)  # to the right of the hand
+        assert not (obj & (render(hand, theta, cam).labels >= 0)).any()  # hides no hand pixel
+        ctr = np.asarray(c.object_centre)
+        z_front = ctr[2] - c.object_size_m[2 if kind == "box" else 0]
+        assert abs(np.nanmin(r.depth[obj]) - z_front) < 0.003
+
+
+def test_clutter_parse_and_errors():
+    c = Clutter.parse("sleeve, torso=0.2, box")
+    assert c.forearm and c.sleeve and c.torso and c.torso_gap_m == 0.2 and c.object == "box" and not c.table
+    assert c.parts == ("forearm", "sleeve", "torso", "object") and c.describe() == "forearm+sleeve,torso@0.2m,box"
+    assert Clutter.parse("table").forearm is False and Clutter.parse("cylinder").object == "cylinder"
+    assert Clutter.parse("none") is None and Clutter.parse("") is None
+    for bad in ("sofa", "torso=0.5", "torso=0.01", "torso=far", "table=1"):
+        with pytest.raises(TrackerError):
+            Clutter.parse(bad)
+    with pytest.raises(TrackerError):
+        Clutter(forearm=False, sleeve=True)
+
+
+def test_fixed_clutter_does_not_follow_the_hand(hand, cam, theta):
+    c = Clutter(forearm=False, torso=True, object="box", table=True).fixed(centre_of(hand, theta))
+    moved = theta.copy()
+    moved[0] += 0.05
+    a, b = render(hand, theta, cam, clutter=c), render(hand, moved, cam, clutter=c)
+    torso = (a.labels == CLUTTER_LABELS["torso"]) & (b.labels == CLUTTER_LABELS["torso"])
+    assert torso.sum() > 10000 and np.array_equal(a.depth[torso], b.depth[torso])
+
+
+# ----------------------------------------------------------------------------- resized hands
+def test_global_scale_scales_every_keypoint_distance(hand):
+    big = HandShape(1.3).apply(hand)
+    k0, k1 = hand.keypoints(np.zeros(26)), big.keypoints(np.zeros(26))
+    assert np.allclose(k1 - k1[0], 1.3 * (k0 - k0[0]), atol=1e-12)
+    assert np.isclose(wrist_to_middle_tip_mm(big), 1.3 * wrist_to_middle_tip_mm(hand))
+    assert HandShape().apply(hand) is hand
+
+
+def test_finger_factor_lengthens_that_finger_only(hand):
+    th = make_motion("open-close", hand=hand, frames=20).theta[12]
+    long_index = HandShape(1.0, {"index": 1.1}).apply(hand)
+    k0, k1 = hand.keypoints(th), long_index.keypoints(th)
+    idx = [hand.node_index(n) for n in ("index1", "index2", "index3", "index_tip")]
+    bones0 = np.linalg.norm(np.diff(k0[idx], axis=0), axis=1)
+    bones1 = np.linalg.norm(np.diff(k1[idx], axis=0), axis=1)
+    assert np.allclose(bones1, 1.1 * bones0)  # the three phalanges, the posture unchanged
+    others = [i for i, n in enumerate(hand.node_names) if not n.startswith("index") or n == "index1"]
+    assert np.allclose(k1[others], k0[others])  # palm and the other fingers stay
+    # the rendered surface follows: the index tip region reaches further
+    thumb = HandShape(1.0, {"thumb": 0.9}).apply(hand)
+    t = [hand.node_index(n) for n in ("thumb1", "thumb2", "thumb3", "thumb_tip")]
+    assert np.allclose(np.linalg.norm(np.diff(thumb.keypoints(th)[t], axis=0), axis=1),
+                       0.9 * np.linalg.norm(np.diff(k0[t], axis=0), axis=1))
+
+
+def test_hand_shape_parse_and_errors():
+    assert HandShape.parse(1.2, "1.05").finger_scales() == dict.fromkeys(FINGERS, 1.05)
+    assert HandShape.parse(1.0, "1,1.1,1,0.95,0.9").finger_scales()["ring"] == 0.95
+    assert HandShape.parse(0.8, "middle=1.1").finger_scales() == {**dict.fromkeys(FINGERS, 1.0), "middle": 1.1}
+    for scale, fingers in ((0.3, None), (1.0, "1,2"), (1.0, "index=abc"), (1.0, "toe=1.1"), (1.0, "1.5"),
+                           (float("nan"), None)):
+        with pytest.raises(TrackerError):
+            HandShape.parse(scale, fingers)
+
+
+def test_truth_file_round_trip_and_mismatch(tmp_path, hand):
+    shape = HandShape(1.3, {"pinky": 0.9})
+    write_hand_truth(tmp_path, shape, hand)
+    got, doc = read_hand_truth(tmp_path)
+    assert got == shape and doc["rendered_wrist_to_middle_tip_mm"] > 160
+    rebuilt = truth_hand(tmp_path)
+    assert np.allclose(rebuilt.keypoints(np.zeros(26)), shape.apply(hand).keypoints(np.zeros(26)))
+    with pytest.raises(RecordingError, match=TRUTH_HAND_FILE):
+        truth_hand(tmp_path, base=hand.scaled(1.1))  # not the model the file names
+    with pytest.raises(Exception):
+        write_hand_truth(tmp_path, shape, hand)  # never overwritten silently
+    assert truth_hand(tmp_path / "none") is None
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / TRUTH_HAND_FILE).write_text("format: synthetic-hand-truth/1\nscale: 9\n")
+    with pytest.raises(RecordingError, match="scale"):
+        read_hand_truth(tmp_path / "b")
+
+
+def test_synth_cli_resized_hand_in_clutter(tmp_path):
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+    from tracker.recording import Recording
+
+    out = tmp_path / "rec"
+    r = CliRunner().invoke(app, ["synth", "--motion", "open-close", "--noise", "realsense", "--camera", "sr305",
+                                 "--frames", "2", "--clutter", "sleeve,torso=0.05,box", "--hand-scale", "1.3",
+                                 "--finger-scale", "index=1.1", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    rec = Recording.open(out)
+    shown = truth_hand(out)
+    assert np.isclose(wrist_to_middle_tip_mm(shown), 1.3 * wrist_to_middle_tip_mm(HandModel.load()))
+    th = rec.truth_array()
+    # truth is still θ: the rendered, resized hand at that θ lies on the recorded surface
+    d = rec[0].depth
+    kp = shown.keypoints(th[0])
+    u, v = rec.camera.project(kp[shown.node_index("middle2")])
+    patch = d[int(round(v)) - 2:int(round(v)) + 3, int(round(u)) - 2:int(round(u)) + 3]
+    assert np.nanmin(np.abs(patch - kp[shown.node_index("middle2"), 2])) < 0.02
+    assert "sr305" in rec.meta["source"] and "torso@0.05m" in rec.meta["source"] and "scale 1.3" in rec.meta["source"]
+    bad = CliRunner().invoke(app, ["synth", "--hand-scale", "3", "-o", str(tmp_path / "x")])
+    assert bad.exit_code != 0 and not (tmp_path / "x").exists()
+
+
+# ----------------------------------------------------------------------------- the experiment
+def test_run_scene_compares_keypoints_on_the_rendered_hand(hand):
+    """A tracker that knows the size tracks a 1.3× hand to the same few millimetres as the model-sized
+    one; the keypoint error compares the tracker's hand with the rendered one, not with the model."""
+    from synergy.bundle import load_bundle
+    from tracker.sim.experiments import run_scene
+    from tracker.track import HandTracker, TrackerSettings
+
+    bundle = load_bundle("fingerfist")
+    big = HandShape(1.3).apply(hand)
+    truth = make_motion("open-close", hand=big, frames=2).theta
+    cam = preset("kinect1")
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.3), synergies=bundle)
+    r = run_scene(hand, big, truth, cam, tr)
+    assert r["status"][0] != "lost" and np.all(r["keypoint_mm"] < 8.0), r["keypoint_mm"]
+    assert np.allclose(r["scale"], 1.3)
+    # the same frames judged against the model-sized hand would be off by centimetres
+    wrong = np.linalg.norm(tr.hand.keypoints(truth[0]) - hand.keypoints(truth[0]), axis=-1).mean() * 1000
+    assert wrong > 15
+
+
+def test_realistic_table_lines():
+    from tracker.sim.report import realistic_lines
+
+    rows = [{"scene": s, "clutter": "none", "sensor": "kinect1", "scale": 1.0, "frames": 5, "keypoint_mm": k,
+             "posture_deg": 2.0, "first_frame_mm": k, "first_ok": k <= 20, "lost": lost, "fps": 20.0,
+             "scale_found": float("nan")} for s, k, lost in (("hand alone", 4.0, 0.0), ("+forearm", 50.0, 0.4))]
+    L = realistic_lines(rows, 5)
+    table = [line for line in L if line.startswith("| hand alone") or line.startswith("| +forearm")]
+    assert len(table) == 4  # per run and by scene
+    assert "| hand alone | kinect1 | 1 | 4.0 | 2.0 | yes | 4.0 | 0 % | 20.0 | — |" in L
+    assert "| +forearm | 50.0 | 2.0 | 0 % | 40 % |" in L
