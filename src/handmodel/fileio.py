@@ -51,7 +51,8 @@ def check_output(path: str | os.PathLike, *, overwrite: bool = False, folder: bo
     Checks that ``path`` is not an existing folder (or, with ``folder=True``, not an existing
     file), is not there already unless ``overwrite``, and that the folder it goes into can
     take a new file: a probe file is created and removed there, which also catches a
-    read-only file system for root (who passes every permission check).
+    read-only file system for root (who passes every permission check), and the file system
+    has a free block (an empty probe fits on a full disk, the output would not).
 
     Raises
     ------
@@ -78,8 +79,12 @@ def check_output(path: str | os.PathLike, *, overwrite: bool = False, folder: bo
         fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=probe_in)
         os.close(fd)
         os.unlink(probe)
+        st = os.statvfs(probe_in) if hasattr(os, "statvfs") else None
     except OSError as exc:
         raise _os_error(exc, path) from None
+    # root may use the blocks reserved for it; f_blocks == 0 is a file system that keeps no count
+    if st is not None and st.f_blocks and not (st.f_bfree if os.geteuid() == 0 else st.f_bavail):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
     return path
 
 
@@ -186,9 +191,9 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
-def _first_nan(doc, at=()):
-    """Path and value of the first NaN in a parsed document, or None."""
-    if isinstance(doc, float) and math.isnan(doc):
+def _first_nan(doc, at=(), bad=math.isnan):
+    """Path and value of the first NaN (or other float ``bad`` accepts) in a parsed document, or None."""
+    if isinstance(doc, float) and bad(doc):
         return at, doc
     if isinstance(doc, dict):
         items = doc.items()
@@ -197,10 +202,16 @@ def _first_nan(doc, at=()):
     else:
         return None
     for k, v in items:
-        found = _first_nan(v, (*at, k))
+        found = _first_nan(v, (*at, k), bad)
         if found:
             return found
     return None
+
+
+def first_non_finite(doc):
+    """``(path, value)`` of the first NaN or infinity in a parsed JSON/YAML document, or None
+    (``json.loads`` reads ``NaN`` and ``Infinity``, which no JSON-schema bound catches)."""
+    return _first_nan(doc, bad=lambda x: not math.isfinite(x))
 
 
 def schema_errors(doc, name: str) -> str | None:

@@ -40,7 +40,7 @@ import numpy as np
 
 from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.errors import HandModelError
-from handmodel.fileio import atomic_write_bytes, load_npz, models_dir, schema_path, sha256_file
+from handmodel.fileio import atomic_write_bytes, first_non_finite, load_npz, models_dir, schema_path, sha256_file
 from handmodel.model import HandModel
 from handmodel.subspace import Subspace
 from synergy.errors import BundleError, SynergyError
@@ -128,6 +128,8 @@ def _validator():
 
 
 def _check_manifest(manifest, where) -> None:
+    if bad := first_non_finite(manifest):  # json.loads reads NaN/Infinity, and no schema bound catches NaN
+        raise BundleError(where, f"malformed manifest: {'.'.join(map(str, bad[0]))}: {bad[1]} is not a finite number")
     errors = sorted(_validator().iter_errors(manifest), key=lambda e: list(map(str, e.absolute_path)))
     if errors:
         err = errors[0]

@@ -29,7 +29,7 @@ from handmodel.cliutil import errors_exit_2 as _errors_exit_2  # noqa: E402
 def _console(stderr: bool = False):
     from rich.console import Console
 
-    return Console(stderr=stderr)
+    return Console(stderr=stderr, markup=False)  # names, paths and reasons are shown as typed, never as markup
 
 
 def _check_variance(variance: float) -> None:
@@ -68,6 +68,13 @@ def fit(
     hand_model_sha256: Optional[str] = typer.Option(None, "--hand-model-sha256", help="Its hash (default: hash of models/hands/NAME.yaml)."),
 ):
     """Fit synergies on posture files and save a new bundle version."""
+    import os
+
+    from handmodel.fileio import check_output
+
+    target = registry or next((p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()), None)
+    if target is not None:  # no target at all is the library's error, named there
+        check_output(target, folder=True)  # a read-only or full registry fails before the files are read
     from rich.progress import Progress
 
     from synergy.errors import SynergyError
@@ -135,7 +142,8 @@ def _print_conversions(console, trials, accept_poor: bool) -> None:
     chosen = {}
     for f, c in conv:
         if c["chosen"] == "labels" or c["hand_from"] in ("labels", "handedness check"):
-            how = f" by the {c['hand_from']}" if c["hand_from"] == "handedness check" else ""
+            how = {"handedness check": " by the handedness check", "subject": " of the subject calibration"}.get(
+                c["hand_from"], "")
             key = (f"marker set {c['markerset']}, hand {c['hand']}{how} ({c['matched']} of {c['total']} labels matched)"
                    + "".join(f"; the labels also fit {o['name']} {o['hand'] or ''}".rstrip() for o in c["others"]))
             chosen.setdefault(key, []).append(f)
@@ -148,9 +156,10 @@ def _print_conversions(console, trials, accept_poor: bool) -> None:
                                                                   "verdict"), rows))
     for f, c in conv:
         for w in c["warnings"] if c["verdict"] != "good" else ():
-            console.print(Text(f"{f}: warning: {w}"))
+            console.print(Text(f"{f}: warning: {w}"), soft_wrap=True)
         if c["verdict"] == "poor" and accept_poor:
-            console.print(Text(f"{f}: fitted despite a poor conversion (--accept-poor): {'; '.join(c['reasons'])}"))
+            console.print(Text(f"{f}: fitted despite a poor conversion (--accept-poor): {'; '.join(c['reasons'])}"),
+                          soft_wrap=True)
 
 
 def _summary_table(bundle, variance: float):
@@ -182,6 +191,7 @@ def _summary_table(bundle, variance: float):
 def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP)):
     """List the bundles in all registries."""
     from rich.table import Table
+    from rich.text import Text
 
     from synergy.bundle import list_bundles, read_bundle
     from synergy.errors import BundleError
@@ -196,7 +206,7 @@ def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REG
             t.add_row(ref.name, ref.version, ", ".join(man["tasks"]) or "-", str(man["n_samples"]),
                       str(man["n_components"]), str(ref.path))
         except BundleError as err:
-            t.add_row(ref.name, ref.version, f"[red]invalid: {err.reason}[/red]", "", "", str(ref.path))
+            t.add_row(ref.name, ref.version, Text(f"invalid: {err.reason}", style="red"), "", "", str(ref.path))
     _console().print(t)
 
 
@@ -304,6 +314,9 @@ def plot(
 ):
     """Scree/cumulative-variance PNG, the hand at μ ± 2σ along PC1–3 (paper Fig. 6), and reconstruction
     error vs PCs if held-out data exist."""
+    from handmodel.fileio import check_output
+
+    check_output(out, folder=True)  # before the bundle and held-out files are read
     import numpy as np
 
     from synergy.bundle import load_bundle

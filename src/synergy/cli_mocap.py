@@ -27,16 +27,17 @@ def register(app, errors_exit_2) -> None:
 def fit_table(title, columns, rows, *, wrap_first=True):
     """A rich table that fits the terminal (80 columns at least): numbers are never cut; the
     first column (names) folds onto more lines, headers wrap."""
+    from rich.markup import escape
     from rich.table import Table
 
-    table = Table(title=title, title_justify="left", pad_edge=False, collapse_padding=True)
+    table = Table(title=escape(title), title_justify="left", pad_edge=False, collapse_padding=True)
     for i, c in enumerate(columns):
         if i == 0 and wrap_first:
             table.add_column(c, overflow="fold", ratio=1, min_width=8)
         else:
             table.add_column(c, justify="right", no_wrap=True)
     for r in rows:
-        table.add_row(*map(str, r))
+        table.add_row(*(escape(str(x)) for x in r))  # file names are shown as typed, not read as markup
     return table
 
 
@@ -44,10 +45,11 @@ def describe_trial(name, df) -> list:
     """Lines a user reads under the summary table: calibration as estimated, the worst markers,
     joints on limits, the handedness check, warnings."""
     import numpy as np
+    from rich.markup import escape
 
     d = df.attrs.get("diagnostics", {})
     cal = df.attrs.get("calibration", {})
-    out = [f"[bold]{name}[/bold] ({d.get('verdict', '?')}): noise floor {d.get('noise_floor_mm', float('nan')):.2f} mm, "
+    out = [f"[bold]{escape(name)}[/bold] ({d.get('verdict', '?')}): noise floor {d.get('noise_floor_mm', float('nan')):.2f} mm, "
            f"poor above {d.get('poor_threshold_mm', float('nan')):.2f} mm"]
     line = f"  calibration: {cal.get('method', 'none')}, hand scale {cal.get('scale', 1.0):.3f}"
     if cal.get("bone_scales"):
@@ -67,7 +69,7 @@ def describe_trial(name, df) -> list:
         out.append(f"  hand check: {hc['chosen']} {hc['residual_mm']:.2f} mm, other hand {hc['other_residual_mm']:.2f} mm"
                    f" ({hc['verdict']})")
     for w in d.get("warnings", []):
-        out.append(f"  [yellow]warning:[/yellow] {w}")
+        out.append(f"  [yellow]warning:[/yellow] {escape(w)}")
     return out
 
 
@@ -89,6 +91,9 @@ def simulate(
     seed: int = typer.Option(0, "--seed"),
 ):
     """Simulate mocap trials of procedural hand motions (C3D + ground-truth angles + task map)."""
+    from handmodel.fileio import check_output
+
+    check_output(out, folder=True)  # a read-only or full disk fails before anything is simulated
     import numpy as np
     import pandas as pd
     import yaml
@@ -153,14 +158,19 @@ def calibrate(
     force: bool = typer.Option(False, "--force", help="Write the calibration even if the held-out check fails."),
 ):
     """Estimate the subject's bone lengths, finger bases and marker places (synergy angles/fit --subject)."""
+    from handmodel.fileio import check_output
+    from synergy.errors import SynergyError
+
+    if out.exists() and not out.is_dir():
+        raise SynergyError(out, "exists and is never overwritten (choose another -o)")
+    check_output(out)  # a read-only or full disk fails before the calibration, not after it
+    from rich.markup import escape
+
     from handmodel import HandModel
     from synergy.c3d import read_c3d
     from synergy.calibrate import calibrate as run, save_calibration
-    from synergy.errors import SynergyError
     from synergy.markers import load_markerset
 
-    if out.exists():
-        raise SynergyError(out, "exists and is never overwritten (choose another -o)")
     ms = load_markerset(markers)
     msh = ms.for_hand(hand)
     base = HandModel.load(ms.hand_model, right=hand == "right")
@@ -169,7 +179,7 @@ def calibrate(
     with _console(stderr=True).status("calibrating"):
         cal = run(data, msh, base, right=hand == "right", frames=frames, held_out=held_out, static=st)
     con = _console()
-    con.print(f"[bold]{trial.name}[/bold]: {cal.method}")
+    con.print(f"[bold]{escape(trial.name)}[/bold]: {cal.method}")
     rows = [("hand scale", f"{cal.scale:.3f}", "")]
     unc = cal.uncertainty
     for k, v in cal.bone_scales.items():
@@ -189,12 +199,12 @@ def calibrate(
                   f"{h['frames']} frames: {h['residual_mm']:.2f} mm (hand scale only: "
                   f"{h['scale_only_residual_mm']:.2f} mm)")
     for w in cal.warnings:
-        _console(stderr=True).print(f"warning: {w}")
+        _console(stderr=True).print(f"warning: {escape(w)}")
     if cal.overfit and not force:
         raise SynergyError(trial, "calibration failed its held-out check (not written; record a longer range "
                                   "of motion, add --static, or --force)")
     save_calibration(cal, out)
-    con.print(f"wrote {out}")
+    con.print(f"wrote {escape(str(out))}")
 
 
 def angles(
@@ -210,6 +220,9 @@ def angles(
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="Convert even if the other hand fits clearly better."),
 ):
     """Convert C3D trials to joint-angle tables (marker IK), with a summary per trial."""
+    from handmodel.fileio import check_output
+
+    check_output(out, folder=True)  # a read-only or full disk fails before any trial is converted
     import time
 
     import numpy as np
@@ -239,7 +252,7 @@ def angles(
                   right=hand == "right", subject=False)
         cal.source = str(static)
     rows, notes = [], []
-    failed = 0
+    failed = []
     with Progress(console=_console(stderr=True), transient=True) as progress:
         bar = progress.add_task("converting", total=len(files))
         for f, dst in targets:
@@ -253,9 +266,8 @@ def angles(
                 write_angles_csv(df, dst)
                 if plot:
                     plot_trial(df, dst.with_suffix(".png"))
-            except SynergyError as err:  # one bad trial does not stop the others
-                _console(stderr=True).print(f"error: {err}")
-                failed += 1
+            except SynergyError as err:  # one bad trial does not stop the others; its error ends the output
+                failed.append(err)
                 progress.advance(bar)
                 continue
             r = df["residual_mm"].to_numpy()
@@ -272,6 +284,10 @@ def angles(
     for line in notes:
         con.print(line)
     if failed:
+        from handmodel.cliutil import print_error
+
+        for err in failed:  # last, plainly, one line each: nothing printed after an error
+            print_error(err)
         raise typer.Exit(2)
 
 

@@ -59,7 +59,7 @@ def _table(title: str, rows):
     t.add_column("value")
     for k, v in rows:
         t.add_row(k, str(v))
-    Console().print(t)
+    Console(markup=False).print(t)  # paths in the title and cells are shown as typed, never read as markup
 
 
 def _recording_rows(rec) -> list:
@@ -117,8 +117,11 @@ def import_(
     """Turn a plain folder of depth PNGs into a recording."""
     import time
 
+    from handmodel.fileio import check_output
+
     from .recording import import_pngs
 
+    check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
     cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
     t0 = time.perf_counter()
     with _progress("importing") as p:
@@ -164,14 +167,19 @@ def show(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey."""
-    import numpy as np
+    from handmodel.fileio import check_output
 
     from .errors import TrackerError
+
+    if output.exists() and not overwrite and not output.is_dir():
+        raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
+    check_output(output, overwrite=overwrite)  # before the frames are read
+
+    import numpy as np
+
     from .plots import contact_sheet
     from .recording import Recording
 
-    if output.exists() and not overwrite:
-        raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     if every < 0 or max_frames < 1:
         raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
     rec = Recording.open(recording)

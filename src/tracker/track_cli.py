@@ -40,6 +40,25 @@ def track(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through a recording; writes per-frame hand parameters and a summary."""
+    from handmodel.fileio import atomic_write_text, check_output
+
+    from .errors import TrackerError
+
+    # every output is checked before the frames are tracked: a full or read-only disk, or a folder
+    # where a file goes, fails now and not after minutes of tracking
+    for p in (output, keypoints):
+        if p is not None and p.exists() and not overwrite and not p.is_dir():
+            raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
+        if p is not None:
+            check_output(p, overwrite=overwrite)
+    if overlay is not None:
+        check_output(overlay, folder=True)
+        if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
+            raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
+    outs = [p for p in (output, keypoints, overlay) if p is not None]
+    if len(set(outs)) < len(outs):
+        raise TrackerError("track", "-o, --keypoints and --overlay need three different paths")
+
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from rich.console import Console
     from rich.table import Table
@@ -48,15 +67,11 @@ def track(
     from synergy.bundle import load_bundle
 
     from .cli import _progress
-    from .errors import TrackerError
     from .plots import overlay_png
     from .recording import Recording
     from .run import keypoints_table, track_recording, tracking_metadata, write_tracking
     from .track import HandTracker, TrackerSettings
 
-    for p in (output, keypoints):
-        if p is not None and p.exists() and not overwrite:
-            raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
     rec = Recording.open(recording)
     if mode != "full" and not synergies:
         raise TrackerError("--synergies", f"mode {mode!r} needs a synergy bundle")
@@ -81,11 +96,11 @@ def track(
 
         df = track_recording(rec, tracker, on_frame)
     meta = tracking_metadata(recording, tracker, bundle.spec if bundle else "")
-    write_tracking(output, df, meta, overwrite=True)
+    # without --overwrite a file that appeared while tracking is not replaced either
+    write_tracking(output, df, meta, overwrite=overwrite)
     if keypoints is not None:
-        from handmodel.fileio import atomic_write_text
-
-        atomic_write_text(keypoints, keypoints_table(hand, df).to_csv(index=False, float_format="%.4f"), overwrite=True)
+        atomic_write_text(keypoints, keypoints_table(hand, df).to_csv(index=False, float_format="%.4f"),
+                          overwrite=overwrite)
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
     for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps"):
@@ -94,8 +109,9 @@ def track(
     ms = float(df["ms"].median())
     table.add_row(str(len(df)), str(int((st == "tracked").sum())), str(int((st == "lost").sum())),
                   str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}", f"{ms:.1f}", f"{1000 / ms:.0f}")
-    Console().print(table)
-    Console().print(f"wrote {output}")
+    console = Console(markup=False)  # paths are printed as typed, never read as markup
+    console.print(table)
+    console.print(f"wrote {output}")
 
 
 def evaluate(
@@ -103,8 +119,17 @@ def evaluate(
     result: Path = typer.Argument(..., help="Output CSV of tracker track."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG of the error per frame."),
     skip: int = typer.Option(0, "--skip", help="Leave out the first N frames (e.g. a lead-in)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --plot file."),
 ):
     """Posture error (degrees, mean |Δ| of the 20 posture angles, as the paper), keypoint error (mm)."""
+    from handmodel.fileio import check_output
+
+    from .errors import TrackerError
+
+    if plot is not None:
+        if plot.exists() and not overwrite and not plot.is_dir():
+            raise TrackerError(plot, "exists and is never overwritten (use --overwrite)")
+        check_output(plot, overwrite=overwrite)
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     import numpy as np
     from rich.console import Console
@@ -112,7 +137,6 @@ def evaluate(
 
     from handmodel import HandModel
 
-    from .errors import TrackerError
     from .evaluate import summarise
     from .plots import error_plot
     from .recording import Recording
@@ -134,10 +158,12 @@ def evaluate(
     table.add_column("value", justify="right")
     for k, v in summ.items():
         table.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
-    Console().print(table)
-    if plot is not None:
+    console = Console(markup=False)  # file names are printed as typed, never read as markup
+    if plot is not None:  # before the table: an error must be the last thing printed
         error_plot(plot, pe, ke, df["status"].to_numpy()[skip:], title=str(result.name))
-        Console().print(f"wrote {plot}")
+    console.print(table)
+    if plot is not None:
+        console.print(f"wrote {plot}")
 
 
 def register(app, errors_exit_2) -> None:
