@@ -72,7 +72,7 @@ class Segmenter:
     min_area: float = 0.004
     jump: float = 0.02
     margin_px: int = 25
-    blob_area: float = 0.0015
+    blob_area: float = 0.003
     reach: float | None = 0.22
     forearm: str = "cut"
     use_color: bool = True
@@ -233,7 +233,7 @@ def _touches_border(mask, px=12):
 
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.0015, reach=0.22, points=None):
+                blob_area=0.003, reach=0.22, points=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -348,7 +348,7 @@ def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9
     prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
     prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
     # the wrist is where the narrowing from the palm stops: the first distance beyond which the
-    # width shrinks by less than 5 % over the next 0.3 r (a forearm further out may still taper,
+    # width shrinks by less than 10 % over the next 0.3 r (a forearm further out may still taper,
     # recede or be cropped, so the global minimum would cut too late)
     t_w = lo + _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
     cut = strip & (t > t_w)
@@ -358,7 +358,7 @@ def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9
 
 
 
-def _end_of_narrowing(profile, window, drop=0.05):
+def _end_of_narrowing(profile, window, drop=0.10):
     """First index from which ``profile`` falls by less than ``drop`` (relative) over the next
     ``window`` samples; the last index when it keeps falling."""
     p = np.asarray(profile, float)
