@@ -94,7 +94,8 @@ def placements(hand, points, posture) -> list[np.ndarray]:
     base = np.zeros(hand.n_dofs)
     base[~hand.pose_mask] = posture
     S, _, N = surface_samples(hand, base, spacing=0.004)
-    # what a camera in front of the palm sees: the palm-side half
+    # what a camera in front of the palm sees: the palm-side half (its axes only: each placement is
+    # centred by the half that faces the camera in it, the palm or the back)
     ms = S[N[:, 2] < 0]
     mc = ms.mean(0)
     dc = points.mean(0)
@@ -110,7 +111,9 @@ def placements(hand, points, posture) -> list[np.ndarray]:
                 R = Rotation.from_rotvec(np.radians(roll) * d1).as_matrix() @ B @ A.T
                 th = base.copy()
                 th[3:6] = matrix_to_euler(R)
-                th[:3] = dc - R @ mc
+                RS = S @ R.T
+                seen = RS[(N @ R.T)[:, 2] < 0]
+                th[:3] = dc - (seen.mean(0) if len(seen) else R @ mc)
                 out.append(th)
     return out
 

@@ -58,11 +58,25 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
 
 def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
     """The header of a tracking output: what was tracked, how, with which hand model."""
-    st, hand = tracker.settings, tracker.hand
+    # the model file's identity (a resized hand is that file plus hand_scale)
+    st, hand = tracker.settings, getattr(tracker, "base_hand", tracker.hand)
     return {"recording": str(recording_path), "mode": st.mode, "synergies": synergies_spec or "",
             "pcs": "" if tracker.n_pcs is None else str(tracker.n_pcs), "stride": str(st.observe.stride),
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
-            "hand_model": f"{hand.name} {hand.sha256}", "units": "metres, radians"}
+            "hand_model": f"{hand.name} {hand.sha256}", "hand_scale": _scale_text(tracker),
+            "units": "metres, radians"}
+
+
+def _scale_text(tracker) -> str:
+    """The hand size tracked with (a factor on the hand model), how it was set, and an automatic
+    calibration's per-frame estimates: ``--hand-scale`` takes the number back."""
+    scale = getattr(tracker, "scale_", None)
+    if scale is None:
+        return ""
+    est = getattr(tracker, "scale_estimates_", [])
+    if tracker.settings.hand_scale != "auto":
+        return f"{scale:.4f} (given)"
+    return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)})"
 
 
 def tracking_csv(df, meta) -> str:

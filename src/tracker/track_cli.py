@@ -37,6 +37,7 @@ def track(
     finger_search: Optional[bool] = typer.Option(None, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising [on; paper off]."),
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [1]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through a recording; writes per-frame hand parameters and a summary."""
@@ -81,6 +82,8 @@ def track(
                  icp_iterations=icp, gn_iterations=gn, damping=damping, model=model, silhouette_weight=silhouette,
                  prediction=prediction, robust_mm=robust, finger_search=finger_search, projected_steps=projected_steps)
     given = {k: v for k, v in given.items() if v is not None or (k == "target_points" and points == 0)}
+    if hand_scale is not None:
+        given["hand_scale"] = _hand_scale(hand_scale)
     base = TrackerSettings.paper() if paper else TrackerSettings()
     settings = base.replace(mode=mode, n_pcs=pcs, variance=None if pcs else variance, **given)
     tracker = HandTracker(hand, settings, synergies=bundle)
@@ -91,7 +94,7 @@ def track(
 
         def on_frame(frame, r, ob):
             if overlay is not None and ob is not None and frame.index % max(overlay_every, 1) == 0:
-                overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, hand, r.theta, r.status)
+                overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status)
             progress.advance(bar)
 
         df = track_recording(rec, tracker, on_frame)
@@ -99,7 +102,7 @@ def track(
     # without --overwrite a file that appeared while tracking is not replaced either
     write_tracking(output, df, meta, overwrite=overwrite)
     if keypoints is not None:
-        atomic_write_text(keypoints, keypoints_table(hand, df).to_csv(index=False, float_format="%.4f"),
+        atomic_write_text(keypoints, keypoints_table(tracker.hand, df).to_csv(index=False, float_format="%.4f"),
                           overwrite=overwrite)
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
@@ -112,6 +115,21 @@ def track(
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
     console.print(f"wrote {output}")
+
+
+def _hand_scale(text):
+    """``--hand-scale``: "auto" or a positive number."""
+    from .errors import TrackerError
+
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value < float("inf")):
+        raise TrackerError("--hand-scale", f"must be 'auto' or a positive number, got {text!r}")
+    return value
 
 
 def evaluate(
