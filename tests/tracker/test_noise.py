@@ -155,3 +155,100 @@ def test_presets_and_errors():
         NoiseModel(edge_drop_prob=1.5)
     with pytest.raises(TrackerError):
         NoiseModel(quantize=True).apply(np.ones((4, 4)))  # no focal length and no camera
+
+
+# ----------------------------------------------------------------------------- RealSense
+def intel_rms(z, subpixel=0.08, focal=1005.0, baseline=0.055):
+    """Intel's D400 depth RMS error z²·subpixel/(f·B) (metres)."""
+    return z ** 2 * subpixel / (focal * baseline)
+
+
+@pytest.mark.parametrize("z", [0.6, 1.0, 1.5])
+def test_d4xx_axial_noise_follows_intels_rms_formula(hand, z):
+    depth, cosi = rendered_wall(hand, z)
+    d4 = NoiseModel.preset("d4xx")
+    assert np.isclose(d4.sigma_z(z), intel_rms(z))
+    noisy = d4.with_(depth_step_m=0.0).apply(depth, CAM, np.random.default_rng(3), cosi)
+    ok = np.isfinite(noisy)
+    assert ok.mean() > 0.99  # a wall facing the camera: no edges, no grazing holes
+    err = noisy[ok] - depth[ok]
+    assert abs(np.std(err) / intel_rms(z) - 1) < 0.08, (z, np.std(err), intel_rms(z))
+    # σ_z ∝ z²: the law of any triangulating sensor, not Kinect's offset curve
+    assert np.isclose(d4.sigma_z(2 * z) / d4.sigma_z(z), 4.0)
+
+
+def test_sr305_depth_steps_of_an_eighth_millimetre_and_its_range():
+    sr = NoiseModel.preset("realsense")
+    assert sr.name == "sr305" and sr.depth_step_m == 0.000125 and sr.range_m == (0.2, 1.5)
+    d = np.tile(np.linspace(0.1, 2.0, 400, dtype=np.float64), (40, 1))
+    out = sr.with_(shadow=False, lateral_px=0.0, edge_drop_prob=0.0, flying_prob=0.0).apply(
+        d, CAM, np.random.default_rng(1)).astype(float)
+    ok = np.isfinite(out)
+    assert ok[:, (d[0] > 0.21) & (d[0] < 1.49)].mean() > 0.99
+    assert not ok[:, (d[0] < 0.19) | (d[0] > 1.52)].any()  # (the range applies to the noisy depth)
+    assert out[ok].min() >= 0.2 and out[ok].max() <= 1.5
+    units = out[ok] / 0.000125
+    assert np.abs(units - np.round(units)).max() < 0.02  # float32 storage of multiples of 0.125 mm
+
+
+def test_flying_pixels_only_across_depth_jumps():
+    step = np.full((100, 100), 1.0, np.float32)
+    step[:, 50:] = 0.8
+    all_fly = NoiseModel(flying_prob=1.0, edge_jump_m=0.02).apply(step, CAM, np.random.default_rng(0))
+    mid = all_fly[:, 49:51]
+    assert ((mid > 0.8 + 0.1 * 0.2 - 1e-6) & (mid < 1.0 - 0.1 * 0.2 + 1e-6)).all()  # between the two surfaces
+    assert np.array_equal(all_fly[:, :49], step[:, :49]) and np.array_equal(all_fly[:, 51:], step[:, 51:])
+    some = NoiseModel(flying_prob=0.3).apply(np.tile(step, (10, 1)), CAM, np.random.default_rng(1))
+    moved = some[:, 49:51] != np.tile(step, (10, 1))[:, 49:51]
+    assert abs(moved.mean() - 0.3) < 0.04
+    # a silhouette against no data has nothing to mix with
+    blob = np.full((60, 60), np.nan, np.float32)
+    blob[20:40, 20:40] = 0.7
+    assert np.array_equal(NoiseModel(flying_prob=1.0).apply(blob, CAM), blob, equal_nan=True)
+
+
+def test_holes_on_grazing_and_dark_surfaces():
+    theta = np.radians(np.linspace(0.0, 89.0, 90))
+    cosi = np.tile(np.cos(theta), (2000, 1))
+    d = np.full(cosi.shape, 0.7, np.float32)
+    m = NoiseModel(grazing_deg=(60.0, 80.0))
+    assert m.needs_incidence and not m.is_noise_free
+    lost = np.isnan(m.apply(d, CAM, np.random.default_rng(0), cosi)).mean(0)
+    expected = np.clip((np.degrees(theta) - 60.0) / 20.0, 0.0, 1.0)
+    assert np.abs(lost - expected).max() < 0.05
+    assert np.allclose(m.grazing_loss(cosi[0]), expected)
+    # without the incidence image the part cannot apply
+    assert np.isfinite(m.apply(d, CAM, np.random.default_rng(0))).all()
+    refl = np.full(d.shape, 0.5)
+    refl[:, :45] = 0.05
+    dark = NoiseModel(dark_reflectance=0.15, dark_drop_prob=0.8)
+    assert dark.needs_reflectance
+    out = dark.apply(d, CAM, np.random.default_rng(2), reflectance=refl)
+    assert abs(np.isnan(out[:, :45]).mean() - 0.8) < 0.01 and np.isfinite(out[:, 45:]).all()
+
+
+def test_stereo_occlusion_band_of_the_d4xx():
+    d = np.full((120, 200), 1.0, np.float32)
+    d[40:80, 100:140] = 0.6
+    d4 = NoiseModel.preset("d4xx").with_(axial=False, lateral_px=0.0, edge_drop_prob=0.0, flying_prob=0.0,
+                                         depth_step_m=0.0, grazing_deg=None, dark_drop_prob=0.0)
+    row = np.isnan(d4.apply(d, CAM))[60]
+    width = CAM.fx * 0.055 * (1 / 0.6 - 1 / 1.0)  # ≈ 21 px at f = 580
+    assert not row[100:].any() and abs(row[:100].sum() - width) <= 1.5
+
+
+def test_realsense_presets_are_listed_and_validated():
+    assert {"sr305", "d4xx"} <= set(PRESETS) and NoiseModel.preset("realsense") is PRESETS["sr305"]
+    for name in ("sr305", "d4xx"):
+        p = PRESETS[name]
+        assert p.axial and p.axial_coeffs[0] == 0.0 and p.axial_coeffs[2] == 0.0  # σ_z ∝ z²
+        assert p.needs_incidence and p.needs_reflectance and p.flying_prob > 0 and p.shadow
+    assert not PRESETS["kinect1"].needs_reflectance
+    with pytest.raises(TrackerError):
+        NoiseModel(grazing_deg=(80.0, 60.0))
+    with pytest.raises(TrackerError):
+        NoiseModel(flying_prob=2.0)
+    with pytest.raises(TrackerError):
+        NoiseModel(depth_step_m=-1.0)
+    with pytest.raises(TrackerError):
+        NoiseModel.triangulation_coeffs(0.08, 0.0, 0.055)
