@@ -240,3 +240,31 @@ def test_realistic_table_lines():
     assert len(table) == 4  # per run and by scene
     assert "| hand alone | kinect1 | 1 | 4.0 | 2.0 | yes | 4.0 | 0 % | 20.0 | — |" in L
     assert "| +forearm | 50.0 | 2.0 | 0 % | 40 % |" in L
+
+
+def test_synthesize_realsense_clutter_reproducible_and_overwritable(tmp_path, hand):
+    from tracker.recording import Recording
+    from tracker.sim.noise import NoiseModel
+    from tracker.sim.synthesize import synthesize
+
+    cam = preset("sr305")
+    out = tmp_path / "rec"
+    clutter = Clutter.parse("sleeve,torso=0.1")
+    rep = synthesize("count", cam, "realsense", out, seed=4, frames=2, hand=hand, clutter=clutter)
+    assert rep.clutter_pixels > 20000 and rep.noise == "sr305"
+    rec = Recording.open(out)
+    truth = make_motion("count", hand=hand, frames=2).theta
+    R = euler_to_matrix(truth[:, 3:6])
+    fixed = clutter.fixed((truth[:, :3] + R @ hand_centre(hand)).mean(axis=0))
+    r = DepthRenderer(hand, cam).render(truth[1], clutter=fixed, incidence=True, reflectance=True)
+    exp = NoiseModel.preset("sr305").apply(r.depth, cam, np.random.default_rng([4, 1]), r.cos_incidence, r.reflectance)
+    got = rec[1].depth
+    assert np.array_equal(np.isfinite(got), np.isfinite(exp))
+    ok = np.isfinite(exp)
+    assert np.abs(got[ok] - exp[ok]).max() <= cam.depth_scale_m / 2 + 1e-6
+    # the dark sleeve loses most of its pixels, the skin keeps most of its own
+    sleeve = r.labels == CLUTTER_LABELS["sleeve"]
+    assert np.isnan(got[sleeve]).mean() > 0.6 and np.isfinite(got[r.labels >= 0]).mean() > 0.7
+    assert read_hand_truth(out)[0] == HandShape()
+    synthesize("count", cam, "none", out, frames=1, hand=hand, shape=HandShape(0.8), overwrite=True)
+    assert read_hand_truth(out)[0].scale == 0.8 and len(Recording.open(out)) == 1
