@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -128,17 +129,33 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     defaults when None); ``color``: the registered colour frame, for skin segmentation."""
     st = dataclasses.replace(settings or ObserveSettings(), **changes)
     d = np.asarray(depth, np.float64)
-    if st.smooth:
-        d = smooth_depth(d, int(st.smooth))
     seg = segmenter or Segmenter()
-    X = backproject(d, camera)
-    mask = seg(d, color, X, focal=0.5 * (camera.fx + camera.fy))
+    H, W = d.shape
+    # the segmenter needs the points only for a box; otherwise the back-projection, smoothing and
+    # normals are computed in the hand's window alone (a tenth of the frame or less)
+    boxed = seg.box_min is not None or seg.box_max is not None
+    mask = seg(d, color, backproject(d, camera) if boxed else None, focal=0.5 * (camera.fx + camera.fy))
+    if not mask.any():
+        return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride))
+    ys, xs = np.nonzero(mask)
+    pad = int(st.smooth) + 2
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)
+    dw = d[y0:y1, x0:x1]
+    if st.smooth:
+        dw = smooth_depth(dw, int(st.smooth))
+    shifted = SimpleNamespace(fx=camera.fx, fy=camera.fy, cx=camera.cx - x0, cy=camera.cy - y0)
+    X = backproject(dw, shifted)
     N = image_normals(X, st.normal_max_jump)
+    mw = mask[y0:y1, x0:x1]
     stride = int(st.stride)
     if st.target_points:
-        stride = int(np.clip(np.floor(np.sqrt(mask.sum() / float(st.target_points))), 1, stride))
-    sub = np.zeros_like(mask)
-    sub[::stride, ::stride] = True
-    keep = mask & sub & np.isfinite(X).all(-1)
-    n_mask = max(int(mask.sum()), 1)
-    return Observation(X[keep], N[keep], mask, np.where(mask, d, np.nan), float(keep.sum()) / n_mask, stride)
+        stride = int(np.clip(np.floor(np.sqrt(mw.sum() / float(st.target_points))), 1, stride))
+    # the stride grid is anchored at the image's pixel (0, 0), not at the window's corner
+    sub = np.zeros_like(mw)
+    sub[(-y0) % stride::stride, (-x0) % stride::stride] = True
+    keep = mw & sub & np.isfinite(X).all(-1)
+    n_mask = max(int(mw.sum()), 1)
+    out_d = np.full((H, W), np.nan)
+    out_d[y0:y1, x0:x1] = np.where(mw, dw, np.nan)
+    return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride)

@@ -39,7 +39,8 @@ from scipy import ndimage
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
-DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
+DEFAULT_FOCAL_PX = 500.0
+BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)  # pixel size for physical areas when the camera is not given
 
 
 @dataclass
@@ -61,6 +62,9 @@ class Segmenter:
     reach : how far (m, 3-D) the hand may extend from its nearest part's centre (None: no limit)
     forearm : ``"cut"`` (remove the forearm beyond the wrist) or ``"keep"``
     use_color : keep only skin-coloured pixels when a colour frame is given
+    coarse : search on every ``coarse``-th pixel in x and y, then refine the edges at full
+        resolution (1: search at full resolution; used only for images of at least 40·coarse
+        pixels each way)
     """
 
     z_min: float = 0.2
@@ -76,6 +80,7 @@ class Segmenter:
     reach: float | None = 0.22
     forearm: str = "cut"
     use_color: bool = True
+    coarse: int = 2
 
     def __post_init__(self):
         if self.forearm not in FOREARM_CHOICES:
@@ -90,26 +95,78 @@ class Segmenter:
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
         :data:`DEFAULT_FOCAL_PX`)."""
         d = np.asarray(depth, float)
+        if (self.box_min is not None or self.box_max is not None) and points is None:
+            raise ValueError("a segmentation box needs the back-projected points")
+        f = float(focal) if focal else focal_from_points(points)
+        c = int(self.coarse)
+        if c <= 1 or min(d.shape) < 40 * c:
+            return self._segment(d, color, points, f)
+        # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
+        # refined at full resolution in the hand's window only
+        sub = (slice(None, None, c), slice(None, None, c))
+        dc = d[sub]
+        mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
+                           None if points is None else np.asarray(points)[sub], f / c, c)
+        if not mc.any():
+            return np.zeros(d.shape, bool)
+        out, win = refine(mc, dc, d, c, self.jump)
+        out[win] &= self._valid(d[win], None if color is None else np.asarray(color)[win],
+                                None if points is None else np.asarray(points)[win], skin_only=False)
+        return out
+
+    def _valid(self, d, color, points, skin_only=True):
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
         if self.box_min is not None or self.box_max is not None:
-            if points is None:
-                raise ValueError("a segmentation box needs the back-projected points")
             valid &= in_box(points, self.box_min, self.box_max)
-        if not valid.any():
-            return valid
         if color is not None and self.use_color:
             skin = skin_mask(color) & valid
-            if skin.sum() >= self.min_pixels:
+            if skin.sum() >= (self.min_pixels if skin_only else 1):
                 valid = skin
-        f = float(focal) if focal else focal_from_points(points)
+        return valid
+
+    def _segment(self, d, color, points, f, step=1):
+        """The search on an image subsampled by ``step`` (pixel counts and distances scale)."""
+        valid = self._valid(d, color, points)
+        if not valid.any():
+            return valid
         dv = np.where(valid, d, np.nan)
-        mask = hand_region(dv, f, band=self.band, jump=self.jump, min_pixels=self.min_pixels,
-                           min_area=self.min_area, margin_px=self.margin_px, blob_area=self.blob_area,
-                           reach=self.reach, points=points)
+        mask = hand_region(dv, f, band=self.band, jump=self.jump,
+                           min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
+                           margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
+                           reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)))
         if self.forearm == "cut" and mask.any():
             mask = cut_forearm(mask, dv, f)
         return mask
+
+
+def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
+    """``(mask, window)``: the full-resolution mask from one found on every ``step``-th pixel.
+
+    A pixel within ``step`` pixels (square window) of the (nearest-neighbour enlarged) coarse
+    mask is kept when its depth lies within ``jump`` of the depths of the masked coarse samples
+    there, so the edges
+    follow the sensor's data again and the background between samples stays out; ``window`` is
+    the slice pair outside which the mask is empty."""
+    H, W = depth.shape
+    ys, xs = np.nonzero(coarse_mask)
+    y0, y1 = max((ys.min() - 1) * step, 0), min((ys.max() + 2) * step, H)
+    x0, x1 = max((xs.min() - 1) * step, 0), min((xs.max() + 2) * step, W)
+    win = (slice(y0, y1), slice(x0, x1))
+    iy = np.clip(np.rint(np.arange(y0, y1) / step).astype(int), 0, coarse_mask.shape[0] - 1)
+    ix = np.clip(np.rint(np.arange(x0, x1) / step).astype(int), 0, coarse_mask.shape[1] - 1)
+    up = coarse_mask[np.ix_(iy, ix)]
+    up_d = np.where(coarse_mask, coarse_depth, np.nan)[np.ix_(iy, ix)]
+    size = 2 * step + 1
+    # the depth range of the masked samples around each pixel (separable min / max filters)
+    lo = ndimage.minimum_filter(np.where(up, up_d, np.inf), size=size, mode="constant", cval=np.inf)
+    hi = ndimage.maximum_filter(np.where(up, up_d, -np.inf), size=size, mode="constant", cval=-np.inf)
+    with np.errstate(invalid="ignore"):
+        dd = depth[win]
+        ok = (dd >= lo - jump) & (dd <= hi + jump)
+    out = np.zeros((H, W), bool)
+    out[win] = ok
+    return out, win
 
 
 def in_box(points, box_min=None, box_max=None) -> np.ndarray:
@@ -137,6 +194,16 @@ def largest_component(mask):
         return mask
     sizes = np.bincount(lab.ravel())[1:]
     return lab == (1 + int(np.argmax(sizes)))
+
+
+def _largest_in_window(mask):
+    """:func:`largest_component`, labelling only the mask's bounding box."""
+    ys, xs = np.nonzero(mask)
+    out = np.zeros_like(mask)
+    if ys.size:
+        win = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+        out[win] = largest_component(mask[win])
+    return out
 
 
 def surfaces(depth, jump=0.02):
@@ -228,12 +295,13 @@ def surface_fronts(lab, n, depth, focal, min_pixels=30, min_area=0.004):
     return ids[o], fronts[o]
 
 
-def _touches_border(mask, px=12):
+def _touches_border(mask, px=None):
+    px = BORDER_PX if px is None else px
     return bool(mask[:px].any() or mask[-px:].any() or mask[:, :px].any() or mask[:, -px:].any())
 
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.003, reach=0.22, points=None):
+                blob_area=0.003, reach=0.22, points=None, border_px=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -251,10 +319,11 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     k, front, seed = 0, np.nan, None
     for kk, ff in zip(ids, fronts):
         with np.errstate(invalid="ignore"):
-            s = largest_component((lab == kk) & (d <= ff + 0.015))
-        if seed is None or not _touches_border(s):
+            s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
+        inside = not _touches_border(s, border_px)
+        if seed is None or inside:
             k, front, seed = int(kk), float(ff), s
-            if not _touches_border(s):
+            if inside:
                 break
     with np.errstate(invalid="ignore"):
         near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
@@ -271,7 +340,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     y0, y1 = max(ys.min() - margin_px, 0), min(ys.max() + margin_px + 1, d.shape[0])
     x0, x1 = max(xs.min() - margin_px, 0), min(xs.max() + margin_px + 1, d.shape[1])
     win = (slice(y0, y1), slice(x0, x1))
-    zone = ndimage.binary_dilation(core[win], iterations=int(margin_px)) if margin_px > 0 else core[win]
+    zone = (ndimage.maximum_filter(core[win], size=2 * int(margin_px) + 1, mode="constant")
+            if margin_px > 0 else core[win])
     cand = zone & near[win] & ~core[win] & (lab[win] > 0) & (lab[win] != k)
     out = core.copy()
     if cand.any():
