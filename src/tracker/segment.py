@@ -131,12 +131,13 @@ class Segmenter:
         if not valid.any():
             return valid
         dv = np.where(valid, d, np.nan)
-        mask = hand_region(dv, f, band=self.band, jump=self.jump,
+        mask, beyond = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
-                           reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)))
+                           reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
+                           with_beyond=True)
         if self.forearm == "cut" and mask.any():
-            mask = cut_forearm(mask, dv, f)
+            mask = cut_forearm(mask, dv, f, beyond)
         return mask
 
 
@@ -301,7 +302,7 @@ def _touches_border(mask, px=None):
 
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.003, reach=0.22, points=None, border_px=None):
+                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -310,12 +311,14 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     region is that surface within ``band`` behind the front and within ``reach`` metres (3-D) of
     the seed's centre — the arm leads to the body, so the body is reached along it only beyond
     the reach of a hand — connected to the seed, plus the small surfaces (fingertip blobs) in
-    that band within ``margin_px`` pixels of it."""
+    that band within ``margin_px`` pixels of it. With ``with_beyond``, also the pixels of the
+    hand's surface left out by the band or the reach (where an arm leaves the region)."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
     if ids.size == 0:
-        return np.zeros(d.shape, bool)
+        empty = np.zeros(d.shape, bool)
+        return (empty, empty) if with_beyond else empty
     k, front, seed = 0, np.nan, None
     for kk, ff in zip(ids, fronts):
         with np.errstate(invalid="ignore"):
@@ -351,6 +354,9 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         small = small[area[small] < blob_area]
         if small.size:
             out[win] |= np.isin(lab[win], small) & near[win]
+    if with_beyond:
+        # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
+        return out, (lab == k) & ~out
     return out
 
 
@@ -361,12 +367,14 @@ def _points(depth, focal):
     return np.stack([(u - (W - 1) / 2) * depth / focal, (v - (H - 1) / 2) * depth / focal, depth], -1)
 
 
-def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6)):
+def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6)):
     """The hand mask without the forearm beyond the wrist.
 
     The palm is the largest inscribed circle of the region (centre c, radius r). Outside 1.6 r, the
-    parts that leave the circle are fingers (narrow) or the forearm (at least 0.45 r wide); the
-    widest part, if wide enough, is the forearm, and its direction from c the arm axis a. The
+    parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
+    and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
+    surface left out of the region), where fingers end in an edge (fingers held together are as
+    wide as an arm). The widest such part is the forearm, its direction from c the arm axis a. The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
     smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it."""
@@ -394,7 +402,19 @@ def cut_forearm(mask, depth, focal, palm_radius_m=(0.02, 0.07), wrist_range=(0.9
     lab, n = ndimage.label(outside, structure=np.ones((3, 3)))
     if n == 0:
         return m
-    width = ndimage.maximum(dt, lab, index=np.arange(1, n + 1))
+    width = np.asarray(ndimage.maximum(dt, lab, index=np.arange(1, n + 1)), float)
+    # parts that go on: touching the image border or the surface beyond the region
+    go_on = np.zeros(sub.shape, bool)
+    if beyond is not None:
+        go_on |= ndimage.binary_dilation(np.asarray(beyond, bool)[y0:y1, x0:x1], iterations=2)
+    H, W = m.shape
+    go_on[:, :1] |= x0 == 0
+    go_on[:, -1:] |= x1 == W
+    go_on[:1, :] |= y0 == 0
+    go_on[-1:, :] |= y1 == H
+    continues = np.zeros(n + 1, bool)
+    continues[np.unique(lab[go_on & (lab > 0)])] = True
+    width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:
         return m
