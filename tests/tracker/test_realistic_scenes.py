@@ -239,6 +239,8 @@ def test_realistic_table_lines():
     table = [line for line in L if line.startswith("| hand alone") or line.startswith("| +forearm")]
     assert len(table) == 4  # per run and by scene
     assert "| hand alone | kinect1 | 1 | 4.0 | 2.0 | yes | 4.0 | 0 % | 20.0 | — |" in L
+    rows[1]["keypoint_mm"] = rows[1]["first_frame_mm"] = rows[1]["posture_deg"] = rows[1]["fps"] = float("nan")
+    assert "| +forearm | kinect1 | 1 | — | — | no | — | 40 % | — | — |" in realistic_lines(rows, 5)
     assert "| +forearm | 50.0 | 2.0 | 0 % | 40 % |" in L
 
 

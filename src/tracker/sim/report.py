@@ -69,6 +69,12 @@ def _fig_pcs(path, rows):
     _save(fig, path)
 
 
+def _nanmean(values) -> float:
+    """Mean of the finite values, NaN (silently) when there are none."""
+    v = np.asarray(values, float)
+    return float(v[np.isfinite(v)].mean()) if np.isfinite(v).any() else float("nan")
+
+
 def realistic_frames(quick: bool) -> int:
     """Frames per realistic-scene sequence."""
     return 5 if quick else 30
@@ -91,17 +97,20 @@ def realistic_lines(rows, frames) -> list:
          "keypoints ≤ 10 mm, first frame ≥ 95 %, scale within 3 %.", "",
          "| scene | sensor | hand scale | keypoint error mm | posture error ° | first frame found | first frame mm | "
          "lost frames | fps | scale found / true |", "|---|---|---|---|---|---|---|---|---|---|"]
+    def num(x, fmt=".1f"):
+        return "—" if not np.isfinite(x) else format(x, fmt)
+
     for r in rows:
-        sf = "—" if not np.isfinite(r["scale_found"]) else f"{r['scale_found']:.3f}"
-        L.append(f"| {r['scene']} | {r['sensor']} | {r['scale']:g} | {r['keypoint_mm']:.1f} | {r['posture_deg']:.1f} | "
-                 f"{'yes' if r['first_ok'] else 'no'} | {r['first_frame_mm']:.1f} | {100 * r['lost']:.0f} % | "
-                 f"{r['fps']:.1f} | {sf} |")
-    L += ["", "By scene (all sensors and sizes):", "",
+        L.append(f"| {r['scene']} | {r['sensor']} | {r['scale']:g} | {num(r['keypoint_mm'])} | {num(r['posture_deg'])} | "
+                 f"{'yes' if r['first_ok'] else 'no'} | {num(r['first_frame_mm'])} | {100 * r['lost']:.0f} % | "
+                 f"{num(r['fps'])} | {num(r['scale_found'], '.3f')} |")
+    L += ["", "— : no θ in any frame (nothing segmented) or no size estimate (fixed-size tracker).", "",
+          "By scene (all sensors and sizes; errors over the runs with a θ):", "",
           "| scene | keypoint error mm | posture error ° | first frame found | lost frames |", "|---|---|---|---|---|"]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         sel = [r for r in rows if r["scene"] == scene]
-        L.append(f"| {scene} | {np.nanmean([r['keypoint_mm'] for r in sel]):.1f} | "
-                 f"{np.nanmean([r['posture_deg'] for r in sel]):.1f} | "
+        L.append(f"| {scene} | {num(_nanmean([r['keypoint_mm'] for r in sel]))} | "
+                 f"{num(_nanmean([r['posture_deg'] for r in sel]))} | "
                  f"{100 * np.mean([r['first_ok'] for r in sel]):.0f} % | {100 * np.mean([r['lost'] for r in sel]):.0f} % |")
     L.append("")
     return L
