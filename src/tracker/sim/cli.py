@@ -113,7 +113,7 @@ def _listing():
     from rich.table import Table
 
     from .motions import SCENARIOS
-    from .noise import PRESETS
+    from .noise import ALIASES, PRESETS
 
     t = Table(title="motions and noise presets")
     t.add_column("kind", style="bold")
@@ -128,7 +128,8 @@ def _listing():
                                  ("grazing holes", nm.grazing_deg is not None), ("dark holes", nm.dark_drop_prob > 0),
                                  ("depth steps", nm.depth_step_m > 0), ("random dropout", nm.random_drop_prob > 0))
                  if on]
-        t.add_row("noise", nm.name, ", ".join(parts) or "noise-free")
+        alias = [a for a, n in ALIASES.items() if n == nm.name]
+        t.add_row("noise", nm.name + (f" (= {', '.join(alias)})" if alias else ""), ", ".join(parts) or "noise-free")
     return t
 
 
