@@ -82,25 +82,85 @@ def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=
     return lo, hi
 
 
-def overlay_png(path, depth, camera, hand, theta, status=""):
-    """The depth image with the fitted skeleton projected on it."""
-    fig = _figure(figsize=(6.4, 4.8))
-    ax = fig.subplots()
+def project(points, camera):
+    """Pixel coordinates ``(u, v)`` of camera-frame points ``(..., 3)`` (pixel centres at integers)."""
+    p = np.asarray(points, float)
+    return camera.fx * p[..., 0] / p[..., 2] + camera.cx, camera.fy * p[..., 1] / p[..., 2] + camera.cy
+
+
+def model_silhouette(hand, theta, camera, shape, spacing=0.003):
+    """Boolean ``(H, W)`` image of the pixels the posed hand model covers (its surface samples,
+    projected, each filling the pixels within its footprint)."""
+    from handmodel.geometry import surface_samples
+
+    H, W = shape
+    sil = np.zeros((H, W), bool)
+    pts = surface_samples(hand, theta, spacing=spacing)[0]
+    pts = pts[pts[:, 2] > 1e-3]
+    if not len(pts):
+        return sil
+    u, v = project(pts, camera)
+    # a sample covers about spacing·f/z pixels: fill that square around it
+    half = np.maximum(np.ceil(0.5 * spacing * camera.fx / pts[:, 2]).astype(int), 1)
+    for du in range(-int(half.max()), int(half.max()) + 1):
+        for dv in range(-int(half.max()), int(half.max()) + 1):
+            ok = (np.abs(du) <= half) & (np.abs(dv) <= half)
+            uu = np.rint(u[ok]).astype(int) + du
+            vv = np.rint(v[ok]).astype(int) + dv
+            inside = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+            sil[vv[inside], uu[inside]] = True
+    return sil
+
+
+def overlay_png(path, depth, camera, hand, theta, status="", mask=None):
+    """The whole depth frame (grey where there is no depth) with the segmentation mask's outline
+    (white), the fitted hand's silhouette (translucent red) and skeleton (thumb in orange, its
+    tip ringed), so a wrong segmentation or a fit on the wrong object is seen at a glance.
+
+    Parameters
+    ----------
+    path : PNG to write
+    depth : (H, W) depth in metres, NaN = no data
+    camera : anything with ``fx fy cx cy``
+    hand, theta : the hand model and its fitted parameters (NaN: no fit drawn)
+    status : text for the title (e.g. tracked / lost)
+    mask : (H, W) bool segmentation mask, or None
+    """
     d = np.asarray(depth, float)
-    ax.imshow(np.where(np.isfinite(d), d, np.nan), cmap="viridis")
-    if np.all(np.isfinite(theta)):
+    H, W = d.shape
+    fig = _figure(figsize=(W / 100, (H + 60) / 100))
+    ax = fig.add_axes((0.0, 0.0, 1.0, H / (H + 60)))
+    cmap = colormaps["viridis"].with_extremes(bad="0.85")
+    finite = d[np.isfinite(d)]
+    lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+    ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=max(hi, lo + 1e-3), interpolation="nearest")
+    if mask is not None and np.any(mask):
+        ax.contour(np.asarray(mask, float), [0.5], colors="w", linewidths=1.2)
+    theta = np.asarray(theta, float)
+    fitted = theta.size and np.all(np.isfinite(theta))
+    if fitted:
+        sil = model_silhouette(hand, theta, camera, (H, W))
+        rgba = np.zeros((H, W, 4))
+        rgba[sil] = (1.0, 0.15, 0.15, 0.35)
+        ax.imshow(rgba, interpolation="nearest")
         kp = hand.keypoints(theta)
-        u = camera.fx * kp[:, 0] / kp[:, 2] + camera.cx
-        v = camera.fy * kp[:, 1] / kp[:, 2] + camera.cy
+        u, v = project(kp, camera)
+        names = hand.keypoint_names
         for i, p in enumerate(hand.parents):
             if p >= 0:
-                ax.plot(u[[p, i]], v[[p, i]], "-", color="w", lw=2)
+                thumb = names[i].startswith("thumb")
+                ax.plot(u[[p, i]], v[[p, i]], "-", color="orange" if thumb else "k", lw=2.5 if thumb else 1.8)
         ax.plot(u, v, "o", color="r", ms=3)
-        pad = 40
-        ax.set_xlim(max(u.min() - pad, 0), min(u.max() + pad, d.shape[1]))
-        ax.set_ylim(min(v.max() + pad, d.shape[0]), max(v.min() - pad, 0))
-    ax.set_title(f"{Path(path).stem} {status}")
+        if "thumb_tip" in names:
+            t = names.index("thumb_tip")
+            ax.plot(u[t], v[t], "o", mfc="none", mec="orange", ms=10, mew=2)
+    ax.set_xlim(-0.5, W - 0.5)
+    ax.set_ylim(H - 0.5, -0.5)
     ax.set_axis_off()
+    legend = "white: segmentation mask · red: fitted hand · orange: thumb" if fitted else \
+        "white: segmentation mask · no fit"
+    fig.text(0.01, 1 - 30 / (H + 60), f"{Path(path).stem}  {status}", fontsize=10, va="center")
+    fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=8, va="center")
     _save(fig, path)
 
 

@@ -6,6 +6,7 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import List, Optional
 
@@ -38,6 +39,9 @@ def track(
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [1]."),
+    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
+    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
+    forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through a recording; writes per-frame hand parameters and a summary."""
@@ -73,6 +77,7 @@ def track(
     from .run import keypoints_table, track_recording, tracking_metadata, write_tracking
     from .track import HandTracker, TrackerSettings
 
+    segmenter = _segmenter(depth_range, box, forearm)
     rec = Recording.open(recording)
     if mode != "full" and not synergies:
         raise TrackerError("--synergies", f"mode {mode!r} needs a synergy bundle")
@@ -94,10 +99,15 @@ def track(
 
         def on_frame(frame, r, ob):
             if overlay is not None and ob is not None and frame.index % max(overlay_every, 1) == 0:
-                overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status)
+                overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status,
+                            mask=ob.mask)
+                written.append(frame.index)
             progress.advance(bar)
 
-        df = track_recording(rec, tracker, on_frame)
+        written = []
+        t_start = time.perf_counter()
+        df = track_recording(rec, tracker, on_frame, segmenter=segmenter)
+        wall_s = time.perf_counter() - t_start
     meta = tracking_metadata(recording, tracker, bundle.spec if bundle else "")
     # without --overwrite a file that appeared while tracking is not replaced either
     write_tracking(output, df, meta, overwrite=overwrite)
@@ -106,15 +116,63 @@ def track(
                           overwrite=overwrite)
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
-    for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps"):
+    for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps", "fps all"):
         table.add_column(c, justify="right")
     st = df["status"]
     ms = float(df["ms"].median())
+    # fps from the median tracking time, and from the wall time of the whole run (reading, segmenting,
+    # overlays); one decimal so a slow run never shows as 0
     table.add_row(str(len(df)), str(int((st == "tracked").sum())), str(int((st == "lost").sum())),
-                  str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}", f"{ms:.1f}", f"{1000 / ms:.0f}")
+                  str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}", f"{ms:.1f}",
+                  f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
     console.print(f"wrote {output}")
+    if keypoints is not None:
+        console.print(f"wrote {keypoints}")
+    if overlay is not None:
+        console.print(f"wrote {len(written)} overlays to {overlay}")
+
+
+def _segmenter(depth_range, box, forearm):
+    """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box`` and ``--forearm``."""
+    from .errors import TrackerError
+    from .segment import FOREARM_CHOICES, Segmenter
+
+    kw = {}
+    if depth_range is not None:
+        near_far = _floats(depth_range, "--depth-range", 2, "NEAR,FAR in metres, e.g. 0.3,0.9")
+        if None in near_far or not 0 <= near_far[0] < near_far[1]:
+            raise TrackerError("--depth-range", f"needs 0 ≤ NEAR < FAR (metres), got {depth_range!r}")
+        kw.update(z_min=near_far[0], z_max=near_far[1])
+    if box is not None:
+        b = _floats(box, "--box", 6, "X0,Y0,Z0,X1,Y1,Z1 in metres, e.g. -0.3,-0.3,0.3,0.3,0.3,0.9")
+        if any(lo is not None and hi is not None and not lo < hi for lo, hi in zip(b[:3], b[3:])):
+            raise TrackerError("--box", f"each lower bound must be below its upper bound, got {box!r}")
+        kw.update(box_min=tuple(b[:3]), box_max=tuple(b[3:]))
+    if forearm not in FOREARM_CHOICES:
+        raise TrackerError("--forearm", f"must be {' or '.join(FOREARM_CHOICES)}, got {forearm!r}")
+    return Segmenter(forearm=forearm, **kw)
+
+
+def _floats(text, option, n, example):
+    """``n`` comma-separated numbers (an empty entry is None)."""
+    from .errors import TrackerError
+
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != n:
+        raise TrackerError(option, f"needs {n} comma-separated values ({example}), got {text!r}")
+    try:
+        values = [None if p == "" else float(p) for p in parts]
+    except ValueError:
+        raise TrackerError(option, f"needs numbers ({example}), got {text!r}") from None
+    if any(v is not None and not _finite(v) for v in values):
+        raise TrackerError(option, f"needs finite numbers, got {text!r}")
+    return values
+
+
+def _finite(v):
+    return v == v and v not in (float("inf"), float("-inf"))
 
 
 def _hand_scale(text):
