@@ -212,9 +212,11 @@ def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
     return nodes[:k], local[:k], tgt[:k]
 
 
-def model_to_data_mm(samples, theta, sil, *, tolerance_mm=6.0, cap_mm=30.0) -> np.ndarray:
+def model_to_data_mm(samples, theta, sil, *, tolerance_mm=6.0, tolerance_px=1.0, cap_mm=30.0) -> np.ndarray:
     """Per model sample, how far (mm) it is from anywhere the camera allows it to be: a sample
-    projecting outside the hand silhouette costs its distance to the silhouette (pixels × depth / f),
+    projecting outside the hand silhouette costs its distance to the silhouette beyond ``tolerance_px``
+    (pixels × depth / f; the silhouette's edge is only known to a pixel, which is 2–3 % of a small
+    hand's finger length, so without it small hands come out small),
     one inside costs how far it lies in front of the observed surface beyond ``tolerance_mm`` (free
     space: the camera saw past that point, so nothing can be there); behind the surface is free
     (self-occlusion). Capped at ``cap_mm`` so one stray finger does not outweigh the rest. Every
@@ -235,7 +237,7 @@ def model_to_data_mm(samples, theta, sil, *, tolerance_mm=6.0, cap_mm=30.0) -> n
     vv = np.clip(v - sil.v0, 0, h - 1)
     d_px = sil.dist[vv, uu] + np.hypot(u - sil.u0 - uu, v - sil.v0 - vv)
     outside = d_px > 0
-    cost = np.where(outside, d_px * zs / cam.fx * 1000.0, 0.0)
+    cost = np.where(outside, np.maximum(d_px - tolerance_px, 0.0) * zs / cam.fx * 1000.0, 0.0)
     H, W = sil.depth.shape
     inside = front & ~outside & (u >= 0) & (u < W) & (v >= 0) & (v < H)
     zo = sil.depth[np.clip(v, 0, H - 1), np.clip(u, 0, W - 1)]

@@ -361,26 +361,34 @@ def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None,
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0)):
-    """The user's hand size from one frame: a first guess from the cloud's extent, the single-frame
-    search at that size, then :func:`fit_scale` around it; when the size moved far, the search runs
-    again at the new size (a much wrong size can favour a wrong orientation) and the size is refined
-    once more. ``context_for(s)``: the :class:`FitContext` of the hand scaled by ``s``. Returns
-    ``(scale, θ, corr)``."""
+                    scale_range=(0.6, 2.0), guesses=(1.0, 1.25)):
+    """The user's hand size from one frame. The cloud's extent against the open model's gives a
+    first guess ``g`` (right for an open hand, too small for a curled one, which the cloud cannot
+    tell apart); from each of ``guesses`` × ``g`` the single-frame search runs at that size and
+    :func:`fit_scale` refines the size around it; the best-scoring result wins. When its size moved
+    far from its start, the search runs once more at the new size (a much wrong size can favour a
+    wrong pose) and the size is refined again. ``context_for(s)``: the :class:`FitContext` of the
+    hand scaled by ``s``. Returns ``(scale, θ, corr)``."""
     st = settings or InitSettings()
     base = context_for(1.0)
-    mean = base.synergies.mean_ if base.synergies is not None else np.zeros(int((~base.hand.pose_mask).sum()))
     lo, hi = scale_range
-    s0 = float(np.clip(extent_scale(base.hand, points, mean), lo, hi))
+    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
     sub = _thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
-    th, corr = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
-    s1, th1, _, _ = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / 1.3),
-                              min(hi, s0 * 1.3), silhouette=silhouette, normals=nsub)
+    best = None
+    for s0 in sorted({float(np.clip(g * k, lo, hi)) for k in guesses}):
+        th, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
+        s1, th1, _, sc = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / 1.2),
+                                   min(hi, s0 * 1.2), silhouette=silhouette, normals=nsub)
+        if best is None or sc < best[0]:
+            best = (sc, s0, s1, th1)
+    _, s0, s1, th1 = best
     if abs(np.log(s1 / s0)) > 0.08:
-        th, corr = fit_single_frame(context_for(s1), points, st, silhouette=silhouette, normals=normals)
-        s1, th1, _, _ = fit_scale(context_for, th, context_for(s1).hand, points[sub], max(lo, s1 / 1.12),
-                                  min(hi, s1 * 1.12), silhouette=silhouette, normals=nsub)
+        th1, _ = fit_single_frame(context_for(s1), points, st, silhouette=silhouette, normals=normals)
+    # a last narrow search from a fit at (nearly) the final size: the probes of a wide one start from
+    # a pose fitted at another size, and their short fits lean towards it
+    s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.06),
+                              min(hi, s1 * 1.06), silhouette=silhouette, normals=nsub, n_icp=10)
     ctx = context_for(s1)
     th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
     return s1, th, corr

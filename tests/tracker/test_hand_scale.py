@@ -1,0 +1,97 @@
+"""The user's hand size: a given factor, the automatic calibration on rendered hands of other sizes
+(0.8–1.5 × the model), the size in the tracking output's header and the ``--hand-scale`` option."""
+import numpy as np
+import pytest
+
+from handmodel import HandModel
+from tracker.errors import TrackerError
+from tracker.init import extent_scale, rescaled
+from tracker.run import tracking_metadata
+from tracker.sim.motions import POSTURES
+from tracker.track import HandTracker, TrackerSettings
+from tracker.track_cli import _hand_scale
+
+from test_init_orientation import CAM, kp_mm, scene
+
+BASE = HandModel.load()
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    from synergy.bundle import load_bundle
+
+    return load_bundle("fingerfist")
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "big"])
+def test_bad_hand_scale_refused(bad):
+    with pytest.raises(TrackerError, match="hand_scale must be a positive number or 'auto'"):
+        HandTracker(BASE, TrackerSettings().replace(hand_scale=bad))
+
+
+def test_cli_hand_scale_option():
+    assert _hand_scale("auto") == "auto" and _hand_scale(" AUTO ") == "auto" and _hand_scale("1.25") == 1.25
+    for bad in ("0", "-2", "nan", "inf", "large"):
+        with pytest.raises(TrackerError, match="--hand-scale: .*'auto' or a positive number"):
+            _hand_scale(bad)
+
+
+def test_given_scale_tracks_the_resized_hand_and_says_so():
+    tr = HandTracker(BASE, TrackerSettings().replace(hand_scale=1.2))
+    th = np.zeros(BASE.n_dofs)
+    th[7] = -0.5
+    np.testing.assert_allclose(tr.hand.keypoints(th), BASE.scaled(1.2).keypoints(th), atol=1e-12)
+    assert tr.scale_ == 1.2 and tr.base_hand is BASE
+    meta = tracking_metadata("rec", tr)
+    # the model file's identity, not the resized copy's: --hand-model and --hand-scale rebuild it
+    assert meta["hand_model"] == f"{BASE.name} {BASE.sha256}"
+    assert meta["hand_scale"] == "1.2000 (given)"
+    auto = HandTracker(BASE, TrackerSettings().replace(hand_scale="auto"))
+    assert auto.scale_ is None and tracking_metadata("rec", auto)["hand_scale"] == ""
+
+
+def test_rescaled_keeps_the_hand_where_it_was():
+    th = np.zeros(BASE.n_dofs)
+    th[:3] = [0.02, -0.01, 0.7]
+    th[3:6] = [0.3, -0.2, 0.1]
+    big = BASE.scaled(1.4)
+    moved = rescaled(BASE, big, th)
+    np.testing.assert_allclose(big.keypoints(moved).mean(0), BASE.keypoints(th).mean(0), atol=1e-12)
+    np.testing.assert_array_equal(moved[3:], th[3:])
+
+
+def test_extent_guess_brackets_the_size():
+    """The cloud's extent gives the size of an open hand within 10 % (a tilted hand looks shorter),
+    and a curled one's below it."""
+    for s in (0.8, 1.3):
+        _, ob, _ = scene(BASE.scaled(s), "palm", POSTURES["open"])
+        assert abs(extent_scale(BASE, ob.points, np.zeros(20)) / s - 1.0) < 0.10
+        _, ob, _ = scene(BASE.scaled(s), "palm", POSTURES["grasp"])
+        assert extent_scale(BASE, ob.points, np.zeros(20)) < s
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scale,facing,posture", [(0.8, "palm", "open"), (1.0, "back", "mean"),
+                                                  (1.3, "palm", "mean"), (1.5, "back", "open")])
+def test_automatic_scale_recovered(bundle, scale, facing, posture):
+    """Hands 0.8–1.5 × the model, palm or back towards the camera, tracked from the default model
+    with ``hand_scale="auto"``: the size within 3 % and the keypoints within 10 mm on the first
+    frame; two more frames refine the size (the median of three estimates)."""
+    hand = BASE.scaled(scale)
+    p = bundle.model.mean_ if posture == "mean" else POSTURES[posture]
+    th, ob, _ = scene(hand, facing, p)
+    tr = HandTracker(BASE, TrackerSettings().replace(hand_scale="auto"), synergies=bundle)
+    r = tr.track(ob, CAM)
+    err = kp_mm(hand, th, tr.hand, r.theta)
+    first = tr.scale_
+    print(f"\nscale {scale} {facing} {posture}: estimated {first:.4f} ({100 * (first / scale - 1):+.1f} %), "
+          f"keypoints {err:.1f} mm")
+    assert r.status == "reinit"
+    assert abs(first / scale - 1.0) <= 0.03
+    assert err <= 10.0
+    for _ in range(2):
+        r = tr.track(ob, CAM)
+    assert len(tr.scale_estimates_) == 3 and tr.scale_ == pytest.approx(np.median(tr.scale_estimates_))
+    assert abs(tr.scale_ / scale - 1.0) <= 0.03
+    assert kp_mm(hand, th, tr.hand, r.theta) <= 10.0
+    assert tracking_metadata("rec", tr)["hand_scale"].startswith(f"{tr.scale_:.4f} (auto, median of ")
