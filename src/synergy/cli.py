@@ -145,7 +145,9 @@ def _print_conversions(console, trials, accept_poor: bool) -> None:
             how = {"handedness check": " by the handedness check", "subject": " of the subject calibration"}.get(
                 c["hand_from"], "")
             key = (f"marker set {c['markerset']}, hand {c['hand']}{how} ({c['matched']} of {c['total']} labels matched)"
-                   + "".join(f"; the labels also fit {o['name']} {o['hand'] or ''}".rstrip() for o in c["others"]))
+                   + "".join(f"; the file also carries the {o['hand']} hand (--hand {o['hand']})"
+                             if o["name"] == c["markerset"] else f"; the labels also fit {o['name']}"
+                             for o in c["others"]))
             chosen.setdefault(key, []).append(f)
     for key, names in chosen.items():
         console.print(Text(f"{key}: {', '.join(names) if len(names) <= 3 else f'{len(names)} files'}"), soft_wrap=True)

@@ -1,6 +1,7 @@
 """`synergy fit` on C3D trials: the marker set and hand chosen from the labels (simulated hand16 and
 hand19 trials, the real ART and DFKI files), the closest sets when none fits, the per-trial
 conversion table, and poor trials refused unless --accept-poor."""
+import io
 import re
 
 import numpy as np
@@ -106,6 +107,27 @@ def test_fit_chooses_sets_and_prints_quality_table(sims, tmp_path):
         assert 0 < med <= p95 < 2.0 and ok == 100.0
     assert max(len(ln) for ln in out.splitlines() if "│" in ln or "┃" in ln) <= 80
     assert (tmp_path / "auto-1.0.0.npz").exists()
+
+
+def test_print_names_the_other_hand_of_a_two_handed_file():
+    from rich.console import Console
+
+    from synergy.cli import _print_conversions
+    from synergy.fit import Trial
+
+    conv = {"markerset": "art-joint-centres", "hand": "left", "chosen": "labels", "hand_from": "labels",
+            "matched": 21, "total": 21, "others": [{"name": "art-joint-centres", "hand": "right"}],
+            "residual_median_mm": 1.581, "residual_p95_mm": 12.049, "ok_share": 1.0, "verdict": "good",
+            "warnings": [], "reasons": []}
+    con = Console(width=80, record=True, file=io.StringIO())
+    _print_conversions(con, [Trial("mocap/a_very_long_trial_name_of_a_session_2026.c3d", np.zeros((2, 20)),
+                                   conversion=conv)], accept_poor=False)
+    text = con.export_text()
+    assert ("marker set art-joint-centres, hand left (21 of 21 labels matched); the file also carries the right "
+            "hand (--hand right): a_very_long_trial_name_of_a_session_2026.c3d") in text
+    assert max(len(ln) for ln in text.splitlines() if "│" in ln) <= 80
+    # a long name folds in its column; the numbers stay whole
+    assert re.search(r"│ *art-joint-centres L *│ *1\.58 *│ *12\.05 *│ *100\.0 *│ *good│", text), text
 
 
 @pytest.fixture(scope="module")
