@@ -199,19 +199,15 @@ def test_folder_where_a_file_goes_and_file_where_a_folder_goes(name, inp, tmp_pa
     assert _snapshot(where) == before
 
 
-@pytest.mark.parametrize("name, inner", [("synergy simulate", "power_grasp_01.c3d"),
-                                         ("synergy angles", "power_grasp_01.csv")])
-def test_folder_where_a_file_inside_the_output_folder_goes(name, inner, inp, tmp_path):
-    """The output folder is fine but one file it gets is a folder: refused before the work
-    (angles) or when that file comes (simulate), one line naming it."""
+def test_folder_where_a_file_inside_the_output_folder_goes(inp, tmp_path):
+    """The output folder is fine but a file it gets is a folder: refused before any trial is
+    converted, one line naming it."""
     out = tmp_path / "out"
-    (out / inner).mkdir(parents=True)
+    (out / "power_grasp_01.csv").mkdir(parents=True)
     (out / "earlier.csv").write_bytes(EARLIER)
     before = _snapshot(out)
-    r = _run(_argv(name, inp, out, tmp_path))
-    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stdout == ""
-    assert re.fullmatch(rf"error: {re.escape(str(out / inner))}: (exists and is never overwritten|is a folder)[^\n]*\n",
-                        r.stderr), r.stderr
+    r = _run(_argv("synergy angles", inp, out, tmp_path))
+    _assert_refused(r, out / "power_grasp_01.csv", "exists and is never overwritten (choose another -o)")
     assert _snapshot(out) == before
 
 
@@ -303,10 +299,10 @@ def test_list_shows_names_and_reasons_as_typed(tmp_path):
     path = save_bundle(model, "grip", registry=reg)
     bad = reg / "grip-1.0.1.npz"
     bad.write_bytes(path.read_bytes()[:-100])  # truncated: an invalid bundle with a reason
-    env = {**ENV, "COLUMNS": "1000"}
-    r = subprocess.run([str(BIN / "synergy"), "list", "-r", str(reg)], capture_output=True, text=True, env=env,
-                       timeout=60)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
+    from synergy.cli import app
+
+    r = CliRunner().invoke(app, ["list", "-r", str(reg)], env={"COLUMNS": "1000", "SYNERGY_PATH": ""})
+    assert r.exit_code == 0 and r.stderr == "", (r.exception, r.stderr)
     rows = [ln for ln in r.stdout.splitlines() if "grip" in ln]
     assert len(rows) == 2 and all(str(reg) in ln for ln in rows), r.stdout
     assert "invalid: " in rows[1] and "1.0.1" in rows[1]
