@@ -164,9 +164,14 @@ def show(
     max_frames: int = typer.Option(64, "--max-frames", help="At most this many panels."),
     near: Optional[float] = typer.Option(None, "--near", help="Colour scale start (m; default 1st percentile)."),
     far: Optional[float] = typer.Option(None, "--far", help="Colour scale end (m; default 99th percentile)."),
+    mask: bool = typer.Option(True, "--mask/--no-mask", help="Outline the hand as the tracker segments it (default settings and the options below)."),
+    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m) for the mask, as in tracker track."),
+    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m) for the mask, as in tracker track."),
+    forearm: str = typer.Option("cut", "--forearm", help="cut or keep, for the mask, as in tracker track."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
-    """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey."""
+    """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey; the
+    segmented hand outlined in white."""
     from handmodel.fileio import check_output
 
     from .errors import TrackerError
@@ -182,23 +187,32 @@ def show(
 
     if every < 0 or max_frames < 1:
         raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
+    from .track_cli import _segmenter
+
+    segmenter = _segmenter(depth_range, box, forearm) if mask else None
     rec = Recording.open(recording)
     n = len(rec)
     if n == 0:
         raise TrackerError(recording, "has no frames")
     idx = list(range(0, n, every)) if every > 0 else sorted(set(np.linspace(0, n - 1, min(n, 16)).round().astype(int)))
     shown = idx[:max_frames]
-    depths = []
+    depths, masks = [], []
     with _progress("reading") as p:
         bar = p.add_task("read", total=len(shown))
         for i in shown:
-            depths.append(rec[i].depth * 1000.0)
+            frame = rec[i]
+            depths.append(frame.depth * 1000.0)
+            if segmenter is not None:
+                from .observe import observe
+
+                masks.append(observe(frame.depth, rec.camera, segmenter=segmenter, color=frame.color).mask)
             p.advance(bar)
     lo, hi = contact_sheet(
         output, depths, [f"#{i}  {i / rec.fps:.2f} s" for i in shown],
-        f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; grey = no depth",
+        f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; grey = no depth"
+        + ("; white = segmented hand" if segmenter is not None else ""),
         near_mm=None if near is None else near * 1000, far_mm=None if far is None else far * 1000,
-        overwrite=overwrite)
+        overwrite=overwrite, masks=masks if segmenter is not None else None)
     valid = np.mean([np.isfinite(d).mean() for d in depths])
     _table(f"wrote {output}", [
         ("frames shown", f"{len(shown)} of {n}"

@@ -45,7 +45,8 @@ def depth_scale_mm(depths_mm, near_mm=None, far_mm=None) -> tuple[float, float]:
     return lo, hi
 
 
-def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, overwrite=False):
+def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, overwrite=False,
+                  masks=None):
     """Depth frames in a grid, colour-mapped (viridis) in mm; pixels without depth are light grey.
 
     Parameters
@@ -54,6 +55,7 @@ def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=
     depths_mm : list of (H, W) depth images in mm, NaN = no depth
     panel_titles, title : one title per frame, and the figure's
     near_mm, far_mm : colour-scale ends (default: :func:`depth_scale_mm`)
+    masks : optional list of (H, W) bool segmentation masks, outlined in white on their panels
 
     Returns
     -------
@@ -69,8 +71,10 @@ def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=
     axes = fig.subplots(rows, cols, squeeze=False)
     cmap = colormaps["viridis"].with_extremes(bad="0.85")  # grey is not in viridis: no data stands out
     im = None
-    for ax, label, d in zip(axes.ravel(), panel_titles, depths_mm):
+    for k, (ax, label, d) in enumerate(zip(axes.ravel(), panel_titles, depths_mm)):
         im = ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        if masks is not None and np.any(masks[k]):
+            ax.contour(np.asarray(masks[k], float), [0.5], colors="w", linewidths=0.8)
         ax.set_title(label, fontsize=8)
         ax.set_xticks([])
         ax.set_yticks([])
