@@ -270,3 +270,13 @@ def test_synthesize_realsense_clutter_reproducible_and_overwritable(tmp_path, ha
     assert read_hand_truth(out)[0] == HandShape()
     synthesize("count", cam, "none", out, frames=1, hand=hand, shape=HandShape(0.8), overwrite=True)
     assert read_hand_truth(out)[0].scale == 0.8 and len(Recording.open(out)) == 1
+
+
+def test_experiments_cli_refuses_an_unknown_part(tmp_path):
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+
+    r = CliRunner().invoke(app, ["experiments", "--only", "sofa", "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 2 and "sofa" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "rep").exists()

@@ -119,14 +119,14 @@ def realistic_lines(rows, frames) -> list:
 def report(out_dir, *, quick=False, progress=None, parts=None):
     """Run every experiment (or only ``parts``: ``{"paper", "realistic"}``) and write ``report.md``
     with tables and PNG plots next to the paper's numbers."""
+    parts = {"paper", "realistic"} if parts is None else set(parts)
+    bad = parts - {"paper", "realistic"}
+    if bad or not parts:
+        raise TrackerError("experiments", f"unknown part(s) {', '.join(sorted(bad))} (paper, realistic)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     hand = HandModel.load()
     bundle = load_bundle("fingerfist")
-    parts = {"paper", "realistic"} if parts is None else set(parts)
-    bad = parts - {"paper", "realistic"}
-    if bad:
-        raise TrackerError("experiments", f"unknown part(s) {', '.join(sorted(bad))} (paper, realistic)")
     if parts == {"realistic"}:
         rows = run_realistic(hand, bundle, quick=quick, progress=progress)
         L = ["# Experiments: realistic scenes", "", *realistic_lines(rows, realistic_frames(quick))]
