@@ -112,9 +112,10 @@ def import_(
                                                  help="uint16 (16-bit PNG) or nyu_rgb (G·256+B of an RGB PNG)."),
     fps: float = typer.Option(30.0, "--fps", help="Frame rate (Hz)."),
     hand: str = typer.Option("left", "--hand", "--handedness", help="Handedness of the recorded hand: left or right."),
+    color: Optional[Path] = typer.Option(None, "--color", "--colour", help="Folder of colour frames registered to the depth (PNG or JPEG, one per depth PNG, same name order): used for skin segmentation."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing recording in the output folder."),
 ):
-    """Turn a plain folder of depth PNGs into a recording."""
+    """Turn a plain folder of depth PNGs (and optionally their colour frames) into a recording."""
     import time
 
     from handmodel.fileio import check_output
@@ -127,7 +128,7 @@ def import_(
     with _progress("importing") as p:
         bar = p.add_task("import", total=None)
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
-                          progress=lambda k, n: p.update(bar, completed=k, total=n))
+                          progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
     _table(f"imported {src} → {output} ({time.perf_counter() - t0:.1f} s)", _recording_rows(rec))
 
 

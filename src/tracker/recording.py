@@ -554,8 +554,31 @@ def list_pngs(folder) -> list[Path]:
                           if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file())
 
 
+COLOR_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def import_color(path, camera: Camera) -> np.ndarray:
+    """One colour frame to import: 8-bit RGB(A) PNG or JPEG of the camera's size, registered to the
+    depth image (the same pixel grid), as ``(H, W, 3)`` uint8."""
+    path = Path(path)
+    if path.suffix.lower() == ".png":
+        return read_color(path, camera)
+    import imageio.v3 as iio
+
+    data = _read_bytes(path)
+    try:
+        a = np.asarray(iio.imread(data, extension=".jpg", plugin="pillow"))
+    except Exception as exc:  # Pillow raises many types for damaged files
+        raise RecordingError(path, f"unreadable JPEG ({type(exc).__name__}: {exc})") from None
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] < 3:
+        raise RecordingError(path, f"colour frames need 8-bit RGB, got {a.dtype} {a.shape}")
+    if a.shape[:2] != (camera.height, camera.width):
+        raise RecordingError(path, f"image is {a.shape[1]}×{a.shape[0]}, the camera says {camera.width}×{camera.height}")
+    return np.ascontiguousarray(a[..., :3])
+
+
 def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *, overwrite: bool = False,
-                progress=None) -> Recording:
+                progress=None, color=None) -> Recording:
     """Turn a plain folder of depth PNGs (natural name order) into a recording.
 
     Every PNG must match the camera: its size and the depth encoding's PNG type (16-bit greyscale
@@ -568,6 +591,8 @@ def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *
     camera : Camera (e.g. ``preset("sr305")``)
     fps, handedness, overwrite : as for :class:`RecordingWriter`
     progress : callable ``progress(done, total)``, called after each frame
+    color : optional folder of colour frames registered to the depth (PNG or JPEG, natural name
+        order, one per depth frame), for skin segmentation
 
     Returns
     -------
@@ -581,9 +606,18 @@ def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *
     camera = as_camera(camera)
     if Path(dst).resolve() == src.resolve():
         raise RecordingError(dst, "the recording folder must differ from the source folder")
+    colors = None
+    if color is not None:
+        cdir = Path(color)
+        if not cdir.is_dir():
+            raise RecordingError(cdir, "no such folder")
+        colors = natural_sorted(p for p in cdir.iterdir() if p.suffix.lower() in COLOR_SUFFIXES
+                                and not p.name.startswith(".") and p.is_file())
+        if len(colors) != len(files):
+            raise RecordingError(cdir, f"{len(colors)} colour frames for {len(files)} depth frames in {src}")
     with RecordingWriter(dst, camera, fps, handedness, overwrite=overwrite, source=f"import of {src}") as w:
         for k, f in enumerate(files):
-            w.write_units(read_depth_units(f, camera))
+            w.write_units(read_depth_units(f, camera), None if colors is None else import_color(colors[k], camera))
             if progress is not None:
                 progress(k + 1, len(files))
     return Recording.open(dst)

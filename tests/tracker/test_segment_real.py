@@ -182,3 +182,40 @@ def test_cut_forearm_leaves_a_hand_without_arm_alone():
     d[118:] = np.nan
     m = np.isfinite(d)
     np.testing.assert_array_equal(cut_forearm(m, d, CAM.fx), m)
+
+
+def test_skin_colour_picks_the_hand_over_a_nearer_object():
+    d, hand = _hand_and_arm(0.55)
+    d[20:110, 40:110] = 0.45                     # a nearer, hand-sized object (a blue cup)
+    color = np.zeros(CAM.shape + (3,), np.uint8)
+    color[...] = (30, 60, 200)
+    color[np.isfinite(d) & (d >= 0.5)] = (220, 170, 140)  # skin
+    assert Segmenter()(d, focal=CAM.fx)[60, 70], "without colour the nearer object wins"
+    m = Segmenter()(d, color, focal=CAM.fx)
+    assert not m[60, 70] and m[hand].mean() > 0.97
+    assert Segmenter(use_color=False)(d, color, focal=CAM.fx)[60, 70]
+
+
+def test_import_brings_colour_frames(tmp_path):
+    import imageio.v3 as iio
+
+    from tracker.errors import RecordingError
+    from tracker.recording import import_pngs
+
+    cam = preset("sr305")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "c").mkdir()
+    rgb = []
+    for i in range(2):
+        u = np.zeros(cam.shape, np.uint16)
+        u[100:150, 200:260] = 4800 + i
+        iio.imwrite(tmp_path / "d" / f"{i}.png", u)
+        c = np.full(cam.shape + (3,), 40 * i, np.uint8)
+        rgb.append(c)
+        iio.imwrite(tmp_path / "c" / f"{i}.png", c)
+    rec = import_pngs(tmp_path / "d", tmp_path / "r", cam, color=tmp_path / "c")
+    assert rec.has_color
+    np.testing.assert_array_equal(rec[1].color, rgb[1])
+    (tmp_path / "c" / "1.png").unlink()
+    with pytest.raises(RecordingError, match="1 colour frames for 2 depth frames"):
+        import_pngs(tmp_path / "d", tmp_path / "r2", cam, color=tmp_path / "c")
