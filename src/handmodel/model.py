@@ -107,109 +107,7 @@ class HandModel:
     @classmethod
     def from_dict(cls, doc, *, where: str | Path = "<dict>") -> "HandModel":
         """Build and validate a model from its parsed YAML document."""
-        where = Path(where) if not isinstance(where, Path) else where
-        if not isinstance(doc, dict):
-            raise HandModelError(where, "top level must be a mapping")
-        _validate_schema(doc, where)
-        joints = doc["joints"]
-        names = [j["name"] for j in joints]
-        seen = set()
-        for i, n in enumerate(names):
-            if n in seen:
-                raise HandModelError(where, f"field joints/{i}/name: duplicate joint {n!r}")
-            seen.add(n)
-        index = {n: i for i, n in enumerate(names)}
-        roots = [j["name"] for j in joints if j["parent"] is None]
-        if len(roots) != 1:
-            raise HandModelError(where, f"field joints: exactly one root joint (parent: null) is required, found {roots}")
-        if joints[0]["parent"] is not None:
-            raise HandModelError(where, "field joints/0/parent: the root joint must come first")
-        parents = np.full(len(joints), -1, dtype=np.int64)
-        for i, j in enumerate(joints):
-            par = j["parent"]
-            if par is None:
-                continue
-            if par not in index:
-                raise HandModelError(where, f"field joints/{i}/parent: unknown joint {par!r} (missing joint?)")
-            parents[i] = index[par]
-        # cycles: walking up from every joint must reach the root within n steps
-        for i in range(len(joints)):
-            k, steps = i, 0
-            while parents[k] >= 0:
-                k = parents[k]
-                steps += 1
-                if steps > len(joints):
-                    raise HandModelError(where, f"field joints/{i}/parent: cyclic parents involving {names[i]!r}")
-        # parents first, so one pass down the list computes the forward kinematics
-        order = _topological_order(parents)
-        if list(order) != list(range(len(joints))):
-            joints = [joints[i] for i in order]
-            return cls.from_dict({**doc, "joints": joints}, where=where)
-
-        rest = np.zeros((len(joints), 4, 4))
-        for i, j in enumerate(joints):
-            R = np.asarray(j["rest"]["rotation"], float)
-            if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
-                raise HandModelError(where, f"field joints/{i}/rest/rotation: not a proper rotation matrix")
-            rest[i, :3, :3] = R
-            rest[i, :3, 3] = j["rest"]["translation"]
-            rest[i, 3, 3] = 1.0
-
-        dofs = doc["dofs"]
-        dof_names = [d["name"] for d in dofs]
-        if len(set(dof_names)) != len(dof_names):
-            raise HandModelError(where, "field dofs: duplicate DoF names")
-        dindex = {n: i for i, n in enumerate(dof_names)}
-        types = np.array([ROTATION if d["type"] == "rotation" else TRANSLATION for d in dofs], dtype=np.int64)
-        axes = np.zeros((len(dofs), 3))
-        limits = np.zeros((len(dofs), 2))
-        for i, d in enumerate(dofs):
-            a = _AXES[d["axis"]] if isinstance(d["axis"], str) else d["axis"]
-            a = np.asarray(a, float)
-            nrm = np.linalg.norm(a)
-            if nrm < 1e-9:
-                raise HandModelError(where, f"field dofs/{i}/axis: zero axis")
-            axes[i] = a / nrm
-            lo, hi = d["limits"]
-            if not lo < hi:
-                raise HandModelError(where, f"field dofs/{i}/limits: lower limit {lo} is not below upper {hi}")
-            limits[i] = (lo, hi)
-        ptr = [0]
-        idx = []
-        used = {}
-        for i, j in enumerate(joints):
-            for dn in j["dofs"]:
-                if dn not in dindex:
-                    raise HandModelError(where, f"field joints/{i}/dofs: unknown DoF {dn!r}")
-                if dn in used:
-                    raise HandModelError(where, f"field joints/{i}/dofs: DoF {dn!r} already used by joint {used[dn]!r}")
-                used[dn] = j["name"]
-                idx.append(dindex[dn])
-            ptr.append(len(idx))
-        unused = [n for n in dof_names if n not in used]
-        if unused:
-            raise HandModelError(where, f"field dofs: DoFs not attached to any joint: {unused}")
-        n_expected = doc.get("n_dofs")
-        if n_expected is not None and n_expected != len(dofs):
-            raise HandModelError(where, f"field dofs: {len(dofs)} DoFs, expected {n_expected}")
-
-        segs = []
-        for i, s in enumerate(doc["segments"]):
-            if s["joint"] not in index:
-                raise HandModelError(where, f"field segments/{i}/joint: unknown joint {s['joint']!r}")
-            if s["shape"] == "capsule":
-                segs.append(Segment(index[s["joint"]], "capsule", float(s["length"]), tuple(map(float, s["radius"]))))
-            else:
-                segs.append(Segment(index[s["joint"]], "slab", float(s["length"]),
-                                    tuple(map(float, s["half_width"])), float(s["half_thickness"])))
-        canon = json.dumps(doc, sort_keys=True, default=str).encode()
-        return cls(
-            name=doc["name"], path=str(where), sha256=hashlib.sha256(canon).hexdigest(),
-            handedness=doc["handedness"], node_names=names, parents=_ro(parents), rest=_ro(rest),
-            dof_names=dof_names, dof_types=_ro(types), dof_axes=_ro(axes), limits=_ro(limits),
-            dof_ptr=_ro(np.asarray(ptr, np.int64)), dof_idx=_ro(np.asarray(idx, np.int64)),
-            segments=tuple(segs), mesh_settings=dict(doc.get("mesh") or {}), description=doc.get("description", ""),
-        )
+        return _from_doc(doc, where)
 
     def mirrored(self) -> "HandModel":
         """The mirror-image hand (left ↔ right) for the same parameter vector.
@@ -217,51 +115,12 @@ class HandModel:
         Every joint below the root is conjugated by ``S = diag(-1, 1, 1)`` and each rotation axis
         ``a`` becomes ``-S a`` (so ``S R_a(q) S = R_{-Sa}(q)``); the root's global pose is unchanged.
         """
-        S = _MIRROR
-        rest = self.rest.copy()
-        rest[1:, :3, :3] = S @ rest[1:, :3, :3] @ S
-        rest[1:, :3, 3] = rest[1:, :3, 3] @ S
-        axes = self.dof_axes.copy()
-        root_dofs = set(self.dof_idx[self.dof_ptr[0]:self.dof_ptr[1]].tolist())
-        for d in range(self.n_dofs):
-            if d in root_dofs:
-                continue
-            axes[d] = -(S @ axes[d]) if self.dof_types[d] == ROTATION else S @ axes[d]
-        hand = "right" if self.handedness == "left" else "left"
-        return HandModel(
-            name=self.name, path=self.path, sha256=self.sha256, handedness=hand, node_names=self.node_names,
-            parents=self.parents, rest=_ro(rest), dof_names=self.dof_names, dof_types=self.dof_types,
-            dof_axes=_ro(axes), limits=self.limits, dof_ptr=self.dof_ptr, dof_idx=self.dof_idx,
-            segments=self.segments, mesh_settings=self.mesh_settings, description=self.description,
-        )
+        return _mirrored(self)
 
     def scaled(self, scale: float = 1.0, bone_scales: dict | None = None) -> "HandModel":
         """A resized copy: every bone and radius × ``scale``, then the bones ending at the nodes in
         ``bone_scales`` (node name → factor) × their factor. Capsule lengths follow their bones."""
-        if not np.isfinite(scale) or scale <= 0:
-            raise HandModelError(self.path, f"scale must be positive, got {scale}")
-        rest = self.rest.copy()
-        rest[:, :3, 3] *= scale
-        for name, f in (bone_scales or {}).items():
-            if not np.isfinite(f) or f <= 0:
-                raise HandModelError(self.path, f"bone scale of {name!r} must be positive, got {f}")
-            rest[self.node_index(name), :3, 3] *= f
-        segs = []
-        for sg in self.segments:
-            f = scale
-            kids = [k for k in range(self.n_nodes) if self.parents[k] == sg.joint]
-            if sg.shape == "capsule" and len(kids) == 1 and abs(np.linalg.norm(self.rest[kids[0], :3, 3]) - sg.length) < 1e-9:
-                length = float(np.linalg.norm(rest[kids[0], :3, 3]))  # the capsule spans its bone
-            else:
-                length = sg.length * f
-            segs.append(Segment(sg.joint, sg.shape, length, (sg.radius[0] * f, sg.radius[1] * f), sg.half_thickness * f))
-        key = json.dumps({"base": self.sha256, "scale": scale, "bones": bone_scales or {}}, sort_keys=True).encode()
-        return HandModel(
-            name=self.name, path=self.path, sha256=hashlib.sha256(key).hexdigest(), handedness=self.handedness,
-            node_names=self.node_names, parents=self.parents, rest=_ro(rest), dof_names=self.dof_names,
-            dof_types=self.dof_types, dof_axes=self.dof_axes, limits=self.limits, dof_ptr=self.dof_ptr,
-            dof_idx=self.dof_idx, segments=tuple(segs), mesh_settings=self.mesh_settings, description=self.description,
-        )
+        return _scaled(self, scale, bone_scales)
 
     def with_joint_positions(self, positions: dict) -> "HandModel":
         """A copy with the rest positions (in the parent's frame, metres) of some joints replaced,
@@ -421,6 +280,163 @@ class HandModel:
 
     def __repr__(self) -> str:
         return f"HandModel({self.name!r}, {self.handedness}, {self.n_nodes} nodes, {self.n_dofs} DoF)"
+
+
+# ------------------------------------------------------------------ builders behind the class's methods
+def _from_doc(doc, where) -> HandModel:
+    """Parse and validate a model document (see :meth:`HandModel.from_dict`)."""
+    where = Path(where) if not isinstance(where, Path) else where
+    if not isinstance(doc, dict):
+        raise HandModelError(where, "top level must be a mapping")
+    _validate_schema(doc, where)
+    joints = doc["joints"]
+    names = [j["name"] for j in joints]
+    seen = set()
+    for i, n in enumerate(names):
+        if n in seen:
+            raise HandModelError(where, f"field joints/{i}/name: duplicate joint {n!r}")
+        seen.add(n)
+    index = {n: i for i, n in enumerate(names)}
+    roots = [j["name"] for j in joints if j["parent"] is None]
+    if len(roots) != 1:
+        raise HandModelError(where, f"field joints: exactly one root joint (parent: null) is required, found {roots}")
+    if joints[0]["parent"] is not None:
+        raise HandModelError(where, "field joints/0/parent: the root joint must come first")
+    parents = np.full(len(joints), -1, dtype=np.int64)
+    for i, j in enumerate(joints):
+        par = j["parent"]
+        if par is None:
+            continue
+        if par not in index:
+            raise HandModelError(where, f"field joints/{i}/parent: unknown joint {par!r} (missing joint?)")
+        parents[i] = index[par]
+    # cycles: walking up from every joint must reach the root within n steps
+    for i in range(len(joints)):
+        k, steps = i, 0
+        while parents[k] >= 0:
+            k = parents[k]
+            steps += 1
+            if steps > len(joints):
+                raise HandModelError(where, f"field joints/{i}/parent: cyclic parents involving {names[i]!r}")
+    # parents first, so one pass down the list computes the forward kinematics
+    order = _topological_order(parents)
+    if list(order) != list(range(len(joints))):
+        joints = [joints[i] for i in order]
+        return _from_doc({**doc, "joints": joints}, where)
+
+    rest = np.zeros((len(joints), 4, 4))
+    for i, j in enumerate(joints):
+        R = np.asarray(j["rest"]["rotation"], float)
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+            raise HandModelError(where, f"field joints/{i}/rest/rotation: not a proper rotation matrix")
+        rest[i, :3, :3] = R
+        rest[i, :3, 3] = j["rest"]["translation"]
+        rest[i, 3, 3] = 1.0
+
+    dofs = doc["dofs"]
+    dof_names = [d["name"] for d in dofs]
+    if len(set(dof_names)) != len(dof_names):
+        raise HandModelError(where, "field dofs: duplicate DoF names")
+    dindex = {n: i for i, n in enumerate(dof_names)}
+    types = np.array([ROTATION if d["type"] == "rotation" else TRANSLATION for d in dofs], dtype=np.int64)
+    axes = np.zeros((len(dofs), 3))
+    limits = np.zeros((len(dofs), 2))
+    for i, d in enumerate(dofs):
+        a = _AXES[d["axis"]] if isinstance(d["axis"], str) else d["axis"]
+        a = np.asarray(a, float)
+        nrm = np.linalg.norm(a)
+        if nrm < 1e-9:
+            raise HandModelError(where, f"field dofs/{i}/axis: zero axis")
+        axes[i] = a / nrm
+        lo, hi = d["limits"]
+        if not lo < hi:
+            raise HandModelError(where, f"field dofs/{i}/limits: lower limit {lo} is not below upper {hi}")
+        limits[i] = (lo, hi)
+    ptr = [0]
+    idx = []
+    used = {}
+    for i, j in enumerate(joints):
+        for dn in j["dofs"]:
+            if dn not in dindex:
+                raise HandModelError(where, f"field joints/{i}/dofs: unknown DoF {dn!r}")
+            if dn in used:
+                raise HandModelError(where, f"field joints/{i}/dofs: DoF {dn!r} already used by joint {used[dn]!r}")
+            used[dn] = j["name"]
+            idx.append(dindex[dn])
+        ptr.append(len(idx))
+    unused = [n for n in dof_names if n not in used]
+    if unused:
+        raise HandModelError(where, f"field dofs: DoFs not attached to any joint: {unused}")
+    n_expected = doc.get("n_dofs")
+    if n_expected is not None and n_expected != len(dofs):
+        raise HandModelError(where, f"field dofs: {len(dofs)} DoFs, expected {n_expected}")
+
+    segs = []
+    for i, s in enumerate(doc["segments"]):
+        if s["joint"] not in index:
+            raise HandModelError(where, f"field segments/{i}/joint: unknown joint {s['joint']!r}")
+        if s["shape"] == "capsule":
+            segs.append(Segment(index[s["joint"]], "capsule", float(s["length"]), tuple(map(float, s["radius"]))))
+        else:
+            segs.append(Segment(index[s["joint"]], "slab", float(s["length"]),
+                                tuple(map(float, s["half_width"])), float(s["half_thickness"])))
+    canon = json.dumps(doc, sort_keys=True, default=str).encode()
+    return HandModel(
+        name=doc["name"], path=str(where), sha256=hashlib.sha256(canon).hexdigest(),
+        handedness=doc["handedness"], node_names=names, parents=_ro(parents), rest=_ro(rest),
+        dof_names=dof_names, dof_types=_ro(types), dof_axes=_ro(axes), limits=_ro(limits),
+        dof_ptr=_ro(np.asarray(ptr, np.int64)), dof_idx=_ro(np.asarray(idx, np.int64)),
+        segments=tuple(segs), mesh_settings=dict(doc.get("mesh") or {}), description=doc.get("description", ""),
+    )
+
+
+def _mirrored(hand: HandModel) -> HandModel:
+    """See :meth:`HandModel.mirrored`."""
+    S = _MIRROR
+    rest = hand.rest.copy()
+    rest[1:, :3, :3] = S @ rest[1:, :3, :3] @ S
+    rest[1:, :3, 3] = rest[1:, :3, 3] @ S
+    axes = hand.dof_axes.copy()
+    root_dofs = set(hand.dof_idx[hand.dof_ptr[0]:hand.dof_ptr[1]].tolist())
+    for d in range(hand.n_dofs):
+        if d in root_dofs:
+            continue
+        axes[d] = -(S @ axes[d]) if hand.dof_types[d] == ROTATION else S @ axes[d]
+    side = "right" if hand.handedness == "left" else "left"
+    return HandModel(
+        name=hand.name, path=hand.path, sha256=hand.sha256, handedness=side, node_names=hand.node_names,
+        parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names, dof_types=hand.dof_types,
+        dof_axes=_ro(axes), limits=hand.limits, dof_ptr=hand.dof_ptr, dof_idx=hand.dof_idx,
+        segments=hand.segments, mesh_settings=hand.mesh_settings, description=hand.description,
+    )
+
+
+def _scaled(hand: HandModel, scale: float, bone_scales: dict | None) -> HandModel:
+    """See :meth:`HandModel.scaled`."""
+    if not np.isfinite(scale) or scale <= 0:
+        raise HandModelError(hand.path, f"scale must be positive, got {scale}")
+    rest = hand.rest.copy()
+    rest[:, :3, 3] *= scale
+    for name, f in (bone_scales or {}).items():
+        if not np.isfinite(f) or f <= 0:
+            raise HandModelError(hand.path, f"bone scale of {name!r} must be positive, got {f}")
+        rest[hand.node_index(name), :3, 3] *= f
+    segs = []
+    for sg in hand.segments:
+        f = scale
+        kids = [k for k in range(hand.n_nodes) if hand.parents[k] == sg.joint]
+        if sg.shape == "capsule" and len(kids) == 1 and abs(np.linalg.norm(hand.rest[kids[0], :3, 3]) - sg.length) < 1e-9:
+            length = float(np.linalg.norm(rest[kids[0], :3, 3]))  # the capsule spans its bone
+        else:
+            length = sg.length * f
+        segs.append(Segment(sg.joint, sg.shape, length, (sg.radius[0] * f, sg.radius[1] * f), sg.half_thickness * f))
+    key = json.dumps({"base": hand.sha256, "scale": scale, "bones": bone_scales or {}}, sort_keys=True).encode()
+    return HandModel(
+        name=hand.name, path=hand.path, sha256=hashlib.sha256(key).hexdigest(), handedness=hand.handedness,
+        node_names=hand.node_names, parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names,
+        dof_types=hand.dof_types, dof_axes=hand.dof_axes, limits=hand.limits, dof_ptr=hand.dof_ptr,
+        dof_idx=hand.dof_idx, segments=tuple(segs), mesh_settings=hand.mesh_settings, description=hand.description,
+    )
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

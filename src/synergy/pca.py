@@ -319,26 +319,8 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         pc_min, pc_max, joint_min, joint_max, n_samples, n_components=None,
     ) -> "SynergyModel":
         """A fitted model from stored arrays (full spectrum, as in a bundle)."""
-        model = cls(n_components=n_components)
-        model.all_components_ = np.asarray(components, dtype=float)
-        model.mean_ = np.asarray(mean, dtype=float)
-        model.all_explained_variance_ = np.asarray(explained_variance, dtype=float)
-        model.all_explained_variance_ratio_ = np.asarray(explained_variance_ratio, dtype=float)
-        model.pc_min_ = np.asarray(pc_min, dtype=float)
-        model.pc_max_ = np.asarray(pc_max, dtype=float)
-        model.joint_min_ = np.asarray(joint_min, dtype=float)
-        model.joint_max_ = np.asarray(joint_max, dtype=float)
-        model.n_samples_ = int(n_samples)
-        model.n_features_in_ = model.mean_.shape[0]
-        # Statistics rebuilt from the spectrum, so that partial_fit can extend a stored model.
-        C, ev = model.all_components_, model.all_explained_variance_
-        if C.shape[0] == C.shape[1]:
-            model.stats_ = SufficientStats(
-                model.n_samples_, model.mean_.copy(), np.zeros_like(model.mean_),
-                (model.n_samples_ - 1) * (C.T * ev) @ C, model.joint_min_.copy(), model.joint_max_.copy(),
-            )
-        model._select(n_components)
-        return model
+        return _from_arrays(components, mean, explained_variance, explained_variance_ratio, pc_min, pc_max,
+                            joint_min, joint_max, n_samples, n_components)
 
     # -- using the model
     def transform(self, X):
@@ -416,6 +398,31 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         check_is_fitted(self, "all_components_")
         X = _as_2d_finite(X_heldout, "SynergyModel.reconstruction_curve")
         return np.sqrt(_sq_error_curve(self, X) / X.shape[0])
+
+
+def _from_arrays(components, mean, explained_variance, explained_variance_ratio, pc_min, pc_max,
+                 joint_min, joint_max, n_samples, n_components) -> SynergyModel:
+    """See :meth:`SynergyModel.from_arrays`."""
+    model = SynergyModel(n_components=n_components)
+    model.all_components_ = np.asarray(components, dtype=float)
+    model.mean_ = np.asarray(mean, dtype=float)
+    model.all_explained_variance_ = np.asarray(explained_variance, dtype=float)
+    model.all_explained_variance_ratio_ = np.asarray(explained_variance_ratio, dtype=float)
+    model.pc_min_ = np.asarray(pc_min, dtype=float)
+    model.pc_max_ = np.asarray(pc_max, dtype=float)
+    model.joint_min_ = np.asarray(joint_min, dtype=float)
+    model.joint_max_ = np.asarray(joint_max, dtype=float)
+    model.n_samples_ = int(n_samples)
+    model.n_features_in_ = model.mean_.shape[0]
+    # Statistics rebuilt from the spectrum, so that partial_fit can extend a stored model.
+    C, ev = model.all_components_, model.all_explained_variance_
+    if C.shape[0] == C.shape[1]:
+        model.stats_ = SufficientStats(
+            model.n_samples_, model.mean_.copy(), np.zeros_like(model.mean_),
+            (model.n_samples_ - 1) * (C.T * ev) @ C, model.joint_min_.copy(), model.joint_max_.copy(),
+        )
+    model._select(n_components)
+    return model
 
 
 def _orient(comps: np.ndarray) -> np.ndarray:

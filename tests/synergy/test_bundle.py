@@ -382,7 +382,7 @@ def test_read_csv_and_schroeder26(tmp_path):
         ("a.csv", "thumb1_abd,x\n1,2\n", "auto", "missing posture column(s): thumb1_flex"),
         ("a.txt", "1 2 3\n", "auto", "expected rows of 26 values"),
         ("a.txt", "1 2 x\n", "schroeder26", "cannot read"),
-        ("a.c3d", "", "auto", "needs a marker set"),
+        ("a.c3d", "", "auto", "empty file"),
         ("a.bin", "", "auto", "unknown file type"),
         ("a.csv", "", "xlsx", "unknown format"),
     ],
