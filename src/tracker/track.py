@@ -26,7 +26,8 @@ from handmodel.subspace import Subspace, hierarchical_schedule
 from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, fit, tracking_schedule
-from .init import FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled
+from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
+                   score)
 from .observe import ObserveSettings
 
 LIMITS = ("anatomical", "data", "model")
@@ -45,6 +46,8 @@ class TrackerSettings:
     caps the points a frame fits (None = all). ``hand_scale``: the user's hand size as a factor on
     the model (:meth:`handmodel.HandModel.scaled`), or ``"auto"``: estimated on the first frame and
     refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``.
+    ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
+    whether it fits clearly better (the recording's handedness is likely wrong).
     """
 
     mode: str = "full"
@@ -60,6 +63,7 @@ class TrackerSettings:
     hand_scale: float | str = 1.0
     scale_frames: int = 3
     scale_range: tuple = (0.6, 2.0)
+    check_hand: bool = False
     observe: ObserveSettings = field(default_factory=ObserveSettings)
     correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
     icp: IcpSettings = field(default_factory=IcpSettings)
@@ -129,6 +133,27 @@ _STAGE_OF = _stage_fields()
 
 
 @dataclass
+class HandCheck:
+    """The first frame fitted with the hand tracked and with its mirror image: their start-search
+    scores (mm, lower is better; :func:`tracker.init.score`) and the other hand's side."""
+
+    score: float
+    other_score: float
+    other_side: str
+
+    @property
+    def other_fits_better(self) -> bool:
+        """The other hand clearly better: by 1 mm and by a third of the score (a fit of the wrong hand
+        can be nearly as good; a clearly worse one is the wrong hand, not noise)."""
+        return self.other_score < self.score - 1.0 and self.other_score < 0.67 * self.score
+
+    def __str__(self) -> str:
+        verdict = (f"the {self.other_side} hand fits clearly better: is the recording's handedness wrong?"
+                   if self.other_fits_better else "ok")
+        return f"score {self.score:.2f}, {self.other_side} hand {self.other_score:.2f}: {verdict}"
+
+
+@dataclass
 class FrameResult:
     theta: np.ndarray
     status: str                 # tracked | lost | reinit
@@ -181,6 +206,7 @@ class HandTracker:
     hand : the model tracked, ``base_hand`` scaled by ``scale_``
     scale_ : the hand size in use (None while ``hand_scale="auto"`` has not seen a frame)
     scale_estimates_ : the per-frame estimates an automatic calibration took the median of
+    hand_check_ : :class:`HandCheck` of the first frame (``check_hand``), else None
     """
 
     def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None):
@@ -192,6 +218,7 @@ class HandTracker:
         self.synergies = synergies
         self._contexts = {}
         self.scale_estimates_ = []
+        self.hand_check_ = None
         auto = settings.hand_scale == "auto"
         self._use_scale(1.0 if auto else float(settings.hand_scale))
         self.scale_ = None if auto else float(settings.hand_scale)
@@ -228,6 +255,13 @@ class HandTracker:
         """Track one :class:`tracker.observe.Observation`."""
         return self.step(observation.points, normals=observation.normals, mask=observation.mask,
                          depth=observation.depth, camera=camera)
+
+    def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
+        """The single-frame search with the mirror-image hand (same size) against this frame's fit."""
+        other = self.hand.mirrored()
+        ctx, _ = fit_context(other, self.settings, self.synergies)
+        th, c = fit_single_frame(ctx, pts, self.settings.init, silhouette=sil, normals=nrm)
+        return HandCheck(score(self.context, theta, corr, sil), score(ctx, th, c, sil), other.handedness)
 
     def _refine_scale(self, pts, nrm, sil):
         """One more frame's size estimate (a narrow search around the current size from this frame's
@@ -295,6 +329,8 @@ class HandTracker:
             theta, corr = fit(self.hand, pts, self.predict(), self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
             status = "tracked"
+        if st.check_hand and self.hand_check_ is None and status == "reinit":
+            self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
         rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
         if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected:

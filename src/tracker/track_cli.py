@@ -38,6 +38,7 @@ def track(
     finger_search: Optional[bool] = typer.Option(None, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising [on; paper off]."),
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [1]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
@@ -89,6 +90,7 @@ def track(
     given = {k: v for k, v in given.items() if v is not None or (k == "target_points" and points == 0)}
     if hand_scale is not None:
         given["hand_scale"] = _hand_scale(hand_scale)
+    given["check_hand"] = check_hand
     base = TrackerSettings.paper() if paper else TrackerSettings()
     settings = base.replace(mode=mode, n_pcs=pcs, variance=None if pcs else variance, **given)
     tracker = HandTracker(hand, settings, synergies=bundle)
@@ -127,6 +129,8 @@ def track(
                   f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
+    if tracker.hand_check_ is not None and tracker.hand_check_.other_fits_better:
+        console.print(f"warning: {rec.handedness} hand tracked, but {tracker.hand_check_}")
     console.print(f"wrote {output}")
     if keypoints is not None:
         console.print(f"wrote {keypoints}")

@@ -128,3 +128,20 @@ def test_back_facing_resized_hand_found_the_right_way_up(bundle, scale):
     err = kp_mm(hand, th, tr.hand, r.theta)
     print(f"\nscale {scale} back-facing: {err:.1f} mm")
     assert err < 5.0
+
+
+@pytest.mark.slow
+def test_the_wrong_hand_is_reported(bundle):
+    """A left hand tracked as a right one (the recording's handedness wrong): the check on the first
+    frame says the left hand fits clearly better; tracked as the left one, it says nothing."""
+    th, ob, _ = scene(BASE, "palm", bundle.model.mean_)
+    checks = {}
+    for side, hand in (("left", BASE), ("right", BASE.mirrored())):
+        tr = HandTracker(hand, TrackerSettings().replace(check_hand=True), synergies=bundle)
+        tr.track(ob, CAM)
+        checks[side] = tr.hand_check_
+        print(f"\ntracked as {side}: {tr.hand_check_}")
+    assert checks["right"].other_side == "left" and checks["right"].other_fits_better
+    assert "fits clearly better" in str(checks["right"])
+    assert checks["left"].other_side == "right" and not checks["left"].other_fits_better
+    assert str(checks["left"]).endswith(": ok")
