@@ -64,7 +64,7 @@ def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
             "pcs": "" if tracker.n_pcs is None else str(tracker.n_pcs), "stride": str(st.observe.stride),
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
             "hand_model": f"{hand.name} {hand.sha256}", "hand_scale": _scale_text(tracker),
-            "units": "metres, radians"}
+            "hand_check": str(getattr(tracker, "hand_check_", None) or ""), "units": "metres, radians"}
 
 
 def _scale_text(tracker) -> str:

@@ -45,7 +45,7 @@ def test_given_scale_tracks_the_resized_hand_and_says_so():
     meta = tracking_metadata("rec", tr)
     # the model file's identity, not the resized copy's: --hand-model and --hand-scale rebuild it
     assert meta["hand_model"] == f"{BASE.name} {BASE.sha256}"
-    assert meta["hand_scale"] == "1.2000 (given)"
+    assert meta["hand_scale"] == "1.2000 (given)" and meta["hand_check"] == ""
     auto = HandTracker(BASE, TrackerSettings().replace(hand_scale="auto"))
     assert auto.scale_ is None and tracking_metadata("rec", auto)["hand_scale"] == ""
 
