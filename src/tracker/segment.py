@@ -310,12 +310,21 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     border is a poorer guess than a whole one; it is taken only when nothing else is there). The
     region is that surface within ``band`` behind the front and within ``reach`` metres (3-D) of
     the seed's centre — the arm leads to the body, so the body is reached along it only beyond
-    the reach of a hand — connected to the seed, plus the small surfaces (fingertip blobs) in
+    the reach of a hand — connected to the seed (when every candidate is cut off by the border,
+    the seed is the end of the nearest one farthest from the border, see :func:`_far_end`), plus the small surfaces (fingertip blobs) in
     that band within ``margin_px`` pixels of it. With ``with_beyond``, also the pixels of the
     hand's surface left out by the band or the reach (where an arm leaves the region)."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
+    if ids.size == 0:
+        # nothing hand-sized (a hand mostly outside the image, or far away): the biggest surface
+        ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, 0.0)
+        if ids.size:
+            on = lab > 0
+            area = np.bincount(lab[on], weights=pixel_area(d[on], focal), minlength=n + 1)
+            j = int(np.argmax(area[ids]))
+            ids, fronts = ids[j:j + 1], fronts[j:j + 1]
     if ids.size == 0:
         empty = np.zeros(d.shape, bool)
         return (empty, empty) if with_beyond else empty
@@ -328,12 +337,21 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             k, front, seed = int(kk), float(ff), s
             if inside:
                 break
+    X = None
+    if _touches_border(seed, border_px):
+        # every candidate's nearest part is cut off by the border, typically an arm reaching
+        # towards the camera from outside the image: the hand is then the end of the surface
+        # farthest from where it enters the image
+        X = _points(d, focal) if points is None else np.asarray(points, float)
+        seed, front = _far_end(lab == k, d, X, focal, border_px, reach)
     with np.errstate(invalid="ignore"):
         near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
         if reach is not None:
-            X = _points(d, focal) if points is None else np.asarray(points, float)
+            if X is None:
+                X = _points(d, focal) if points is None else np.asarray(points, float)
             centre = X[seed].mean(axis=0)
             near &= np.sum((X - centre) ** 2, axis=-1) <= reach ** 2
+    near |= seed
     core = (lab == k) & near
     lab_c, _ = ndimage.label(core)
     hit = np.unique(lab_c[seed])
@@ -358,6 +376,23 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
         return out, (lab == k) & ~out
     return out
+
+
+def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
+    """``(seed, front)`` at the end of ``surface`` farthest (in the image) from its pixels at the
+    image border: the pixels within 2 cm of that end, and the nearest depth (1st percentile) of
+    the surface within ``reach`` of them."""
+    px = BORDER_PX if border_px is None else border_px
+    edge = np.zeros_like(surface)
+    edge[:px], edge[-px:], edge[:, :px], edge[:, -px:] = True, True, True, True
+    dist = ndimage.distance_transform_edt(~(edge & surface))
+    dist[~surface] = -1.0
+    z = float(np.nanmedian(d[surface]))
+    seed = _largest_in_window(surface & (dist >= dist.max() - 0.02 * focal / z))
+    centre = X[seed].mean(axis=0)
+    with np.errstate(invalid="ignore"):
+        around = surface & (np.sum((X - centre) ** 2, axis=-1) <= (reach or 0.22) ** 2)
+    return seed, float(np.percentile(d[around], 1))
 
 
 def _points(depth, focal):

@@ -121,5 +121,5 @@ def test_in_box_and_segmenter_box():
     d = np.full(cam.shape, 0.8)
     d[:, 20:] = 0.6
     X = backproject(d, cam)
-    mask = Segmenter(box_min=(0.0, None, None), box_max=(None, None, 0.7), band=1.0, min_pixels=1)(d, None, X)
+    mask = Segmenter(box_min=(0.0, None, None), box_max=(None, None, 0.7), band=1.0, min_pixels=1, reach=None)(d, None, X)
     np.testing.assert_array_equal(mask, (X[..., 0] >= 0) & (d <= 0.7))
