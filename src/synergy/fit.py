@@ -28,7 +28,7 @@ from synergy.angles import POOR_TRIAL_SHARE, check_handedness, markers_to_angles
 from synergy.bundle import Bundle, read_bundle, save_bundle
 from synergy.c3d import read_c3d, task_from_events
 from synergy.calibrate import Calibration
-from synergy.errors import SynergyError, TaskMapError
+from synergy.errors import MarkerSetError, SynergyError, TaskMapError
 from synergy.markers import MarkerSet, choose_markerset, load_markerset, shipped_markersets
 from synergy.pca import SufficientStats, SynergyModel, heldout_curve
 from synergy.postures import postures_from_table, read_csv_postures, read_schroeder26
@@ -119,7 +119,14 @@ def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
         if isinstance(calibration, Calibration) and calibration.markerset:
             # the subject was calibrated with one set: a trial of that subject is read with it
             pool = [m for m in pool if m.name == calibration.markerset] or pool
-    ms, hand, rep = choose_markerset(labels, pool, hand=hand, where=p)
+    try:
+        ms, hand, rep = choose_markerset(labels, pool, hand=hand, where=p)
+    except MarkerSetError:
+        if markers is None:
+            raise
+        # the set was named: its own error lists every missing marker and the labels present
+        pool[0].for_hand(hand or "left").match(labels, where=p)
+        raise
     rep = {**rep, "chosen": "given" if markers is not None else "labels",
            "hand_from": given or ("labels" if hand else "")}
     if not hand:

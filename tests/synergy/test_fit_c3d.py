@@ -168,3 +168,7 @@ def test_file_no_set_fits_is_one_line_exit_2(tmp_path):
     assert line.startswith(f"error: {f.as_posix()}: no marker set fits its labels: closest ")
     assert "closest hand16 (3 of 16; missing MC3, MC5, TMC, TPP, ...); hand19 (3 of 19;" in line and line.endswith(
         "give --markers NAME or a marker-set YAML")
+    # a named set that does not fit lists every missing marker and the file's labels
+    r = runner.invoke(app, ["fit", str(f), "--markers", "hand16", "--name", "odd", "-o", str(tmp_path / "reg")])
+    assert r.exit_code == 2 and len(_lines(r.output)) == 1
+    assert "marker set 'hand16': missing marker(s) MC3, MC5, TMC" in r.output and "the file has A1, A2, WRR" in r.output
