@@ -40,6 +40,7 @@ from scipy import ndimage
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 DEFAULT_FOCAL_PX = 500.0
+PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)  # pixel size for physical areas when the camera is not given
 
 
@@ -405,7 +406,8 @@ def _points(depth, focal):
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6)):
     """The hand mask without the forearm beyond the wrist.
 
-    The palm is the largest inscribed circle of the region (centre c, radius r). Outside 1.6 r, the
+    The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
+    nearly as large, the one farthest from where the region goes on. Outside 1.6 r, the
     parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
     and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
     surface left out of the region), where fingers end in an edge (fingers held together are as
@@ -422,7 +424,24 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # close one-pixel no-data cracks so they do not split the palm circle
     solid = ndimage.binary_closing(sub, iterations=1) | sub
     dt = ndimage.distance_transform_edt(solid)
-    cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
+    # where the region goes on: the image border or the surface beyond it (the arm's side)
+    go_on = np.zeros(sub.shape, bool)
+    if beyond is not None:
+        go_on |= ndimage.binary_dilation(np.asarray(beyond, bool)[y0:y1, x0:x1], iterations=2)
+    H, W = m.shape
+    go_on[:, :1] |= x0 == 0
+    go_on[:, -1:] |= x1 == W
+    go_on[:1, :] |= y0 == 0
+    go_on[-1:, :] |= y1 == H
+    go_on &= solid
+    # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
+    # forearm) the one farthest from where the region goes on
+    cand = dt >= PALM_WIDTH_SHARE * dt.max()
+    if go_on.any():
+        far = ndimage.distance_transform_edt(~go_on)
+        cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+    else:
+        cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
     r = float(dt[cy, cx])
     zc = np.nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
     if not np.isfinite(zc):
@@ -438,15 +457,6 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if n == 0:
         return m
     width = np.asarray(ndimage.maximum(dt, lab, index=np.arange(1, n + 1)), float)
-    # parts that go on: touching the image border or the surface beyond the region
-    go_on = np.zeros(sub.shape, bool)
-    if beyond is not None:
-        go_on |= ndimage.binary_dilation(np.asarray(beyond, bool)[y0:y1, x0:x1], iterations=2)
-    H, W = m.shape
-    go_on[:, :1] |= x0 == 0
-    go_on[:, -1:] |= x1 == W
-    go_on[:1, :] |= y0 == 0
-    go_on[-1:, :] |= y1 == H
     continues = np.zeros(n + 1, bool)
     continues[np.unique(lab[go_on & (lab > 0)])] = True
     width[~continues[1:]] = 0.0
