@@ -41,6 +41,7 @@ SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 DEFAULT_FOCAL_PX = 500.0
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
+NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)  # pixel size for physical areas when the camera is not given
 
 
@@ -485,7 +486,10 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # the wrist is where the narrowing from the palm stops: the first distance beyond which the
     # width shrinks by less than 10 % over the next 0.3 r (a forearm further out may still taper,
     # recede or be cropped, so the global minimum would cut too late)
-    t_w = lo + _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
+    i = _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
+    # no narrowing at all (an arm as wide as the palm in the image, e.g. a tilted palm): the wrist
+    # is then taken a palm's half length (1.3 r) from the palm's centre
+    t_w = lo + i if i > 0 else max(lo, int(round(NO_NARROWING_WRIST * r)))
     cut = strip & (t > t_w)
     out = m.copy()
     out[y0:y1, x0:x1] &= ~cut
