@@ -87,9 +87,9 @@ def mutant(files: list[Path], seed: int, i: int, cache: dict) -> tuple[Path, byt
 
 def _worker_rss_kb() -> int:
     """Peak resident set of the live reader worker (it is reaped only when it dies)."""
-    from synergy import c3d
+    from synergy import c3d_native
 
-    w = c3d._worker
+    w = c3d_native._worker
     if w is None or w.proc.poll() is not None:
         return 0
     try:

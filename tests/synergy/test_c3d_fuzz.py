@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, SHARED_DATA, shared
-from synergy import c3d as c3d_mod
+from synergy import c3d_native as c3d_mod
 from synergy.c3d import MarkerData, read_c3d
 from synergy.errors import C3DError
 
