@@ -39,10 +39,10 @@ from scipy import ndimage
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
-DEFAULT_FOCAL_PX = 500.0
+DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
-BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)  # pixel size for physical areas when the camera is not given
+BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
 @dataclass

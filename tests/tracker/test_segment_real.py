@@ -179,7 +179,7 @@ def test_focal_is_read_from_the_points():
 
 
 def test_cut_forearm_leaves_a_hand_without_arm_alone():
-    d, hand = _hand_and_arm(0.5)
+    d, _ = _hand_and_arm(0.5)
     d[118:] = np.nan
     m = np.isfinite(d)
     np.testing.assert_array_equal(cut_forearm(m, d, CAM.fx), m)
