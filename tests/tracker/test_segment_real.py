@@ -14,7 +14,7 @@ from scipy import ndimage
 from tests.conftest import shared
 from tracker.cameras import Camera, preset
 from tracker.observe import backproject, observe
-from tracker.recording import read_depth_units
+from tracker.images import read_depth_units
 from tracker.segment import Segmenter, cut_forearm, focal_from_points, surfaces
 
 LABELS = ("realsense_sr305_lada", "labels")
@@ -27,7 +27,8 @@ def _frames():
 
 def _load(name):
     cam = preset("sr305")
-    units = read_depth_units(shared("realsense_sr305_lada", f"{name}.png"), cam)
+    units = np.asarray(Image.open(shared("realsense_sr305_lada", f"{name}.png")))
+    assert units.dtype == np.uint16 and units.shape == cam.shape, name
     depth = np.where(units > 0, units * cam.depth_scale_m, np.nan)
     truth = np.asarray(Image.open(shared(*LABELS, f"{name}_hand.png"))) > 0
     return cam, depth, truth
