@@ -28,25 +28,24 @@ from __future__ import annotations
 
 import re
 import shutil
-import struct
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from handmodel.dofs import DOF_NAMES
 from handmodel.fileio import atomic_write_bytes, atomic_write_text, load_yaml, schema_errors
 
 from .cameras import MAX_UNITS, Camera, as_camera
 from .errors import RecordingError, TrackerError
+from .images import encode_units, metres_to_units, png_bytes, read_bytes, read_color, read_depth_units, units_to_metres
 
 SCHEMA_VERSION = 1
 HANDEDNESS = ("left", "right")
 _FRAME_RE = re.compile(r"^(\d+)\.png$")
 # what a recording folder may hold; anything else makes overwrite=True refuse
 _OWN = {"recording.yaml", "truth.csv", "depth", "color", "truth_hand.yaml"}  # truth_hand.yaml: tracker.sim.hands
-
-DOF_COLUMNS = None  # the 26 DoF names, filled lazily from the default hand model
 
 #: Largest frame side (pixels). Depth sensors top out at 1024 (Azure Kinect WFOV) or 1280×720;
 #: 4096² float32 is 64 MiB a frame, and tracking keeps about ten such arrays, so a frame this
@@ -59,15 +58,6 @@ def check_frame_size(width: int, height: int, where) -> None:
     if width > MAX_FRAME_SIDE or height > MAX_FRAME_SIDE:
         raise RecordingError(where, f"frames of {width}×{height} pixels are larger than the supported "
                                     f"{MAX_FRAME_SIDE}×{MAX_FRAME_SIDE}")
-
-
-def _dof_names() -> list[str]:
-    global DOF_COLUMNS
-    if DOF_COLUMNS is None:
-        from handmodel import HandModel
-
-        DOF_COLUMNS = list(HandModel.load().dof_names)
-    return DOF_COLUMNS
 
 
 def _natural_key(p: Path):
@@ -89,151 +79,6 @@ class Frame:
     depth: np.ndarray
     color: np.ndarray | None = None
     truth: np.ndarray | None = None
-
-
-# ----------------------------------------------------------------------------- PNG level
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_TYPES = {0: "greyscale", 2: "RGB", 3: "palette", 4: "greyscale+alpha", 6: "RGBA"}
-
-
-def png_header(data: bytes, where) -> tuple[int, int, int, str]:
-    """``(width, height, bit_depth, colour_type_name)`` from a PNG's IHDR chunk."""
-    if len(data) < 26 or data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR":
-        raise RecordingError(where, "unreadable PNG (no PNG signature / IHDR header)")
-    w, h = struct.unpack(">II", data[16:24])
-    return w, h, data[24], _PNG_TYPES.get(data[25], f"colour type {data[25]}")
-
-
-def _read_bytes(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(path, "missing frame file") from None
-    except OSError as exc:
-        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
-
-
-def _decode_png(data: bytes, where) -> np.ndarray:
-    import imageio.v3 as iio
-
-    try:
-        return np.asarray(iio.imread(data, extension=".png", plugin="pillow"))
-    except Exception as exc:  # Pillow raises many types for damaged files
-        raise RecordingError(where, f"unreadable PNG ({type(exc).__name__}: {exc})") from None
-
-
-def _png_bytes(a) -> bytes:
-    import imageio.v3 as iio
-
-    return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
-
-
-def _expect(header, camera: Camera, kind: str, where):
-    """Check a PNG header against the camera size and what ``kind`` (depth or color) needs."""
-    w, h, bits, ctype = header
-    if kind == "color":
-        what, need_bits, need_types = "colour frames need", 8, ("RGB", "RGBA")
-    elif camera.depth_encoding == "nyu_rgb":
-        what, need_bits, need_types = "depth encoding nyu_rgb needs", 8, ("RGB", "RGBA")
-    else:
-        what, need_bits, need_types = f"depth encoding {camera.depth_encoding} needs", 16, ("greyscale",)
-    need = f"{'an' if need_bits == 8 else 'a'} {need_bits}-bit {need_types[0]} PNG"
-    if bits != need_bits:
-        raise RecordingError(where, f"wrong bit depth: {bits}-bit {ctype} PNG, {what} {need}")
-    if ctype not in need_types:
-        raise RecordingError(where, f"wrong PNG type: {bits}-bit {ctype} PNG, {what} {need}")
-    if (w, h) != (camera.width, camera.height):
-        raise RecordingError(where, f"image is {w}×{h}, the camera says {camera.width}×{camera.height}")
-
-
-def read_depth_units(path, camera: Camera) -> np.ndarray:
-    """Stored depth units ``(H, W)`` uint16 of one depth PNG, checked against the camera."""
-    path = Path(path)
-    data = _read_bytes(path)
-    _expect(png_header(data, path), camera, "depth", path)
-    a = _decode_png(data, path)
-    if camera.depth_encoding == "nyu_rgb":
-        return (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
-    if a.dtype != np.uint16 or a.ndim != 2:  # e.g. a reader that widened the data
-        raise RecordingError(path, f"decoded as {a.dtype} {a.shape}, expected uint16 (H, W)")
-    return a
-
-
-def read_color(path, camera: Camera) -> np.ndarray:
-    """Colour frame ``(H, W, 3)`` uint8 of one PNG, checked against the camera."""
-    path = Path(path)
-    data = _read_bytes(path)
-    _expect(png_header(data, path), camera, "color", path)
-    return np.ascontiguousarray(_decode_png(data, path)[..., :3])
-
-
-def units_to_metres(units, camera: Camera) -> np.ndarray:
-    """Depth units → metres, float32 with NaN where the unit is 0."""
-    u = np.asarray(units)
-    d = (u * camera.depth_scale_m).astype(np.float32)
-    d[u == 0] = np.nan
-    return d
-
-
-def metres_to_units(depth_m, camera: Camera, where="depth") -> np.ndarray:
-    """Metres → depth units (uint16, rounded to the nearest unit; NaN, ±inf and 0 → 0 = no data).
-
-    Negative depths, depths beyond the encoding's range and positive depths under half a unit are
-    errors (they cannot be stored faithfully).
-    """
-    d = np.asarray(depth_m, float)
-    if d.shape != (camera.height, camera.width):
-        size = "×".join(map(str, d.shape[::-1])) or "a scalar"
-        raise RecordingError(where, f"depth frame is {size}, the camera says {camera.width}×{camera.height}")
-    finite = np.isfinite(d)
-    units = np.zeros(d.shape, float)
-    units[finite] = np.rint(d[finite] / camera.depth_scale_m)
-    bad = finite & (d < 0)
-    if bad.any():
-        raise RecordingError(where, f"negative depth ({d[bad].min():.4g} m)")
-    bad = units > MAX_UNITS
-    if bad.any():
-        raise RecordingError(where, f"depth {d[bad].max():.4g} m beyond the encoding's range "
-                                    f"{camera.max_depth_m:.4g} m (scale {camera.depth_scale_m:g} m)")
-    bad = finite & (d > 0) & (units == 0)
-    if bad.any():
-        raise RecordingError(where, f"depth {d[bad].min():.3g} m is under half a depth unit "
-                                    f"({camera.depth_scale_m:g} m)")
-    return units.astype(np.uint16)
-
-
-def encode_units(units, camera: Camera) -> np.ndarray:
-    """The image a PNG of the camera's depth encoding stores for these units."""
-    u = np.asarray(units, np.uint16)
-    if camera.depth_encoding == "nyu_rgb":
-        rgb = np.zeros(u.shape + (3,), np.uint8)
-        rgb[..., 1] = u >> 8
-        rgb[..., 2] = u & 255
-        return rgb
-    return u
-
-
-def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
-    """A decoded depth image (as stored) → metres (float32, NaN = no data), checking type and size."""
-    a = np.asarray(img)
-    if a.shape[:2] != (camera.height, camera.width):
-        raise RecordingError(where, f"image is {a.shape[1] if a.ndim > 1 else '?'}×{a.shape[0]}, "
-                                    f"the camera says {camera.width}×{camera.height}")
-    if camera.depth_encoding == "nyu_rgb":
-        if a.ndim != 3 or a.shape[2] < 3 or a.dtype != np.uint8:
-            raise RecordingError(where, f"depth encoding nyu_rgb needs an 8-bit RGB image, got {a.dtype} {a.shape}")
-        units = (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
-    else:
-        if a.ndim != 2 or a.dtype != np.uint16:
-            raise RecordingError(where, f"wrong bit depth: {a.dtype} {a.shape}, depth encoding uint16 needs "
-                                        "16-bit greyscale")
-        units = a
-    return units_to_metres(units, camera)
-
-
-def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
-    """Metres → the image stored in a depth PNG (see :func:`metres_to_units`)."""
-    return encode_units(metres_to_units(depth_m, camera, where), camera)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -270,7 +115,7 @@ def _read_truth(path: Path, n: int, fps: float):
 
     import pandas as pd
 
-    names = _dof_names()
+    names = list(DOF_NAMES)
     try:
         with open(path, newline="") as fh:
             rows = [r for r in csv.reader(fh) if r and not r[0].startswith("#")]
@@ -504,12 +349,12 @@ class RecordingWriter:
             raise RecordingError(self.path / "truth.csv", f"frame {self.n}: truth must be given for all frames or none")
         if truth is not None:
             t = np.asarray(truth, float)
-            if t.shape != (len(_dof_names()),):
+            if t.shape != (len(list(DOF_NAMES)),):
                 raise RecordingError(self.path / "truth.csv", f"frame {self.n}: truth must have shape "
-                                                              f"({len(_dof_names())},), got {t.shape}")
-        atomic_write_bytes(self.path / "depth" / name, _png_bytes(encode_units(units, self.camera)))
+                                                              f"({len(list(DOF_NAMES))},), got {t.shape}")
+        atomic_write_bytes(self.path / "depth" / name, png_bytes(encode_units(units, self.camera)))
         if has_color:
-            atomic_write_bytes(self.path / "color" / name, _png_bytes(c))
+            atomic_write_bytes(self.path / "color" / name, png_bytes(c))
         if truth is not None:
             self.truth.append(t.copy())
         self.color = has_color
@@ -524,7 +369,7 @@ class RecordingWriter:
             return
         self.path.mkdir(parents=True, exist_ok=True)
         if self.truth:
-            names = _dof_names()
+            names = list(DOF_NAMES)
             # repr() is the shortest text that reads back to the same float
             lines = [",".join(["frame", "time_s", *names])]
             lines += [",".join([str(i), repr(i / self.fps), *map(repr, map(float, t))])
@@ -565,7 +410,7 @@ def import_color(path, camera: Camera) -> np.ndarray:
         return read_color(path, camera)
     import imageio.v3 as iio
 
-    data = _read_bytes(path)
+    data = read_bytes(path)
     try:
         a = np.asarray(iio.imread(data, extension=".jpg", plugin="pillow"))
     except Exception as exc:  # Pillow raises many types for damaged files

@@ -14,7 +14,6 @@ from scipy import ndimage
 from tests.conftest import shared
 from tracker.cameras import Camera, preset
 from tracker.observe import backproject, observe
-from tracker.images import read_depth_units
 from tracker.segment import Segmenter, cut_forearm, focal_from_points, surfaces
 
 LABELS = ("realsense_sr305_lada", "labels")

@@ -1,0 +1,160 @@
+"""Depth and colour images as recordings store them: PNG headers checked before decoding, depth
+units ↔ metres for each camera's encoding (``uint16`` units, NYU's ``G·256+B``), colour frames.
+
+>>> import numpy as np
+>>> from tracker.cameras import preset
+>>> cam = preset("sr305")                      # 0.125 mm per unit
+>>> float(units_to_metres(np.array([8000], np.uint16), cam)[0])
+1.0
+"""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from .cameras import MAX_UNITS, Camera
+from .errors import RecordingError
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_TYPES = {0: "greyscale", 2: "RGB", 3: "palette", 4: "greyscale+alpha", 6: "RGBA"}
+
+
+def png_header(data: bytes, where) -> tuple[int, int, int, str]:
+    """``(width, height, bit_depth, colour_type_name)`` from a PNG's IHDR chunk."""
+    if len(data) < 26 or data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise RecordingError(where, "unreadable PNG (no PNG signature / IHDR header)")
+    w, h = struct.unpack(">II", data[16:24])
+    return w, h, data[24], _PNG_TYPES.get(data[25], f"colour type {data[25]}")
+
+
+def read_bytes(path: Path) -> bytes:
+    """A frame file's bytes; a missing or unreadable file is a RecordingError naming it."""
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise RecordingError(path, "missing frame file") from None
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _decode_png(data: bytes, where) -> np.ndarray:
+    try:
+        return np.asarray(iio.imread(data, extension=".png", plugin="pillow"))
+    except Exception as exc:  # Pillow raises many types for damaged files
+        raise RecordingError(where, f"unreadable PNG ({type(exc).__name__}: {exc})") from None
+
+
+def png_bytes(a) -> bytes:
+    """The PNG file of an image array."""
+    return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
+
+
+def _expect(header, camera: Camera, kind: str, where):
+    """Check a PNG header against the camera size and what ``kind`` (depth or color) needs."""
+    w, h, bits, ctype = header
+    if kind == "color":
+        what, need_bits, need_types = "colour frames need", 8, ("RGB", "RGBA")
+    elif camera.depth_encoding == "nyu_rgb":
+        what, need_bits, need_types = "depth encoding nyu_rgb needs", 8, ("RGB", "RGBA")
+    else:
+        what, need_bits, need_types = f"depth encoding {camera.depth_encoding} needs", 16, ("greyscale",)
+    need = f"{'an' if need_bits == 8 else 'a'} {need_bits}-bit {need_types[0]} PNG"
+    if bits != need_bits:
+        raise RecordingError(where, f"wrong bit depth: {bits}-bit {ctype} PNG, {what} {need}")
+    if ctype not in need_types:
+        raise RecordingError(where, f"wrong PNG type: {bits}-bit {ctype} PNG, {what} {need}")
+    if (w, h) != (camera.width, camera.height):
+        raise RecordingError(where, f"image is {w}×{h}, the camera says {camera.width}×{camera.height}")
+
+
+def read_depth_units(path, camera: Camera) -> np.ndarray:
+    """Stored depth units ``(H, W)`` uint16 of one depth PNG, checked against the camera."""
+    path = Path(path)
+    data = read_bytes(path)
+    _expect(png_header(data, path), camera, "depth", path)
+    a = _decode_png(data, path)
+    if camera.depth_encoding == "nyu_rgb":
+        return (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
+    if a.dtype != np.uint16 or a.ndim != 2:  # e.g. a reader that widened the data
+        raise RecordingError(path, f"decoded as {a.dtype} {a.shape}, expected uint16 (H, W)")
+    return a
+
+
+def read_color(path, camera: Camera) -> np.ndarray:
+    """Colour frame ``(H, W, 3)`` uint8 of one PNG, checked against the camera."""
+    path = Path(path)
+    data = read_bytes(path)
+    _expect(png_header(data, path), camera, "color", path)
+    return np.ascontiguousarray(_decode_png(data, path)[..., :3])
+
+
+def units_to_metres(units, camera: Camera) -> np.ndarray:
+    """Depth units → metres, float32 with NaN where the unit is 0."""
+    u = np.asarray(units)
+    d = (u * camera.depth_scale_m).astype(np.float32)
+    d[u == 0] = np.nan
+    return d
+
+
+def metres_to_units(depth_m, camera: Camera, where="depth") -> np.ndarray:
+    """Metres → depth units (uint16, rounded to the nearest unit; NaN, ±inf and 0 → 0 = no data).
+
+    Negative depths, depths beyond the encoding's range and positive depths under half a unit are
+    errors (they cannot be stored faithfully).
+    """
+    d = np.asarray(depth_m, float)
+    if d.shape != (camera.height, camera.width):
+        size = "×".join(map(str, d.shape[::-1])) or "a scalar"
+        raise RecordingError(where, f"depth frame is {size}, the camera says {camera.width}×{camera.height}")
+    finite = np.isfinite(d)
+    units = np.zeros(d.shape, float)
+    units[finite] = np.rint(d[finite] / camera.depth_scale_m)
+    bad = finite & (d < 0)
+    if bad.any():
+        raise RecordingError(where, f"negative depth ({d[bad].min():.4g} m)")
+    bad = units > MAX_UNITS
+    if bad.any():
+        raise RecordingError(where, f"depth {d[bad].max():.4g} m beyond the encoding's range "
+                                    f"{camera.max_depth_m:.4g} m (scale {camera.depth_scale_m:g} m)")
+    bad = finite & (d > 0) & (units == 0)
+    if bad.any():
+        raise RecordingError(where, f"depth {d[bad].min():.3g} m is under half a depth unit "
+                                    f"({camera.depth_scale_m:g} m)")
+    return units.astype(np.uint16)
+
+
+def encode_units(units, camera: Camera) -> np.ndarray:
+    """The image a PNG of the camera's depth encoding stores for these units."""
+    u = np.asarray(units, np.uint16)
+    if camera.depth_encoding == "nyu_rgb":
+        rgb = np.zeros(u.shape + (3,), np.uint8)
+        rgb[..., 1] = u >> 8
+        rgb[..., 2] = u & 255
+        return rgb
+    return u
+
+
+def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
+    """A decoded depth image (as stored) → metres (float32, NaN = no data), checking type and size."""
+    a = np.asarray(img)
+    if a.shape[:2] != (camera.height, camera.width):
+        raise RecordingError(where, f"image is {a.shape[1] if a.ndim > 1 else '?'}×{a.shape[0]}, "
+                                    f"the camera says {camera.width}×{camera.height}")
+    if camera.depth_encoding == "nyu_rgb":
+        if a.ndim != 3 or a.shape[2] < 3 or a.dtype != np.uint8:
+            raise RecordingError(where, f"depth encoding nyu_rgb needs an 8-bit RGB image, got {a.dtype} {a.shape}")
+        units = (a[..., 1].astype(np.uint16) << 8) | a[..., 2].astype(np.uint16)
+    else:
+        if a.ndim != 2 or a.dtype != np.uint16:
+            raise RecordingError(where, f"wrong bit depth: {a.dtype} {a.shape}, depth encoding uint16 needs "
+                                        "16-bit greyscale")
+        units = a
+    return units_to_metres(units, camera)
+
+
+def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
+    """Metres → the image stored in a depth PNG (see :func:`metres_to_units`)."""
+    return encode_units(metres_to_units(depth_m, camera, where), camera)
