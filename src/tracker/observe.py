@@ -23,7 +23,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .segment import Segmenter
+from .segment import Segmenter, bounds
 
 
 @dataclass
@@ -137,10 +137,10 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     mask = seg(d, color, backproject(d, camera) if boxed else None, focal=0.5 * (camera.fx + camera.fy))
     if not mask.any():
         return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride))
-    ys, xs = np.nonzero(mask)
+    (ya, yb), (xa, xb) = bounds(mask)
     pad = int(st.smooth) + 2
-    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)
-    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)
+    y0, y1 = max(ya - pad, 0), min(yb + pad + 1, H)
+    x0, x1 = max(xa - pad, 0), min(xb + pad + 1, W)
     dw = d[y0:y1, x0:x1]
     if st.smooth:
         dw = smooth_depth(dw, int(st.smooth))

@@ -152,9 +152,9 @@ def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
     follow the sensor's data again and the background between samples stays out; ``window`` is
     the slice pair outside which the mask is empty."""
     H, W = depth.shape
-    ys, xs = np.nonzero(coarse_mask)
-    y0, y1 = max((ys.min() - 1) * step, 0), min((ys.max() + 2) * step, H)
-    x0, x1 = max((xs.min() - 1) * step, 0), min((xs.max() + 2) * step, W)
+    (ya, yb), (xa, xb) = bounds(coarse_mask)
+    y0, y1 = max((ya - 1) * step, 0), min((yb + 2) * step, H)
+    x0, x1 = max((xa - 1) * step, 0), min((xb + 2) * step, W)
     win = (slice(y0, y1), slice(x0, x1))
     iy = np.clip(np.rint(np.arange(y0, y1) / step).astype(int), 0, coarse_mask.shape[0] - 1)
     ix = np.clip(np.rint(np.arange(x0, x1) / step).astype(int), 0, coarse_mask.shape[1] - 1)
@@ -190,6 +190,13 @@ def skin_mask(color):
     return (h >= h0) & (h <= h1) & (s >= s0) & (s <= s1) & (v >= v0) & (v <= v1)
 
 
+def bounds(mask):
+    """``((row_min, row_max), (col_min, col_max))`` of a non-empty boolean mask (inclusive)."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    return (int(rows[0]), int(rows[-1])), (int(cols[0]), int(cols[-1]))
+
+
 def largest_component(mask):
     """The largest 4-connected component of a boolean mask."""
     lab, n = ndimage.label(mask)
@@ -201,10 +208,10 @@ def largest_component(mask):
 
 def _largest_in_window(mask):
     """:func:`largest_component`, labelling only the mask's bounding box."""
-    ys, xs = np.nonzero(mask)
     out = np.zeros_like(mask)
-    if ys.size:
-        win = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    if mask.any():
+        (y0, y1), (x0, x1) = bounds(mask)
+        win = (slice(y0, y1 + 1), slice(x0, x1 + 1))
         out[win] = largest_component(mask[win])
     return out
 
@@ -237,21 +244,23 @@ def surfaces(depth, jump=0.02):
 def _reattach(lab, d, todo, jump):
     out = lab.copy()
     H, W = lab.shape
-    best = np.full(lab.shape, np.inf)
+    ty, tx = np.nonzero(todo)
+    if ty.size == 0:
+        return out
+    z = d[ty, tx]
+    best = np.full(ty.size, np.inf)
+    got = np.zeros(ty.size, lab.dtype)
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        nb_lab = np.zeros_like(lab)
-        nb_d = np.full(d.shape, np.nan)
-        ys = slice(max(dy, 0), H + min(dy, 0))
-        yd = slice(max(-dy, 0), H + min(-dy, 0))
-        xs = slice(max(dx, 0), W + min(dx, 0))
-        xd = slice(max(-dx, 0), W + min(-dx, 0))
-        nb_lab[yd, xd] = lab[ys, xs]
-        nb_d[yd, xd] = d[ys, xs]
+        ny, nx = ty + dy, tx + dx
+        inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
+        ny, nx = np.clip(ny, 0, H - 1), np.clip(nx, 0, W - 1)
+        nl = lab[ny, nx]
         with np.errstate(invalid="ignore"):
-            diff = np.abs(nb_d - d)
-            take = todo & (nb_lab > 0) & (diff <= jump) & (diff < best)
-        out[take] = nb_lab[take]
+            diff = np.abs(d[ny, nx] - z)
+            take = inside & (nl > 0) & (diff <= jump) & (diff < best)
+        got[take] = nl[take]
         best[take] = diff[take]
+    out[ty, tx] = got
     return out
 
 
@@ -359,9 +368,9 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     hit = np.unique(lab_c[seed])
     core = np.isin(lab_c, hit[hit > 0])
     # small surfaces close to the hand in the image and in depth: fingertip blobs
-    ys, xs = np.nonzero(core)
-    y0, y1 = max(ys.min() - margin_px, 0), min(ys.max() + margin_px + 1, d.shape[0])
-    x0, x1 = max(xs.min() - margin_px, 0), min(xs.max() + margin_px + 1, d.shape[1])
+    (ya, yb), (xa, xb) = bounds(core)
+    y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
+    x0, x1 = max(xa - margin_px, 0), min(xb + margin_px + 1, d.shape[1])
     win = (slice(y0, y1), slice(x0, x1))
     zone = (ndimage.maximum_filter(core[win], size=2 * int(margin_px) + 1, mode="constant")
             if margin_px > 0 else core[win])
@@ -417,10 +426,10 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it."""
     m = np.asarray(mask, bool)
-    ys, xs = np.nonzero(m)
+    (ya, yb), (xa, xb) = bounds(m)
     pad = 2
-    y0, x0 = max(ys.min() - pad, 0), max(xs.min() - pad, 0)
-    y1, x1 = min(ys.max() + pad + 1, m.shape[0]), min(xs.max() + pad + 1, m.shape[1])
+    y0, x0 = max(ya - pad, 0), max(xa - pad, 0)
+    y1, x1 = min(yb + pad + 1, m.shape[0]), min(xb + pad + 1, m.shape[1])
     sub = m[y0:y1, x0:x1]
     # close one-pixel no-data cracks so they do not split the palm circle
     solid = ndimage.binary_closing(sub, iterations=1) | sub
