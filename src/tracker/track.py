@@ -317,6 +317,8 @@ class HandTracker:
             self.scale_estimates_.append(s)
             self.scale_ = s
             self._use_scale(s)
+            # the sizes the search probed are not needed again
+            self._contexts = {k: v for k, v in self._contexts.items() if k == round(s, 5)}
             status = "reinit"
             self.prev = None
         elif self.lost or self.theta is None:
