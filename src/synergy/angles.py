@@ -65,7 +65,7 @@ def check_handedness(data, markerset, hand, *, model="default", frames=60, where
     """
     from handmodel import HandModel
 
-    from .calibrate import _golden, sample_frames
+    from .calibrate import golden_section, sample_frames
 
     ms = markerset.for_hand(hand)
     tg, _ = _targets(data, ms, where)
@@ -82,7 +82,7 @@ def check_handedness(data, markerset, hand, *, model="default", frames=60, where
             n, l = ms.attachments(hm, right, scale=scale)
             return _solve(hm, n, l, tg, weights)
 
-        scale = _golden(lambda s: float(np.nanmedian(fit(s)[1].rms_mm)), 0.6, 1.6, iterations=10)
+        scale = golden_section(lambda s: float(np.nanmedian(fit(s)[1].rms_mm)), 0.6, 1.6, iterations=10)
         _, rep = fit(scale)
         out[f"{key}residual_mm"] = float(np.nanmedian(rep.rms_mm))
         out[f"{key}limit_share"] = float(rep.at_limit[:, 6:].mean())
