@@ -361,30 +361,39 @@ def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None,
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0), guesses=(1.0, 1.25)):
+                    scale_range=(0.6, 2.0), guesses=(1.0, 1.25, 1.5), good_score=2.0):
     """The user's hand size from one frame. The cloud's extent against the open model's gives a
     first guess ``g`` (right for an open hand, too small for a curled one, which the cloud cannot
-    tell apart); from each of ``guesses`` × ``g`` the single-frame search runs at that size and
-    :func:`fit_scale` refines the size around it; the best-scoring result wins. When its size moved
-    far from its start, the search runs once more at the new size (a much wrong size can favour a
-    wrong pose) and the size is refined again. ``context_for(s)``: the :class:`FitContext` of the
-    hand scaled by ``s``. Returns ``(scale, θ, corr)``."""
+    tell apart). From each of ``guesses`` × ``g`` in turn, the single-frame search runs at that size
+    and :func:`fit_scale` refines the size around it; when the size moved far, the search runs again
+    at the new size (a much wrong size favours a wrong posture or orientation) and the size is
+    refined once more. The guesses stop at the first fit scoring below ``good_score`` (mm,
+    :func:`score`), else the best-scoring one wins; a last narrow search settles the size.
+    ``context_for(s)``: the :class:`FitContext` of the hand scaled by ``s``. Returns
+    ``(scale, θ, corr)``."""
     st = settings or InitSettings()
     base = context_for(1.0)
     lo, hi = scale_range
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
     sub = _thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
-    best = None
-    for s0 in sorted({float(np.clip(g * k, lo, hi)) for k in guesses}):
+
+    def search(s0, width):
         th, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
-        s1, th1, _, sc = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / 1.2),
-                                   min(hi, s0 * 1.2), silhouette=silhouette, normals=nsub)
-        if best is None or sc < best[0]:
-            best = (sc, s0, s1, th1)
-    _, s0, s1, th1 = best
-    if abs(np.log(s1 / s0)) > 0.08:
-        th1, _ = fit_single_frame(context_for(s1), points, st, silhouette=silhouette, normals=normals)
+        s1, th1, _, sc = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / width),
+                                   min(hi, s0 * width), silhouette=silhouette, normals=nsub)
+        return sc, s0, s1, th1
+
+    best = None
+    for s0 in dict.fromkeys(float(np.clip(g * k, lo, hi)) for k in guesses):
+        found = search(s0, 1.2)
+        if abs(np.log(found[2] / s0)) > 0.08:
+            found = min(found, search(found[2], 1.1), key=lambda f: f[0])
+        if best is None or found[0] < best[0]:
+            best = found
+        if best[0] < good_score:
+            break
+    _, _, s1, th1 = best
     # a last narrow search from a fit at (nearly) the final size: the probes of a wide one start from
     # a pose fitted at another size, and their short fits lean towards it
     s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.06),
