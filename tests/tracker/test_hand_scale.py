@@ -2,6 +2,7 @@
 (0.8–1.5 × the model), the size in the tracking output's header and the ``--hand-scale`` option."""
 import numpy as np
 import pytest
+from test_init_orientation import CAM, kp_mm, scene
 
 from handmodel import HandModel
 from tracker.errors import TrackerError
@@ -10,8 +11,6 @@ from tracker.run import tracking_metadata
 from tracker.sim.motions import POSTURES
 from tracker.track import HandTracker, TrackerSettings
 from tracker.track_cli import _hand_scale
-
-from test_init_orientation import CAM, kp_mm, scene
 
 BASE = HandModel.load()
 

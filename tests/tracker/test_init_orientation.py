@@ -56,7 +56,7 @@ def kp_mm(h1, t1, h2, t2):
 
 
 def test_model_to_data_cost_sees_free_space_and_the_silhouette():
-    th, ob, sil = scene(BASE, "palm", POSTURES["open"])
+    th, _, sil = scene(BASE, "palm", POSTURES["open"])
     ms = ModelSamples(BASE, spacing=0.006)
     at_truth = model_to_data_mm(ms, th, sil)
     # the true pose: nearly every sample where the camera allows it
@@ -122,7 +122,7 @@ def test_back_facing_resized_hand_found_the_right_way_up(bundle, scale):
     """A large hand seen from the back, its size known: the start search finds it, not the flipped fit
     (before the both-direction score and the facing-side placements: 56–68 mm, turned 180°)."""
     hand = BASE.scaled(scale)
-    th, ob, sil = scene(hand, "back", bundle.model.mean_)
+    th, ob, _ = scene(hand, "back", bundle.model.mean_)
     tr = HandTracker(BASE, TrackerSettings().replace(hand_scale=scale), synergies=bundle)
     r = tr.track(ob, CAM)
     err = kp_mm(hand, th, tr.hand, r.theta)
@@ -134,7 +134,7 @@ def test_back_facing_resized_hand_found_the_right_way_up(bundle, scale):
 def test_the_wrong_hand_is_reported(bundle):
     """A left hand tracked as a right one (the recording's handedness wrong): the check on the first
     frame says the left hand fits clearly better; tracked as the left one, it says nothing."""
-    th, ob, _ = scene(BASE, "palm", bundle.model.mean_)
+    _, ob, _ = scene(BASE, "palm", bundle.model.mean_)
     checks = {}
     for side, hand in (("left", BASE), ("right", BASE.mirrored())):
         tr = HandTracker(hand, TrackerSettings().replace(check_hand=True), synergies=bundle)
