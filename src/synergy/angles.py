@@ -11,14 +11,24 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+from scipy.signal import butter, filtfilt
 
+from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
+from handmodel.fileio import atomic_write_text
+from handmodel.solver import SolverSettings, fit_points
+from handmodel.subspace import Subspace
+
+from .c3d import read_c3d
+from .calibrate import Calibration, calibrate, golden_section, sample_frames
+from .errors import SynergyError
+from .markers import MarkerSet, load_markerset
 
 
 def lowpass_markers(points, rate, cutoff_hz, order=4):
     """Zero-phase Butterworth low-pass of marker trajectories ``(F, M, 3)``, gap-aware: each
     contiguous run of valid samples is filtered on its own; runs too short to filter stay raw."""
-    from scipy.signal import butter, filtfilt
 
     if not cutoff_hz or cutoff_hz >= rate / 2:
         return points
@@ -63,9 +73,6 @@ def check_handedness(data, markerset, hand, *, model="default", frames=60, where
     ``limit_share`` / ``other_limit_share`` (share of joint values on a limit), ``verdict``
     ('ok', 'other hand fits better', 'wrong hand').
     """
-    from handmodel import HandModel
-
-    from .calibrate import golden_section, sample_frames
 
     ms = markerset.for_hand(hand)
     tg, _ = _targets(data, ms, where)
@@ -94,7 +101,6 @@ def check_handedness(data, markerset, hand, *, model="default", frames=60, where
 
 
 def _solve(hm, nodes, local, tg, weights):
-    from handmodel.solver import SolverSettings, fit_points
 
     return fit_points(hm, nodes, local, tg, weights=weights, settings=SolverSettings(iterations=15, damping=0.1),
                       restarts=1)
@@ -188,18 +194,10 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         marker set, hand, calibration, extra markers) and ``diagnostics`` (noise floor, per-marker
         residuals, share of frames on each limit, handedness check, warnings, ``verdict``).
     """
-    import pandas as pd
 
-    from handmodel import HandModel
-    from handmodel.solver import SolverSettings, fit_points
-    from handmodel.subspace import Subspace
 
-    from .calibrate import Calibration, calibrate
-    from .errors import SynergyError
-    from .markers import MarkerSet, load_markerset
 
     if isinstance(data, (str, Path)):
-        from .c3d import read_c3d
 
         data = read_c3d(data)
     ms0 = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
@@ -284,7 +282,6 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
 
 def write_angles_csv(df, path, *, overwrite=False):
     """CSV with ``# key: value`` metadata lines (JSON values) before the header; atomic."""
-    from handmodel.fileio import atomic_write_text
 
     head = "".join(f"# {k}: {json.dumps(v, default=str)}\n" for k, v in df.attrs.items())
     body = df.to_csv(index=False, float_format="%.9g")
@@ -293,7 +290,6 @@ def write_angles_csv(df, path, *, overwrite=False):
 
 def read_angles_csv(path):
     """Read a joint-angle CSV written by :func:`write_angles_csv` (metadata back into ``df.attrs``)."""
-    import pandas as pd
 
     meta = {}
     with open(path) as fh:

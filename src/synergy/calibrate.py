@@ -33,9 +33,14 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
+import yaml
+from scipy.optimize import minimize
+from scipy.spatial.transform import Rotation
 
+from handmodel.fileio import atomic_write_text, load_yaml, schema_errors, sha256_file
 from handmodel.solver import SolverSettings, fit_points
 
 from .errors import MarkerSetError, SynergyError
@@ -199,8 +204,6 @@ def _orient_finger_bases(hand, nodes, local, palm, residual, cal):
     """Rest rotation of each finger base that best explains its finger's joint centres (the plane
     the finger flexes in differs between people and tracking systems): a small rotation, 3 numbers
     per finger, fitted by Nelder–Mead on the finger's marker residual after IK."""
-    from scipy.optimize import minimize
-    from scipy.spatial.transform import Rotation
 
     rots = {}
     for i in palm:
@@ -370,11 +373,9 @@ def scale_only(cal: Calibration) -> Calibration:
 
 
 def _sha256_of(data) -> str:
-    from pathlib import Path
 
     p = getattr(data, "path", None)
     if p and Path(p).is_file():
-        from handmodel.fileio import sha256_file
 
         return sha256_file(p)
     pts = np.ascontiguousarray(np.asarray(data.points, float))
@@ -402,9 +403,6 @@ def golden_section(f, lo, hi, iterations=14):
 def save_calibration(cal: Calibration, path, *, overwrite=False):
     """Write a subject calibration (YAML, ``data_schema/subject-calibration.schema.json``); atomic,
     never overwrites unless asked."""
-    import yaml
-
-    from handmodel.fileio import atomic_write_text, schema_errors
 
     doc = {"schema_version": CALIBRATION_VERSION, "kind": "subject-calibration", **cal.to_dict()}
     problem = schema_errors(doc, "subject-calibration")
@@ -415,7 +413,6 @@ def save_calibration(cal: Calibration, path, *, overwrite=False):
 
 def load_calibration(path) -> Calibration:
     """Read a subject calibration written by :func:`save_calibration` (validated)."""
-    from handmodel.fileio import load_yaml, schema_errors
 
     doc = load_yaml(path, SynergyError)
     if not isinstance(doc, dict):

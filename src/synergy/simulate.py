@@ -9,9 +9,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from handmodel import HandModel
 from handmodel.dofs import DOF_NAMES
 
 from .errors import SynergyError
+from .markers import MarkerSet, load_markerset
 
 MOTIONS = {
     "open_close": ("general", "all fingers close to a fist and open again, thumb following"),
@@ -160,9 +162,6 @@ def random_subject(markerset, *, bone_range=0.2, marker_shift_mm=5.0, seed=0):
     >>> len(b), len(m), max(abs(v - 1) for v in b.values()) <= 0.2
     (20, 16, True)
     """
-    from handmodel import HandModel
-
-    from .markers import MarkerSet, load_markerset
 
     ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
     hm = HandModel.load()
@@ -182,9 +181,6 @@ def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, 
     follow the subject's bones. Gaps are contiguous runs (occlusions) totalling ``gap_fraction`` of
     each marker's samples.
     """
-    from handmodel import HandModel
-
-    from .markers import MarkerSet, load_markerset
 
     ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
     raw_labels = [m.label for m in ms.markers]
