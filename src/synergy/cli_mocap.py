@@ -94,16 +94,10 @@ def simulate(
     from handmodel.fileio import check_output
 
     check_output(out, folder=True)  # a read-only or full disk fails before anything is simulated
-    import numpy as np
-    import pandas as pd
-    import yaml
     from rich.progress import Progress
 
-    from handmodel import HandModel
-    from handmodel.fileio import atomic_write_text
-    from synergy.c3d import TASK_EVENT, write_c3d
     from synergy.errors import SynergyError
-    from synergy.simulate import CALIBRATION_MOTIONS, MOTIONS, motion, random_subject, simulate_markers
+    from synergy.simulate import CALIBRATION_MOTIONS, MOTIONS, random_subject, write_trials
 
     known = {**MOTIONS, **CALIBRATION_MOTIONS}
     names = list(MOTIONS) if motions == "all" else [m.strip() for m in motions.split(",") if m.strip()]
@@ -116,33 +110,11 @@ def simulate(
         raise SynergyError("--units", f"must be mm, cm or m, got {units!r}")
     if trials < 1 or duration <= 0 or rate <= 0:
         raise SynergyError("simulate", "--trials, --duration and --rate must be positive")
-    dof = HandModel.load().dof_names
-    rows = []
-    task_rules = []
     with Progress(console=(c := _console(stderr=True)), transient=True, disable=not c.is_terminal) as progress:
         bar = progress.add_task("simulating", total=len(names) * trials)
-        for n in names:
-            for k in range(trials):
-                s = seed * 1000 + list(known).index(n) * 100 + k
-                th, task = motion(n, duration_s=duration, rate=rate, seed=s)
-                tr = simulate_markers(th, markers, hand=hand, scale=scale, noise_mm=noise_mm, gap_fraction=gaps,
-                                      rate=rate, seed=s + 7, motion_name=n, task=task, bone_scales=bones,
-                                      marker_shift=shift)
-                stem = f"{n}_{k + 1:02d}"
-                path = out / f"{stem}.c3d"
-                if path.exists():
-                    raise SynergyError(path, "exists and is never overwritten (choose another -o)")
-                write_c3d(path, tr.points, tr.labels, rate, units=units, prefix=prefix,
-                          events=[(f"{TASK_EVENT}{task}", 0.0, "General")])
-                truth = pd.DataFrame(th, columns=dof)
-                truth.insert(0, "time_s", np.arange(len(th)) / rate)
-                atomic_write_text(out / "truth" / f"{stem}.csv",
-                                  f"# motion: {n}\n# task: {task}\n# scale: {scale}\n# hand: {hand}\n"
-                                  + truth.to_csv(index=False, float_format="%.9g"), overwrite=False)
-                rows.append((path.name, n, task, len(th), f"{100 * np.isnan(tr.points[..., 0]).mean():.1f}"))
-                task_rules.append({"glob": f"{stem}.c3d", "task": task})
-                progress.advance(bar)
-    atomic_write_text(out / "tasks.yaml", yaml.safe_dump({"rules": task_rules}, sort_keys=False), overwrite=True)
+        rows = write_trials(out, names, trials=trials, markers=markers, hand=hand, duration=duration, rate=rate,
+                            noise_mm=noise_mm, gaps=gaps, scale=scale, bone_scales=bones, marker_shift=shift,
+                            units=units, prefix=prefix, seed=seed, on_trial=lambda: progress.advance(bar))
     _console().print(fit_table(f"simulated {len(rows)} trials → {out}", ("file", "motion", "task", "frames", "gap %"),
                                rows))
 

@@ -7,11 +7,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pathlib import Path
+
 import numpy as np
+import pandas as pd
+import yaml
 
 from handmodel import HandModel
 from handmodel.dofs import DOF_NAMES
+from handmodel.fileio import atomic_write_text
 
+from .c3d import TASK_EVENT, write_c3d
 from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
 
@@ -213,3 +219,39 @@ def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, 
     return SimulatedTrial(labels=[m.label for m in ms.markers], points=pts, rate=rate, theta=np.asarray(theta),
                           task=task, motion=motion_name, scale=scale, hand=hand, residuals=res,
                           bone_scales=dict(bone_scales or {}), marker_shift=dict(marker_shift or {}))
+
+
+def write_trials(out, names, *, trials=2, markers="hand16", hand="left", duration=4.0, rate=100.0, noise_mm=0.3,
+                 gaps=0.02, scale=1.0, bone_scales=None, marker_shift=None, units="mm", prefix="Sim", seed=0,
+                 on_trial=None) -> list[tuple]:
+    """Simulate ``trials`` trials of each motion in ``names`` into the folder ``out``: one C3D per trial
+    (with a ``task:`` event), its ground-truth angles in ``truth/<trial>.csv`` and the task map
+    ``tasks.yaml``. Existing trial files are never overwritten. ``on_trial()`` is called after each
+    trial. Returns one row per trial: file name, motion, task, frames, gap %."""
+    out = Path(out)
+    known = {**MOTIONS, **CALIBRATION_MOTIONS}
+    rows, task_rules = [], []
+    for n in names:
+        for k in range(trials):
+            s = seed * 1000 + list(known).index(n) * 100 + k
+            th, task = motion(n, duration_s=duration, rate=rate, seed=s)
+            tr = simulate_markers(th, markers, hand=hand, scale=scale, noise_mm=noise_mm, gap_fraction=gaps,
+                                  rate=rate, seed=s + 7, motion_name=n, task=task, bone_scales=bone_scales,
+                                  marker_shift=marker_shift)
+            stem = f"{n}_{k + 1:02d}"
+            path = out / f"{stem}.c3d"
+            if path.exists():
+                raise SynergyError(path, "exists and is never overwritten (choose another -o)")
+            write_c3d(path, tr.points, tr.labels, rate, units=units, prefix=prefix,
+                      events=[(f"{TASK_EVENT}{task}", 0.0, "General")])
+            truth = pd.DataFrame(th, columns=list(DOF_NAMES))
+            truth.insert(0, "time_s", np.arange(len(th)) / rate)
+            atomic_write_text(out / "truth" / f"{stem}.csv",
+                              f"# motion: {n}\n# task: {task}\n# scale: {scale}\n# hand: {hand}\n"
+                              + truth.to_csv(index=False, float_format="%.9g"), overwrite=False)
+            rows.append((path.name, n, task, len(th), f"{100 * np.isnan(tr.points[..., 0]).mean():.1f}"))
+            task_rules.append({"glob": f"{stem}.c3d", "task": task})
+            if on_trial is not None:
+                on_trial()
+    atomic_write_text(out / "tasks.yaml", yaml.safe_dump({"rules": task_rules}, sort_keys=False), overwrite=True)
+    return rows
