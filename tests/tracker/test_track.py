@@ -126,10 +126,13 @@ def test_single_frame_hierarchical_better_than_flat(bundle, postures):
     finger (864), the two failure kinds the README lists; the rest must be well under 1°."""
     res = E.experiment_single_frame(HAND, bundle, CAM, n=6, icp=30, seed=1)
     print(f"\nsingle frame rows {res['rows']}:")
-    for key, _, _ in E.SINGLE_METHODS:
+    for key, *_ in E.SINGLE_METHODS:
         print(f"  {key:20s} {np.round(res[key + '_frames'], 2)}  {res['s_' + key][0]:.2f} s/frame")
-    # the paper's finding: from the mean posture, hierarchical beats flat
+    # the paper's finding: from the mean posture, hierarchical beats flat — here with our estimation;
+    # with the paper's plain least squares both fits from the mean stay far off on our renderer
+    # (medians ~37° and ~21°: the report shows them), and the start search beats them by far
     assert res["hierarchical_plain"][1] < res["flat_plain"][1]
+    assert res["hierarchical"][1] < res["hierarchical_paper"][1] and res["flat"][1] < res["flat_paper"][1]
     # ours: the start search makes most frames exact, and never loses to the plain fit on average
     assert res["hierarchical"][1] <= 1.0
     assert res["hierarchical_share"][1.0] >= 4 / 6

@@ -246,16 +246,19 @@ def experiment_occlusion(hand, camera, frames=45, seed=0):
     return res
 
 
-SINGLE_METHODS = (  # key, mode, search: the paper's two (its method from the mean posture only) and ours
-    ("flat_plain", "full", False), ("hierarchical_plain", "hierarchical", False),
-    ("flat", "full", True), ("hierarchical", "hierarchical", True))
+SINGLE_METHODS = (  # key, mode, search, settings: the paper's two fits from the mean posture with its method
+    ("flat_paper", "full", False, "paper"), ("hierarchical_paper", "hierarchical", False, "paper"),
+    # … the same two fits with our estimation (silhouette term, Cauchy weights, normal test) …
+    ("flat_plain", "full", False, "ours"), ("hierarchical_plain", "hierarchical", False, "ours"),
+    # … and ours: the start search (synergy grid, finger-wise restarts) first
+    ("flat", "full", True, "ours"), ("hierarchical", "hierarchical", True, "ours"))
 
 
 def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=SINGLE_METHODS):
     """Single frames from the global pose only (posture unknown), full cloud. The paper's flat (all
-    DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean with
-    ``TrackerSettings.paper()`` (``*_plain``), and ours: our defaults after the start search (synergy
-    grid, finger-wise restarts).
+    DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean, with
+    ``TrackerSettings.paper()`` (``*_paper``) and with our estimation (``*_plain``), and ours: our
+    defaults after the start search (synergy grid, finger-wise restarts).
 
     Returns per method ``(mean, median)`` degrees, ``<key>_frames`` (per frame), ``<key>_share``
     (share of frames ≤ 1, 2, 5°) and ``s_<key>`` (seconds per frame, mean and median)."""
@@ -263,10 +266,10 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(P), n, replace=False)
     ren = DepthRenderer(hand, camera)
-    ours = _tracker(hand, bundle, mode="full", init_icp_iterations=icp)
-    paper = _tracker(hand, bundle, paper=True, mode="full", init_icp_iterations=icp)
-    out = {k: [] for k, _, _ in methods}
-    sec = {k: [] for k, _, _ in methods}
+    trackers = {"ours": _tracker(hand, bundle, mode="full", init_icp_iterations=icp),
+                "paper": _tracker(hand, bundle, paper=True, mode="full", init_icp_iterations=icp)}
+    out = {k: [] for k, *_ in methods}
+    sec = {k: [] for k, *_ in methods}
     for i, row in enumerate(rows):
         truth = sequence(P[row:row + 1], bundle.model.mean_, lead=0, distance=0.6 + 0.3 * (i % 4) / 3)[0]
         depth = ren.render(truth, labels=False).depth
@@ -274,10 +277,9 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
         sil = Silhouette(ob.mask, ob.depth, camera)
         start = truth.copy()
         start[~hand.pose_mask] = bundle.model.mean_
-        for key, mode, search in methods:
+        for key, mode, search, which in methods:
             t0 = time.perf_counter()
-            tr = ours if search else paper
-            th, _ = tr.fit_single_frame(ob.points, theta0=start, mode=mode, silhouette=sil, normals=ob.normals,
+            th, _ = trackers[which].fit_single_frame(ob.points, theta0=start, mode=mode, silhouette=sil, normals=ob.normals,
                                         postures=None if search else [bundle.model.mean_], search=search)
             sec[key].append(time.perf_counter() - t0)
             out[key].append(float(posture_error_deg(th, truth, hand.pose_mask)))
