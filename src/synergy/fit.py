@@ -59,8 +59,16 @@ class Trial:
         return int(self.postures.shape[0])
 
     def source(self) -> dict:
-        """The manifest's record of this trial: ``{path, sha256, task, frames}``."""
-        return {"path": self.path, "sha256": self.sha256, "task": self.task, "frames": self.frames}
+        """The manifest's record of this trial: ``{path, sha256, task, frames}`` and, for a C3D trial,
+        its ``conversion`` (marker set, hand, residuals, verdict)."""
+        out = {"path": self.path, "sha256": self.sha256, "task": self.task, "frames": self.frames}
+        c = self.conversion
+        if c:
+            out["conversion"] = {"markerset": c["markerset"], "hand": c["hand"],
+                                 "residual_median_mm": c["residual_median_mm"],
+                                 "residual_p95_mm": c["residual_p95_mm"], "ok_share": c["ok_share"],
+                                 "verdict": c["verdict"]}
+        return out
 
 
 def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,

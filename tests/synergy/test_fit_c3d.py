@@ -155,6 +155,12 @@ def test_poor_trial_refused_then_accepted(right_trial, left_subject, tmp_path):
     assert r.exit_code == 0, r.output
     assert "power_grasp_01.c3d: fitted despite a poor conversion (--accept-poor): the right hand fits" in r.output
     assert (tmp_path / "poor-1.0.0.npz").exists()
+    # the bundle's manifest keeps the verdict with the source, sealed by its hash
+    from synergy.bundle import read_bundle
+
+    src = read_bundle(tmp_path / "poor-1.0.0.npz").manifest["sources"][0]
+    assert src["conversion"]["verdict"] == "poor" and src["conversion"]["markerset"] == "hand16"
+    assert src["conversion"]["hand"] == "left" and src["conversion"]["residual_median_mm"] > 0
 
 
 def test_file_no_set_fits_is_one_line_exit_2(tmp_path):
