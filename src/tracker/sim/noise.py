@@ -280,46 +280,60 @@ class NoiseModel:
         d[~valid[win]] = np.nan
         cosi = None if cos_incidence is None else np.asarray(cos_incidence, float)[win]
 
-        if self.shadow:
-            sh = np.zeros(d.shape, np.bool_)
-            projector_shadow(d, self.focal(camera) * self.baseline_m, self.projector_side, sh)
-            d[sh] = np.nan
-        if self.grazing_deg is not None and cosi is not None:
-            d[rng.random(d.shape) < self.grazing_loss(cosi)] = np.nan
-        if self.needs_reflectance and reflectance is not None:
-            with np.errstate(invalid="ignore"):
-                dark = np.asarray(reflectance, float)[win] < self.dark_reflectance
-            d[dark & (rng.random(d.shape) < self.dark_drop_prob)] = np.nan
-        if self.lateral_px > 0:
-            d, cosi = _lateral(d, cosi, self.lateral_px, self.angle_terms, max(jitter, 1), rng)
-        if self.edge_drop_prob > 0 and self.edge_width_px > 0:
-            near_edge = _edge_band(d, self.edge_width_px, self.edge_jump_m)
-            d[near_edge & (rng.random(d.shape) < self.edge_drop_prob)] = np.nan
-        if self.flying_prob > 0:
-            d = _flying(d, self.edge_jump_m, self.flying_prob, rng)
+        d, cosi = _holes(self, d, cosi, None if reflectance is None else np.asarray(reflectance, float)[win], camera,
+                         jitter, rng)
         ok = np.isfinite(d)
-        z = d[ok]
-        if self.axial:
-            s = self.sigma_z(z, None if cosi is None else cosi[ok])
-            if self.quantize and self.axial_includes_quantization:
-                q = self.quantization_step(z, camera)
-                s = np.sqrt(np.maximum(s ** 2 - q ** 2 / 12.0, 0.0))
-            z = z + s * rng.standard_normal(z.shape)
-        if self.quantize:
-            fb = self.focal(camera) * self.baseline_m
-            step = self.disparity_step_px
-            disp = np.round(fb / np.maximum(z, 1e-6) / step) * step
-            z = np.where(disp > 0, fb / np.maximum(disp, 1e-12), np.nan)
-        if self.depth_step_m > 0:
-            z = np.round(z / self.depth_step_m) * self.depth_step_m
-        lo, hi = self.range_m
-        z = np.where((z >= lo) & (z <= hi), z, np.nan)
+        z = _perturbed(self, d[ok], None if cosi is None else cosi[ok], camera, rng)
         d[ok] = z
         if self.random_drop_prob > 0:
             d[rng.random(d.shape) < self.random_drop_prob] = np.nan
         out[win] = d
         return out
 
+
+
+def _holes(nm, d, cosi, reflectance, camera, jitter, rng):
+    """Pixels a sensor loses or misplaces: projector shadows, grazing and dark surfaces, lateral
+    jitter, edge drop-outs and flying pixels (in this order: the random draws follow it)."""
+    if nm.shadow:
+        sh = np.zeros(d.shape, np.bool_)
+        projector_shadow(d, nm.focal(camera) * nm.baseline_m, nm.projector_side, sh)
+        d[sh] = np.nan
+    if nm.grazing_deg is not None and cosi is not None:
+        d[rng.random(d.shape) < nm.grazing_loss(cosi)] = np.nan
+    if nm.needs_reflectance and reflectance is not None:
+        with np.errstate(invalid="ignore"):
+            dark = reflectance < nm.dark_reflectance
+        d[dark & (rng.random(d.shape) < nm.dark_drop_prob)] = np.nan
+    if nm.lateral_px > 0:
+        d, cosi = _lateral(d, cosi, nm.lateral_px, nm.angle_terms, max(jitter, 1), rng)
+    if nm.edge_drop_prob > 0 and nm.edge_width_px > 0:
+        near_edge = _edge_band(d, nm.edge_width_px, nm.edge_jump_m)
+        d[near_edge & (rng.random(d.shape) < nm.edge_drop_prob)] = np.nan
+    if nm.flying_prob > 0:
+        d = _flying(d, nm.edge_jump_m, nm.flying_prob, rng)
+    return d, cosi
+
+
+def _perturbed(nm, z, cosi, camera, rng):
+    """Depths ``z`` of the surviving pixels with axial noise, disparity or depth quantisation and the
+    sensor's range applied (NaN outside it)."""
+    if nm.axial:
+        s = nm.sigma_z(z, None if cosi is None else cosi)
+        if nm.quantize and nm.axial_includes_quantization:
+            q = nm.quantization_step(z, camera)
+            s = np.sqrt(np.maximum(s ** 2 - q ** 2 / 12.0, 0.0))
+        z = z + s * rng.standard_normal(z.shape)
+    if nm.quantize:
+        fb = nm.focal(camera) * nm.baseline_m
+        step = nm.disparity_step_px
+        disp = np.round(fb / np.maximum(z, 1e-6) / step) * step
+        z = np.where(disp > 0, fb / np.maximum(disp, 1e-12), np.nan)
+    if nm.depth_step_m > 0:
+        z = np.round(z / nm.depth_step_m) * nm.depth_step_m
+    lo, hi = nm.range_m
+    z = np.where((z >= lo) & (z <= hi), z, np.nan)
+    return z
 
 def _theta(cos_incidence) -> np.ndarray:
     c = np.clip(np.abs(np.nan_to_num(np.asarray(cos_incidence, float), nan=1.0)), 0.0, 1.0)
