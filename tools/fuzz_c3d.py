@@ -150,6 +150,17 @@ def run(corpus: Path, mutants: int, seed: int, jobs: int, timeout: float, keep: 
         p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1)
         return {"proc": p, "step": step, "current": None, "since": time.monotonic()}
 
+    def lost(j: dict, kind: str, detail: str = "") -> int:
+        """A job lost inside its current mutant (a crash or a hang): count, log and keep the mutant, and
+        carry the job's share of mutants on from the next one. Returns the mutants done (1)."""
+        counts[kind] += 1
+        log(f"{kind.upper()} mutant {j['current']} {detail}".rstrip())
+        save(j["current"], kind)
+        nxt = j["current"] + j["step"]
+        if nxt < mutants:
+            running.append(spawn(nxt, j["step"]))
+        return 1
+
     running = [spawn(j, jobs) for j in range(min(jobs, mutants))]
     done = 0
     t_start = time.monotonic()
@@ -164,13 +175,7 @@ def run(corpus: Path, mutants: int, seed: int, jobs: int, timeout: float, keep: 
                 rc = j["proc"].wait()
                 running.remove(j)
                 if j["current"] is not None:              # died inside a mutant: a crash
-                    counts["crash"] += 1
-                    done += 1
-                    log(f"CRASH mutant {j['current']} (exit {rc})")
-                    save(j["current"], "crash")
-                    nxt = j["current"] + j["step"]
-                    if nxt < mutants:
-                        running.append(spawn(nxt, j["step"]))
+                    done += lost(j, "crash", f"(exit {rc})")
                 continue
             msg = json.loads(line)
             if msg.get("start"):
@@ -192,13 +197,7 @@ def run(corpus: Path, mutants: int, seed: int, jobs: int, timeout: float, keep: 
                 j["proc"].kill()
                 j["proc"].wait()
                 running.remove(j)
-                counts["hang"] += 1
-                done += 1
-                log(f"HANG mutant {j['current']}")
-                save(j["current"], "hang")
-                nxt = j["current"] + j["step"]
-                if nxt < mutants:
-                    running.append(spawn(nxt, j["step"]))
+                done += lost(j, "hang")
     return {**counts, "mutants": done, "max_rss_mb": round(max_rss_kb / 1024, 1),
             "slowest_s": round(slowest, 2), "seconds": round(time.monotonic() - t_start, 1)}
 
