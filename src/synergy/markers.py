@@ -21,7 +21,6 @@ from __future__ import annotations
 import fnmatch
 import json
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import pickle
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 from conftest import SHARED_DATA
 
