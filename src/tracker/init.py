@@ -87,16 +87,22 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
 MODEL_TO_DATA_WEIGHT = 2.0
 
 
+def _palm_side(hand, posture):
+    """θ at ``posture`` (pose zero), the model's surface samples and normals there, and the samples of
+    its palm-side half (what a camera in front of the palm sees)."""
+    base = np.zeros(hand.n_dofs)
+    base[~hand.pose_mask] = posture
+    S, _, N = surface_samples(hand, base, spacing=0.004)
+    return base, S, N, S[N[:, 2] < 0]
+
+
 def placements(hand, points, posture) -> list[np.ndarray]:
     """Candidate global poses from the cloud: the model's palm-side surface centroid on the data
     centroid, its principal axes on the data's (the four sign choices, each rolled about the main
     axis by 0, ±45 and ±90°: a curled hand's main axis need not be the fingers')."""
-    base = np.zeros(hand.n_dofs)
-    base[~hand.pose_mask] = posture
-    S, _, N = surface_samples(hand, base, spacing=0.004)
-    # what a camera in front of the palm sees: the palm-side half (its axes only: each placement is
-    # centred by the half that faces the camera in it, the palm or the back)
-    ms = S[N[:, 2] < 0]
+    base, S, N, ms = _palm_side(hand, posture)
+    # the palm-side half gives the axes only: each placement is centred by the half that faces the
+    # camera in it, the palm or the back
     mc = ms.mean(0)
     dc = points.mean(0)
     _, _, Vm = np.linalg.svd(ms - mc, full_matrices=False)
@@ -195,7 +201,7 @@ def finger_search(ctx: FitContext, best, points, settings: InitSettings, *, silh
     finger in turn is set to a few shapes (the rest of the hand as found), refitted briefly with all
     DoF on a thinned cloud; the best is refitted on the full cloud and kept only when the whole-frame
     score improves. Repeated while a sweep improves something. ``best``: ``(score, θ, corr)``."""
-    sub = _thin(points, settings.coarse_points)
+    sub = thin(points, settings.coarse_points)
     nsub = None if normals is None else normals[sub]
     s_best, theta, corr = best
     for _ in range(sweeps):
@@ -220,7 +226,7 @@ def finger_search(ctx: FitContext, best, points, settings: InitSettings, *, silh
     return s_best, theta, corr
 
 
-def _thin(points, n):
+def thin(points, n):
     """Every k-th point, about ``n`` of them: the cloud that ranks candidates."""
     return slice(None, None, max(1, len(points) // n))
 
@@ -237,7 +243,7 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
     st = settings or InitSettings()
     hand = ctx.hand
     mode = mode or ("hierarchical" if ctx.synergies is not None else "full")
-    sub = _thin(points, st.coarse_points)
+    sub = thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
     post = ~hand.pose_mask
     n_post = int(post.sum())
@@ -306,10 +312,7 @@ def extent_scale(hand, points, posture) -> float:
     """A first guess of the hand's global scale: the spread of the cloud over that of the model's
     palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
     this only brackets the scale; :func:`fit_scale` finds it."""
-    base = np.zeros(hand.n_dofs)
-    base[~hand.pose_mask] = posture
-    S, _, N = surface_samples(hand, base, spacing=0.004)
-    ms = S[N[:, 2] < 0]
+    ms = _palm_side(hand, posture)[3]
     ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
     ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
     return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
@@ -375,7 +378,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     base = context_for(1.0)
     lo, hi = scale_range
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
-    sub = _thin(points, st.coarse_points)
+    sub = thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
 
     def search(s0, width):

@@ -27,7 +27,7 @@ from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, fit, tracking_schedule
 from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
-                   score)
+                   score, thin)
 from .observe import ObserveSettings
 
 LIMITS = ("anatomical", "data", "model")
@@ -267,7 +267,7 @@ class HandTracker:
         """One more frame's size estimate (a narrow search around the current size from this frame's
         fit); the size becomes the median of the estimates so far, θ follows it."""
         s = self.scale_
-        sub = slice(None, None, max(1, len(pts) // self.settings.init.coarse_points))
+        sub = thin(pts, self.settings.init.coarse_points)
         est, _, _, _ = fit_scale(self.context_for, self.theta, self.hand, pts[sub], s / 1.1, s * 1.1, silhouette=sil,
                                  normals=None if nrm is None else nrm[sub])
         self.scale_estimates_.append(est)
