@@ -16,16 +16,25 @@ reader (``tracker track`` writes it; ``tracker eval``, the experiments and users
 from __future__ import annotations
 
 import io
+import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from handmodel.dofs import DOF_NAMES
+from handmodel.cliutil import error_line
+from handmodel.errors import ToolkitError
 from handmodel.fileio import atomic_write_text
+from handmodel.model import HandModel
+from synergy.bundle import load_bundle
 
 from .errors import TrackerError
 from .observe import observe
+from .plots import overlay_png
+from .recording import Recording
+from .track import HandTracker, TrackerSettings
 
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
 STATUSES = ("tracked", "lost", "reinit")
@@ -138,3 +147,187 @@ def keypoints_table(hand, df) -> pd.DataFrame:
     kd = pd.DataFrame(kps, columns=[f"{n}_{a}_mm" for n in hand.keypoint_names for a in "xyz"])
     kd.insert(0, "frame", df["frame"].to_numpy())
     return kd
+
+
+# ----------------------------------------------------------------------------- one run, many runs
+@dataclass(frozen=True)
+class TrackJob:
+    """One recording to track and where its outputs go, as plain picklable values (a Dask task or
+    another process runs it the same way as this one).
+
+    Parameters
+    ----------
+    recording : the recording (a folder, or a file :class:`tracker.recording.Recording` opens)
+    output : the tracking output CSV
+    settings : :class:`tracker.track.TrackerSettings`
+    synergies, registries : the synergy bundle spec and extra registry folders (None: full mode only)
+    hand_model : hand model name or YAML path (mirrored for a right-handed recording)
+    segmenter : :class:`tracker.segment.Segmenter` (None: its defaults)
+    keypoints, overlay, overlay_every : the keypoints CSV, the overlay PNG folder and its frame step
+    rerun, rerun_spawn : the Rerun ``.rrd`` to write, and whether to stream to a spawned viewer
+    overwrite : replace existing outputs
+    handedness : the hand tracked when the source does not say (a live camera)
+    """
+
+    recording: str
+    output: str
+    settings: TrackerSettings = field(default_factory=TrackerSettings)
+    synergies: str | None = None
+    registries: tuple = ()
+    hand_model: str = "default"
+    segmenter: object = None
+    keypoints: str | None = None
+    overlay: str | None = None
+    overlay_every: int = 10
+    rerun: str | None = None
+    rerun_spawn: bool = False
+    overwrite: bool = False
+    handedness: str = "left"
+
+
+@dataclass
+class TrackRun:
+    """What :func:`run_job` did: the table and header written, the tracker (its hand size and
+    handedness check), the recording, the wall time and the overlay frames written."""
+
+    df: pd.DataFrame
+    meta: dict
+    tracker: HandTracker
+    recording: object
+    wall_s: float
+    overlays: list
+    rerun: Path | None = None
+
+
+def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
+    """Track ``job.recording`` (or ``source``, an open recording-like source such as a live camera)
+    and write its outputs: the tracking CSV, optional keypoints, overlays and Rerun file.
+
+    ``on_frame(frame, result, observation)`` is called after each frame, after the overlay and
+    viewer have had it. Outputs are written only after the last frame, each atomically."""
+    rec = source if source is not None else Recording.open(job.recording)
+    if job.settings.mode != "full" and not job.synergies:
+        raise TrackerError("--synergies", f"mode {job.settings.mode!r} needs a synergy bundle")
+    bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None
+    handedness = getattr(rec, "handedness", None) or job.handedness
+    hand = HandModel.load(job.hand_model, right=handedness == "right")
+    tracker = HandTracker(hand, job.settings, synergies=bundle)
+    cam = rec.camera
+    overlay = None if job.overlay is None else Path(job.overlay)
+    viewer = None
+    if job.rerun is not None or job.rerun_spawn:
+        from .viewer import RerunLog  # an optional extra ([viz]): loaded only when asked for
+
+        viewer = RerunLog(cam, job.rerun, spawn=job.rerun_spawn, overwrite=job.overwrite,
+                          name=f"tracker {Path(str(job.recording)).name}")
+    written = []
+
+    def each(frame, r, ob):
+        if overlay is not None and ob is not None and frame.index % max(job.overlay_every, 1) == 0:
+            overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status,
+                        mask=ob.mask)
+            written.append(frame.index)
+        if viewer is not None:
+            viewer.log_frame(frame, r, ob, tracker.hand)
+        if on_frame is not None:
+            on_frame(frame, r, ob)
+
+    t_start = time.perf_counter()
+    try:
+        df = track_recording(rec, tracker, each, segmenter=job.segmenter)
+    except BaseException:
+        if viewer is not None:
+            viewer.abort()
+        raise
+    wall_s = time.perf_counter() - t_start
+    meta = tracking_metadata(job.recording, tracker, bundle.spec if bundle else "")
+    try:
+        # without overwrite a file that appeared while tracking is not replaced either
+        write_tracking(job.output, df, meta, overwrite=job.overwrite)
+        if job.keypoints is not None:
+            atomic_write_text(job.keypoints, keypoints_table(tracker.hand, df).to_csv(index=False, float_format="%.4f"),
+                              overwrite=job.overwrite)
+    except BaseException:
+        if viewer is not None:
+            viewer.abort()
+        raise
+    rrd = viewer.close() if viewer is not None else None
+    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd)
+
+
+#: Columns of the summary table of many recordings (:func:`summary_row`).
+SUMMARY_COLUMNS = ("recording", "output", "frames", "tracked", "lost", "reinit", "median_fit_mm", "median_ms",
+                   "wall_s", "hand_scale", "error")
+
+
+def summary_row(job: TrackJob, run: TrackRun | None = None, error: str = "") -> dict:
+    """One row of the summary of many recordings: counts and medians of a run, or the error that
+    stopped it (one line naming the file)."""
+    row = dict.fromkeys(SUMMARY_COLUMNS, "")
+    row.update(recording=str(job.recording), output=str(job.output), error=error)
+    if run is not None:
+        st = run.df["status"]
+        row.update(frames=len(run.df), tracked=int((st == "tracked").sum()), lost=int((st == "lost").sum()),
+                   reinit=int((st == "reinit").sum()), median_fit_mm=float(run.df["fit_mm"].median()),
+                   median_ms=float(run.df["ms"].median()), wall_s=float(run.wall_s), hand_scale=run.meta["hand_scale"])
+    return row
+
+
+def run_job_row(job: TrackJob) -> dict:
+    """:func:`run_job` as one task of many: its summary row, with a bad input or an unwritable
+    output reported in the row (``error``) instead of raised, so the other recordings go on."""
+    try:
+        return summary_row(job, run_job(job))
+    except (ToolkitError, OSError) as exc:
+        return summary_row(job, error=error_line(exc).removeprefix("error: "))
+
+
+def batch_jobs(recordings, outdir, template: TrackJob) -> list[TrackJob]:
+    """One job per recording, its output ``OUTDIR/<name>.csv`` (``<name>`` the folder's name or the
+    file's stem); two recordings with the same name are refused (their outputs would collide)."""
+    outdir = Path(outdir)
+    jobs, seen = [], {}
+    for r in recordings:
+        r = Path(r)
+        name = r.name if r.is_dir() else r.stem
+        if name in seen:
+            raise TrackerError(r, f"has the same name as {seen[name]}: both would write {outdir / (name + '.csv')}")
+        seen[name] = r
+        jobs.append(replace(template, recording=str(r), output=str(outdir / f"{name}.csv")))
+    return jobs
+
+
+def track_many(jobs, *, dask=None, on_done=None) -> pd.DataFrame:
+    """Run ``jobs`` one by one here, or as Dask tasks (``dask``: ``local``, ``local:N`` or a
+    scheduler address, as ``synergy fit --dask``); a failing recording is reported in its row and
+    the rest go on. ``on_done(row)`` is called as each finishes. Returns the summary table
+    (:data:`SUMMARY_COLUMNS`), in the order of ``jobs``."""
+    rows = [None] * len(jobs)
+    if dask is None:
+        for i, job in enumerate(jobs):
+            rows[i] = run_job_row(job)
+            if on_done is not None:
+                on_done(rows[i])
+    else:
+        # an optional extra ([dask]), loaded only when asked for; the same client set-up as synergy fit
+        from distributed import as_completed
+
+        from synergy.scale import client_for
+
+        client, cluster = client_for(dask)
+        try:
+            futures = {client.submit(run_job_row, job, pure=False): i for i, job in enumerate(jobs)}
+            for fut in as_completed(list(futures)):
+                i = futures[fut]
+                try:
+                    rows[i] = fut.result()
+                except Exception as exc:  # a worker lost or killed: that recording fails, the rest go on
+                    rows[i] = summary_row(jobs[i], error=f"{jobs[i].recording}: the Dask task failed "
+                                                         f"({type(exc).__name__}: {exc})")
+                if on_done is not None:
+                    on_done(rows[i])
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))

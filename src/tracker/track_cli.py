@@ -14,16 +14,19 @@ import typer
 
 
 def track(
-    recording: Path = typer.Argument(..., help="Recording folder (recording.yaml, depth/…)."),
+    recordings: List[Path] = typer.Argument(..., help="Recording folder(s) (recording.yaml, depth/…) or recording files; with several, -o is a folder."),
     synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path."),
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable); SYNERGY_PATH and the shipped bundles follow."),
     mode: str = typer.Option("full", "--mode", help="full, reduced or hierarchical."),
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
     variance: float = typer.Option(0.99, "--variance", help="…or the variance the PCs must explain."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output CSV (one row per frame)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output CSV (one row per frame); with several recordings (or --dask) a folder: NAME.csv per recording and summary.csv."),
     keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Also write the 21 keypoints per frame (CSV, mm)."),
     overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
     overlay_every: int = typer.Option(10, "--overlay-every", help="Overlay every N-th frame."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Write a Rerun recording (.rrd) of the depth, segmentation, points used, fitted hand, fit error and fps per frame (extra [viz])."),
+    rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="Stream the same to a Rerun viewer started now (needs a screen; extra [viz])."),
+    dask: Optional[str] = typer.Option(None, "--dask", help="Track the recordings as Dask tasks: local, local:N (N worker processes) or a scheduler address."),
     paper: bool = typer.Option(False, "--paper", help="Start from the paper's method (fixed stride 3, no smoothing, plain least squares, no silhouette term, no normal test, no start search); the options below change it."),
     stride: Optional[int] = typer.Option(None, "--stride", help="Use every K-th pixel in x and y [3; the paper's '1/3 sampling' is 3]."),
     smooth: Optional[int] = typer.Option(None, "--smooth", help="Edge-preserving depth smoothing radius in pixels [1; paper 0 = off]."),
@@ -45,45 +48,68 @@ def track(
     forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
-    """Track the hand through a recording; writes per-frame hand parameters and a summary."""
-    from handmodel.fileio import atomic_write_text, check_output
+    """Track the hand through one or many recordings; writes per-frame hand parameters and a summary."""
+    from .errors import TrackerError
+
+    if len(recordings) > 1 or dask is not None:
+        per_file = [n for n, v in (("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
+                                   ("--rerun-spawn", rerun_spawn)) if v]
+        if per_file:
+            raise TrackerError(per_file[0], "is for one recording; with several, -o is a folder of NAME.csv "
+                                            "and summary.csv (track a recording alone for its other outputs)")
+        _check_outputs(output, None, None, None, overwrite, folder=True)
+    else:
+        _check_outputs(output, keypoints, overlay, rerun, overwrite)
+    segmenter = _segmenter(depth_range, box, forearm)
+    settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
+                         prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
+
+    # heavy modules load here, not at import time, so `tracker --help` answers at once
+    from .run import TrackJob
+
+    job = TrackJob(recording=str(recordings[0]), output=str(output), settings=settings, synergies=synergies,
+                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                   keypoints=None if keypoints is None else str(keypoints),
+                   overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
+                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite)
+    if len(recordings) > 1 or dask is not None:
+        _track_many(recordings, output, job, dask, overwrite)
+        return
+    _track_one(job, recordings[0], output, keypoints, overlay, mode, paper)
+
+
+def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False):
+    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
+    where a file goes, fails now and not after minutes of tracking."""
+    from handmodel.fileio import check_output
 
     from .errors import TrackerError
 
-    # every output is checked before the frames are tracked: a full or read-only disk, or a folder
-    # where a file goes, fails now and not after minutes of tracking
-    for p in (output, keypoints):
+    if folder:
+        check_output(output, folder=True)
+        return
+    for p in (output, keypoints, rerun):
         if p is not None and p.exists() and not overwrite and not p.is_dir():
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         if p is not None:
             check_output(p, overwrite=overwrite)
+    if rerun is not None and rerun.suffix.lower() != ".rrd":
+        raise TrackerError(rerun, "a Rerun recording must end in .rrd")
     if overlay is not None:
         check_output(overlay, folder=True)
         if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
             raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
-    outs = [p for p in (output, keypoints, overlay) if p is not None]
+    outs = [p for p in (output, keypoints, overlay, rerun) if p is not None]
     if len(set(outs)) < len(outs):
-        raise TrackerError("track", "-o, --keypoints and --overlay need three different paths")
+        raise TrackerError("track", "-o, --keypoints, --overlay and --rerun need different paths")
 
-    # heavy modules load here, not at import time, so `tracker --help` answers at once
-    from rich.console import Console
-    from rich.table import Table
 
-    from handmodel import HandModel
-    from synergy.bundle import load_bundle
+def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette, prediction,
+              robust, finger_search, projected_steps, hand_scale, check_hand):
+    """The :class:`tracker.track.TrackerSettings` of the command line: the default or the paper's,
+    with every option given replacing its value."""
+    from .track import TrackerSettings
 
-    from .cli import _progress
-    from .plots import overlay_png
-    from .recording import Recording
-    from .run import keypoints_table, track_recording, tracking_metadata, write_tracking
-    from .track import HandTracker, TrackerSettings
-
-    segmenter = _segmenter(depth_range, box, forearm)
-    rec = Recording.open(recording)
-    if mode != "full" and not synergies:
-        raise TrackerError("--synergies", f"mode {mode!r} needs a synergy bundle")
-    bundle = load_bundle(synergies, registries=list(registry or []) or None) if synergies else None
-    hand = HandModel.load(hand_model, right=rec.handedness == "right")
     given = dict(stride=stride, smooth=smooth, target_points=None if points == 0 else points,
                  icp_iterations=icp, gn_iterations=gn, damping=damping, model=model, silhouette_weight=silhouette,
                  prediction=prediction, robust_mm=robust, finger_search=finger_search, projected_steps=projected_steps)
@@ -92,30 +118,23 @@ def track(
         given["hand_scale"] = _hand_scale(hand_scale)
     given["check_hand"] = check_hand
     base = TrackerSettings.paper() if paper else TrackerSettings()
-    settings = base.replace(mode=mode, n_pcs=pcs, variance=None if pcs else variance, **given)
-    tracker = HandTracker(hand, settings, synergies=bundle)
-    cam = rec.camera
+    return base.replace(mode=mode, n_pcs=pcs, variance=None if pcs else variance, **given)
 
+
+def _track_one(job, recording, output, keypoints, overlay, mode, paper):
+    """One recording: progress bar, outputs, the result table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from .cli import _progress
+    from .recording import Recording
+    from .run import run_job
+
+    rec = Recording.open(recording)
     with _progress("tracking") as progress:
-        bar = progress.add_task("track", total=len(rec))
-
-        def on_frame(frame, r, ob):
-            if overlay is not None and ob is not None and frame.index % max(overlay_every, 1) == 0:
-                overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status,
-                            mask=ob.mask)
-                written.append(frame.index)
-            progress.advance(bar)
-
-        written = []
-        t_start = time.perf_counter()
-        df = track_recording(rec, tracker, on_frame, segmenter=segmenter)
-        wall_s = time.perf_counter() - t_start
-    meta = tracking_metadata(recording, tracker, bundle.spec if bundle else "")
-    # without --overwrite a file that appeared while tracking is not replaced either
-    write_tracking(output, df, meta, overwrite=overwrite)
-    if keypoints is not None:
-        atomic_write_text(keypoints, keypoints_table(tracker.hand, df).to_csv(index=False, float_format="%.4f"),
-                          overwrite=overwrite)
+        bar = progress.add_task("track", total=_length(rec))
+        run = run_job(job, lambda frame, r, ob: progress.advance(bar), source=rec)
+    df, tracker, rec, wall_s = run.df, run.tracker, run.recording, run.wall_s
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
     for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps", "fps all"):
@@ -135,7 +154,59 @@ def track(
     if keypoints is not None:
         console.print(f"wrote {keypoints}")
     if overlay is not None:
-        console.print(f"wrote {len(written)} overlays to {overlay}")
+        console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
+    if run.rerun is not None:
+        console.print(f"wrote {run.rerun}")
+
+
+def _length(source):
+    """Frames of a source, None when it does not know (a live camera)."""
+    try:
+        return len(source)
+    except TypeError:
+        return None
+
+
+def _track_many(recordings, outdir, template, dask, overwrite):
+    """Many recordings, one by one or on Dask: NAME.csv each, summary.csv, the summary table; the
+    failing ones are reported last, one line each, and make the exit status 2."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from handmodel.cliutil import print_error
+    from handmodel.fileio import atomic_write_text, check_output
+
+    from .cli import _progress
+    from .errors import TrackerError
+    from .run import batch_jobs, track_many
+
+    jobs = batch_jobs(recordings, outdir, template)
+    summary = Path(outdir) / "summary.csv"
+    for p in [Path(j.output) for j in jobs] + [summary]:
+        if p.exists() and not overwrite:
+            raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
+        check_output(p, overwrite=overwrite)
+    with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
+        bar = progress.add_task("recordings", total=len(jobs))
+        table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
+    atomic_write_text(summary, table.to_csv(index=False, float_format="%.4f"), overwrite=overwrite)
+    t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
+    for c in ("recording", "frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "result"):
+        t.add_column(c, justify="left" if c in ("recording", "result") else "right", overflow="fold",
+                     min_width=12 if c == "recording" else None)
+    for row in table.to_dict("records"):
+        ok = not row["error"]
+        t.add_row(Path(row["recording"]).name, *(str(row[k]) if ok else "-" for k in ("frames", "tracked", "lost", "reinit")),
+                  f"{row['median_fit_mm']:.2f}" if ok else "-", f"{row['median_ms']:.1f}" if ok else "-",
+                  Path(row["output"]).name if ok else "failed")
+    console = Console(markup=False)  # paths are printed as typed, never read as markup
+    console.print(t)
+    console.print(f"wrote {summary}")
+    failed = table[table["error"] != ""]
+    for err in failed["error"]:  # after the table, one line each, nothing printed after them
+        print_error(err)
+    if len(failed):
+        raise typer.Exit(2)
 
 
 def _segmenter(depth_range, box, forearm):
