@@ -13,6 +13,7 @@ import struct
 from pathlib import Path
 
 import imageio.v3 as iio
+import numba
 import numpy as np
 
 from .cameras import MAX_UNITS, Camera
@@ -158,3 +159,130 @@ def decode_depth(img, camera: Camera, where="depth") -> np.ndarray:
 def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
     """Metres → the image stored in a depth PNG (see :func:`metres_to_units`)."""
     return encode_units(metres_to_units(depth_m, camera, where), camera)
+
+
+# ----------------------------------------------------------------------------- recording files
+#: Where a ROS ``compressedDepth`` message's 12-byte ConfigHeader says PNG (0) or RVL (1) follows.
+COMPRESSED_DEPTH_HEADER = 12
+_RVL_OK, _RVL_SHORT, _RVL_OVERRUN, _RVL_VALUE = 0, 1, 2, 3
+_RVL_REASONS = {_RVL_SHORT: "the RVL stream ends before the image is complete",
+                _RVL_OVERRUN: "an RVL run is longer than the image",
+                _RVL_VALUE: "an RVL value has more than 32 bits"}
+
+
+@numba.njit(cache=True)
+def _rvl_decode(words, n):  # pragma: no cover - compiled
+    out = np.zeros(n, np.uint16)
+    wi = 0
+    left = 0          # nibbles left in `word`
+    word = np.uint32(0)
+    pos = 0
+    prev = 0
+    phase = 0         # 0: a run of zeros, 1: a run of non-zeros, 2+: deltas of that run
+    run = 0
+    while pos < n:
+        # one variable-length value: 3 bits a nibble, most significant nibble of each word first
+        value = 0
+        shift = 0
+        while True:
+            if left == 0:
+                if wi >= words.size:
+                    return out, _RVL_SHORT
+                word = words[wi]
+                wi += 1
+                left = 8
+            nib = (word >> np.uint32(28)) & np.uint32(15)
+            word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
+            left -= 1
+            if shift > 30:
+                return out, _RVL_VALUE
+            value |= int(nib & np.uint32(7)) << shift
+            shift += 3
+            if (nib & np.uint32(8)) == 0:
+                break
+        if phase == 0:
+            if value > n - pos:
+                return out, _RVL_OVERRUN
+            pos += value          # zeros: out is zero already
+            phase = 1
+        elif phase == 1:
+            if value > n - pos:
+                return out, _RVL_OVERRUN
+            run = value
+            phase = 0 if run == 0 else 2
+        else:
+            delta = (value >> 1) ^ -(value & 1)
+            prev = (prev + delta) & 0xFFFF
+            out[pos] = prev
+            pos += 1
+            run -= 1
+            if run == 0:
+                phase = 0
+    return out, _RVL_OK
+
+
+def decode_rvl(data: bytes, width: int, height: int, where) -> np.ndarray:
+    """Depth units ``(height, width)`` uint16 from an RVL stream (Wilson's run-length / variable-length
+    code, as ``compressed_depth_image_transport`` writes it: little-endian 32-bit words).
+
+    A stream that ends early, or whose runs overflow the image, is a RecordingError naming ``where``.
+    """
+    n = int(width) * int(height)
+    pad = (-len(data)) % 4
+    words = np.frombuffer(bytes(data) + b"\0" * pad, "<u4").astype(np.uint32)
+    out, status = _rvl_decode(words, n)
+    if status != _RVL_OK:
+        raise RecordingError(where, f"damaged RVL depth image ({_RVL_REASONS[status]})")
+    return out.reshape(height, width)
+
+
+def decode_png_units(data: bytes, where, max_side: int) -> np.ndarray:
+    """A 16-bit greyscale PNG (as ``compressedDepth`` stores depth) → ``(H, W)`` uint16; a side over
+    ``max_side`` is refused from the header, before anything is decoded."""
+    w, h, bits, ctype = png_header(data, where)
+    if w > max_side or h > max_side:
+        raise RecordingError(where, f"frames of {w}×{h} pixels are larger than the supported {max_side}×{max_side}")
+    if bits != 16 or ctype != "greyscale":
+        raise RecordingError(where, f"compressed depth is a {bits}-bit {ctype} PNG, expected 16-bit greyscale")
+    a = _decode_png(data, where)
+    if a.dtype != np.uint16 or a.shape != (h, w):
+        raise RecordingError(where, f"decoded as {a.dtype} {a.shape}, expected uint16 ({h}, {w})")
+    return a
+
+
+def inverse_depth_to_metres(q, quant_a: float, quant_b: float) -> np.ndarray:
+    """ROS ``compressedDepth`` 32FC1 images store quantised inverse depth ``q = A / d + B``; this is
+    ``d = A / (q - B)`` in metres (float32), NaN where ``q`` is 0 (no data)."""
+    q = np.asarray(q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = (np.float32(quant_a) / (q.astype(np.float32) - np.float32(quant_b))).astype(np.float32)
+    d[(q == 0) | ~np.isfinite(d) | (d <= 0)] = np.nan
+    return d
+
+
+def register_color(depth_m, camera: Camera, color, color_K, rotation=None, translation=None) -> np.ndarray:
+    """A colour image resampled onto the depth image's pixel grid (``(H, W, 3)`` uint8).
+
+    Each depth pixel is lifted to 3-D, moved into the colour camera (``p_c = R p_d + t``, metres) and
+    projected with the colour intrinsics ``color_K`` (3×3); the nearest colour pixel is taken. Pixels
+    without depth, or landing outside the colour image, are black. Lens distortion is not modelled
+    (RealSense colour streams are rectified: their distortion coefficients are zero).
+    """
+    d = np.asarray(depth_m, np.float64)
+    c = np.asarray(color)
+    K = np.asarray(color_K, float).reshape(3, 3)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, float).reshape(3, 3)
+    t = np.zeros(3) if translation is None else np.asarray(translation, float).reshape(3)
+    out = np.zeros(d.shape + (3,), np.uint8)
+    v, u = np.nonzero(np.isfinite(d) & (d > 0))
+    if not u.size:
+        return out
+    z = d[v, u]
+    p = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], -1) @ R.T + t
+    ok = p[:, 2] > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uc = np.rint(K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2])
+        vc = np.rint(K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2])
+    ok &= (uc >= 0) & (uc < c.shape[1]) & (vc >= 0) & (vc < c.shape[0])
+    out[v[ok], u[ok]] = c[vc[ok].astype(int), uc[ok].astype(int), :3]
+    return out

@@ -171,16 +171,35 @@ class Recording:
         self._theta = truth_theta
 
     @classmethod
-    def open(cls, path) -> "Recording":
+    def open(cls, path, *, topic: str | None = None, color_topic: str | None = None,
+             handedness: str | None = None) -> "Recording":
         """Open and check a recording folder (metadata, frame files, truth); frames are read later.
+
+        A recording file — RealSense ``.bag`` / ``.db3``, a ROS1 ``.bag``, a ROS2 bag (``.db3``,
+        ``.mcap`` or its folder with ``metadata.yaml``), an Azure Kinect ``.mkv`` — is read in place
+        (:class:`FileRecording`, see :func:`open_recording_file`), never copied.
+
+        Parameters
+        ----------
+        path : recording folder or recording file
+        topic, color_topic : depth and colour topics of a ROS bag (default: found in the file)
+        handedness : ``left`` or ``right``; overrides the folder's, and names the hand of a file
+            (which cannot say; default ``left``)
 
         Raises
         ------
         RecordingError
             Naming the file and the problem: no folder, missing ``recording.yaml``, invalid YAML or
-            schema violation (with the field), missing or stray frame files, a bad ``truth.csv``.
+            schema violation (with the field), missing or stray frame files, a bad ``truth.csv``; for
+            a recording file, any damage found in it.
         """
         path = Path(path)
+        if handedness is not None and handedness not in HANDEDNESS:
+            raise RecordingError(path, f"handedness must be left or right, got {handedness!r}")
+        if is_recording_file(path):
+            return open_recording_file(path, topic=topic, color_topic=color_topic, handedness=handedness or "left")
+        if topic is not None or color_topic is not None:
+            raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to recording folders")
         y = path / "recording.yaml"
         if not path.is_dir():
             raise RecordingError(path, "no such recording folder")
@@ -203,7 +222,10 @@ class Recording:
         truth = theta = None
         if meta.get("truth"):
             truth, theta = _read_truth(path / "truth.csv", n, float(meta["fps"]))
-        return cls(path, meta, cam, depth, color, truth, theta)
+        rec = cls(path, meta, cam, depth, color, truth, theta)
+        if handedness is not None:
+            rec.handedness = handedness
+        return rec
 
     def __len__(self) -> int:
         return len(self._depth)
@@ -246,6 +268,187 @@ class Recording:
     def truth_array(self):
         """θ of every frame ``(F, 26)``, or None."""
         return None if self._theta is None else self._theta.copy()
+
+
+# ----------------------------------------------------------------------------- recording files
+#: Suffixes of the recording files read in place (a ROS2 bag may also be its folder with metadata.yaml).
+RECORDING_FILE_SUFFIXES = (".bag", ".db3", ".mcap", ".mkv")
+RECORDINGS_EXTRA = "pip install 'synergistic-hand-tracking[recordings]'"
+
+
+def is_recording_file(path) -> bool:
+    """True for a path :func:`open_recording_file` reads: a file with one of
+    :data:`RECORDING_FILE_SUFFIXES`, or a ROS2 bag folder (``metadata.yaml`` and no ``recording.yaml``)."""
+    p = Path(path)
+    if p.suffix.lower() in RECORDING_FILE_SUFFIXES and not p.is_dir():
+        return True
+    return p.is_dir() and (p / "metadata.yaml").is_file() and not (p / "recording.yaml").exists()
+
+
+def open_recording_file(path, *, topic=None, color_topic=None, handedness: str = "left") -> "FileRecording":
+    """Open a camera or ROS recording file in place (see :meth:`Recording.open`).
+
+    The readers need the ``[recordings]`` extra (``rosbags``, ``av``); without it this is a
+    RecordingError naming the ``pip install`` to run.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(path, "no such recording file")
+    mkv = path.suffix.lower() == ".mkv"
+    if mkv and (topic is not None or color_topic is not None):
+        raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to .mkv files")
+    # the readers import their optional libraries at the top, so a missing extra shows up here;
+    # importing them here (not at the top) also keeps this module free of an import cycle
+    try:
+        if mkv:
+            from .mkv import open_mkv as opener
+        else:
+            from .bags import open_bag as opener
+    except ImportError as exc:
+        raise RecordingError(path, f"reading {path.suffix or 'ROS2 bag'} files needs {exc.name}: "
+                                   f"{RECORDINGS_EXTRA}") from None
+    kw = {} if mkv else {"topic": topic, "color_topic": color_topic}
+    return opener(path, handedness=handedness, **kw)
+
+
+class FileRecording(Recording):
+    """A recording file read in place, behind the :class:`Recording` interface.
+
+    Subclasses (:class:`tracker.bags.BagRecording`, :class:`tracker.mkv.MkvRecording`) index the
+    depth frames of the file once (``stamps_ns``, the file's own timestamps) and decode a frame on
+    demand in :meth:`_read_raw`. ``Frame.time_s`` is the file's time of the frame, counted from the
+    file's first depth frame; ``fps`` is the stream's nominal rate (or, without one, the median
+    frame interval). :meth:`select` cuts a time span or thins the frames without reading them.
+    """
+
+    #: what :meth:`_read_raw` gives: integer ``units`` (× camera.depth_scale_m) or float ``metres``
+    depth_kind = "units"
+
+    def __init__(self, path, camera: Camera, stamps_ns, fps: float, handedness: str, source: str,
+                 has_color: bool):
+        self.path = Path(path)
+        self.camera = camera
+        self.fps = float(fps)
+        self.handedness = handedness
+        self.truth = None
+        self._theta = None
+        self._color = True if has_color else None
+        self._stamps = np.asarray(stamps_ns, np.int64)
+        self._sel = np.arange(len(self._stamps))
+        self.source = source
+        self.meta = {"camera": {"name": camera.name, "width": camera.width, "height": camera.height,
+                                "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
+                     "depth": {"encoding": camera.depth_encoding, "scale_m": camera.depth_scale_m},
+                     "fps": self.fps, "handedness": handedness, "frames": len(self._stamps),
+                     "color": bool(has_color), "truth": False, "source": source}
+
+    def __len__(self) -> int:
+        return len(self._sel)
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}({str(self.path)!r}, {len(self)} frames, {self.camera.width}×"
+                f"{self.camera.height}, {self.fps:g} fps, {self.handedness})")
+
+    @property
+    def times_s(self) -> np.ndarray:
+        """The file's time of each selected frame (s from the file's first depth frame)."""
+        return (self._stamps[self._sel] - (self._stamps[0] if len(self._stamps) else 0)) / 1e9
+
+    def select(self, start_s: float | None = None, end_s: float | None = None, every: int = 1) -> "FileRecording":
+        """The frames from ``start_s`` up to and including ``end_s`` (seconds of the file's time, as
+        :attr:`times_s` counts), every ``every``-th of them; a new view, nothing is read."""
+        import copy
+
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise RecordingError(self.path, f"--every must be a positive integer, got {every!r}")
+        for name, v in (("--start", start_s), ("--end", end_s)):
+            if v is not None and not np.isfinite(v):
+                raise RecordingError(self.path, f"{name} must be a finite number of seconds, got {v!r}")
+        t = self.times_s
+        keep = np.ones(len(t), bool)
+        if start_s is not None:
+            keep &= t >= start_s - 1e-9
+        if end_s is not None:
+            keep &= t <= end_s + 1e-9
+        view = copy.copy(self)
+        view._sel = self._sel[keep][::int(every)]
+        if not len(view._sel) and len(self._sel):
+            raise RecordingError(self.path, f"no frames between {start_s if start_s is not None else 0:g} s and "
+                                            f"{end_s if end_s is not None else t[-1]:g} s (the file spans "
+                                            f"{t[0]:g}–{t[-1]:g} s)")
+        return view
+
+    def _read_raw(self, k: int):
+        """Depth of the file's ``k``-th depth frame (``units`` uint16 or ``metres`` float32, as
+        :attr:`depth_kind` says) and its registered colour ``(H, W, 3)`` uint8 or None."""
+        raise NotImplementedError(f"{type(self).__name__} must read its frames")
+
+    def _depth_metres(self, raw) -> np.ndarray:
+        if self.depth_kind == "units":
+            return units_to_metres(raw, self.camera)
+        d = np.asarray(raw, np.float32).copy()
+        d[~(np.isfinite(d) & (d > 0))] = np.nan
+        return d
+
+    def __getitem__(self, i) -> Frame:
+        i = self._index(i)
+        raw, color = self._read_raw(int(self._sel[i]))
+        return Frame(i, float(self.times_s[i]), self._depth_metres(raw), color, None)
+
+    def depth_units(self, i: int) -> np.ndarray:
+        """Depth units of frame ``i`` (uint16) in the camera's scale: as stored for integer depth,
+        rounded to the nearest unit for float (metre) depth."""
+        i = self._index(i)
+        raw, _ = self._read_raw(int(self._sel[i]))
+        if self.depth_kind == "units":
+            return raw
+        return metres_to_units(self._depth_metres(raw), self.camera, self.path)
+
+    def frame_with_units(self, i: int):
+        """``(Frame, units)`` of frame ``i`` from one decode (for conversion to a folder)."""
+        i = self._index(i)
+        raw, color = self._read_raw(int(self._sel[i]))
+        depth = self._depth_metres(raw)
+        units = raw if self.depth_kind == "units" else metres_to_units(depth, self.camera, self.path)
+        return Frame(i, float(self.times_s[i]), depth, color, None), units
+
+
+def import_recording_file(src, dst, *, topic=None, color_topic=None, start_s=None, end_s=None, every: int = 1,
+                          handedness: str = "left", overwrite: bool = False, progress=None) -> Recording:
+    """Convert a recording file (see :func:`open_recording_file`) into a recording folder.
+
+    Integer depth is copied unit for unit; float depth (ROS ``32FC1``, metres) is rounded to the
+    camera's unit (1 mm). The folder's fps is the file's divided by ``every``; its frame times are
+    ``i / fps`` (a folder stores no per-frame times), the file's own times stay in the file.
+
+    Parameters
+    ----------
+    src : recording file
+    dst : recording folder to create
+    topic, color_topic : ROS depth and colour topics (default: found in the file)
+    start_s, end_s : time span to keep (seconds from the file's first depth frame, both included)
+    every : keep every N-th frame of the span
+    handedness, overwrite : as for :class:`RecordingWriter`
+    progress : callable ``progress(done, total)``, called after each frame
+
+    Returns
+    -------
+    Recording
+        The new recording folder, opened.
+    """
+    src = Path(src)
+    rec = open_recording_file(src, topic=topic, color_topic=color_topic, handedness=handedness)
+    rec = rec.select(start_s, end_s, every)
+    if not len(rec):
+        raise RecordingError(src, "holds no depth frames to import")
+    with RecordingWriter(dst, rec.camera, rec.fps / every, handedness, overwrite=overwrite,
+                         source=f"import of {src} ({rec.source})") as w:
+        for i in range(len(rec)):
+            frame, units = rec.frame_with_units(i)
+            w.write_units(units, frame.color)
+            if progress is not None:
+                progress(i + 1, len(rec))
+    return Recording.open(dst)
 
 
 # ----------------------------------------------------------------------------- writing

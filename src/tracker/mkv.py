@@ -1,0 +1,205 @@
+"""Azure Kinect ``.mkv`` recordings (the Azure Kinect recorder's Matroska files), read in place with
+PyAV, without the Azure Kinect SDK.
+
+The depth track (title ``DEPTH``, codec ``b16g``: 16-bit big-endian millimetres, 0 = no data) gives
+one frame per packet; its timestamps are the file's. The intrinsics come from the calibration
+attachment (``calibration.json``): the SDK stores them normalised to the 1024×1024 depth sensor with
+the origin at a pixel corner, and converts them per depth mode (binned resolution, crop offset,
+output size; the Azure Kinect SDK's ``mode_specific_calibration.c``) — :func:`depth_intrinsics`
+does the same. Lens distortion is not modelled (the tracker's cameras are pinholes). The colour
+track (MJPG, with its own strongly distorted lens) is not read.
+
+Every problem found in the file is a :class:`~tracker.errors.RecordingError` naming it.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import av
+import numpy as np
+
+from .cameras import Camera
+from .errors import RecordingError, TrackerError
+from .recording import FileRecording, check_frame_size
+
+#: Depth modes: (binned calibration resolution, crop offset, output size), per the Azure Kinect SDK.
+DEPTH_MODES = {
+    "NFOV_2X2BINNED": ((512, 512), (96, 90), (320, 288)),
+    "NFOV_UNBINNED": ((1024, 1024), (192, 180), (640, 576)),
+    "WFOV_2X2BINNED": ((512, 512), (0, 0), (512, 512)),
+    "WFOV_UNBINNED": ((1024, 1024), (0, 0), (1024, 1024)),
+    "PASSIVE_IR": ((1024, 1024), (0, 0), (1024, 1024)),
+}
+#: A calibration attachment larger than this is not believed (the real ones are about 4 kB).
+_MAX_CALIBRATION_BYTES = 1 << 20
+#: Packets read past a seek before the wanted frame must have come.
+_MAX_SEEK_PACKETS = 512
+
+
+def depth_intrinsics(calibration: dict, mode: str, where) -> tuple[int, int, float, float, float, float]:
+    """``(width, height, fx, fy, cx, cy)`` of the depth image in ``mode`` from the calibration JSON.
+
+    Examples
+    --------
+    >>> cal = {"CalibrationInformation": {"Cameras": [{"Purpose": "CALIBRATION_CameraPurposeDepth",
+    ...        "SensorWidth": 1024, "SensorHeight": 1024,
+    ...        "Intrinsics": {"ModelParameters": [0.5, 0.5, 0.5, 0.5] + [0] * 10}}]}}
+    >>> depth_intrinsics(cal, "NFOV_UNBINNED", "x")
+    (640, 576, 512.0, 512.0, 319.5, 331.5)
+    """
+    if mode not in DEPTH_MODES:
+        raise RecordingError(where, f"depth mode {mode!r} is not one of {', '.join(DEPTH_MODES)}")
+    try:
+        cams = calibration["CalibrationInformation"]["Cameras"]
+        depth = [c for c in cams if c.get("Purpose") == "CALIBRATION_CameraPurposeDepth"]
+        if len(depth) != 1:
+            raise RecordingError(where, f"calibration holds {len(depth)} depth cameras, expected 1")
+        cam = depth[0]
+        p = [float(v) for v in cam["Intrinsics"]["ModelParameters"][:4]]
+        sensor = (int(cam.get("SensorWidth", 1024)), int(cam.get("SensorHeight", 1024)))
+    except RecordingError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise RecordingError(where, f"calibration has no depth camera intrinsics ({type(exc).__name__}: {exc})") from None
+    if len(p) != 4 or not all(np.isfinite(p)):
+        raise RecordingError(where, "calibration's depth intrinsics are missing or not finite")
+    if sensor != (1024, 1024):
+        raise RecordingError(where, f"depth sensor calibrated at {sensor[0]}×{sensor[1]}, expected 1024×1024")
+    (bw, bh), (ox, oy), (w, h) = DEPTH_MODES[mode]
+    cx_n, cy_n, fx_n, fy_n = p
+    # normalised and corner-origin → pixels with the origin at the first pixel's centre
+    return w, h, fx_n * bw, fy_n * bh, cx_n * bw - ox - 0.5, cy_n * bh - oy - 0.5
+
+
+def _open_container(path: Path):
+    try:
+        return av.open(str(path), "r")
+    except Exception as exc:  # PyAV raises many types for damaged files
+        raise RecordingError(path, f"not a readable Matroska file ({type(exc).__name__}: {exc})") from None
+
+
+def _depth_stream(container, path):
+    video = [s for s in container.streams if s.type == "video"]
+    depth = [s for s in video if s.metadata.get("title") == "DEPTH" or "K4A_DEPTH_MODE" in s.metadata]
+    if not depth:
+        raise RecordingError(path, "no Azure Kinect depth track (a video track titled DEPTH) in the file")
+    return depth[0]
+
+
+def _calibration(container, path) -> dict:
+    att = [s for s in container.streams if s.type == "attachment"
+           and (s.metadata.get("K4A_CALIBRATION_FILE") or s.metadata.get("filename", "")) == "calibration.json"]
+    if not att:
+        raise RecordingError(path, "no calibration.json attachment: the intrinsics are unknown")
+    data = att[0].data
+    if data is None or len(data) > _MAX_CALIBRATION_BYTES:
+        raise RecordingError(path, "calibration attachment is empty or larger than 1 MB")
+    try:
+        cal = json.loads(bytes(data).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RecordingError(path, f"calibration.json is not valid JSON ({exc})") from None
+    if not isinstance(cal, dict):
+        raise RecordingError(path, "calibration.json is not a JSON object")
+    return cal
+
+
+class MkvRecording(FileRecording):
+    """The depth frames of an Azure Kinect ``.mkv`` (see the module docstring)."""
+
+    def __init__(self, path, camera, stamps_ns, pts, fps, handedness, source, stream_index: int):
+        super().__init__(path, camera, stamps_ns, fps, handedness, source, False)
+        self._pts = np.asarray(pts, np.int64)
+        self._stream_index = stream_index
+        self._container = None
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_container"] = None  # an open file cannot be pickled; each process opens it again
+        return state
+
+    def _read_raw(self, k: int):
+        where = f"{self.path} (depth frame {k})"
+        if self._container is None:
+            self._container = _open_container(self.path)
+        c = self._container
+        stream = c.streams[self._stream_index]
+        want = int(self._pts[k])
+        try:
+            c.seek(want, stream=stream, backward=True, any_frame=True)
+            for n, pkt in enumerate(c.demux(stream)):
+                if pkt.pts is not None and pkt.pts == want and pkt.size:
+                    return self._units(bytes(pkt), where), None
+                if n > _MAX_SEEK_PACKETS or (pkt.pts is not None and pkt.pts > want):
+                    break
+        except RecordingError:
+            raise
+        except Exception as exc:  # PyAV raises many types for damaged files
+            self.close()
+            raise RecordingError(where, f"damaged file ({type(exc).__name__}: {exc})") from None
+        raise RecordingError(where, f"frame at {want} (stream time) listed at opening is not found")
+
+    def _units(self, data: bytes, where) -> np.ndarray:
+        w, h = self.camera.width, self.camera.height
+        if len(data) != 2 * w * h:
+            raise RecordingError(where, f"depth packet of {len(data)} bytes, a {w}×{h} b16g frame has {2 * w * h}")
+        return np.frombuffer(data, ">u2").astype(np.uint16).reshape(h, w)
+
+    def close(self):
+        """Close the file (it reopens on the next frame read)."""
+        if self._container is not None:
+            try:
+                self._container.close()
+            finally:
+                self._container = None
+
+
+def open_mkv(path, *, handedness: str = "left") -> MkvRecording:
+    """Open an Azure Kinect ``.mkv`` as an :class:`MkvRecording` (indexing its depth packets once).
+
+    Raises
+    ------
+    RecordingError
+        Naming the file: not a Matroska file, no depth track, no or bad calibration, an unknown depth
+        mode, frames of the wrong size, no depth frames.
+    """
+    path = Path(path)
+    c = _open_container(path)
+    try:
+        s = _depth_stream(c, path)
+        mode = s.metadata.get("K4A_DEPTH_MODE", "")
+        w, h, fx, fy, cx, cy = depth_intrinsics(_calibration(c, path), mode, path)
+        cc = s.codec_context
+        check_frame_size(int(cc.width or 0), int(cc.height or 0), path)
+        if (cc.width, cc.height) != (w, h):
+            raise RecordingError(path, f"depth track is {cc.width}×{cc.height}, depth mode {mode} gives {w}×{h}")
+        tag = (getattr(s, "codec_tag", "") or "").lower()
+        if tag and tag != "b16g":
+            raise RecordingError(path, f"depth track codec {tag!r}, expected b16g (16-bit big-endian)")
+        pts = []
+        try:
+            for pkt in c.demux(s):
+                if pkt.pts is not None and pkt.size:
+                    pts.append(int(pkt.pts))
+        except Exception as exc:  # PyAV raises many types for damaged files
+            raise RecordingError(path, f"damaged file after {len(pts)} depth frames ({type(exc).__name__}: {exc})") from None
+        if not pts:
+            raise RecordingError(path, "the depth track holds no frames")
+        pts = np.sort(np.array(pts, np.int64))
+        tb = s.time_base
+        stamps = np.rint(pts * (1e9 * float(tb))).astype(np.int64)
+        rate = s.average_rate or s.guessed_rate
+        if rate:
+            fps = float(rate)
+        else:
+            gaps = np.diff(stamps)
+            gaps = gaps[gaps > 0]
+            fps = 1e9 / float(np.median(gaps)) if gaps.size else 30.0
+        try:
+            cam = Camera(w, h, fx, fy, cx, cy, 0.001, "uint16", f"azure_kinect_{mode.lower()}")
+        except TrackerError as exc:
+            raise RecordingError(path, exc.reason) from None
+        return MkvRecording(path, cam, stamps, pts, fps, handedness,
+                            f"Azure Kinect recording {path.name}, depth mode {mode}", s.index)
+    finally:
+        c.close()
