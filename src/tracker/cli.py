@@ -65,7 +65,11 @@ def _table(title: str, rows):
 def _recording_rows(rec) -> list:
     c = rec.camera
     n = len(rec)
-    return [("frames", f"{n} ({n / rec.fps:.2f} s at {rec.fps:g} fps)"),
+    times = getattr(rec, "times_s", None)  # a recording file keeps its own frame times
+    span = (f"{times[-1] - times[0]:.2f} s of file time, {rec.fps:g} fps nominal" if times is not None and n
+            else f"{n / rec.fps:.2f} s at {rec.fps:g} fps")
+    rows = [("source", rec.source)] if times is not None else []
+    return rows + [("frames", f"{n} ({span})"),
             ("camera", f"{c.name}, {c.width}×{c.height}"),
             ("fx, fy / cx, cy (px)", f"{c.fx:.3f}, {c.fy:.3f} / {c.cx:.3f}, {c.cy:.3f}"),
             ("depth", f"{c.depth_encoding}, {c.depth_scale_m * 1000:g} mm per unit (max {c.max_depth_m:.2f} m)"),
@@ -96,8 +100,18 @@ def _depth_stats(rec, every: int = 1, label: str = "reading"):
 @app.command("import")
 @_errors
 def import_(
-    src: Path = typer.Argument(..., help="Folder of depth PNGs (sorted by name in natural order)."),
+    src: Path = typer.Argument(..., help="Folder of depth PNGs (sorted by name in natural order), or a recording "
+                                         "file: RealSense .bag/.db3, ROS1/ROS2 bag (.bag, .db3, .mcap or its "
+                                         "folder), Azure Kinect .mkv (camera, depth unit and times from the file)."),
     output: Path = typer.Option(..., "-o", "--output", help="Recording folder to create."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="ROS bag: depth image topic (default: the RealSense "
+                                                            "depth stream, or the one image topic named *depth*)."),
+    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="ROS bag: colour image topic, resampled "
+                                                                        "onto the depth pixels (default: RealSense colour)."),
+    start: Optional[float] = typer.Option(None, "--start", help="Recording file: first second to import (file time "
+                                                              "from its first depth frame, as tracker info shows)."),
+    end: Optional[float] = typer.Option(None, "--end", help="Recording file: last second to import (included)."),
+    every: int = typer.Option(1, "--every", help="Recording file: import every N-th frame (the fps divides by N)."),
     camera: Optional[str] = typer.Option(None, "--camera", help="Preset: kinect1, kinect2, sr305, sr300, nyu; "
                                                               "the options below override its values."),
     fx: Optional[float] = typer.Option(None, "--fx", help="Focal length x (px)."),
@@ -115,16 +129,36 @@ def import_(
     color: Optional[Path] = typer.Option(None, "--color", "--colour", help="Folder of colour frames registered to the depth (PNG or JPEG, one per depth PNG, same name order): used for skin segmentation."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing recording in the output folder."),
 ):
-    """Turn a plain folder of depth PNGs (and optionally their colour frames) into a recording."""
+    """Turn a plain folder of depth PNGs (and optionally their colour frames), or a recording file,
+    into a recording folder. (tracker info, show and track also read recording files in place.)"""
     import time
 
     from handmodel.fileio import check_output
 
-    from .recording import import_pngs
+    from .errors import TrackerError
+    from .recording import import_pngs, import_recording_file, is_recording_file
 
     check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
-    cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
     t0 = time.perf_counter()
+    if is_recording_file(src):
+        given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
+                                ("--width", width), ("--height", height), ("--depth-scale", depth_scale),
+                                ("--depth-encoding", depth_encoding), ("--color", color)) if v is not None]
+        if given:
+            raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera")
+        with _progress("importing") as p:
+            bar = p.add_task("import", total=None)
+            rec = import_recording_file(src, output, topic=topic, color_topic=color_topic, start_s=start, end_s=end,
+                                        every=every, handedness=hand, overwrite=overwrite,
+                                        progress=lambda k, n: p.update(bar, completed=k, total=n))
+        _table(f"imported {src} → {output} ({time.perf_counter() - t0:.1f} s)", _recording_rows(rec))
+        return
+    given = [o for o, v in (("--topic", topic), ("--color-topic", color_topic), ("--start", start), ("--end", end),
+                            ("--every", None if every == 1 else every)) if v is not None]
+    if given:
+        raise TrackerError(src, f"{', '.join(given)} apply to recording files (.bag, .db3, .mcap, .mkv), "
+                                "not to a folder of PNGs")
+    cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
     with _progress("importing") as p:
         bar = p.add_task("import", total=None)
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
@@ -135,16 +169,18 @@ def import_(
 @app.command()
 @_errors
 def info(
-    recording: Path = typer.Argument(..., help="Recording folder."),
+    recording: Path = typer.Argument(..., help="Recording folder, or a recording file (.bag, .db3, .mcap, .mkv)."),
     quick: bool = typer.Option(False, "--quick", help="Metadata only; do not read the frames."),
     every: int = typer.Option(1, "--every", help="Read every N-th frame for the depth statistics."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="ROS bag: depth image topic."),
+    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="ROS bag: colour image topic."),
 ):
     """Summary of a recording (reads and checks every frame unless --quick)."""
     import numpy as np
 
     from .recording import Recording
 
-    rec = Recording.open(recording)
+    rec = Recording.open(recording, topic=topic, color_topic=color_topic)
     rows = _recording_rows(rec)
     if not quick and len(rec):
         n, valid, v = _depth_stats(rec, every, "checking frames")
@@ -159,8 +195,9 @@ def info(
 @app.command()
 @_errors
 def show(
-    recording: Path = typer.Argument(..., help="Recording folder."),
+    recording: Path = typer.Argument(..., help="Recording folder, or a recording file (.bag, .db3, .mcap, .mkv)."),
     output: Path = typer.Option(..., "-o", "--output", help="PNG contact sheet to write."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="ROS bag: depth image topic."),
     every: int = typer.Option(0, "--every", help="Every N-th frame (default: up to 16 frames spread evenly)."),
     max_frames: int = typer.Option(64, "--max-frames", help="At most this many panels."),
     near: Optional[float] = typer.Option(None, "--near", help="Colour scale start (m; default 1st percentile)."),
@@ -191,25 +228,26 @@ def show(
     from .track_cli import _segmenter
 
     segmenter = _segmenter(depth_range, box, forearm) if mask else None
-    rec = Recording.open(recording)
+    rec = Recording.open(recording, topic=topic)
     n = len(rec)
     if n == 0:
         raise TrackerError(recording, "has no frames")
     idx = list(range(0, n, every)) if every > 0 else sorted(set(np.linspace(0, n - 1, min(n, 16)).round().astype(int)))
     shown = idx[:max_frames]
-    depths, masks = [], []
+    depths, masks, times = [], [], []
     with _progress("reading") as p:
         bar = p.add_task("read", total=len(shown))
         for i in shown:
             frame = rec[i]
             depths.append(frame.depth * 1000.0)
+            times.append(frame.time_s)
             if segmenter is not None:
                 from .observe import observe
 
                 masks.append(observe(frame.depth, rec.camera, segmenter=segmenter, color=frame.color).mask)
             p.advance(bar)
     lo, hi = contact_sheet(
-        output, depths, [f"#{i}  {i / rec.fps:.2f} s" for i in shown],
+        output, depths, [f"#{i}  {t:.2f} s" for i, t in zip(shown, times)],
         f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; grey = no depth"
         + ("; white = segmented hand" if segmenter is not None else ""),
         near_mm=None if near is None else near * 1000, far_mm=None if far is None else far * 1000,
