@@ -317,6 +317,119 @@ def evaluate(
         console.print(f"wrote {plot}")
 
 
+def live(
+    output: Path = typer.Option(..., "-o", "--output", help="Output CSV (one row per frame)."),
+    playback: Optional[Path] = typer.Option(None, "--playback", help="Play a recorded RealSense .bag back through librealsense instead of a camera (as recorded, every frame)."),
+    serial: Optional[str] = typer.Option(None, "--serial", help="Camera serial number [the first camera found]."),
+    width: int = typer.Option(640, "--width", help="Depth stream width asked of the camera (px)."),
+    height: int = typer.Option(480, "--height", help="Depth stream height (px)."),
+    fps: int = typer.Option(30, "--fps", help="Depth stream rate asked of the camera (Hz)."),
+    color: bool = typer.Option(False, "--color/--no-color", "--colour/--no-colour", help="Also take the colour stream, aligned to the depth (skin segmentation) [off]."),
+    frames: Optional[int] = typer.Option(None, "--frames", help="Stop after N frames."),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="Stop after this many seconds of stream time."),
+    hand: str = typer.Option("left", "--hand", "--handedness", help="The hand in front of the camera: left or right."),
+    save: Optional[Path] = typer.Option(None, "--save", help="Also keep the frames as a recording folder (tracker track can replay it)."),
+    keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Also write the 21 keypoints per frame (CSV, mm)."),
+    overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
+    overlay_every: int = typer.Option(10, "--overlay-every", help="Overlay every N-th frame."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Write a Rerun recording (.rrd) of the session (extra [viz])."),
+    rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="The live view: stream to a Rerun viewer started now (needs a screen; extra [viz])."),
+    synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
+    mode: str = typer.Option("full", "--mode", help="full, reduced or hierarchical."),
+    pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
+    variance: float = typer.Option(0.99, "--variance", help="…or the variance the PCs must explain."),
+    paper: bool = typer.Option(False, "--paper", help="The paper's method (as tracker track --paper)."),
+    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
+    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [1]."),
+    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
+    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
+    forearm: str = typer.Option("cut", "--forearm", help="cut or keep (as tracker track) [cut]."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
+):
+    """Track the hand live from a RealSense camera (extra [realsense]) with the pipeline of tracker
+    track and its outputs; Ctrl-C stops and still writes them (a second Ctrl-C aborts)."""
+    from .errors import TrackerError
+
+    if hand not in ("left", "right"):
+        raise TrackerError("--hand", f"must be left or right, got {hand!r}")
+    if (frames is not None and frames < 1) or (seconds is not None and not seconds > 0):
+        raise TrackerError("live", "--frames and --seconds must be positive")
+    _check_outputs(output, keypoints, overlay, rerun, overwrite)
+    if save is not None:
+        from handmodel.fileio import check_output
+
+        check_output(save, folder=True)
+        if save.exists() and any(save.iterdir()) and not overwrite:
+            raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
+    segmenter = _segmenter(depth_range, box, forearm)
+    settings = _settings(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
+                         None, None, hand_scale, check_hand)
+
+    # heavy modules (and the optional pyrealsense2) load here, so `tracker --help` answers at once
+    import signal
+
+    from rich.console import Console
+
+    from .cli import _progress
+    from .live import RealSenseSource
+    from .recording import RecordingWriter
+    from .run import TrackJob, run_job
+
+    source = RealSenseSource(playback, serial=serial, width=width, height=height, fps=fps, color=color,
+                             max_frames=frames, max_seconds=seconds, handedness=hand)
+    err = Console(stderr=True, markup=False)
+    job = TrackJob(recording=str(playback) if playback is not None else f"realsense {source.name}",
+                   output=str(output), settings=settings, synergies=synergies,
+                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                   keypoints=None if keypoints is None else str(keypoints),
+                   overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
+                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
+                   handedness=hand)
+
+    def interrupted(signum, stack):
+        # the first Ctrl-C ends the stream after this frame and the outputs are written; a second aborts
+        source.stop()
+        err.print("stopping after this frame (Ctrl-C again to abort without outputs)")
+        signal.signal(signal.SIGINT, previous)
+
+    previous = signal.signal(signal.SIGINT, interrupted)
+    writer = None
+    try:
+        if save is not None:
+            writer = RecordingWriter(save, source.camera, source.fps, hand, overwrite=overwrite,
+                                     source=f"tracker live, {source.name}")
+        with source, _progress(f"tracking {source.name}") as progress:
+            bar = progress.add_task("live", total=frames)
+
+            def on_frame(frame, r, ob):
+                if writer is not None:
+                    writer.write(frame.depth, frame.color if source._color and frame.color is not None else None)
+                progress.advance(bar)
+
+            run = run_job(job, on_frame, source=source)
+        if writer is not None:
+            writer.close()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    df = run.df
+    st = df["status"]
+    console = Console(markup=False)  # paths are printed as typed, never read as markup
+    console.print(f"{source.name}: {len(df)} frames, {int((st == 'tracked').sum())} tracked, "
+                  f"{int((st == 'lost').sum())} lost, {int((st == 'reinit').sum())} reinit; "
+                  f"median fit {df['fit_mm'].median():.2f} mm, median {df['ms'].median():.1f} ms a frame, "
+                  f"{len(df) / run.wall_s if run.wall_s > 0 else 0:.1f} fps overall")
+    if run.tracker.hand_check_ is not None and run.tracker.hand_check_.other_fits_better:
+        console.print(f"warning: {hand} hand tracked, but {run.tracker.hand_check_}")
+    for p in (output, keypoints, run.rerun, save):
+        if p is not None:
+            console.print(f"wrote {p}")
+    if overlay is not None:
+        console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
+
+
 def register(app, errors_exit_2) -> None:
     app.command()(errors_exit_2(track))
+    app.command()(errors_exit_2(live))
     app.command("eval")(errors_exit_2(evaluate))

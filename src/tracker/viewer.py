@@ -113,7 +113,7 @@ class RerunLog:
         renamed into place by :meth:`close` after reading it back
     spawn : also start a Rerun viewer and stream to it (needs a screen)
     overwrite : replace an existing ``path``
-    name : the application id shown in the viewer
+    name : the recording's name shown in the viewer
 
     Use as a context manager, or call :meth:`close` (publishes the file) or :meth:`abort`.
     """
@@ -126,7 +126,7 @@ class RerunLog:
         self._meshes = {}
         self._last = None
         self._tmp = self._ctx = None
-        self.rec = rr.RecordingStream(name)
+        self.rec = rr.RecordingStream("tracker")
         sinks = []
         if spawn:
             try:
@@ -142,6 +142,7 @@ class RerunLog:
             sinks.append(rr.FileSink(str(self._tmp)))
         if sinks:
             self.rec.set_sinks(*sinks)
+        self.rec.send_recording_name(str(name))
         log_camera(self.rec, camera)
 
     def log_frame(self, frame, result, observation, hand) -> None:
