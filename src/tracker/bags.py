@@ -51,11 +51,32 @@ def _wrap(path, what: str, exc: Exception) -> RecordingError:
     return RecordingError(path, f"{what} ({type(exc).__name__}{': ' + msg if msg else ''})")
 
 
+def check_sqlite_complete(path: Path) -> None:
+    """Refuse a cut SQLite file: its header gives the database size in pages, and SQLite reads the
+    pages missing past the end of a truncated file as zeros (depth frames would silently end in
+    zeros)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(100)
+            size = fh.seek(0, 2)
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+    if len(head) < 100 or not head.startswith(b"SQLite format 3\0"):
+        return  # not SQLite at all: the reader says so
+    page = struct.unpack(">H", head[16:18])[0]
+    page = 65536 if page == 1 else page
+    pages, change, valid_for = struct.unpack(">I", head[28:32])[0], head[24:28], head[92:96]
+    if change == valid_for and pages and size < pages * page:
+        raise RecordingError(path, f"truncated: the SQLite header says {pages * page} bytes, the file has {size}")
+
+
 class _Bag:
     """An open bag: the reader and its connections; reopened after unpickling."""
 
     def __init__(self, path: Path):
         self.path = path
+        for db in ([path] if path.suffix.lower() == ".db3" else sorted(path.glob("*.db3")) if path.is_dir() else []):
+            check_sqlite_complete(db)
         try:
             # bags without embedded message definitions (older ROS2 sqlite) use the Humble types
             self.reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))

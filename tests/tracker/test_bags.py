@@ -1,0 +1,517 @@
+"""ROS bags as recordings: the real RealSense D435 bag against pyrealsense2, bags written here in every
+layout read back exactly (RealSense ROS1 v3 and ROS2 db3, generic ROS1 / ROS2 sqlite / mcap with Image
+and compressedDepth PNG and RVL), damaged and wrong bags as one-line errors, the CLI."""
+import struct
+import sys
+
+from conftest import SHARED_DATA
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+pytest.importorskip("rosbags", reason="the [recordings] extra (rosbags) is not installed")
+from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
+
+from tracker.bags import BagRecording, _quat_matrix, open_bag  # noqa: E402
+from tracker.errors import RecordingError  # noqa: E402
+from tracker.images import decode_rvl, inverse_depth_to_metres  # noqa: E402
+from tracker.recording import Recording, import_recording_file  # noqa: E402
+
+RS_BAG = SHARED_DATA / "sensor_recordings" / "librealsense_single_depth_color_640x480.bag"
+W, H = 40, 30
+K = (50.0, 0.0, 19.5, 0.0, 52.0, 14.25, 0.0, 0.0, 1.0)
+STREAMINFO = "uint32 fps\nstring encoding\nbool is_recommended\n"
+
+
+def _rs_bag() -> "Path":  # noqa: F821
+    if not RS_BAG.is_file():
+        pytest.skip(f"real RealSense bag not available: {RS_BAG} (../shared/data is absent)")
+    return RS_BAG
+
+
+def _frames(n=4, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        d = rng.integers(300, 4000, (H, W)).astype(np.uint16)
+        d[rng.random((H, W)) < 0.2] = 0
+        out.append(d)
+    return out
+
+
+# ----------------------------------------------------------------------------- writing bags (test side)
+def _rvl_encode(units: np.ndarray) -> bytes:
+    """Wilson's RVL, as compressed_depth_image_transport writes it (the reader's inverse)."""
+    words, word, nibbles = [], 0, 0
+
+    def vle(value):
+        nonlocal word, nibbles
+        while True:
+            nib = value & 7
+            value >>= 3
+            if value:
+                nib |= 8
+            word = ((word << 4) | nib) & 0xFFFFFFFF
+            nibbles += 1
+            if nibbles == 8:
+                words.append(word)
+                word, nibbles = 0, 0
+            if not value:
+                break
+
+    flat = [int(v) for v in units.ravel()]
+    i, prev = 0, 0
+    while i < len(flat):
+        j = i
+        while j < len(flat) and flat[j] == 0:
+            j += 1
+        vle(j - i)
+        k = j
+        while k < len(flat) and flat[k] != 0:
+            k += 1
+        vle(k - j)
+        for v in flat[j:k]:
+            delta = v - prev
+            vle((delta << 1) ^ (delta >> 31))
+            prev = v
+        i = k
+    if nibbles:
+        words.append((word << (4 * (8 - nibbles))) & 0xFFFFFFFF)
+    return struct.pack(f"<{len(words)}I", *words)
+
+
+class _Bag:
+    """Writes one bag with rosbags in ROS1 or ROS2 (sqlite / mcap) form, messages as plain fields."""
+
+    def __init__(self, path, ros: int, storage=StoragePlugin.SQLITE3):
+        self.ros = ros
+        self.ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
+        self.ts.register(get_types_from_msg(STREAMINFO, "realsense_msgs/msg/StreamInfo"))
+        self.w = Writer1(path) if ros == 1 else Writer2(path, version=9, storage_plugin=storage)
+        self.conns = {}
+
+    def __enter__(self):
+        self.w.open()
+        return self
+
+    def __exit__(self, *exc):
+        self.w.close()
+
+    def put(self, topic, msgtype, t_ns, msg):
+        if topic not in self.conns:
+            self.conns[topic] = self.w.add_connection(topic, msgtype, typestore=self.ts)
+        ser = self.ts.serialize_ros1 if self.ros == 1 else self.ts.serialize_cdr
+        self.w.write(self.conns[topic], t_ns, ser(msg, msgtype))
+
+    def header(self, t_ns):
+        T = self.ts.types
+        stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+        if self.ros == 1:
+            return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="depth")
+        return T["std_msgs/msg/Header"](stamp=stamp, frame_id="depth")
+
+    def image(self, topic, t_ns, a, encoding, bigendian=False, pad=0):
+        a = np.asarray(a)
+        row = a.reshape(a.shape[0], -1).view(np.uint8).reshape(a.shape[0], -1)
+        if bigendian:
+            row = a.astype(a.dtype.newbyteorder(">")).reshape(a.shape[0], -1).view(np.uint8).reshape(a.shape[0], -1)
+        row = np.concatenate([row, np.zeros((row.shape[0], pad), np.uint8)], 1)
+        msg = self.ts.types["sensor_msgs/msg/Image"](
+            header=self.header(t_ns), height=a.shape[0], width=a.shape[1], encoding=encoding,
+            is_bigendian=int(bigendian), step=row.shape[1], data=np.ascontiguousarray(row).ravel())
+        self.put(topic, "sensor_msgs/msg/Image", t_ns, msg)
+
+    def compressed(self, topic, t_ns, data: bytes, fmt: str):
+        msg = self.ts.types["sensor_msgs/msg/CompressedImage"](
+            header=self.header(t_ns), format=fmt, data=np.frombuffer(data, np.uint8))
+        self.put(topic, "sensor_msgs/msg/CompressedImage", t_ns, msg)
+
+    def camera_info(self, topic, t_ns, w=W, h=H, k=K):
+        T = self.ts.types
+        roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        arrays = dict(D=np.zeros(5), K=np.array(k), R=np.eye(3).ravel(), P=np.zeros(12))
+        if self.ros == 2:
+            arrays = {key.lower(): v for key, v in arrays.items()}
+        msg = T["sensor_msgs/msg/CameraInfo"](header=self.header(t_ns), height=h, width=w,
+                                              distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi,
+                                              **arrays)
+        self.put(topic, "sensor_msgs/msg/CameraInfo", t_ns, msg)
+
+    def string(self, topic, t_ns, text):
+        self.put(topic, "std_msgs/msg/String", t_ns, self.ts.types["std_msgs/msg/String"](data=text))
+
+    def float32(self, topic, t_ns, v):
+        self.put(topic, "std_msgs/msg/Float32", t_ns, self.ts.types["std_msgs/msg/Float32"](data=v))
+
+
+DEV = "/device_0/sensor_0"
+STREAM = f"{DEV}/Depth_0"
+T0 = 1_000_000_000  # static messages at t ≥ 1 ns, as pyrealsense2's playback needs; frames later
+DT = 33_333_333
+
+
+def _write_realsense_ros1(path, frames, units=0.000125, fps=30):
+    with _Bag(path, 1) as b:
+        b.put("/file_version", "std_msgs/msg/UInt32", 1, b.ts.types["std_msgs/msg/UInt32"](data=3))
+        b.put(f"{STREAM}/info", "realsense_msgs/msg/StreamInfo", 1,
+              b.ts.types["realsense_msgs/msg/StreamInfo"](fps=fps, encoding="mono16", is_recommended=True))
+        b.camera_info(f"{STREAM}/info/camera_info", 1)
+        b.float32(f"{DEV}/option/Depth Units/value", 1, units)
+        for i, d in enumerate(frames):
+            b.image(f"{STREAM}/image/data", T0 + i * DT, d, "mono16")
+
+
+def _write_realsense_ros2(path, frames, units=0.000125, fps=30):
+    with _Bag(path, 2) as b:
+        b.put("/file_version", "std_msgs/msg/UInt32", 1, b.ts.types["std_msgs/msg/UInt32"](data=4))
+        b.string(f"{STREAM}/info", 1, f"encoding=Z16;fps={fps}")
+        fx, _, cx, _, fy, cy = K[:6]
+        b.string(f"{STREAM}/info/camera_info", 1,
+                 f"width={W};height={H};fx={fx!r};ppx={cx!r};fy={fy!r};ppy={cy!r};model=Brown Conrady;coeffs=0,0,0,0,0")
+        b.string(f"{DEV}/option/Depth_Units/value", 1, f"{units:f}")
+        for i, d in enumerate(frames):
+            b.image(f"{STREAM}/image/data", T0 + i * DT, d, "mono16")
+
+
+def _png(a) -> bytes:
+    return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
+
+
+def _quantise(metres, depth_max=10.0, z0=100.0):
+    """compressed_depth_image_transport's 32FC1 encoding: q = A / d + B, 0 for no depth."""
+    a = z0 * (z0 + 1.0)
+    b = 1.0 - a / depth_max
+    d = np.asarray(metres, np.float32)
+    with np.errstate(divide="ignore"):
+        q = np.where(np.isfinite(d) & (d > 0) & (d < depth_max), np.float32(a) / d + np.float32(b), 0)
+    return q.astype(np.uint16), a, b
+
+
+# ----------------------------------------------------------------------------- the real bag
+def test_real_realsense_bag_matches_pyrealsense2():
+    path = _rs_bag()
+    rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (extra [realsense]) is not installed; "
+                                                    "it needs the system libusb")
+    rec = Recording.open(path)
+    assert isinstance(rec, BagRecording) and len(rec) == 2  # SOURCES.md §10: 2 depth frames
+    assert rec.camera.shape == (480, 640) and rec.has_color
+
+    pipe, cfg = rs.pipeline(), rs.config()
+    cfg.enable_device_from_file(str(path), repeat_playback=False)
+    prof = pipe.start(cfg)
+    try:
+        dev = prof.get_device()
+        dev.as_playback().set_real_time(False)
+        scale = dev.first_depth_sensor().get_depth_scale()
+        dp = prof.get_stream(rs.stream.depth).as_video_stream_profile()
+        intr = dp.get_intrinsics()
+        ext = dp.get_extrinsics_to(prof.get_stream(rs.stream.color))
+        frame = np.asanyarray(pipe.wait_for_frames(5000).get_depth_frame().get_data()).copy()
+    finally:
+        pipe.stop()
+    c = rec.camera
+    assert c.depth_scale_m == pytest.approx(scale, rel=1e-7)
+    assert (c.width, c.height) == (intr.width, intr.height) == (dp.width(), dp.height())
+    np.testing.assert_allclose([c.fx, c.fy, c.cx, c.cy], [intr.fx, intr.fy, intr.ppx, intr.ppy], rtol=1e-6)
+    assert rec.fps == dp.fps()
+    # the frame pyrealsense2 delivers is one of ours, unit for unit
+    assert any(np.array_equal(rec.depth_units(i), frame) for i in range(len(rec)))
+    # depth→colour extrinsics: the bag's quaternion is pyrealsense2's rotation (column-major)
+    np.testing.assert_allclose(rec._color_R, np.array(ext.rotation).reshape(3, 3).T, atol=2e-6)
+    np.testing.assert_allclose(rec._color_t, ext.translation, atol=1e-7)
+
+
+def test_real_realsense_bag_times_and_colour():
+    rec = Recording.open(_rs_bag())
+    np.testing.assert_allclose(rec.times_s, [0.0, 0.1679332], atol=1e-7)  # bag times, not index / fps
+    f = rec[1]
+    assert f.time_s == pytest.approx(0.1679332) and f.color.shape == (480, 640, 3)
+    # colour only where depth is (registration lifts depth pixels), and most of the middle is covered
+    assert not f.color[~np.isfinite(f.depth)].any()
+    assert (f.color[200:280, 250:350].sum(-1) > 0).mean() > 0.9
+
+
+# ----------------------------------------------------------------------------- round trips
+@pytest.mark.parametrize("writer,suffix", [(_write_realsense_ros1, ".bag"), (_write_realsense_ros2, "")])
+def test_realsense_layouts_round_trip(tmp_path, writer, suffix):
+    frames = _frames()
+    path = tmp_path / f"rs{suffix}"
+    writer(path, frames)
+    if not suffix:  # a RealSense .db3 is a bare sqlite file: read that, not the folder around it
+        path = next(path.glob("*.db3"))
+    rec = Recording.open(path, handedness="right")
+    assert len(rec) == 4 and rec.handedness == "right" and not rec.has_color
+    c = rec.camera
+    assert (c.width, c.height, c.fx, c.fy, c.cx, c.cy) == (W, H, K[0], K[4], K[2], K[5])
+    assert c.depth_scale_m == pytest.approx(0.000125, rel=1e-6) and rec.fps == 30
+    for i, d in enumerate(frames):
+        assert np.array_equal(rec.depth_units(i), d)
+        np.testing.assert_allclose(rec[i].depth, np.where(d > 0, d * c.depth_scale_m, np.nan), rtol=1e-6)
+    np.testing.assert_allclose(rec.times_s, np.arange(4) * DT / 1e9)
+
+
+@pytest.mark.parametrize("ros,storage", [(1, None), (2, StoragePlugin.SQLITE3), (2, StoragePlugin.MCAP)])
+def test_generic_image_topics_round_trip(tmp_path, ros, storage):
+    frames = _frames(3, seed=1)
+    metres = [np.where(d > 0, d / 1000.0 + 0.0003, np.nan).astype(np.float32) for d in frames]
+    rng = np.random.default_rng(2)
+    colors = [rng.integers(0, 256, (H, W, 3)).astype(np.uint8) for _ in frames]
+    path = tmp_path / ("g.bag" if ros == 1 else "g2")
+    with _Bag(path, ros, storage or StoragePlugin.SQLITE3) as b:
+        b.camera_info("/cam/depth/camera_info", 5)
+        b.camera_info("/cam/color/camera_info", 5)
+        for i in range(3):
+            t = T0 + i * DT
+            b.image("/cam/depth/image_raw", t, frames[i], "16UC1", bigendian=(i == 1), pad=3)
+            b.image("/cam/depth/image_m", t, metres[i], "32FC1")
+            b.image("/cam/color/image_raw", t + 1000, colors[i][..., ::-1], "bgr8")
+    with pytest.raises(RecordingError, match="several depth image topics"):
+        Recording.open(path)
+    rec = Recording.open(path, topic="/cam/depth/image_raw", color_topic="/cam/color/image_raw")
+    assert len(rec) == 3 and rec.camera.depth_scale_m == 0.001 and rec.fps == pytest.approx(30, rel=1e-6)
+    for i in range(3):
+        assert np.array_equal(rec.depth_units(i), frames[i])
+        assert np.array_equal(rec[i].color, colors[i])  # same intrinsics and size: the colour grid is the depth's
+    m = Recording.open(path, topic="/cam/depth/image_m")
+    assert m.depth_kind == "metres"
+    for i in range(3):
+        assert np.array_equal(m[i].depth, metres[i], equal_nan=True)  # float metres exactly as stored
+
+
+@pytest.mark.parametrize("codec", ["png", "rvl"])
+@pytest.mark.parametrize("storage", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
+def test_compressed_depth_round_trip(tmp_path, codec, storage):
+    frames = _frames(3, seed=3)
+    metres = [np.where(d > 0, d / 1000.0, np.nan).astype(np.float32) for d in frames]
+    path = tmp_path / "c2"
+    quant = []
+    with _Bag(path, 2, storage) as b:
+        b.camera_info("/cam/depth/camera_info", 5)
+        for i in range(3):
+            t = T0 + i * DT
+            if codec == "png":
+                body16, fmt = _png(frames[i]), "16UC1; compressedDepth png"
+            else:
+                body16, fmt = struct.pack("<II", W, H) + _rvl_encode(frames[i]), "16UC1; compressedDepth rvl"
+            b.compressed("/cam/depth/image_raw/compressedDepth", t,
+                         struct.pack("<iff", int(codec == "rvl"), 0, 0) + body16, fmt)
+            q, qa, qb = _quantise(metres[i])
+            quant.append((q, qa, qb))
+            body32 = _png(q) if codec == "png" else struct.pack("<II", W, H) + _rvl_encode(q)
+            b.compressed("/cam/inv/image_raw/compressedDepth", t,
+                         struct.pack("<iff", int(codec == "rvl"), qa, qb) + body32, f"32FC1; compressedDepth {codec}")
+    rec = Recording.open(path, topic="/cam/depth/image_raw/compressedDepth")
+    assert rec.camera.fx == K[0] and len(rec) == 3
+    for i in range(3):
+        assert np.array_equal(rec.depth_units(i), frames[i])
+    inv = Recording.open(path, topic="/cam/inv/image_raw/compressedDepth")
+    for i in range(3):
+        q, qa, qb = quant[i]
+        d = inv[i].depth
+        assert np.array_equal(d, inverse_depth_to_metres(q, qa, qb), equal_nan=True)
+        assert np.array_equal(np.isnan(d), np.isnan(metres[i]))
+        ok = np.isfinite(d)
+        # quantised inverse depth: the step at 4 m is d² / A ≈ 1.6 mm
+        assert np.abs(d[ok] - metres[i][ok]).max() < 2e-3
+
+
+def test_rvl_decoder_refuses_damage():
+    units = _frames(1)[0]
+    data = _rvl_encode(units)
+    assert np.array_equal(decode_rvl(data, W, H, "x"), units)
+    with pytest.raises(RecordingError, match="x: damaged RVL depth image \\(the RVL stream ends"):
+        decode_rvl(data[: len(data) // 2], W, H, "x")
+    with pytest.raises(RecordingError, match="longer than the image"):
+        decode_rvl(_rvl_encode(np.ones((H, W + 5), np.uint16)), W, H, "x")
+    with pytest.raises(RecordingError, match="more than 32 bits"):
+        decode_rvl(b"\xff" * 64, W, H, "x")
+
+
+def test_select_and_import(tmp_path):
+    frames = _frames(10, seed=4)
+    src = tmp_path / "rs.bag"
+    _write_realsense_ros1(src, frames)
+    rec = Recording.open(src).select(start_s=0.05, end_s=0.25, every=2)
+    # file times 0, 0.0333, … 0.3: from 0.05 to 0.25 are frames 2…7; every 2nd → 2, 4, 6
+    np.testing.assert_allclose(rec.times_s, np.array([2, 4, 6]) * DT / 1e9)
+    assert [rec[i].index for i in range(3)] == [0, 1, 2]
+    assert np.array_equal(rec.depth_units(1), frames[4])
+    out = import_recording_file(src, tmp_path / "rec", start_s=0.05, end_s=0.25, every=2, handedness="right")
+    assert len(out) == 3 and out.fps == 15 and out.handedness == "right"
+    assert out.camera.depth_scale_m == pytest.approx(0.000125, rel=1e-6)
+    for i, k in enumerate([2, 4, 6]):
+        assert np.array_equal(out.depth_units(i), frames[k])
+    with pytest.raises(RecordingError, match="exists and is not empty"):
+        import_recording_file(src, tmp_path / "rec")
+
+
+def test_recording_pickles_without_its_open_reader(tmp_path):
+    import pickle
+
+    src = tmp_path / "rs.bag"
+    frames = _frames(2)
+    _write_realsense_ros1(src, frames)
+    rec = Recording.open(src)
+    assert np.array_equal(rec.depth_units(1), frames[1])  # opens the reader
+    again = pickle.loads(pickle.dumps(rec))  # as dask ships it to a worker
+    assert np.array_equal(again.depth_units(1), frames[1]) and np.array_equal(again.depth_units(0), frames[0])
+
+
+def test_quaternion_matrix_is_a_rotation():
+    class Q:
+        x, y, z, w = 0.1, -0.2, 0.3, 0.9
+
+    R = _quat_matrix(Q)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+# ----------------------------------------------------------------------------- damaged and wrong bags
+def _cli(*args):
+    from tracker.cli import app
+
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def _one_error_line(r, path):
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}"), r.stderr
+    assert "Traceback" not in r.output
+    return lines[0]
+
+
+def _bad_bags(tmp_path):
+    good = tmp_path / "good.bag"
+    _write_realsense_ros1(good, _frames(3))
+    data = good.read_bytes()
+    out = {}
+    out["truncated"] = tmp_path / "truncated.bag"
+    out["truncated"].write_bytes(data[: len(data) // 2])
+    out["garbage"] = tmp_path / "garbage.bag"
+    out["garbage"].write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    out["garbage_db3"] = tmp_path / "garbage.db3"
+    out["garbage_db3"].write_bytes(b"SQLite format 3\0" + bytes(200))
+    out["garbage_mcap"] = tmp_path / "garbage.mcap"
+    out["garbage_mcap"].write_bytes(b"\x89MCAP0\r\n" + bytes(100))
+    out["empty"] = tmp_path / "empty.bag"
+    out["empty"].write_bytes(b"")
+    nocam = tmp_path / "nocam.bag"
+    with _Bag(nocam, 1) as b:
+        b.image("/cam/depth/image_raw", T0, _frames(1)[0], "16UC1")
+    out["no_camera_info"] = nocam
+    wrongsize = tmp_path / "wrongsize.bag"
+    with _Bag(wrongsize, 1) as b:
+        b.camera_info("/cam/depth/camera_info", 5, w=W + 1)
+        b.image("/cam/depth/image_raw", T0, _frames(1)[0], "16UC1")
+    out["wrong_size"] = wrongsize
+    huge = tmp_path / "huge.bag"
+    with _Bag(huge, 1) as b:
+        b.camera_info("/cam/depth/camera_info", 5, w=100000, h=100000)
+        b.image("/cam/depth/image_raw", T0, _frames(1)[0], "16UC1")
+    out["huge"] = huge
+    colour_only = tmp_path / "colour.bag"
+    with _Bag(colour_only, 1) as b:
+        b.camera_info("/cam/rgb/camera_info", 5)
+        b.image("/cam/rgb/image_raw", T0, np.zeros((H, W, 3), np.uint8), "rgb8")
+    out["no_depth_topic"] = colour_only
+    return good, out
+
+
+def test_damaged_bags_are_one_line_errors(tmp_path):
+    good, bad = _bad_bags(tmp_path)
+    expect = {"truncated": "", "garbage": "not a readable ROS bag", "garbage_db3": "not a readable ROS bag",
+              "garbage_mcap": "not a readable ROS bag", "empty": "not a readable ROS bag",
+              "no_camera_info": "missing camera_info", "wrong_size": "camera info says 41×30",
+              "huge": "larger than the supported", "no_depth_topic": "no depth image topic found"}
+    for name, path in bad.items():
+        for cmd in (["info", path], ["import", path, "-o", tmp_path / f"out_{name}"]):
+            line = _one_error_line(_cli(*cmd), path)
+            assert expect[name] in line, (name, line)
+        assert not (tmp_path / f"out_{name}").exists()
+    line = _one_error_line(_cli("info", good, "--topic", "/nope"), good)
+    assert "no topic '/nope' (image topics: /device_0/sensor_0/Depth_0/image/data)" in line
+    line = _one_error_line(_cli("info", good, "--topic", f"{DEV}/option/Depth Units/value"), good)
+    assert "carries std_msgs/msg/Float32, not a depth image" in line
+    line = _one_error_line(_cli("import", good, "-o", tmp_path / "x", "--camera", "sr305"), good)
+    assert "--camera do not apply" in line
+
+
+def _bag_file(tmp_path, kind, frames):
+    if kind == "bag":
+        path = tmp_path / "good.bag"
+        _write_realsense_ros1(path, frames)
+        return path
+    folder = tmp_path / f"good_{kind}"
+    with _Bag(folder, 2, StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3) as b:
+        b.camera_info("/cam/depth/camera_info", 5)
+        for i, d in enumerate(frames):
+            b.image("/cam/depth/image_raw", T0 + i * DT, d, "16UC1")
+    return next(folder.glob(f"*.{kind}"))
+
+
+def _read_all_or_error(path, frames):
+    """Open and read every frame: what reads back is a prefix of what was written, or it is one
+    RecordingError naming the file. Returns True when it read."""
+    try:
+        rec = Recording.open(path)
+        for i in range(len(rec)):
+            assert np.array_equal(rec.depth_units(i), frames[i])
+        return True
+    except RecordingError as exc:
+        assert str(path) in str(exc)
+        return False
+
+
+@pytest.mark.parametrize("kind", ["bag", "db3", "mcap"])
+def test_cut_and_mutated_bags_read_exactly_or_fail_cleanly(tmp_path, kind):
+    frames = _frames(3)
+    data = _bag_file(tmp_path, kind, frames).read_bytes()
+    bad = tmp_path / f"bad.{kind}"
+    for n in np.linspace(0, len(data) - 1, 20).astype(int):
+        bad.write_bytes(data[:n])
+        _read_all_or_error(bad, frames)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        b = bytearray(data)
+        for pos in rng.integers(0, len(b), 8):
+            b[pos] = int(rng.integers(0, 256))
+        bad.write_bytes(bytes(b))
+        try:
+            rec = Recording.open(bad)
+            for i in range(len(rec)):
+                rec.depth_units(i)  # a flipped pixel byte reads as another depth: fine, as long as nothing crashes
+        except RecordingError as exc:
+            assert str(bad) in str(exc)
+
+
+def test_cli_reads_bags_in_place(tmp_path):
+    src = tmp_path / "rs.bag"
+    frames = _frames(6)
+    _write_realsense_ros1(src, frames)
+    r = _cli("info", src)
+    assert r.exit_code == 0, r.output
+    assert "6 (0.17 s of file time, 30 fps nominal)" in r.output and "0.125 mm per unit" in r.output
+    r = _cli("show", src, "-o", tmp_path / "sheet.png", "--no-mask")
+    assert r.exit_code == 0, r.output
+    assert iio.imread(tmp_path / "sheet.png").ndim == 3
+    r = _cli("import", src, "-o", tmp_path / "rec", "--every", "2", "--end", "0.1", "--hand", "right")
+    assert r.exit_code == 0, r.output
+    rec = Recording.open(tmp_path / "rec")
+    assert len(rec) == 2 and rec.fps == 15 and np.array_equal(rec.depth_units(1), frames[2])
+    line = _one_error_line(_cli("import", tmp_path / "rec", "-o", tmp_path / "rec2", "--topic", "/x"), tmp_path / "rec")
+    assert "apply to recording files" in line
+
+
+def test_missing_extra_names_the_pip_install(tmp_path, monkeypatch):
+    src = tmp_path / "rs.bag"
+    _write_realsense_ros1(src, _frames(1))
+    monkeypatch.delitem(sys.modules, "tracker.bags", raising=False)
+    monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)
+    with pytest.raises(RecordingError, match=r"rs\.bag: reading \.bag files needs rosbags.highlevel: "
+                                             r"pip install 'synergistic-hand-tracking\[recordings\]'"):
+        Recording.open(src)
