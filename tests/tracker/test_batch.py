@@ -1,0 +1,72 @@
+"""Many recordings at once: ``tracker track REC… -o OUTDIR`` one by one or with ``--dask local:2``
+writes the same per-recording outputs as tracking each alone, a summary table, and reports a
+failing recording while the others go on."""
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from tracker.cli import app
+from tracker.run import SUMMARY_COLUMNS, read_tracking
+
+pytest.importorskip("distributed")
+
+
+def _run(args):
+    return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+
+
+@pytest.fixture(scope="module")
+def recs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("batch")
+    for name, motion in (("a", "grasp-back"), ("b", "spread")):
+        r = _run(["synth", "--frames", "3", "--motion", motion, "--noise", "none", "-o", d / name])
+        assert r.exit_code == 0, r.output
+    (d / "broken").mkdir()  # not a recording: no recording.yaml
+    for name in ("a", "b"):  # each alone: the reference
+        r = _run(["track", d / name, "-o", d / f"{name}-alone.csv", "--no-check-hand"])
+        assert r.exit_code == 0, r.output
+    return d
+
+
+def _same_tracking(got, want):
+    """Equal frames, statuses, fit errors and θ, and the same header; the timing column differs by run."""
+    (g, gm), (w, wm) = read_tracking(got), read_tracking(want)
+    pd.testing.assert_frame_equal(g.drop(columns="ms"), w.drop(columns="ms"))
+    assert gm == wm
+
+
+@pytest.mark.parametrize("dask", [None, pytest.param("local:2", marks=pytest.mark.slow)])
+def test_many_recordings_as_one_by_one(recs, tmp_path, dask):
+    out = tmp_path / "out"
+    r = _run(["track", recs / "a", recs / "broken", recs / "b", "-o", out, "--no-check-hand",
+              *(["--dask", dask] if dask else [])])
+    # the broken recording is reported, last, one line naming it; the others were tracked
+    assert r.exit_code == 2, r.output
+    assert r.stderr == f"error: {recs / 'broken' / 'recording.yaml'}: missing (not a recording folder)\n"
+    for name in ("a", "b"):
+        _same_tracking(out / f"{name}.csv", recs / f"{name}-alone.csv")
+    summary = pd.read_csv(out / "summary.csv", keep_default_na=False)
+    assert list(summary.columns) == list(SUMMARY_COLUMNS)
+    assert summary["recording"].tolist() == [str(recs / n) for n in ("a", "broken", "b")]
+    assert summary["error"].tolist()[0] == summary["error"].tolist()[2] == ""
+    assert "missing (not a recording folder)" in summary["error"].tolist()[1]
+    assert summary["frames"].astype(str).tolist() == ["3", "", "3"]
+    assert not (out / "broken.csv").exists()
+
+
+def test_batch_refusals(recs, tmp_path):
+    """Outputs that would collide or be overwritten, and the per-recording options, are refused
+    before anything is tracked."""
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "a").symlink_to(recs / "a")
+    r = _run(["track", recs / "a", tmp_path / "x" / "a", "-o", tmp_path / "o1"])
+    assert r.exit_code == 2 and "has the same name as" in r.stderr, r.output
+    r = _run(["track", recs / "a", recs / "b", "-o", tmp_path / "o2", "--rerun", tmp_path / "v.rrd"])
+    assert r.exit_code == 2 and r.stderr.startswith("error: --rerun: is for one recording"), r.output
+    (tmp_path / "o3").mkdir()
+    (tmp_path / "o3" / "b.csv").write_text("earlier\n")
+    r = _run(["track", recs / "a", recs / "b", "-o", tmp_path / "o3"])
+    assert r.exit_code == 2 and "b.csv: exists and is never overwritten" in r.stderr, r.output
+    assert not (tmp_path / "o3" / "a.csv").exists() and (tmp_path / "o3" / "b.csv").read_text() == "earlier\n"
