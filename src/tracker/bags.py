@@ -32,7 +32,7 @@ from .cameras import Camera
 from .errors import RecordingError, TrackerError
 from .images import (COMPRESSED_DEPTH_HEADER, decode_png_units, decode_rvl, inverse_depth_to_metres,
                      register_color)
-from .recording import MAX_FRAME_SIDE, FileRecording, check_frame_size
+from .recording import MAX_FRAME_SIDE, FileRecording, Frame, check_frame_size
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -311,9 +311,32 @@ class BagRecording(FileRecording):
                 return bag.decode(c, raw)
         raise RecordingError(self.path, f"{conn.topic}: message {k} at {t} ns listed in the index is missing")
 
+    def __iter__(self):
+        """The selected frames in order from one pass over the bag (``rec[i]`` looks each frame up
+        by its time instead, which for a ROS1 bag walks the index from the start every time)."""
+        if not len(self._sel):
+            return
+        bag = self._open()
+        t0, t1 = int(self._stamps[self._sel[0]]), int(self._stamps[self._sel[-1]]) + 1
+        k = int(np.searchsorted(self._stamps, t0, "left"))  # the file's index of the first message read
+        wanted = iter(self._sel.tolist())
+        nxt, i = next(wanted), 0
+        for conn, _, raw in bag.messages([self._depth_conn], start=t0, stop=t1):
+            if k == nxt:
+                depth, color = self._decode(k, bag.decode(conn, raw))
+                yield Frame(i, float(self.times_s[i]), self._depth_metres(depth), color, None)
+                i += 1
+                nxt = next(wanted, None)
+                if nxt is None:
+                    return
+            k += 1
+        raise RecordingError(self.path, f"{self.topic}: frame {nxt} listed in the index is missing")
+
     def _read_raw(self, k: int):
+        return self._decode(k, self._message_at("depth", self._stamps, k))
+
+    def _decode(self, k: int, msg):
         where = f"{self.path} ({self.topic}, frame {k})"
-        msg = self._message_at("depth", self._stamps, k)
         if self._depth_conn.msgtype == IMAGE:
             kind, depth = depth_from_image(msg, where)
         else:

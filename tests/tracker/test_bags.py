@@ -515,3 +515,17 @@ def test_missing_extra_names_the_pip_install(tmp_path, monkeypatch):
     with pytest.raises(RecordingError, match=r"rs\.bag: reading \.bag files needs rosbags.highlevel: "
                                              r"pip install 'synergistic-hand-tracking\[recordings\]'"):
         Recording.open(src)
+
+
+@pytest.mark.parametrize("kind", ["bag", "db3", "mcap"])
+def test_iterating_gives_the_indexed_frames(tmp_path, kind):
+    frames = _frames(7, seed=5)
+    rec = Recording.open(_bag_file(tmp_path, kind, frames))
+    for view, picked in ((rec, range(7)), (rec.select(start_s=0.03, every=3), [1, 4])):
+        got = list(view)
+        assert [f.index for f in got] == list(range(len(picked)))
+        np.testing.assert_allclose([f.time_s for f in got], [k * DT / 1e9 for k in picked])
+        for f, k in zip(got, picked):
+            scale = rec.camera.depth_scale_m
+            assert np.array_equal(np.rint(np.nan_to_num(f.depth / scale)).astype(np.uint16), frames[k])
+            assert np.array_equal(f.depth, view[f.index].depth, equal_nan=True)
