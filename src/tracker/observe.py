@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .segment import Segmenter, bounds
 
@@ -32,12 +33,16 @@ class ObserveSettings:
     the largest stride ≤ ``stride`` that keeps about that many points (a distant hand sampled densely
     enough, a near one not oversampled); ``smooth``: radius (px) of the edge-preserving depth
     smoothing before sampling (0 = off, the paper's); ``normal_max_jump``: depth step (m) across which
-    no normal is computed."""
+    no normal is computed. ``gate_mm``: while tracking, points farther than this from the hand
+    predicted for the frame are dropped before correspondence (:func:`gate`; 0 = off), unless fewer
+    than ``gate_min_share`` of them would remain."""
 
     stride: int = 3
     target_points: int | None = 600
     smooth: int = 1
     normal_max_jump: float = 0.01
+    gate_mm: float = 30.0
+    gate_min_share: float = 0.5
 
 
 def backproject(depth, camera):
@@ -159,3 +164,37 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     out_d = np.full((H, W), np.nan)
     out_d[y0:y1, x0:x1] = np.where(mw, dw, np.nan)
     return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride)
+
+
+def gate(points, predicted, radius=0.03, *, min_share=0.5, min_points=30) -> np.ndarray:
+    """Boolean ``(N,)``: the data ``points`` ``(N, 3)`` within ``radius`` m of the predicted hand's
+    surface (``predicted``: ``(M, 3)`` model surface samples at the predicted pose,
+    :meth:`tracker.correspond.ModelSamples.pose`).
+
+    A table, torso, forearm or second object that the segmentation left next to the hand is then
+    out of reach of the correspondences. Guard against a fast motion that the prediction missed:
+    when fewer than ``min_share`` of the points (or fewer than ``min_points``) would remain, the
+    prediction is what is wrong, not the points, and every point is kept. NaN points are never kept
+    by the gate (they are never near) but do count in the share.
+
+    >>> model = np.array([[0.0, 0.0, 0.5], [0.02, 0.0, 0.5]])
+    >>> data = np.array([[0.0, 0.01, 0.5], [0.02, 0.0, 0.52], [0.3, 0.0, 0.5]])
+    >>> gate(data, model, 0.03, min_points=1).tolist()
+    [True, True, False]
+    >>> gate(data, model + 0.2, 0.03, min_points=1).tolist()   # prediction far off: keep everything
+    [True, True, True]
+    """
+    P = np.asarray(points, float).reshape(-1, 3)
+    M = np.asarray(predicted, float).reshape(-1, 3)
+    M = M[np.isfinite(M).all(1)]
+    keep = np.ones(len(P), bool)
+    finite = np.isfinite(P).all(1)
+    if len(M) == 0 or not finite.any():
+        return keep
+    d, _ = cKDTree(M).query(P[finite], distance_upper_bound=float(radius))
+    near = np.zeros(len(P), bool)
+    near[finite] = np.isfinite(d)
+    n = int(near.sum())
+    if n < max(int(min_points), 1) or n < float(min_share) * len(P):
+        return keep
+    return near

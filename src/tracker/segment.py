@@ -42,6 +42,7 @@ FOREARM_CHOICES = ("cut", "keep")
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
+ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -138,8 +139,10 @@ class Segmenter:
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
                            with_beyond=True)
+        seed = beyond[1]
+        beyond = beyond[0]
         if self.forearm == "cut" and mask.any():
-            mask = cut_forearm(mask, dv, f, beyond)
+            mask = cut_forearm(mask, dv, f, beyond, seed=seed)
         return mask
 
 
@@ -323,8 +326,9 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     the seed's centre — the arm leads to the body, so the body is reached along it only beyond
     the reach of a hand — connected to the seed (when every candidate is cut off by the border,
     the seed is the end of the nearest one farthest from the border, see :func:`_far_end`), plus the small surfaces (fingertip blobs) in
-    that band within ``margin_px`` pixels of it. With ``with_beyond``, also the pixels of the
-    hand's surface left out by the band or the reach (where an arm leaves the region)."""
+    that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed))``:
+    also the pixels of the hand's surface left out by the band or the reach (where an arm leaves
+    the region) and the seed's pixels."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -338,7 +342,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             ids, fronts = ids[j:j + 1], fronts[j:j + 1]
     if ids.size == 0:
         empty = np.zeros(d.shape, bool)
-        return (empty, empty) if with_beyond else empty
+        return (empty, (empty, empty)) if with_beyond else empty
     k, front, seed = 0, np.nan, None
     for kk, ff in zip(ids, fronts):
         with np.errstate(invalid="ignore"):
@@ -385,7 +389,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             out[win] |= np.isin(lab[win], small) & near[win]
     if with_beyond:
         # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
-        return out, (lab == k) & ~out
+        return out, ((lab == k) & ~out, seed)
     return out
 
 
@@ -413,7 +417,7 @@ def _points(depth, focal):
     return np.stack([(u - (W - 1) / 2) * depth / focal, (v - (H - 1) / 2) * depth / focal, depth], -1)
 
 
-def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6)):
+def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None):
     """The hand mask without the forearm beyond the wrist.
 
     The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
@@ -450,6 +454,11 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if go_on.any():
         far = ndimage.distance_transform_edt(~go_on)
         cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+    elif seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
+        # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
+        # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
+        near = ndimage.distance_transform_edt(~np.asarray(seed, bool)[y0:y1, x0:x1])
+        cy, cx = np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
     else:
         cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
     r = float(dt[cy, cx])
@@ -466,9 +475,41 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     lab, n = ndimage.label(outside, structure=np.ones((3, 3)))
     if n == 0:
         return m
-    width = np.asarray(ndimage.maximum(dt, lab, index=np.arange(1, n + 1)), float)
+    idx = np.arange(1, n + 1)
+    # a part's width where it leaves the palm (its chord across a ring 0.3 r wide), not its
+    # widest place: an arm the region's reach cuts short is no wider inside the region than a finger
+    base = (rho <= 1.9 * r) & (lab > 0)
+    width = np.bincount(lab[base], minlength=n + 1)[1:] / (0.3 * r) / 2.0
     continues = np.zeros(n + 1, bool)
     continues[np.unique(lab[go_on & (lab > 0)])] = True
+    # a part reaching farther from the palm's centre than any finger can is an arm even where it
+    # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
+    reach_r = np.asarray(ndimage.maximum(rho, lab, index=idx), float)
+    continues[1:] |= reach_r > ARM_REACH_R * r
+    # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
+    nb = np.maximum(np.bincount(lab[base], minlength=n + 1)[1:], 1)
+    cy_p = np.bincount(lab[base], weights=vy[base], minlength=n + 1)[1:] / nb
+    cx_p = np.bincount(lab[base], weights=vx[base], minlength=n + 1)[1:] / nb
+    # spread fingers cross a ring around the palm as several pieces, an arm as one: a part that
+    # does is the fingers even where it reaches beyond the region (fingertips past the reach)
+    ring_lab, _ = ndimage.label(outside & (rho >= 2.0 * r) & (rho <= 2.4 * r), structure=np.ones((3, 3)))
+    on = ring_lab > 0
+    piece_size = np.bincount(ring_lab[on])
+    big = np.flatnonzero(piece_size >= 0.05 * r * r)
+    owner = np.zeros(piece_size.size, int)
+    owner[ring_lab[on]] = lab[on]
+    pieces = np.bincount(owner[big[big > 0]], minlength=n + 1)[1:]
+    continues[1:] &= pieces < 2
+    ends = ~continues[1:]
+    for j in np.flatnonzero(ends & (width >= 0.45 * r)):
+        # the other parts that end here, weighted by their width: the fingers' side of the palm
+        others = ends.copy()
+        others[j] = False
+        if not others.any():
+            continue
+        fy, fx = np.sum(width[others] * cy_p[others]), np.sum(width[others] * cx_p[others])
+        cosang = (cy_p[j] * fy + cx_p[j] * fx) / (np.hypot(cy_p[j], cx_p[j]) * np.hypot(fy, fx) + 1e-12)
+        continues[j + 1] |= cosang < -0.5
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:

@@ -28,7 +28,7 @@ from ..evaluate import posture_error_deg
 from ..observe import observe
 from ..init import InitSettings
 from ..track import HandTracker, TrackerSettings
-from .hands import HandShape
+from .hands import HandShape, wrist_to_middle_tip_mm
 from .motions import GlobalPath, fingerfist_path, hand_centre, make_motion, read_schroeder26, with_path
 from .noise import NoiseModel
 from .render import Clutter, DepthRenderer
@@ -318,7 +318,9 @@ def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, 
         clutter = Clutter.parse(clutter)
     if clutter is not None:
         R = euler_to_matrix(truth[:, 3:6])
-        clutter = clutter.fixed((truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+        # the arm belongs to the rendered hand: a resized hand comes with a resized forearm
+        size = wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)
+        clutter = clutter.sized(size).fixed((truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
     F = len(truth)
     out = {"keypoint_mm": np.full(F, np.nan), "posture_deg": np.full(F, np.nan), "status": np.empty(F, object),
            "ms": np.zeros(F), "scale": np.full(F, np.nan)}

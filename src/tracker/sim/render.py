@@ -214,6 +214,22 @@ class Clutter:
             return np.asarray(self.object_centre, float)
         return np.asarray(hand_centre, float) + np.asarray(self.object_offset_m, float)
 
+    def sized(self, scale: float) -> "Clutter":
+        """A copy whose forearm (and sleeve) is ``scale`` × as long and as wide: the arm of a hand
+        ``scale`` × the model's (a small hand on an adult's arm would be as wide at the wrist as
+        across the palm, which no person's is).
+
+        >>> c = Clutter().sized(0.8)
+        >>> round(c.forearm_length_m, 3), tuple(round(v, 4) for v in c.forearm_wrist_m)
+        (0.2, (0.0216, 0.016))
+        """
+        k = float(scale)
+        if k == 1.0:
+            return self
+        return replace(self, forearm_length_m=k * self.forearm_length_m,
+                       forearm_wrist_m=tuple(k * v for v in self.forearm_wrist_m),
+                       forearm_far_m=tuple(k * v for v in self.forearm_far_m), sleeve_start_m=k * self.sleeve_start_m)
+
     def fixed(self, hand_centre) -> "Clutter":
         """A copy whose table, torso and object no longer follow the hand (placed from ``hand_centre``)."""
         out = self

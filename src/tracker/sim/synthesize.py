@@ -97,7 +97,7 @@ def synthesize(motion, camera, noise, out_dir, fps: float = 30, seed: int = 0,
     if clutter is not None:
         R = euler_to_matrix(m.theta[:, 3:6])
         centres = m.theta[:, :3] + R @ hand_centre(shown)
-        clutter = clutter.fixed(centres.mean(axis=0))
+        clutter = clutter.sized(shape.scale).fixed(centres.mean(axis=0))
     t_start = time.perf_counter()
     t_render = t_noise = 0.0
     n_hand = n_valid = n_clutter = 0
