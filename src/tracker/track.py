@@ -28,7 +28,7 @@ from .errors import TrackerError
 from .icp import MODES, IcpSettings, fit, tracking_schedule
 from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
                    score, thin)
-from .observe import ObserveSettings
+from .observe import ObserveSettings, gate
 
 LIMITS = ("anatomical", "data", "model")
 
@@ -75,7 +75,7 @@ class TrackerSettings:
         pairs (rejected at 50 mm, no normal test, no silhouette term), 1 rigid + 4 non-rigid ICP
         iterations × 5 Gauss-Newton steps, λ = 1 on posture and 0 on pose, single-frame fits from the
         synergy mean without our coarse or finger-wise searches; ``changes`` as in :meth:`replace`."""
-        base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0),
+        base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0),
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0),
@@ -328,7 +328,13 @@ class HandTracker:
             self.prev = None
         else:
             ctx = self.context
-            theta, corr = fit(self.hand, pts, self.predict(), self.stages, ctx.matcher, st.icp,
+            pred = self.predict()
+            if st.observe.gate_mm > 0:
+                # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit
+                keep = gate(pts, ctx.score_samples.pose(pred)[0], st.observe.gate_mm / 1000.0,
+                            min_share=st.observe.gate_min_share, min_points=st.min_points)
+                pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+            theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
             status = "tracked"
         if st.check_hand and self.hand_check_ is None and status == "reinit":
