@@ -25,6 +25,7 @@ import struct
 from pathlib import Path
 
 import numpy as np
+from PIL import Image as PILImage
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
@@ -240,8 +241,6 @@ def color_from_message(msg, where) -> np.ndarray:
             return np.repeat(a, 3, axis=2)
         a = a[..., :3]
         return np.ascontiguousarray(a[..., ::-1] if bgr else a)
-    from PIL import Image as PILImage
-
     try:
         im = PILImage.open(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))))
         check_frame_size(im.width, im.height, where)

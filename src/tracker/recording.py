@@ -26,6 +26,7 @@ Examples
 """
 from __future__ import annotations
 
+import copy
 import re
 import shutil
 from dataclasses import dataclass
@@ -357,8 +358,6 @@ class FileRecording(Recording):
     def select(self, start_s: float | None = None, end_s: float | None = None, every: int = 1) -> "FileRecording":
         """The frames from ``start_s`` up to and including ``end_s`` (seconds of the file's time, as
         :attr:`times_s` counts), every ``every``-th of them; a new view, nothing is read."""
-        import copy
-
         if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
             raise RecordingError(self.path, f"--every must be a positive integer, got {every!r}")
         for name, v in (("--start", start_s), ("--end", end_s)):

@@ -16,7 +16,7 @@ from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from tracker.bags import BagRecording, _quat_matrix, open_bag  # noqa: E402
+from tracker.bags import BagRecording, _quat_matrix  # noqa: E402
 from tracker.errors import RecordingError  # noqa: E402
 from tracker.images import decode_rvl, inverse_depth_to_metres  # noqa: E402
 from tracker.recording import Recording, import_recording_file  # noqa: E402
