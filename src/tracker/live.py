@@ -95,8 +95,10 @@ class RealSenseSource:
             raise TrackerError(where, f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
         try:
             dev = profile.get_device()
+            self._playback = None
             if self.playback is not None:
-                dev.as_playback().set_real_time(False)  # every frame, however slow the tracker
+                self._playback = dev.as_playback()
+                self._playback.set_real_time(False)  # every frame, however slow the tracker
             self.name = (self.playback.name if self.playback is not None
                          else f"{dev.get_info(rs.camera_info.name)} {dev.get_info(rs.camera_info.serial_number)}")
             scale = float(dev.first_depth_sensor().get_depth_scale())
@@ -119,14 +121,27 @@ class RealSenseSource:
         return (self._stop or (self.max_frames is not None and self.frames_ >= self.max_frames)
                 or (self.max_seconds is not None and t is not None and t >= self.max_seconds))
 
-    def __iter__(self):
-        ms = int(self.timeout_s * 1000)
-        while not self._limit_reached(None):
-            ok, fs = self._pipe.try_wait_for_frames(ms)
-            if not ok:
-                if self.playback is not None:
-                    return  # the file has no more frames
+    def _next(self):
+        """The next frameset, or None at the end of a playback."""
+        # short waits, so the end of a file is seen at once and not after the whole timeout
+        waited, step = 0.0, 0.1
+        while True:
+            ok, fs = self._pipe.try_wait_for_frames(int(step * 1000))
+            if ok:
+                return fs
+            if self._playback is not None and self._playback.current_status() == rs.playback_status.stopped:
+                return None
+            waited += step
+            if waited >= self.timeout_s:
+                if self._playback is not None:
+                    return None
                 raise TrackerError("camera", f"no frame from {self.name} for {self.timeout_s:g} s")
+
+    def __iter__(self):
+        while not self._limit_reached(None):
+            fs = self._next()
+            if fs is None:
+                return
             if self._align is not None:
                 fs = self._align.process(fs)
             d = fs.get_depth_frame()

@@ -1,0 +1,179 @@
+"""``tracker live``: the RealSense source through librealsense's own playback of ``.bag`` files (the
+real D435 file and bags written here from synthetic recordings), the same tracking path as
+``tracker track``, Ctrl-C, and the one-line errors of a missing camera or extra."""
+from __future__ import annotations
+
+import signal
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import shared
+from typer.testing import CliRunner
+
+from tracker.cli import app
+from tracker.recording import Recording
+from tracker.run import read_tracking
+
+pytest.importorskip("pyrealsense2")
+rosbag1 = pytest.importorskip("rosbags.rosbag1")
+typesys = pytest.importorskip("rosbags.typesys")
+
+BAG = ("sensor_recordings", "librealsense_single_depth_color_640x480.bag")
+
+
+def _run(args):
+    return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+
+
+def write_bag(rec, out, template):
+    """A RealSense bag (file format v3) of ``rec``'s depth frames: the static messages of
+    ``template`` (a real RealSense Viewer file: device, sensor, stream and option topics), its depth
+    camera info with ``rec``'s intrinsics, one ``mono16`` image (and the template's metadata) per frame
+    at ``rec``'s rate; colour left out."""
+    ts = typesys.get_typestore(typesys.Stores.ROS1_NOETIC)
+    cam = rec.camera
+    with rosbag1.Reader(template) as r:
+        conns = [c for c in r.connections if "Color_0/image" not in c.topic]
+        msgs = list(r.messages(connections=conns))
+    w = rosbag1.Writer(out)
+    w.open()
+    new = {c.id: w.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, md5sum=c.digest,
+                                  callerid=c.ext.callerid, latching=c.ext.latching) for c in conns}
+    first = min(t for c, t, _ in msgs if c.topic.endswith("Depth_0/image/data"))
+    per_frame = [(c, raw) for c, t, raw in msgs if t == first and "/Depth_0/image/" in c.topic]
+    for c, t, raw in msgs:
+        if "/image/" in c.topic:
+            continue
+        if c.topic.endswith("Depth_0/info/camera_info"):
+            m = ts.deserialize_ros1(raw, c.msgtype)
+            m.K = np.array([cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1.0])
+            m.P = np.array([cam.fx, 0, cam.cx, 0, 0, cam.fy, cam.cy, 0, 0, 0, 1, 0.0])
+            raw = ts.serialize_ros1(m, c.msgtype)
+        w.write(new[c.id], t, raw)
+    for i in range(len(rec)):
+        t = first + int(round(i * 1e9 / rec.fps))
+        for c, raw in per_frame:
+            if c.topic.endswith("image/data"):
+                m = ts.deserialize_ros1(raw, c.msgtype)
+                m.header.seq = i
+                m.header.stamp.sec, m.header.stamp.nanosec = divmod(t, 10**9)
+                m.data = rec.depth_units(i).astype("<u2").view(np.uint8).ravel()
+                raw = ts.serialize_ros1(m, c.msgtype)
+            w.write(new[c.id], t, raw)
+    w.close()
+    return out
+
+
+@pytest.fixture(scope="module")
+def synthetic_bag(tmp_path_factory):
+    d = tmp_path_factory.mktemp("live")
+    r = _run(["synth", "--frames", "5", "--noise", "none", "-o", d / "rec"])
+    assert r.exit_code == 0, r.output
+    return write_bag(Recording.open(d / "rec"), d / "rec.bag", shared(*BAG)), d / "rec"
+
+
+def test_real_bag_plays_back_as_pyrealsense2_reports(tmp_path):
+    """The D435 file: both depth frames, the intrinsics and depth scale librealsense reports, the
+    depth units as stored in the file (read independently with rosbags)."""
+    import pyrealsense2 as rs
+
+    bag = shared(*BAG)
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "t.csv", "--save", tmp_path / "saved",
+              "--rerun", tmp_path / "t.rrd", "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    df, meta = read_tracking(tmp_path / "t.csv")
+    assert df["frame"].tolist() == [0, 1] and meta["recording"] == str(bag)
+    saved = Recording.open(tmp_path / "saved")
+    pipe, cfg = rs.pipeline(), rs.config()
+    cfg.enable_device_from_file(str(bag), repeat_playback=False)
+    prof = pipe.start(cfg)
+    try:
+        k = prof.get_stream(rs.stream.depth).as_video_stream_profile().get_intrinsics()
+        scale = prof.get_device().first_depth_sensor().get_depth_scale()
+    finally:
+        pipe.stop()
+    c = saved.camera
+    assert (c.width, c.height, c.fx, c.fy, c.cx, c.cy) == (k.width, k.height, k.fx, k.fy, k.ppx, k.ppy)
+    assert c.depth_scale_m == scale and abs(scale - 0.001) < 1e-9
+    ts = typesys.get_typestore(typesys.Stores.ROS1_NOETIC)
+    with rosbag1.Reader(bag) as rd:
+        conns = [x for x in rd.connections if x.topic.endswith("Depth_0/image/data")]
+        raw = [ts.deserialize_ros1(m, x.msgtype) for x, _, m in rd.messages(connections=conns)]
+    for i, m in enumerate(raw):
+        assert np.array_equal(saved.depth_units(i), np.frombuffer(m.data.tobytes(), "<u2").reshape(m.height, m.width))
+    from tracker.viewer import read_frames
+
+    assert read_frames(tmp_path / "t.rrd")["world/camera/depth"] == [0, 1]
+
+
+def test_live_is_the_track_pipeline(synthetic_bag, tmp_path):
+    """A bag written here from a synthetic recording: its frames come back unit for unit, and
+    tracking them live gives exactly what ``tracker track`` gives on the saved frames."""
+    bag, rec = synthetic_bag
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "live.csv", "--save", tmp_path / "saved",
+              "--keypoints", tmp_path / "kp.csv", "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    src, saved = Recording.open(rec), Recording.open(tmp_path / "saved")
+    assert len(saved) == len(src) == 5
+    for i in range(len(src)):
+        assert np.array_equal(saved.depth_units(i), src.depth_units(i))
+    assert np.allclose([saved.camera.fx, saved.camera.cy], [src.camera.fx, src.camera.cy], rtol=1e-6)
+    r = _run(["track", tmp_path / "saved", "-o", tmp_path / "track.csv", "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    live, _ = read_tracking(tmp_path / "live.csv")
+    track, _ = read_tracking(tmp_path / "track.csv")
+    pd.testing.assert_frame_equal(live.drop(columns=["ms", "time_s"]), track.drop(columns=["ms", "time_s"]))
+    assert (live["status"] != "lost").all() and live["fit_mm"].max() < 2.0
+    assert len(pd.read_csv(tmp_path / "kp.csv")) == 5
+
+
+def test_frames_limit_and_ctrl_c(synthetic_bag, tmp_path, monkeypatch):
+    """``--frames N`` stops after N; Ctrl-C during tracking stops after that frame and the outputs
+    are still written (the real SIGINT handler of the command)."""
+    bag, _ = synthetic_bag
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "two.csv", "--frames", "2", "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    assert read_tracking(tmp_path / "two.csv")[0]["frame"].tolist() == [0, 1]
+
+    import tracker.run as run
+
+    real = run.track_recording
+
+    def interrupting(rec, tracker, on_frame=None, **kw):
+        def each(frame, res, ob):
+            on_frame(frame, res, ob)
+            if frame.index == 1:
+                signal.raise_signal(signal.SIGINT)  # as the user's Ctrl-C, delivered to the command's handler
+
+        return real(rec, tracker, each, **kw)
+
+    monkeypatch.setattr(run, "track_recording", interrupting)
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "stopped.csv", "--rerun", tmp_path / "s.rrd",
+              "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    assert read_tracking(tmp_path / "stopped.csv")[0]["frame"].tolist() == [0, 1]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+
+
+def test_no_camera_and_missing_extra(tmp_path, monkeypatch):
+    import pyrealsense2 as rs
+
+    if len(rs.context().query_devices()):
+        pytest.skip("a RealSense camera is connected")
+    r = _run(["live", "-o", tmp_path / "t.csv"])
+    assert r.exit_code == 2 and r.stderr == ("error: camera: no RealSense camera connected (connect one, or play a "
+                                             "recording back with --playback FILE.bag)\n"), r.output
+    r = _run(["live", "--playback", tmp_path / "none.bag", "-o", tmp_path / "t.csv"])
+    assert r.exit_code == 2 and r.stderr == f"error: {tmp_path / 'none.bag'}: no such file to play back\n"
+    (tmp_path / "bad.bag").write_bytes(b"#ROSBAG V2.0\n" + b"\0" * 64)
+    r = _run(["live", "--playback", tmp_path / "bad.bag", "-o", tmp_path / "t.csv"])
+    assert r.exit_code == 2 and r.stderr.startswith(f"error: {tmp_path / 'bad.bag'}: librealsense cannot"), r.output
+    assert r.stderr.count("\n") == 1
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)
+    monkeypatch.delitem(sys.modules, "tracker.live", raising=False)
+    r = _run(["live", "-o", tmp_path / "t.csv"])
+    assert r.exit_code == 2 and r.stderr == ("error: pyrealsense2: live cameras need pyrealsense2 "
+                                             "(pip install 'synergistic-hand-tracking[realsense]')\n"), r.output
+    assert not (tmp_path / "t.csv").exists()
