@@ -56,6 +56,7 @@ def fit(
     variance: float = typer.Option(0.99, "--variance", help="Variance fraction that sets the default number of PCs."),
     fmt: str = typer.Option("auto", "--format", help="Input format: auto (by suffix), csv, schroeder26."),
     markers: Optional[str] = typer.Option(None, "--markers", help="C3D input: marker set name or YAML (default: the shipped set the labels fit)."),
+    markersets: List[Path] = typer.Option(None, "--markersets", help="C3D input: folder of your own marker-set YAMLs, matched beside the shipped sets (repeatable; also $SYNERGY_MARKERSETS, ~/.config/synergy/markersets)."),
     hand: Optional[str] = typer.Option(None, "--hand", help="C3D input: left or right (default: from the labels, else the handedness check)."),
     subject: Optional[Path] = typer.Option(None, "--subject", help="C3D input: subject calibration from 'synergy calibrate'."),
     accept_poor: bool = typer.Option(False, "--accept-poor", help="C3D input: fit trials whose conversion is judged poor."),
@@ -92,6 +93,12 @@ def fit(
     labels = task_labels(inputs, task, task_map)
     read_kw = dict(markers=markers, hand=hand, smooth_hz=smooth_hz, check_hand=not no_hand_check,
                    calibration=load_calibration(subject) if subject is not None else "trial")
+    if markersets:  # user folders named here join the shipped sets and $SYNERGY_MARKERSETS
+        from synergy.markers import available_markersets, load_markerset, user_markerset_dirs
+
+        read_kw["markersets"] = available_markersets(markersets)
+        if markers:
+            read_kw["markers"] = load_markerset(markers, user_markerset_dirs(markersets))
 
     trials = []
     stats_of = {}
@@ -309,16 +316,25 @@ def compare(
 @_errors_exit_2
 def plot(
     spec: str = typer.Argument(..., help="NAME, NAME@VERSION or path to a .npz."),
-    out: Path = typer.Option(Path("figs"), "-o", "--out", help="Output folder."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Output folder for the PNGs [figs; with --rerun, only when given]."),
     heldout: List[Path] = typer.Option(None, "--heldout", help="Held-out posture file(s) for the reconstruction curve (repeatable)."),
     fmt: str = typer.Option("auto", "--format", help="Format of --heldout files."),
     registry: List[Path] = typer.Option(None, "-r", "--registry", help=REGISTRY_HELP),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Write a Rerun recording (.rrd): the hand swept from −2σ to +2σ along each PC on the 'sweep' timeline (extra [viz])."),
+    pcs: int = typer.Option(3, "--pcs", help="PCs in the --rerun sweep."),
+    steps: int = typer.Option(21, "--steps", help="Steps of the --rerun sweep."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --rerun file."),
 ):
     """Scree/cumulative-variance PNG, the hand at μ ± 2σ along PC1–3 (paper Fig. 6), and reconstruction
-    error vs PCs if held-out data exist."""
+    error vs PCs if held-out data exist; with --rerun, the synergies in the 3-D viewer."""
     from handmodel.fileio import check_output
 
-    check_output(out, folder=True)  # before the bundle and held-out files are read
+    if out is None and rerun is None:
+        out = Path("figs")
+    if out is not None:
+        check_output(out, folder=True)  # before the bundle and held-out files are read
+    if rerun is not None:
+        check_output(rerun, overwrite=overwrite)
     import numpy as np
 
     from synergy.bundle import load_bundle
@@ -326,9 +342,14 @@ def plot(
     from synergy.plots import bundle_figures
 
     b = load_bundle(spec, registry)
-    X = np.vstack([read_trial(f, fmt).postures for f in heldout]) if heldout else None
-    for p in bundle_figures(b, out, heldout=X):
-        typer.echo(str(p))
+    if out is not None:
+        X = np.vstack([read_trial(f, fmt).postures for f in heldout]) if heldout else None
+        for p in bundle_figures(b, out, heldout=X):
+            typer.echo(str(p))
+    if rerun is not None:
+        from synergy.viewer import write_synergy_rrd  # an optional extra ([viz]): loaded only when asked for
+
+        typer.echo(str(write_synergy_rrd(b, rerun, n_pcs=pcs, steps=steps, overwrite=overwrite)))
 
 
 from synergy import cli_mocap  # noqa: E402
