@@ -39,8 +39,14 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _IMAGE_TYPES = (IMAGE, COMPRESSED)
-_RS_DEPTH = re.compile(r"^(/device_\d+/sensor_\d+)/Depth_\d+/image/data$")
-_RS_COLOR = re.compile(r"^/device_\d+/sensor_\d+/Color_\d+/image/data$")
+#: RealSense streams: ``/device_D/sensor_S/Depth_I/…`` (``image/data`` raw, other leaves compressed)
+_RS_STREAM = re.compile(r"^((/device_\d+/sensor_\d+)/(Depth|Color|Infrared)_\d+)/")
+
+
+def _rs(topic: str, kind: str = "Depth"):
+    """The RealSense stream match of ``topic`` for a stream kind, or None."""
+    m = _RS_STREAM.match(topic)
+    return m if m and m.group(3) == kind else None
 #: A static message (info, option, camera info) larger than this is not believed.
 _MAX_STATIC_BYTES = 1 << 20
 _DEPTH_ENCODINGS = {"16uc1": "units", "mono16": "units", "32fc1": "metres"}
@@ -387,9 +393,9 @@ def _pick_depth(bag: _Bag, topic):
             raise RecordingError(bag.path, f"topic {topic} carries {conns[0].msgtype}, not a depth image "
                                            "(sensor_msgs/Image or CompressedImage)")
         return good[0]
-    rs = [c for c in images if _RS_DEPTH.match(c.topic)]
-    if rs:
-        return sorted(rs, key=lambda c: c.topic)[0]
+    rs = [c for c in images if _rs(c.topic)]
+    if rs:  # the raw stream before a compressed one, then the first stream
+        return min(rs, key=lambda c: (not c.topic.endswith("/image/data"), c.topic))
     depthish = [c for c in images if "depth" in c.topic.lower()]
     if len(depthish) == 1:
         return depthish[0]
@@ -402,8 +408,9 @@ def _pick_depth(bag: _Bag, topic):
 
 def _stream_prefix(topic: str) -> str:
     """``/device_0/sensor_0/Depth_0`` of a RealSense image topic, else the topic's namespace."""
-    if topic.endswith("/image/data"):
-        return topic[: -len("/image/data")]
+    m = _RS_STREAM.match(topic)
+    if m:
+        return m.group(1)
     base = topic
     for tail in ("/compressedDepth", "/compressed"):
         if base.endswith(tail):
@@ -458,7 +465,7 @@ def _realsense_fps_units(bag: _Bag, depth_topic: str):
             kv = _kv(msg.data)
             if "fps" in kv:
                 fps = _number(kv["fps"], f"{bag.path} ({pre}/info)", "fps")
-    sensor = _RS_DEPTH.match(depth_topic).group(1) if _RS_DEPTH.match(depth_topic) else pre.rsplit("/", 1)[0]
+    sensor = pre.rsplit("/", 1)[0]
     for name in ("Depth Units", "Depth_Units"):
         t = f"{sensor}/option/{name}/value"
         conns = bag.by_topic(t)
@@ -474,11 +481,10 @@ def _realsense_fps_units(bag: _Bag, depth_topic: str):
 
 def _pick_color(bag: _Bag, color_topic, depth_conn):
     if color_topic is None:
-        if not _RS_DEPTH.match(depth_conn.topic):
+        if not _rs(depth_conn.topic):
             return None
-        rs = sorted((c for c in bag.connections if c.msgtype == IMAGE and _RS_COLOR.match(c.topic)),
-                    key=lambda c: c.topic)
-        return rs[0] if rs else None
+        rs = [c for c in bag.connections if c.msgtype in _IMAGE_TYPES and _rs(c.topic, "Color")]
+        return min(rs, key=lambda c: (not c.topic.endswith("/image/data"), c.topic)) if rs else None
     conns = [c for c in bag.by_topic(color_topic) if c.msgtype in _IMAGE_TYPES]
     if not conns:
         have = bag.by_topic(color_topic)
@@ -528,7 +534,7 @@ def open_bag(path, *, topic=None, color_topic=None, handedness: str = "left") ->
         order = np.argsort(stamps, kind="stable")
         stamps = stamps[order]
         w, h, K = _camera_info(bag, depth_conn.topic)
-        fps, units = (_realsense_fps_units(bag, depth_conn.topic) if _RS_DEPTH.match(depth_conn.topic)
+        fps, units = (_realsense_fps_units(bag, depth_conn.topic) if _rs(depth_conn.topic)
                       else (None, None))
         first = next(bag.messages([depth_conn], start=int(stamps[0]), stop=int(stamps[0]) + 1), None)
         if first is None:
@@ -546,7 +552,7 @@ def open_bag(path, *, topic=None, color_topic=None, handedness: str = "left") ->
         try:
             cam = Camera(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
                          units if (units and kind == "units") else 0.001, "uint16",
-                         "realsense" if _RS_DEPTH.match(depth_conn.topic) else "ros")
+                         "realsense" if _rs(depth_conn.topic) else "ros")
         except TrackerError as exc:
             raise RecordingError(where, exc.reason) from None
         color_conn = _pick_color(bag, color_topic, depth_conn)
@@ -561,7 +567,7 @@ def open_bag(path, *, topic=None, color_topic=None, handedness: str = "left") ->
                 _, _, cK = _camera_info(bag, color_conn.topic)
                 R, t = _color_extrinsics(bag, color_conn.topic)
                 extra = dict(color_conn=color_conn, color_stamps=cstamps, color_K=cK, color_R=R, color_t=t)
-        kind_name = "RealSense" if _RS_DEPTH.match(depth_conn.topic) else "ROS"
+        kind_name = "RealSense" if _rs(depth_conn.topic) else "ROS"
         source = f"{kind_name} bag {path.name}, topic {depth_conn.topic}" + (
             f", colour {color_conn.topic}" if color_conn is not None else "")
         rec = BagRecording(path, cam, stamps, fps, handedness, source, depth_conn=depth_conn, depth_kind=kind, **extra)

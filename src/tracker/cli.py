@@ -82,12 +82,14 @@ def _depth_stats(rec, every: int = 1, label: str = "reading"):
     import numpy as np
 
     idx = range(0, len(rec), max(every, 1))
+    # a recording file reads its frames in one pass in order (by index each frame is a look-up)
+    frames = rec.select(every=max(every, 1)) if hasattr(rec, "select") else (rec[i] for i in idx)
     valid, samples = [], []
     rng = np.random.default_rng(0)
     with _progress(label) as p:
         bar = p.add_task(label, total=len(idx))
-        for i in idx:
-            d = rec[i].depth
+        for frame in frames:
+            d = frame.depth
             ok = np.isfinite(d)
             valid.append(ok.mean())
             v = d[ok]

@@ -185,6 +185,18 @@ def _write_realsense_ros2(path, frames, units=0.000125, fps=30):
             b.image(f"{STREAM}/image/data", T0 + i * DT, d, "mono16")
 
 
+def _write_realsense_ros2_compressed(path, frames, units=0.000125, fps=30):
+    """librealsense's db3 with compression on: compressedDepth PNG (zero config header) per frame."""
+    with _Bag(path, 2) as b:
+        b.string(f"{STREAM}/info", 1, f"encoding=Z16;fps={fps}")
+        fx, _, cx, _, fy, cy = K[:6]
+        b.string(f"{STREAM}/info/camera_info", 1, f"width={W};height={H};fx={fx!r};ppx={cx!r};fy={fy!r};ppy={cy!r}")
+        b.string(f"{DEV}/option/Depth_Units/value", 1, f"{units:f}")
+        for i, d in enumerate(frames):
+            b.compressed(f"{STREAM}/image/compressedDepth", T0 + i * DT, bytes(12) + _png(d),
+                         "16UC1; compressedDepth png")
+
+
 def _png(a) -> bytes:
     return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
 
@@ -276,7 +288,8 @@ def test_real_realsense_bag_times_and_colour():
 
 
 # ----------------------------------------------------------------------------- round trips
-@pytest.mark.parametrize("writer,suffix", [(_write_realsense_ros1, ".bag"), (_write_realsense_ros2, "")])
+@pytest.mark.parametrize("writer,suffix", [(_write_realsense_ros1, ".bag"), (_write_realsense_ros2, ""),
+                                           (_write_realsense_ros2_compressed, "")])
 def test_realsense_layouts_round_trip(tmp_path, writer, suffix):
     frames = _frames()
     path = tmp_path / f"rs{suffix}"
@@ -536,6 +549,9 @@ def test_cli_reads_bags_in_place(tmp_path):
     r = _cli("info", src)
     assert r.exit_code == 0, r.output
     assert "6 (0.17 s of file time, 30 fps nominal)" in r.output and "0.125 mm per unit" in r.output
+    assert "6 (all readable)" in r.output
+    r = _cli("info", src, "--every", "4")
+    assert r.exit_code == 0 and "2 (all readable)" in r.output, r.output
     r = _cli("show", src, "-o", tmp_path / "sheet.png", "--no-mask")
     assert r.exit_code == 0, r.output
     assert iio.imread(tmp_path / "sheet.png").ndim == 3
