@@ -15,7 +15,7 @@ entity                      what
 ``sigma/pc<k>``             per step: s, the coefficient in units of σ_k
 ==========================  ==========================================================================
 
-Needs the optional extra ``viz`` (rerun-sdk); importing this module without it is a
+Needs the optional extra ``viz`` (rerun-sdk); without it, writing or reading a file is a
 :class:`synergy.errors.SynergyError` naming the ``pip install``.
 """
 from __future__ import annotations
@@ -31,12 +31,16 @@ from handmodel.plots import FINGER_COLOURS
 
 from .errors import SynergyError
 
-try:  # an optional extra: the error names what to install
+try:  # an optional extra: the functions below name what to install when it is missing
     import rerun as rr
     from rerun.chunk import RrdReader
 except ImportError:
-    raise SynergyError("--rerun", "the 3-D viewer needs rerun-sdk "
-                                  "(pip install 'synergistic-hand-tracking[viz]')") from None
+    rr = RrdReader = None
+
+
+def _require():
+    if rr is None:
+        raise SynergyError("--rerun", "the 3-D viewer needs rerun-sdk (pip install 'synergistic-hand-tracking[viz]')")
 
 SKIN = (237, 194, 163)
 
@@ -65,6 +69,7 @@ def log_synergies(rec, bundle, *, n_pcs: int = 3, steps: int = 21, extent: float
                   spacing: float = 0.16) -> list[int]:
     """Log the sweep of the first ``n_pcs`` PCs of ``bundle`` to the Rerun stream ``rec``; returns the PCs
     logged (1-based)."""
+    _require()
     hand = HandModel.load(hand_model)
     model = bundle.model
     k = min(int(n_pcs), model.all_components_.shape[0])
@@ -101,6 +106,7 @@ def log_synergies(rec, bundle, *, n_pcs: int = 3, steps: int = 21, extent: float
 
 def read_sweep(path) -> dict:
     """Entity → sorted ``sweep`` steps it holds, of a ``.rrd`` file (static entities left out)."""
+    _require()
     out = {}
     for ch in RrdReader(Path(path)).stream():
         if ch.is_static or "sweep" not in ch.timeline_names:
@@ -114,6 +120,7 @@ def write_synergy_rrd(bundle, path, *, n_pcs: int = 3, steps: int = 21, extent: 
     """Write the sweep of :func:`log_synergies` to ``path`` (``.rrd``): to a temporary name, read
     back and checked to hold every step of every PC, then renamed into place. ``spawn`` also streams
     it to a Rerun viewer started now."""
+    _require()
     path = Path(path)
     if path.suffix.lower() != ".rrd":
         raise SynergyError(path, "a Rerun recording must end in .rrd")

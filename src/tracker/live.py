@@ -11,8 +11,8 @@ Intrinsics and the depth scale come from the device (or the file); lens distorti
 (RealSense depth streams report none). Colour, when asked for, is aligned to the depth image by
 librealsense, so it serves skin segmentation as a recording's ``color/`` frames do.
 
-Needs the optional extra ``realsense`` (pyrealsense2, which needs the system libusb); importing this
-module without it is a :class:`tracker.errors.TrackerError` naming what to install.
+Needs the optional extra ``realsense`` (pyrealsense2, which needs the system libusb); without it a
+:class:`RealSenseSource` is a :class:`tracker.errors.TrackerError` naming what to install.
 """
 from __future__ import annotations
 
@@ -25,13 +25,19 @@ from .errors import TrackerError
 from .images import units_to_metres
 from .recording import Frame
 
-try:  # an optional extra: the error names what to install
+try:  # an optional extra: RealSenseSource names what to install when it is missing
     import pyrealsense2 as rs
 except ImportError as exc:
-    if "libusb" in str(exc):
-        raise TrackerError("pyrealsense2", "needs the system libusb (e.g. apt install libusb-1.0-0)") from None
-    raise TrackerError("pyrealsense2", "live cameras need pyrealsense2 "
-                                       "(pip install 'synergistic-hand-tracking[realsense]')") from None
+    rs, _MISSING = None, str(exc)
+
+
+def _require():
+    if rs is None:
+        if "libusb" in _MISSING:
+            raise TrackerError("pyrealsense2", "needs the system libusb (e.g. apt install libusb-1.0-0)")
+        raise TrackerError("pyrealsense2", "live cameras need pyrealsense2 "
+                                           "(pip install 'synergistic-hand-tracking[realsense]')")
+
 
 #: Seconds without a frame after which a camera counts as stalled (playback: as finished).
 TIMEOUT_S = 5.0
@@ -59,6 +65,7 @@ class RealSenseSource:
 
     def __init__(self, playback=None, *, serial=None, width=640, height=480, fps=30, color=False, max_frames=None,
                  max_seconds=None, handedness="left", timeout_s=TIMEOUT_S):
+        _require()
         self.playback = None if playback is None else Path(playback)
         self.handedness = handedness
         self.max_frames = max_frames

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from handmodel.dofs import DOF_NAMES
 from handmodel.cliutil import error_line
+from handmodel.dofs import DOF_NAMES
 from handmodel.errors import ToolkitError
 from handmodel.fileio import atomic_write_text
 from handmodel.model import HandModel

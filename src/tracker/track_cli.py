@@ -6,7 +6,6 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import List, Optional
 

@@ -23,7 +23,7 @@ temporary name, read back and checked to hold every logged frame, then renamed i
 (:class:`RerunLog`); :func:`read_frames` and :func:`read_frame` read a file back (the tests, and
 :func:`snapshot_png`, a matplotlib picture of one logged frame for places without a viewer).
 
-Needs the optional extra ``viz`` (rerun-sdk); importing this module without it is a
+Needs the optional extra ``viz`` (rerun-sdk); without it, writing or reading a file is a
 :class:`tracker.errors.TrackerError` naming the ``pip install``.
 """
 from __future__ import annotations
@@ -39,12 +39,16 @@ from handmodel.plots import FINGER_COLOURS
 
 from .errors import TrackerError
 
-try:  # an optional extra: the error names what to install
+try:  # an optional extra: the functions below name what to install when it is missing
     import rerun as rr
     from rerun.chunk import RrdReader
 except ImportError:
-    raise TrackerError("--rerun", "the 3-D viewer needs rerun-sdk "
-                                  "(pip install 'synergistic-hand-tracking[viz]')") from None
+    rr = RrdReader = None
+
+
+def _require():
+    if rr is None:
+        raise TrackerError("--rerun", "the 3-D viewer needs rerun-sdk (pip install 'synergistic-hand-tracking[viz]')")
 
 #: Entities logged on every frame (the hand's only where a fit exists).
 FRAME_ENTITIES = ("world/camera/depth", "world/camera/mask", "world/points", "tracking/fit_mm",
@@ -119,6 +123,7 @@ class RerunLog:
     """
 
     def __init__(self, camera, path=None, *, spawn=False, overwrite=False, name="tracker"):
+        _require()
         self.camera = camera
         self.path = None if path is None else Path(path)
         self.overwrite = overwrite
@@ -217,6 +222,7 @@ class RerunLog:
 
 # ----------------------------------------------------------------------------- reading back
 def _chunks(path):
+    _require()
     path = Path(path)
     if not path.is_file():
         raise TrackerError(path, "no such Rerun file")

@@ -53,7 +53,7 @@ def write_bag(rec, out, template):
             raw = ts.serialize_ros1(m, c.msgtype)
         w.write(new[c.id], t, raw)
     for i in range(len(rec)):
-        t = first + int(round(i * 1e9 / rec.fps))
+        t = first + round(i * 1e9 / rec.fps)
         for c, raw in per_frame:
             if c.topic.endswith("image/data"):
                 m = ts.deserialize_ros1(raw, c.msgtype)
@@ -137,7 +137,7 @@ def test_frames_limit_and_ctrl_c(synthetic_bag, tmp_path, monkeypatch):
     assert r.exit_code == 0, r.output
     assert read_tracking(tmp_path / "two.csv")[0]["frame"].tolist() == [0, 1]
 
-    import tracker.run as run
+    from tracker import run
 
     real = run.track_recording
 

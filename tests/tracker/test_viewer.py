@@ -15,8 +15,7 @@ from handmodel import HandModel  # noqa: E402
 from tracker.cli import app  # noqa: E402
 from tracker.recording import Recording  # noqa: E402
 from tracker.run import read_tracking  # noqa: E402
-from tracker.viewer import (FRAME_ENTITIES, HAND_ENTITIES, RerunLog, read_frame, read_frames,  # noqa: E402
-                            snapshot_png)
+from tracker.viewer import FRAME_ENTITIES, HAND_ENTITIES, RerunLog, read_frame, read_frames, snapshot_png  # noqa: E402
 
 
 def _ok(args):
