@@ -125,17 +125,46 @@ def closest_local(shape, L, r0, r1, th, q, out):
 def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, signed,
              out_p, out_n, out_seg, out_d):
     """The closest candidate over all primitives for every point (see the two kernels below); the
-    smallest signed distance wins when ``signed``, else the smallest absolute one."""
+    smallest signed distance wins when ``signed``, else the smallest absolute one; of equally close
+    candidates the lowest segment index.
+
+    Every primitive lies inside a bounding sphere, and no surface inside it is nearer than the
+    distance to the sphere: primitives whose sphere is farther than the best candidate so far are
+    skipped without their closest-point computation. The search starts with the previous point's
+    winner (neighbouring points of a scan mostly share it), so the bound prunes from the start.
+    The order of the visits does not change the result (ties go to the lowest index)."""
     P = points.shape[0]
     S = seg_node.shape[0]
     q = np.empty(3)
     loc = np.empty(7)
     wp = np.empty(3)
     wn = np.empty(3)
+    sc = np.empty((S, 3))
+    sr = np.empty(S)
+    for s in range(S):
+        j = seg_node[s]
+        L = seg_len[s]
+        if seg_shape[s] == CAPSULE:
+            sr[s] = 0.5 * L + max(seg_r0[s], seg_r1[s])
+        else:
+            w = max(max(seg_r0[s] - seg_th[s], 0.0), max(seg_r1[s] - seg_th[s], 0.0))
+            sr[s] = np.sqrt(0.25 * L * L + w * w) + seg_th[s]
+        for r in range(3):
+            sc[s, r] = G[j, r, 1] * 0.5 * L + G[j, r, 3]
+    prev = 0
     for i in range(P):
         best = 1e300
         bs = -1
-        for s in range(S):
+        for t in range(S):
+            # prev first, then the others in index order
+            s = prev if t == 0 else (t - 1 if t - 1 < prev else t)
+            c0 = points[i, 0] - sc[s, 0]
+            c1 = points[i, 1] - sc[s, 1]
+            c2 = points[i, 2] - sc[s, 2]
+            # margin: the node frames are orthonormal to ~1e-6 only, so local and world lengths differ
+            bound = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) - sr[s]
+            if bound > best + 1e-5 * abs(best) + 1e-6:
+                continue
             j = seg_node[s]
             # world -> local: Rᵀ (p − o)
             d0 = points[i, 0] - G[j, 0, 3]
@@ -145,7 +174,7 @@ def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, ca
                 q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
             closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
             dist = loc[6] if signed else abs(loc[6])
-            if dist >= best:
+            if dist > best or (dist == best and s > bs):
                 continue
             for r in range(3):
                 wp[r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
@@ -161,6 +190,8 @@ def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, ca
                 out_n[i, r] = wn[r]
         out_seg[i] = bs
         out_d[i] = best if bs >= 0 else np.inf
+        if bs >= 0:
+            prev = bs
 
 
 @njit(cache=True)

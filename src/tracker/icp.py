@@ -22,7 +22,8 @@ from handmodel.rigid import euler_to_matrix, horn, matrix_to_euler
 from handmodel.solver import SolverSettings, solve
 from handmodel.subspace import Subspace
 
-from .correspond import local_offsets, silhouette_pairs
+from . import _icp_kernels as K
+from .correspond import CapsuleModel, Correspondences, Matcher, local_offsets, silhouette_pairs
 from .errors import TrackerError
 
 
@@ -161,8 +162,120 @@ def cauchy_weights(distance_m, scale_mm) -> np.ndarray:
 
 
 def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0, normals=None,
-        samples=None, silhouette=None):
+        samples=None, silhouette=None, moments=True):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
+
+    The whole loop runs in one compiled call (:func:`tracker._icp_kernels.fit_kernel`) when
+    ``matcher`` is a :class:`~tracker.correspond.Matcher` on the capsule model; any other matcher
+    goes through :func:`fit_reference`, the same steps as a Python loop. ``moments``: the
+    Gauss-Newton steps work on per-node moment sums of the pairs (cost independent of the number of
+    pairs, smaller in a smaller subspace; the same θ to round-off), else on every pair as
+    :func:`handmodel.solver.solve` does. Point-to-plane pairs always take the per-pair path.
+
+    Parameters
+    ----------
+    hand : HandModel
+    points : (N, 3) data points, camera frame, metres
+    theta : (n_dofs,) start
+    stages : list of :class:`Stage` (see :func:`tracking_schedule`, :func:`search_schedule`)
+    matcher : callable ``(theta, points, normals) -> Correspondences`` (:class:`tracker.correspond.Matcher`)
+    settings : IcpSettings (estimation: robust weights, silhouette weight, point-to-plane, damping)
+    normals : (N, 3) data normals or None (NaN rows: unknown)
+    samples, silhouette : :class:`tracker.correspond.ModelSamples` and :class:`~tracker.correspond.Silhouette`
+        for the model→data term (both or neither)
+    moments : bool
+        Gauss-Newton on moment sums (default) or on every pair.
+
+    Returns
+    -------
+    theta, Correspondences at the result
+    """
+    st = settings or IcpSettings()
+    if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
+        return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
+                             samples=samples, silhouette=silhouette)
+    solver = st.solver()
+    cs = matcher.settings
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    P = len(pts)
+    nrm = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    sil_on = silhouette is not None and samples is not None and st.silhouette_weight > 0 and not silhouette.empty
+    if sil_on:
+        cam = silhouette.camera
+        sil_args = (samples.nodes, samples.local, samples.local_n, float(cam.fx), float(cam.fy), float(cam.cx),
+                    float(cam.cy), silhouette.dist, silhouette.iv, silhouette.iu, silhouette.depth,
+                    int(silhouette.v0), int(silhouette.u0))
+    else:
+        sil_args = _NO_SILHOUETTE
+    out_p, out_n = np.zeros((P, 3)), np.zeros((P, 3))
+    out_seg, out_d = np.empty(P, np.int64), np.empty(P)
+    out_node, out_valid = np.empty(P, np.int64), np.empty(P, np.bool_)
+    th = K.fit_kernel(np.array(hand.check_theta(theta), float), *hand.kernel_args(),
+                      *matcher.surface.caps.kernel_args(), pts, nrm, _CAMERA_CENTRE, bool(cs.facing_only),
+                      cs.reject_mm / 1000.0, float(cs.normal_agreement) if normals is not None else -1.0,
+                      int(n_rigid), *_stage_arrays(hand, stages, solver),
+                      int(solver.iterations), int(solver.max_halvings), float(solver.tol),
+                      bool(solver.joint_limit_avoidance), bool(solver.clamp), float(solver.clamp_margin),
+                      float(st.robust_mm), bool(st.point_to_plane), bool(moments),
+                      sil_on, *sil_args, 1.5, float(st.silhouette_weight),
+                      out_p, out_n, out_seg, out_d, out_node, out_valid)
+    return th, Correspondences(out_p, out_node, out_n, out_d, out_valid)
+
+
+_NO_ROWS = np.zeros((0, 3))
+_CAMERA_CENTRE = np.zeros(3)
+# stand-ins of the silhouette arrays' types when the term is off (one compiled version serves both)
+_NO_SILHOUETTE = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), 1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)),
+                  np.zeros((1, 1), np.int32), np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
+_ENTRIES = {"none": K.ENTRY_NONE, "clamp": K.ENTRY_CLAMP, "through": K.ENTRY_THROUGH}
+_PACKED: dict = {}
+
+
+def _stage_arrays(hand, stages, solver):
+    """The stages as the padded arrays of :func:`tracker._icp_kernels.fit_kernel` (kept per list of
+    stages and settings: a tracker fits with the same stages every frame)."""
+    key = (tuple(stages), solver.damping, solver.pose_damping, hand.n_dofs)
+    hit = _PACKED.get(key)
+    if hit is not None:
+        return hit
+    n, S = hand.n_dofs, len(stages)
+    mmax = max([st.subspace.dim for st in stages] + [1])
+    pmax = max([st.project.dim for st in stages if st.project is not None] + [1])
+    st_M, st_mu = np.zeros((S, n, mmax)), np.zeros((S, n))
+    st_m = np.zeros(S, np.int64)
+    st_lo, st_hi, st_damp = np.full((S, mmax), -np.inf), np.full((S, mmax), np.inf), np.zeros((S, mmax))
+    st_eye, st_entry = np.zeros(S, np.bool_), np.zeros(S, np.int64)
+    pr_on, pr_eye, pr_m = np.zeros(S, np.bool_), np.zeros(S, np.bool_), np.zeros(S, np.int64)
+    pr_M, pr_mu = np.zeros((S, n, pmax)), np.zeros((S, n))
+    pr_lo, pr_hi = np.full((S, pmax), -np.inf), np.full((S, pmax), np.inf)
+    for s, stage in enumerate(stages):
+        sp = stage.subspace
+        if sp.M.shape[0] != n:
+            raise TrackerError("stages", f"stage {s}: subspace has {sp.M.shape[0]} rows, the model has {n} DoFs")
+        m = sp.dim
+        st_M[s, :, :m], st_mu[s], st_m[s] = sp.M, sp.mu, m
+        st_lo[s, :m], st_hi[s, :m] = sp.lo, sp.hi
+        st_damp[s, :m] = np.where(sp.pose, solver.pose_damping, solver.damping)
+        st_eye[s] = sp.M.shape == (n, n) and np.array_equal(sp.M, np.eye(n))
+        st_entry[s] = _ENTRIES[stage.entry]
+        if stage.project is not None:
+            pj = stage.project
+            k = pj.dim
+            pr_on[s], pr_m[s], pr_M[s, :, :k], pr_mu[s] = True, k, pj.M, pj.mu
+            pr_lo[s, :k], pr_hi[s, :k] = pj.lo, pj.hi
+            pr_eye[s] = pj.M.shape == (n, n) and np.array_equal(pj.M, np.eye(n))
+    out = (st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, np.asarray(hand.pose_mask, np.bool_),
+           pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye)
+    if len(_PACKED) > 64:
+        _PACKED.clear()
+    _PACKED[key] = out
+    return out
+
+
+def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
+                  normals=None, samples=None, silhouette=None):
+    """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled
+    correspondence, silhouette and solver kernels (any matcher; the compiled loop is checked against it).
 
     Parameters
     ----------

@@ -1,0 +1,639 @@
+"""Numba kernels: one whole ICP fit (see :func:`tracker.icp.fit`) in compiled code.
+
+The Python loop of :func:`tracker.icp.fit_reference` paid its interpreter and array-wrapping costs
+once per ICP iteration (correspondences, local offsets, silhouette pairs, the solver's argument
+checks); here the loop runs inside one compiled call. The Gauss-Newton steps work on per-node moment
+sums of the pairs (:func:`node_moments`): with the pairs fixed during a step, every energy and every
+normal-equation evaluation costs O(nodes × DoF²) instead of O(pairs × DoF²), and the normal
+equations are formed directly in the stage's subspace, so a stage with fewer coordinates costs less.
+Point-to-plane pairs do not reduce to moments; they go through the per-pair solver of
+:mod:`handmodel._solver_kernels`.
+
+Stage arrays (one row per stage, padded to the widest): ``st_M (S, n, m)``, ``st_mu (S, n)``,
+``st_m (S,)``, ``st_lo``/``st_hi``/``st_damp (S, m)``, ``st_eye (S,)`` (M is the identity),
+``st_entry (S,)`` (0 none, 1 clamp, 2 through); the projection after a stage: ``pr_on (S,)`` and
+``pr_M``/``pr_mu``/``pr_lo``/``pr_hi``/``pr_m`` like the stage's.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from handmodel._geometry_kernels import closest_points_facing
+from handmodel._solver_kernels import MM, _limit_grad, cholesky_solve, solve_stages
+from handmodel.kinematics import fk_single
+
+from ._silhouette_kernels import silhouette_pairs_kernel
+
+ENTRY_NONE, ENTRY_CLAMP, ENTRY_THROUGH = 0, 1, 2
+
+
+# ----------------------------------------------------------------------------- correspondences
+@njit(cache=True)
+def match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
+          agreement, out_p, out_n, out_seg, out_d, out_node, out_valid):
+    """Data→model pairs at the node frames ``G`` (:class:`tracker.correspond.Matcher` with capsules):
+    the closest front-facing capsule point, rejected at ``reject`` m or farther and, with data
+    ``normals`` (rows; NaN rows unknown), when the normals' cosine is below ``agreement`` (−1 = off).
+    Returns the number of valid pairs."""
+    closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only,
+                          out_p, out_n, out_seg, out_d)
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
+    nv = 0
+    for i in range(points.shape[0]):
+        s = out_seg[i]
+        ok = s >= 0 and out_d[i] < reject
+        out_node[i] = seg_node[s] if s >= 0 else 0
+        if ok and use_n:
+            c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
+            if c < agreement:  # NaN (unknown normal) keeps the pair
+                ok = False
+        out_valid[i] = ok
+        if ok:
+            nv += 1
+    return nv
+
+
+# ----------------------------------------------------------------------------- rigid step
+@njit(cache=True)
+def _euler_to_matrix(a, b, c, R):
+    ca, sa = np.cos(a), np.sin(a)
+    cb, sb = np.cos(b), np.sin(b)
+    cc, sc = np.cos(c), np.sin(c)
+    R[0, 0] = cb * cc
+    R[0, 1] = -cb * sc
+    R[0, 2] = sb
+    R[1, 0] = ca * sc + sa * sb * cc
+    R[1, 1] = ca * cc - sa * sb * sc
+    R[1, 2] = -sa * cb
+    R[2, 0] = sa * sc - ca * sb * cc
+    R[2, 1] = sa * cc + ca * sb * sc
+    R[2, 2] = ca * cb
+
+
+@njit(cache=True)
+def rigid_update(theta, src, dst, valid):
+    """θ with the global pose moved by Horn's rigid motion from the valid ``src`` to ``dst`` rows
+    (:func:`tracker.icp.rigid_step`, unweighted); unchanged with fewer than 3 valid rows."""
+    n = 0
+    cs = np.zeros(3)
+    cd = np.zeros(3)
+    for i in range(src.shape[0]):
+        if valid[i]:
+            n += 1
+            for r in range(3):
+                cs[r] += src[i, r]
+                cd[r] += dst[i, r]
+    out = theta.copy()
+    if n < 3:
+        return out
+    for r in range(3):
+        cs[r] /= n
+        cd[r] /= n
+    S = np.zeros((3, 3))
+    for i in range(src.shape[0]):
+        if valid[i]:
+            for r in range(3):
+                a = src[i, r] - cs[r]
+                for c in range(3):
+                    S[r, c] += a * (dst[i, c] - cd[c])
+    Sxx, Sxy, Sxz = S[0, 0], S[0, 1], S[0, 2]
+    Syx, Syy, Syz = S[1, 0], S[1, 1], S[1, 2]
+    Szx, Szy, Szz = S[2, 0], S[2, 1], S[2, 2]
+    N = np.array([[Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+                  [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+                  [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+                  [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz]])
+    _, vecs = np.linalg.eigh(N)
+    q = vecs[:, 3]
+    nq = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    w, x, y, z = q[0] / nq, q[1] / nq, q[2] / nq, q[3] / nq
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+    t = np.empty(3)
+    for r in range(3):
+        t[r] = cd[r] - (R[r, 0] * cs[0] + R[r, 1] * cs[1] + R[r, 2] * cs[2])
+    for r in range(3):
+        out[r] = R[r, 0] * theta[0] + R[r, 1] * theta[1] + R[r, 2] * theta[2] + t[r]
+    Rp = np.empty((3, 3))
+    _euler_to_matrix(theta[3], theta[4], theta[5], Rp)
+    Q = R @ Rp
+    out[3] = np.arctan2(-Q[1, 2], Q[2, 2])
+    out[4] = np.arcsin(min(max(Q[0, 2], -1.0), 1.0))
+    out[5] = np.arctan2(-Q[0, 1], Q[0, 0])
+    return out
+
+
+# ----------------------------------------------------------------------------- subspaces
+@njit(cache=True)
+def _to_alpha(theta, M, mu, m, eye, alpha):
+    n = theta.shape[0]
+    for c in range(m):
+        if eye:
+            alpha[c] = theta[c] - mu[c]
+        else:
+            acc = 0.0
+            for r in range(n):
+                acc += (theta[r] - mu[r]) * M[r, c]
+            alpha[c] = acc
+
+
+@njit(cache=True)
+def _to_theta(alpha, M, mu, m, eye, theta):
+    n = theta.shape[0]
+    for r in range(n):
+        if eye:
+            theta[r] = alpha[r] + mu[r]
+        else:
+            acc = 0.0
+            for c in range(m):
+                acc += alpha[c] * M[r, c]
+            theta[r] = acc + mu[r]
+
+
+@njit(cache=True)
+def clamp_into(theta, M, mu, lo, hi, m, eye):
+    """θ moved into the subspace, its coordinates clipped to the limits (:func:`tracker.icp.clamp`)."""
+    alpha = np.empty(m)
+    _to_alpha(theta, M, mu, m, eye, alpha)
+    for c in range(m):
+        alpha[c] = min(max(alpha[c], lo[c]), hi[c])
+    out = np.empty(theta.shape[0])
+    _to_theta(alpha, M, mu, m, eye, out)
+    return out
+
+
+# ----------------------------------------------------------------------------- moment sums
+@njit(cache=True)
+def node_moments(pt_node, pt_local, targets, w, G, n_nodes, mom):
+    """Per node ``j`` the weighted moments of its pairs: ``l`` the model point in the node's frame,
+    ``u`` the target relative to the node's origin at ``G`` (the reference frames): ``mom[j]`` =
+    [Σw², Σw²l (3), Σw²u (3), Σw²uᵀu, Σw² l uᵀ (9, row-major), Σw² l lᵀ (6: xx yy zz xy xz yz)],
+    w² scaled by 10⁶ (residuals in mm). Relative to the node's origin both ends are a few cm long, so
+    the energy expanded from the moments keeps ~1e-10 mm² of its precision (relative to the camera,
+    the targets' 0.75 m would cost six digits). The node's rotation is applied as the matrix it is,
+    not assumed orthonormal: the model's rest frames are orthonormal to 1e-6 only."""
+    for j in range(n_nodes):
+        for k in range(mom.shape[1]):
+            mom[j, k] = 0.0
+    for i in range(pt_node.shape[0]):
+        wi = w[i]
+        if wi == 0.0 or np.isnan(targets[i, 0]):
+            continue
+        j = pt_node[i]
+        w2 = wi * wi * MM * MM
+        u0 = targets[i, 0] - G[j, 0, 3]
+        u1 = targets[i, 1] - G[j, 1, 3]
+        u2 = targets[i, 2] - G[j, 2, 3]
+        l0, l1, l2 = pt_local[i, 0], pt_local[i, 1], pt_local[i, 2]
+        mom[j, 0] += w2
+        mom[j, 1] += w2 * l0
+        mom[j, 2] += w2 * l1
+        mom[j, 3] += w2 * l2
+        mom[j, 4] += w2 * u0
+        mom[j, 5] += w2 * u1
+        mom[j, 6] += w2 * u2
+        mom[j, 7] += w2 * (u0 * u0 + u1 * u1 + u2 * u2)
+        mom[j, 8] += w2 * l0 * u0
+        mom[j, 9] += w2 * l0 * u1
+        mom[j, 10] += w2 * l0 * u2
+        mom[j, 11] += w2 * l1 * u0
+        mom[j, 12] += w2 * l1 * u1
+        mom[j, 13] += w2 * l1 * u2
+        mom[j, 14] += w2 * l2 * u0
+        mom[j, 15] += w2 * l2 * u1
+        mom[j, 16] += w2 * l2 * u2
+        mom[j, 17] += w2 * l0 * l0
+        mom[j, 18] += w2 * l1 * l1
+        mom[j, 19] += w2 * l2 * l2
+        mom[j, 20] += w2 * l0 * l1
+        mom[j, 21] += w2 * l0 * l2
+        mom[j, 22] += w2 * l1 * l2
+
+
+@njit(cache=True)
+def _relative(G, G0, j, A, b):
+    """Node ``j``'s frame at ``G`` relative to its reference origin: A = R, b = o − o0."""
+    for r in range(3):
+        for c in range(3):
+            A[r, c] = G[j, r, c]
+        b[r] = G[j, r, 3] - G0[j, r, 3]
+
+
+@njit(cache=True)
+def moment_energy(G, G0, mom, A, b):
+    """½ Σ w²‖A l + b − u‖² over all nodes (mm²) from the moments: per node
+    ½(Σw²uᵀu + tr(A Σw²llᵀ Aᵀ) + W bᵀb + 2 bᵀA Σw²l − 2 bᵀΣw²u − 2 tr(A Σw² l uᵀ))."""
+    E = 0.0
+    for j in range(mom.shape[0]):
+        W = mom[j, 0]
+        if W == 0.0:
+            continue
+        _relative(G, G0, j, A, b)
+        b0, b1, b2 = b[0], b[1], b[2]
+        Al0 = A[0, 0] * mom[j, 1] + A[0, 1] * mom[j, 2] + A[0, 2] * mom[j, 3]
+        Al1 = A[1, 0] * mom[j, 1] + A[1, 1] * mom[j, 2] + A[1, 2] * mom[j, 3]
+        Al2 = A[2, 0] * mom[j, 1] + A[2, 1] * mom[j, 2] + A[2, 2] * mom[j, 3]
+        # tr(A S) with S = Σ w² l uᵀ: Σ_rc A[r, c] S[c, r]
+        tr = 0.0
+        for r in range(3):
+            for c in range(3):
+                tr += A[r, c] * mom[j, 8 + 3 * c + r]
+        S00, S11, S22 = mom[j, 17], mom[j, 18], mom[j, 19]
+        S01, S02, S12 = mom[j, 20], mom[j, 21], mom[j, 22]
+        q = 0.0
+        for r in range(3):
+            a0, a1, a2 = A[r, 0], A[r, 1], A[r, 2]
+            q += (a0 * (a0 * S00 + 2.0 * (a1 * S01 + a2 * S02)) + a1 * (a1 * S11 + 2.0 * a2 * S12)
+                  + a2 * a2 * S22)
+        E += (mom[j, 7] + q + W * (b0 * b0 + b1 * b1 + b2 * b2) + 2.0 * (b0 * Al0 + b1 * Al1 + b2 * Al2)
+              - 2.0 * (b0 * mom[j, 4] + b1 * mom[j, 5] + b2 * mom[j, 6]) - 2.0 * tr)
+    return 0.5 * E
+
+
+@njit(cache=True)
+def _node_sums(G, G0, mom, j, A, b, P1, P2, X):
+    """Node ``j``'s sums at the current frames, relative to its reference origin: Σw²p (P1),
+    Σw²ppᵀ (P2), Σw² p×u (X) with p = A l + b; returns W."""
+    _relative(G, G0, j, A, b)
+    W = mom[j, 0]
+    Sl0, Sl1, Sl2 = mom[j, 1], mom[j, 2], mom[j, 3]
+    Al0 = A[0, 0] * Sl0 + A[0, 1] * Sl1 + A[0, 2] * Sl2
+    Al1 = A[1, 0] * Sl0 + A[1, 1] * Sl1 + A[1, 2] * Sl2
+    Al2 = A[2, 0] * Sl0 + A[2, 1] * Sl1 + A[2, 2] * Sl2
+    P1[0] = Al0 + W * b[0]
+    P1[1] = Al1 + W * b[1]
+    P1[2] = Al2 + W * b[2]
+    # Σw² l lᵀ (symmetric), then A·S·Aᵀ
+    S00, S11, S22 = mom[j, 17], mom[j, 18], mom[j, 19]
+    S01, S02, S12 = mom[j, 20], mom[j, 21], mom[j, 22]
+    for r in range(3):
+        a0, a1, a2 = A[r, 0], A[r, 1], A[r, 2]
+        t0 = a0 * S00 + a1 * S01 + a2 * S02
+        t1 = a0 * S01 + a1 * S11 + a2 * S12
+        t2 = a0 * S02 + a1 * S12 + a2 * S22
+        for c in range(r, 3):
+            v = t0 * A[c, 0] + t1 * A[c, 1] + t2 * A[c, 2]
+            Alr = Al0 if r == 0 else (Al1 if r == 1 else Al2)
+            Alc = Al0 if c == 0 else (Al1 if c == 1 else Al2)
+            v += Alr * b[c] + b[r] * Alc + W * b[r] * b[c]
+            P2[r, c] = v
+            P2[c, r] = v
+    # U[r, c] = Σw² u_r p_c = (Σw² u lᵀ Aᵀ)[r, c] + Σw²u_r b_c ; mom[8 + 3k + r] = Σw² l_k u_r
+    U00 = U01 = U02 = U10 = U11 = U12 = U20 = U21 = U22 = 0.0
+    for k in range(3):
+        m0, m1, m2 = mom[j, 8 + 3 * k], mom[j, 9 + 3 * k], mom[j, 10 + 3 * k]
+        U00 += m0 * A[0, k]
+        U01 += m0 * A[1, k]
+        U02 += m0 * A[2, k]
+        U10 += m1 * A[0, k]
+        U11 += m1 * A[1, k]
+        U12 += m1 * A[2, k]
+        U20 += m2 * A[0, k]
+        U21 += m2 * A[1, k]
+        U22 += m2 * A[2, k]
+    Su0, Su1, Su2 = mom[j, 4], mom[j, 5], mom[j, 6]
+    U00 += Su0 * b[0]
+    U01 += Su0 * b[1]
+    U02 += Su0 * b[2]
+    U10 += Su1 * b[0]
+    U11 += Su1 * b[1]
+    U12 += Su1 * b[2]
+    U20 += Su2 * b[0]
+    U21 += Su2 * b[1]
+    U22 += Su2 * b[2]
+    X[0] = U21 - U12
+    X[1] = U02 - U20
+    X[2] = U10 - U01
+    return W
+
+
+@njit(cache=True)
+def moment_normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
+                            M, m, eye, G, wa, wo, Aa, ba, dids, ca, ck, sa, sk):
+    """A = J_αᵀW²J_α and b = J_αᵀW²e (mm units) of the stage's coordinates α from the moments; returns
+    the energy. Relative to node ``j``'s reference origin every column of its Jacobian is
+    c(p) = ã × p + k̃ (a rotation DoF: ã its axis, k̃ = −ã × its origin; a translation: ã = 0, k̃ its axis), and
+    so is any combination Σ_d M[d, c]·column_d: a subspace column costs what a DoF column costs.
+    Then Σ_pairs c_a·c_b = (ã_a·ã_b) tr P2 − ã_aᵀP2 ã_b + k̃_b·(ã_a×P1) + k̃_a·(ã_b×P1) + W k̃_a·k̃_b
+    and Σ_pairs c_a·(u − p) = ã_a·X + k̃_a·(Σw²u − P1)."""
+    n = dof_axes.shape[0]
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    for r in range(m):
+        ba[r] = 0.0
+        for c in range(m):
+            Aa[r, c] = 0.0
+    A = np.empty((3, 3))
+    b = np.empty(3)
+    P1 = np.empty(3)
+    P2 = np.empty((3, 3))
+    X = np.empty(3)
+    # the same expression as every trial step's energy: step halving compares like with like
+    E = moment_energy(G, G0, mom, A, b)
+    for j in range(mom.shape[0]):
+        if mom[j, 0] == 0.0:
+            continue
+        W = _node_sums(G, G0, mom, j, A, b, P1, P2, X)
+        # the node's DoF columns (its own and its ancestors'), relative to its reference origin
+        nd = 0
+        k = j
+        while k >= 0:
+            for q in range(dof_ptr[k], dof_ptr[k + 1]):
+                d = dof_idx[q]
+                a0, a1, a2 = wa[d, 0], wa[d, 1], wa[d, 2]
+                if dof_types[d] == 1:
+                    ca[nd, 0] = 0.0
+                    ca[nd, 1] = 0.0
+                    ca[nd, 2] = 0.0
+                    ck[nd, 0] = a0
+                    ck[nd, 1] = a1
+                    ck[nd, 2] = a2
+                else:
+                    o0 = wo[d, 0] - G0[j, 0, 3]
+                    o1 = wo[d, 1] - G0[j, 1, 3]
+                    o2 = wo[d, 2] - G0[j, 2, 3]
+                    ca[nd, 0] = a0
+                    ca[nd, 1] = a1
+                    ca[nd, 2] = a2
+                    ck[nd, 0] = -(a1 * o2 - a2 * o1)
+                    ck[nd, 1] = -(a2 * o0 - a0 * o2)
+                    ck[nd, 2] = -(a0 * o1 - a1 * o0)
+                dids[nd] = d
+                nd += 1
+            k = parents[k]
+        if eye:
+            nc = nd
+            for a in range(nd):
+                for r in range(3):
+                    sa[a, r] = ca[a, r]
+                    sk[a, r] = ck[a, r]
+        else:
+            # columns of the subspace: Σ_d M[d, c] (ã_d, k̃_d)
+            nc = m
+            for c in range(m):
+                s0 = s1 = s2 = t0 = t1 = t2 = 0.0
+                for a in range(nd):
+                    f = M[dids[a], c]
+                    if f != 0.0:
+                        s0 += f * ca[a, 0]
+                        s1 += f * ca[a, 1]
+                        s2 += f * ca[a, 2]
+                        t0 += f * ck[a, 0]
+                        t1 += f * ck[a, 1]
+                        t2 += f * ck[a, 2]
+                sa[c, 0], sa[c, 1], sa[c, 2] = s0, s1, s2
+                sk[c, 0], sk[c, 1], sk[c, 2] = t0, t1, t2
+        trP = P2[0, 0] + P2[1, 1] + P2[2, 2]
+        r0 = mom[j, 4] - P1[0]
+        r1 = mom[j, 5] - P1[1]
+        r2 = mom[j, 6] - P1[2]
+        for a in range(nc):
+            A0, A1, A2 = sa[a, 0], sa[a, 1], sa[a, 2]
+            K0, K1, K2 = sk[a, 0], sk[a, 1], sk[a, 2]
+            ia = dids[a] if eye else a
+            ba[ia] += A0 * X[0] + A1 * X[1] + A2 * X[2] + K0 * r0 + K1 * r1 + K2 * r2
+            # P2·ã_a and ã_a × P1, shared by every partner b
+            Pa0 = P2[0, 0] * A0 + P2[0, 1] * A1 + P2[0, 2] * A2
+            Pa1 = P2[1, 0] * A0 + P2[1, 1] * A1 + P2[1, 2] * A2
+            Pa2 = P2[2, 0] * A0 + P2[2, 1] * A1 + P2[2, 2] * A2
+            xa0 = A1 * P1[2] - A2 * P1[1]
+            xa1 = A2 * P1[0] - A0 * P1[2]
+            xa2 = A0 * P1[1] - A1 * P1[0]
+            for c in range(a, nc):
+                B0, B1, B2 = sa[c, 0], sa[c, 1], sa[c, 2]
+                L0, L1, L2 = sk[c, 0], sk[c, 1], sk[c, 2]
+                xb0 = B1 * P1[2] - B2 * P1[1]
+                xb1 = B2 * P1[0] - B0 * P1[2]
+                xb2 = B0 * P1[1] - B1 * P1[0]
+                v = ((A0 * B0 + A1 * B1 + A2 * B2) * trP - (Pa0 * B0 + Pa1 * B1 + Pa2 * B2)
+                     + L0 * xa0 + L1 * xa1 + L2 * xa2 + K0 * xb0 + K1 * xb1 + K2 * xb2
+                     + W * (K0 * L0 + K1 * L1 + K2 * L2))
+                ic = dids[c] if eye else c
+                Aa[ia, ic] += v
+                if ic != ia:
+                    Aa[ic, ia] += v
+    return E
+
+
+@njit(cache=True)
+def moment_energy_at(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, G, wa, wo, A, b):
+    """½ Σ w² r² (mm²) at θ from the moments (leaves θ's frames in G)."""
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    return moment_energy(G, G0, mom, A, b)
+
+
+# ----------------------------------------------------------------------------- one stage's Gauss-Newton
+@njit(cache=True)
+def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
+                        M, mu, m, lo, hi, damp, eye, iters, max_halvings, tol, limit_avoid, clamp, margin):
+    """Damped Gauss-Newton in one subspace on the moments: the steps of
+    :func:`handmodel._solver_kernels.solve_stages` (selective and Chan–Dubey damping, clamping, step
+    halving until the energy drops, the same stopping rule) for a single stage. Returns θ."""
+    n = dof_axes.shape[0]
+    N = parents.shape[0]
+    G = np.empty((N, 4, 4))
+    wa = np.empty((n, 3))
+    wo = np.empty((n, 3))
+    A3 = np.empty((3, 3))
+    b3 = np.empty(3)
+    Aa = np.empty((m, m))
+    ba = np.empty(m)
+    L = np.empty((m, m))
+    delta = np.empty(m)
+    alpha = np.empty(m)
+    a_new = np.empty(m)
+    g_prev = np.empty(m)
+    th_new = np.empty(n)
+    dids = np.empty(n, np.int64)
+    ca = np.empty((n, 3))
+    ck = np.empty((n, 3))
+    cs = max(n, m)
+    sa = np.empty((cs, 3))
+    sk = np.empty((cs, 3))
+    theta = theta0.copy()
+    _to_alpha(theta, M, mu, m, eye, alpha)
+    if not eye:
+        _to_theta(alpha, M, mu, m, eye, theta)
+    for c in range(m):
+        g_prev[c] = _limit_grad(alpha[c], lo[c], hi[c])
+    for it in range(iters):
+        E = moment_normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
+                                    M, m, eye, G, wa, wo, Aa, ba, dids, ca, ck, sa, sk)
+        for c in range(m):
+            lam = damp[c]
+            if limit_avoid:
+                g = _limit_grad(alpha[c], lo[c], hi[c])
+                if g > g_prev[c]:
+                    lam *= 1.0 + min(g, 1e12)
+                g_prev[c] = g
+            Aa[c, c] += lam
+        if not cholesky_solve(Aa, ba, delta, L):
+            tr = 0.0
+            for c in range(m):
+                tr += Aa[c, c]
+            for c in range(m):
+                Aa[c, c] += 1e-9 * tr / m + 1e-12
+            if not cholesky_solve(Aa, ba, delta, L):
+                break
+        accepted = False
+        step = 1.0
+        E_new = E
+        for h in range(max_halvings + 1):
+            for c in range(m):
+                v = alpha[c] + step * delta[c]
+                if clamp:
+                    vlo = lo[c] + margin
+                    vhi = hi[c] - margin
+                    if v < vlo:
+                        v = vlo
+                    elif v > vhi:
+                        v = vhi
+                a_new[c] = v
+            _to_theta(a_new, M, mu, m, eye, th_new)
+            E_new = moment_energy_at(th_new, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, G, wa,
+                                     wo, A3, b3)
+            if E_new < E:
+                accepted = True
+                break
+            step *= 0.5
+        if not accepted:
+            break
+        big = 0.0
+        for c in range(m):
+            alpha[c] = a_new[c]
+            big = max(big, abs(step * delta[c]))
+        for r in range(n):
+            theta[r] = th_new[r]
+        if E - E_new <= tol * E or E_new < 1e-18 or big < 1e-10:
+            break
+    return theta
+
+
+# ----------------------------------------------------------------------------- the fit
+@njit(cache=True)
+def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
+               seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th,
+               points, normals, cam, facing_only, reject, agreement, n_rigid,
+               st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, pose_mask,
+               pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
+               gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
+               sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
+               sil_weight, out_p, out_n, out_seg, out_d, out_node, out_valid):
+    """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
+    correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
+    silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result
+    (in the ``out_*`` arrays). ``moments``: Gauss-Newton on moment sums (point-to-point only), else
+    the per-pair solver. Returns θ."""
+    n = dof_axes.shape[0]
+    N = parents.shape[0]
+    P = points.shape[0]
+    G = np.empty((N, 4, 4))
+    wa = np.empty((n, 3))
+    wo = np.empty((n, 3))
+    n_s = sm_nodes.shape[0] if sil_on else 0
+    pt_node = np.empty(P + n_s, np.int64)
+    pt_local = np.empty((P + n_s, 3))
+    tgt = np.empty((P + n_s, 3))
+    w = np.empty(P + n_s)
+    plane = np.zeros((P + n_s if point_to_plane else 0, 3))
+    s_nodes = np.empty(n_s, np.int64)
+    s_local = np.empty((n_s, 3))
+    s_tgt = np.empty((n_s, 3))
+    mom = np.empty((N, 23))
+    theta = theta0.copy()
+    for _ in range(n_rigid):
+        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
+              agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+        theta = rigid_update(theta, out_p, points, out_valid)
+    mmax = st_M.shape[2]
+    for s in range(st_M.shape[0]):
+        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        nv = match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only,
+                   reject, agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+        if nv < 3:
+            break
+        m = st_m[s]
+        M = st_M[s]
+        mu = st_mu[s].copy()
+        lo = st_lo[s].copy()
+        hi = st_hi[s].copy()
+        if st_entry[s] == ENTRY_THROUGH:
+            # the same directions through θ; θ itself is always admitted (see tracker.icp.through)
+            a = np.empty(m)
+            _to_alpha(theta, M, mu, m, st_eye[s], a)
+            for r in range(n):
+                mu[r] = 0.0 if pose_mask[r] else theta[r]
+            for c in range(m):
+                lo[c] = min(lo[c] - a[c], 0.0)
+                hi[c] = max(hi[c] - a[c], 0.0)
+        elif st_entry[s] == ENTRY_CLAMP:
+            theta = clamp_into(theta, M, mu, lo, hi, m, st_eye[s])
+        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        k = 0
+        for i in range(P):
+            if not out_valid[i]:
+                continue
+            j = out_node[i]
+            d0 = out_p[i, 0] - G[j, 0, 3]
+            d1 = out_p[i, 1] - G[j, 1, 3]
+            d2 = out_p[i, 2] - G[j, 2, 3]
+            pt_node[k] = j
+            for r in range(3):
+                pt_local[k, r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
+                tgt[k, r] = points[i, r]
+            if robust_mm > 0.0:
+                q = out_d[i] * 1000.0 / robust_mm
+                w[k] = 1.0 / np.sqrt(1.0 + q * q)
+            else:
+                w[k] = 1.0
+            if point_to_plane:
+                for r in range(3):
+                    plane[k, r] = out_n[i, r]
+            k += 1
+        if sil_on:
+            ns = silhouette_pairs_kernel(G, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth,
+                                         v0, u0, tol_px, s_nodes, s_local, s_tgt)
+            # weight per pair so the term counts like the data term per unit area
+            ws = sil_weight * np.sqrt(max(nv, 1) / max(n_s, 1))
+            for q in range(ns):
+                pt_node[k] = s_nodes[q]
+                for r in range(3):
+                    pt_local[k, r] = s_local[q, r]
+                    tgt[k, r] = s_tgt[q, r]
+                    if point_to_plane:
+                        plane[k, r] = 0.0
+                w[k] = ws
+                k += 1
+        eye = st_eye[s]
+        if moments and not point_to_plane:
+            node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)
+            theta = solve_stage_moments(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G,
+                                        M[:, :m], mu, m, lo[:m], hi[:m], st_damp[s, :m], eye, gn_iters, max_halvings,
+                                        tol, limit_avoid, clamp, margin)
+        else:
+            ident = eye
+            for r in range(n):
+                if mu[r] != 0.0:
+                    ident = False
+            tr = np.full(gn_iters + 1, np.nan)
+            theta, _, _ = solve_stages(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
+                                       pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane[:k] if point_to_plane else plane,
+                                       M.reshape((1, n, mmax)), mu.reshape((1, n)), st_m[s:s + 1],
+                                       lo.reshape((1, mmax)), hi.reshape((1, mmax)), st_damp[s:s + 1],
+                                       np.full(1, gn_iters, np.int64), np.full(1, ident), max_halvings, tol,
+                                       limit_avoid, clamp, margin, tr)
+        if pr_on[s]:
+            theta = clamp_into(theta, pr_M[s], pr_mu[s], pr_lo[s], pr_hi[s], pr_m[s], pr_eye[s])
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
+          agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+    return theta
