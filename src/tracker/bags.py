@@ -19,14 +19,17 @@ camera info, frames of the wrong size — is a :class:`~tracker.errors.Recording
 """
 from __future__ import annotations
 
+import bz2
 import io
 import re
 import struct
 from pathlib import Path
 
+import lz4.frame
 import numpy as np
 from PIL import Image as PILImage
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag1.reader import decompressors as _ROS1_DECOMPRESSORS
 from rosbags.typesys import Stores, get_typestore
 
 from .cameras import Camera
@@ -51,6 +54,35 @@ def _rs(topic: str, kind: str = "Depth"):
 _MAX_STATIC_BYTES = 1 << 20
 _DEPTH_ENCODINGS = {"16uc1": "units", "mono16": "units", "32fc1": "metres"}
 _COLOR_CHANNELS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True), "mono8": (1, False)}
+
+
+#: What one compressed ROS1 chunk may expand to. Chunks hold about 1 MB of messages, or one larger
+#: message (a 4096² float frame is 64 MiB); a bz2 or lz4 bomb would otherwise expand without bound.
+MAX_CHUNK_BYTES = 512 << 20
+
+
+def _bounded_decompressor(make):
+    def decompress(data: bytes) -> bytes:
+        d = make()
+        out = d.decompress(data, max_length=MAX_CHUNK_BYTES)
+        if not d.eof and not d.needs_input:
+            raise ValueError(f"a compressed chunk expands beyond {MAX_CHUNK_BYTES >> 20} MiB")
+        return out
+    return decompress
+
+
+_BOUNDED = {"bz2": _bounded_decompressor(bz2.BZ2Decompressor),
+            "lz4": _bounded_decompressor(lz4.frame.LZ4FrameDecompressor)}
+
+
+def _bound_chunks(reader) -> None:
+    """Swap a ROS1 reader's chunk decompressors for ones that stop at :data:`MAX_CHUNK_BYTES`."""
+    swap = {id(f): _BOUNDED[k] for k, f in _ROS1_DECOMPRESSORS.items() if k in _BOUNDED}
+    chunks = getattr(reader, "chunks", None)
+    if isinstance(chunks, dict):
+        for pos, c in chunks.items():
+            if id(c.decompressor) in swap:
+                chunks[pos] = c._replace(decompressor=swap[id(c.decompressor)])
 
 
 def _wrap(path, what: str, exc: Exception) -> RecordingError:
@@ -90,6 +122,9 @@ class _Bag:
             self.reader.open()
         except Exception as exc:  # rosbags raises many types for damaged files
             raise _wrap(path, "not a readable ROS bag", exc) from None
+        if not self.reader.is2:
+            for r in self.reader.readers:
+                _bound_chunks(r)
         self.connections = list(self.reader.connections)
 
     def close(self):

@@ -87,11 +87,13 @@ def _rvl_encode(units: np.ndarray) -> bytes:
 class _Bag:
     """Writes one bag with rosbags in ROS1 or ROS2 (sqlite / mcap) form, messages as plain fields."""
 
-    def __init__(self, path, ros: int, storage=StoragePlugin.SQLITE3):
+    def __init__(self, path, ros: int, storage=StoragePlugin.SQLITE3, compression=None):
         self.ros = ros
         self.ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
         self.ts.register(get_types_from_msg(STREAMINFO, "realsense_msgs/msg/StreamInfo"))
         self.w = Writer1(path) if ros == 1 else Writer2(path, version=9, storage_plugin=storage)
+        if compression is not None:
+            self.w.set_compression(getattr(Writer1.CompressionFormat, compression))
         self.conns = {}
 
     def __enter__(self):
@@ -585,3 +587,22 @@ def test_iterating_gives_the_indexed_frames(tmp_path, kind):
             scale = rec.camera.depth_scale_m
             assert np.array_equal(np.rint(np.nan_to_num(f.depth / scale)).astype(np.uint16), frames[k])
             assert np.array_equal(f.depth, view[f.index].depth, equal_nan=True)
+
+
+@pytest.mark.parametrize("compression", ["BZ2", "LZ4"])
+def test_compressed_ros1_chunks_read_and_are_bounded(tmp_path, compression, monkeypatch):
+    import tracker.bags
+
+    frames = _frames(3)
+    path = tmp_path / "c.bag"
+    with _Bag(path, 1, compression=compression) as b:
+        b.camera_info("/cam/depth/camera_info", 5)
+        for i, d in enumerate(frames):
+            b.image("/cam/depth/image_raw", T0 + i * DT, d, "16UC1")
+    rec = Recording.open(path)
+    assert all(np.array_equal(rec.depth_units(i), frames[i]) for i in range(3))
+    # a chunk expanding past the bound is refused, not expanded (as a bz2/lz4 bomb would be)
+    monkeypatch.setattr(tracker.bags, "MAX_CHUNK_BYTES", 1000)
+    with pytest.raises(RecordingError, match=r"c\.bag: damaged bag, cannot read its messages \(ValueError: a "
+                                             r"compressed chunk expands beyond"):
+        Recording.open(path)
