@@ -125,6 +125,15 @@ class _Bag:
         if not self.reader.is2:
             for r in self.reader.readers:
                 _bound_chunks(r)
+        else:
+            # MCAP chunk records declare their expanded size: refuse a bomb before it is expanded
+            # (a record that understates it is caught by rosbags only after expanding)
+            for r in self.reader.readers:
+                for c in getattr(getattr(r, "storage", None), "chunks", None) or []:
+                    if getattr(c, "uncompressed_size", 0) > MAX_CHUNK_BYTES:
+                        self.close()
+                        raise RecordingError(path, f"an MCAP chunk declares {c.uncompressed_size} bytes expanded, "
+                                                   f"more than the {MAX_CHUNK_BYTES >> 20} MiB allowed")
         self.connections = list(self.reader.connections)
 
     def close(self):

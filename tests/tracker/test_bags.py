@@ -606,3 +606,14 @@ def test_compressed_ros1_chunks_read_and_are_bounded(tmp_path, compression, monk
     with pytest.raises(RecordingError, match=r"c\.bag: damaged bag, cannot read its messages \(ValueError: a "
                                              r"compressed chunk expands beyond"):
         Recording.open(path)
+
+
+def test_mcap_chunk_bound(tmp_path, monkeypatch):
+    import tracker.bags
+
+    frames = _frames(2)
+    path = _bag_file(tmp_path, "mcap", frames)
+    assert np.array_equal(Recording.open(path).depth_units(1), frames[1])
+    monkeypatch.setattr(tracker.bags, "MAX_CHUNK_BYTES", 1000)
+    with pytest.raises(RecordingError, match=r"\.mcap: an MCAP chunk declares \d+ bytes expanded, more than"):
+        Recording.open(path)
