@@ -188,7 +188,8 @@ class TrackJob:
 @dataclass
 class TrackRun:
     """What :func:`run_job` did: the table and header written, the tracker (its hand size and
-    handedness check), the recording, the wall time and the overlay frames written."""
+    handedness check), the recording, the wall time, the overlay frames written, the Rerun file and
+    warnings (a spawned viewer that went away)."""
 
     df: pd.DataFrame
     meta: dict
@@ -197,6 +198,7 @@ class TrackRun:
     wall_s: float
     overlays: list
     rerun: Path | None = None
+    warnings: list = field(default_factory=list)
 
 
 def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
@@ -252,7 +254,8 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
             viewer.abort()
         raise
     rrd = viewer.close() if viewer is not None else None
-    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd)
+    warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
+    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings)
 
 
 #: Columns of the summary table of many recordings (:func:`summary_row`).

@@ -156,6 +156,8 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
     if run.rerun is not None:
         console.print(f"wrote {run.rerun}")
+    for w in run.warnings:
+        console.print(f"warning: {w}")
 
 
 def _length(source):
@@ -426,6 +428,8 @@ def live(
             console.print(f"wrote {p}")
     if overlay is not None:
         console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
+    for w in run.warnings:
+        console.print(f"warning: {w}")
 
 
 def register(app, errors_exit_2) -> None:

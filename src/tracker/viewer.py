@@ -29,6 +29,9 @@ Needs the optional extra ``viz`` (rerun-sdk); without it, writing or reading a f
 from __future__ import annotations
 
 import errno
+import os
+import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -79,6 +82,14 @@ def bones(hand, keypoints) -> np.ndarray:
     return np.stack([kp[np.asarray(hand.parents)[child]], kp[child]], 1)
 
 
+def _viewer_on_path() -> None:
+    """Let Rerun find the viewer installed beside this Python (a virtualenv used without activating
+    it has its ``rerun`` executable off ``PATH``)."""
+    here = Path(sys.executable).parent
+    if shutil.which("rerun") is None and (here / "rerun").exists():
+        os.environ["PATH"] = str(here) + os.pathsep + os.environ.get("PATH", "")
+
+
 def log_camera(rec, camera) -> None:
     """The static part: the world's axes and the pinhole camera."""
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
@@ -119,6 +130,11 @@ class RerunLog:
     overwrite : replace an existing ``path``
     name : the recording's name shown in the viewer
 
+    Attributes
+    ----------
+    frames_ : the frame indices logged
+    warning_ : why a spawned viewer did not get everything (None: it did, or none was spawned)
+
     Use as a context manager, or call :meth:`close` (publishes the file) or :meth:`abort`.
     """
 
@@ -128,12 +144,14 @@ class RerunLog:
         self.path = None if path is None else Path(path)
         self.overwrite = overwrite
         self.frames_ = []
+        self.warning_ = None
         self._meshes = {}
         self._last = None
         self._tmp = self._ctx = None
         self.rec = rr.RecordingStream("tracker")
         sinks = []
         if spawn:
+            _viewer_on_path()
             try:
                 self.rec.spawn(connect=False)
             except Exception as exc:  # the viewer binary or its port: rerun raises several types
@@ -192,8 +210,14 @@ class RerunLog:
                 raise OSError(errno.EIO, f"the written Rerun file lacks frames of {ent}", str(self.path))
 
     def close(self) -> Path | None:
-        """Flush, then (with a file) read it back, check it and rename it into place; returns its path."""
-        self.rec.flush()
+        """Flush, then (with a file) read it back, check it and rename it into place; returns its path.
+
+        A spawned viewer that went away (closed, or no screen to open on) does not cost the file:
+        its reason is kept in ``warning_``."""
+        try:
+            self.rec.flush(timeout_sec=30.0)
+        except RuntimeError as exc:  # the gRPC sink of a viewer that is gone; the file sink is checked below
+            self.warning_ = f"the Rerun viewer was not reachable ({' '.join(str(exc).split())})"
         self.rec.disconnect()
         if self._ctx is None:
             return None

@@ -112,3 +112,26 @@ def test_missing_extra_names_the_install(tracked, monkeypatch):
     assert r.exit_code == 2, r.output
     assert r.stderr == "error: --rerun: the 3-D viewer needs rerun-sdk (pip install 'synergistic-hand-tracking[viz]')\n"
     assert not (tracked / "y.csv").exists()
+
+
+def test_a_viewer_gone_does_not_cost_the_file(tmp_path, hand, monkeypatch):
+    """A spawned viewer that is unreachable at the end (closed, or no screen) makes the flush fail;
+    the file is still checked and published, and the reason kept as a warning."""
+    from tracker.cameras import preset
+    from tracker.recording import Frame
+    from tracker.track import FrameResult
+
+    cam = preset("kinect1")
+    log = RerunLog(cam, tmp_path / "v.rrd")
+    log.log_frame(Frame(0, 0.0, np.full(cam.shape, 0.8, np.float32)),
+                  FrameResult(hand.zero(), "reinit", 1.0, 5, 5, 10.0), None, hand)
+    real = log.rec.flush
+
+    def flush(timeout_sec=None):
+        real()
+        raise RuntimeError("gRPC has been unable to connect for 9s")
+
+    monkeypatch.setattr(log.rec, "flush", flush)
+    assert log.close() == tmp_path / "v.rrd"
+    assert "not reachable (gRPC has been unable to connect for 9s)" in log.warning_
+    assert read_frames(tmp_path / "v.rrd")["world/camera/depth"] == [0]
