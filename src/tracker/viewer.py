@@ -337,9 +337,11 @@ def snapshot_png(path, png, frame: int | None = None, *, overwrite=False) -> Pat
         every.append(V)
     strips = comp("world/hand/skeleton", "LineStrips3D:strips")
     if strips is not None:
-        for s in strips:
+        rgba = comp("world/hand/skeleton", "LineStrips3D:colors") or [0x000000FF] * len(strips)
+        for s, c in zip(strips, rgba):
             s = np.asarray(s, float) * 1000
-            ax3.plot(s[:, 0], s[:, 1], s[:, 2], "-", color="k", lw=1.5)
+            colour = [(int(c) >> k & 255) / 255 for k in (24, 16, 8)]  # Rerun packs colours as RGBA u32
+            ax3.plot(s[:, 0], s[:, 1], s[:, 2], "-", color=colour, lw=2)
     if len(pts):
         ax3.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=1, c="tab:blue", depthshade=False)
         every.append(pts)
