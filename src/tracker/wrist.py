@@ -1,0 +1,132 @@
+"""Where the arm enters the hand: the wrist cue of a segmented depth frame.
+
+A segmenter that cuts the forearm off leaves one stretch of the hand's outline where the surface goes
+on at nearly the same depth outside the mask: the wrist line. Fingers end in a depth step or in no
+data, so that stretch tells where the wrist is and which way the arm goes; the start search uses it to
+rule out hands whose fingers point up the arm (:func:`tracker.init.score`).
+
+>>> import numpy as np
+>>> from types import SimpleNamespace
+>>> cam = SimpleNamespace(fx=250.0, fy=250.0, cx=50.0, cy=50.0)
+>>> depth = np.full((100, 100), np.nan)
+>>> depth[20:60, 30:70] = 0.5            # a "palm"
+>>> depth[60:100, 40:60] = 0.5           # the arm going on downwards
+>>> mask = np.zeros((100, 100), bool); mask[20:60, 30:70] = True
+>>> w = wrist_cue(mask, depth, cam)
+>>> [round(float(v)) for v in w.pixel], [round(float(v), 2) for v in w.direction]
+([50, 59], [0.0, 1.0, 0.0])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from .segment import surfaces
+
+
+@dataclass(frozen=True)
+class WristCue:
+    """The wrist line's centre (``point``, camera frame, m; ``pixel`` (u, v)), the unit direction from
+    the hand into the arm (``direction``, camera frame) and the line's length (``width_m``)."""
+
+    point: np.ndarray
+    pixel: np.ndarray
+    direction: np.ndarray
+    width_m: float
+
+
+def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_range_m=(0.015, 0.12),
+              min_arm_share=0.5) -> WristCue | None:
+    """The wrist of a hand ``mask`` in a ``depth`` image (metres, NaN = none), or None.
+
+    Outline pixels of the mask whose outside neighbours continue the surface (depth within
+    ``step_m``) form candidate lines; the longest is the wrist when it is wrist-wide
+    (``width_range_m``) and holds at least ``min_arm_share`` of all such outline — a hand lying on a
+    table or touching the body continues everywhere and gives no cue. The arm's direction is the
+    mean of the continuing surface within ``arm_reach_m`` beyond the line, from the line's centre.
+    """
+    full_m = np.asarray(mask, bool)
+    full_d = np.asarray(depth, float)
+    if not full_m.any():
+        return None
+    # the outline work happens in the mask's window (a tenth of the frame or less)
+    rows, cols = np.flatnonzero(full_m.any(1)), np.flatnonzero(full_m.any(0))
+    y0, y1 = max(rows[0] - 4, 0), min(rows[-1] + 5, full_m.shape[0])
+    x0, x1 = max(cols[0] - 4, 0), min(cols[-1] + 5, full_m.shape[1])
+    m, d = full_m[y0:y1, x0:x1], full_d[y0:y1, x0:x1]
+    cam = _Shifted(camera.fx, camera.fy, camera.cx - x0, camera.cy - y0)
+    inner = m & ~ndimage.binary_erosion(m)
+    ring = ndimage.binary_dilation(m, iterations=2) & ~m & np.isfinite(d)
+    if not ring.any():
+        return None
+    # each outside ring pixel's nearest mask depth: the surface goes on when they agree
+    near_inside = ndimage.distance_transform_edt(~inner, return_distances=False, return_indices=True)
+    iy, ix = near_inside[0][ring], near_inside[1][ring]
+    ry, rx = np.nonzero(ring)
+    dz = np.abs(d[ry, rx] - d[iy, ix])
+    goes_on = np.zeros_like(m)
+    ok = dz < step_m
+    goes_on[ry[ok], rx[ok]] = True
+    if not goes_on.any():
+        return None
+    # pieces of one line a few pixels apart (no-data specks along the wrist) are one line
+    labels, n = ndimage.label(ndimage.binary_dilation(goes_on, iterations=3), structure=np.ones((3, 3)))
+    labels = np.where(goes_on, labels, 0)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    k = int(np.argmax(sizes)) + 1
+    if sizes[k - 1] < min_arm_share * sizes.sum():
+        return None
+    line = labels == k
+    # the inside outline pixels that face the line: the wrist line on the hand
+    face = inner & ndimage.binary_dilation(line, iterations=2)
+    fy, fx = np.nonzero(face)
+    if len(fy) < 3:
+        return None
+    P = _points(cam, fx, fy, d[fy, fx])
+    P = P[np.isfinite(P).all(1)]
+    if len(P) < 3:
+        return None
+    width = float(np.linalg.norm(P.max(0) - P.min(0)))
+    if not width_range_m[0] <= width <= width_range_m[1]:
+        return None
+    centre = np.median(P, axis=0)
+    # the arm: surface outside the mask reachable from the line without a depth step
+    # the arm beyond the line, in the whole frame: it leaves the mask's window
+    reach = int(np.ceil(arm_reach_m * camera.fx / centre[2]))
+    ly, lx = np.nonzero(line)
+    ly, lx = ly + y0, lx + x0
+    a0, a1 = max(ly.min() - reach, 0), min(ly.max() + reach + 1, full_m.shape[0])
+    b0, b1 = max(lx.min() - reach, 0), min(lx.max() + reach + 1, full_m.shape[1])
+    seed = np.zeros((a1 - a0, b1 - b0), bool)
+    seed[ly - a0, lx - b0] = True
+    # the surfaces outside the hand (the hand itself blanked, so the arm cannot reach round through it)
+    dw = np.where(full_m[a0:a1, b0:b1], np.nan, full_d[a0:a1, b0:b1])
+    lab, _ = surfaces(dw, jump=step_m)
+    ids = np.unique(lab[seed])
+    arm = np.isin(lab, ids[ids > 0]) & (ndimage.distance_transform_edt(~seed) <= reach)
+    ay, ax = np.nonzero(arm)
+    A = _points(camera, ax + b0, ay + a0, dw[ay, ax])
+    A = A[np.linalg.norm(A - centre, axis=1) <= arm_reach_m]
+    if len(A) < 3:
+        return None
+    v = A.mean(0) - centre
+    if np.linalg.norm(v) < 1e-3:
+        return None
+    uv = np.array([camera.fx * centre[0] / centre[2] + camera.cx, camera.fy * centre[1] / centre[2] + camera.cy])
+    return WristCue(centre, uv, v / np.linalg.norm(v), width)
+
+
+@dataclass(frozen=True)
+class _Shifted:
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+def _points(camera, u, v, z):
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    return np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
