@@ -356,6 +356,9 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
         T, S = ctx.fit_many(quick, pc, mode, 2, 4, normals=nc, **kw)
         order = np.argsort(S, kind="stable")
         poses = diverse([(S[i], T[i]) for i in order], st.placements)
+        # a placement is only roughly turned (the cloud's axes are not the hand's): the synergy grid
+        # below is fitted briefly from each pose, so the poses are fitted longer first
+        poses = list(ctx.fit_many(poses, pc, mode, 1, 3 * st.refine_icp // 2, normals=nc, **kw)[0])
     groups = _start_sets(ctx, poses, st, mode, points, theta0=theta0, postures=postures, extra=extra, search=search)
     T, S = [], []
     for m, starts in groups.items():

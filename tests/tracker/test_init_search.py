@@ -1,0 +1,153 @@
+"""The start search by successive halving: the batched candidate fits are the single fits they stand
+for, the search is as accurate as the exhaustive one on the experiments' frames, the finger-wise
+restarts ranked all at once still find a finger flexed alone, and bad settings are refused."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from handmodel import HandModel
+from tracker.cameras import preset
+from tracker.correspond import Silhouette
+from tracker.errors import TrackerError
+from tracker.evaluate import posture_error_deg
+from tracker.init import (
+    InitSettings,
+    finger_search_batched,
+    fit_single_frame,
+    score,
+    thin,
+)
+from tracker.observe import observe
+from tracker.segment import Segmenter
+from tracker.sim import experiments as E
+from tracker.sim.render import DepthRenderer
+from tracker.track import HandTracker, TrackerSettings
+
+HAND = HandModel.load()
+CAM = preset("kinect1")
+# the rendered hand has no forearm: nothing to cut, the tests see the whole hand
+SEG = Segmenter(forearm="keep")
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    from synergy.bundle import load_bundle
+
+    return load_bundle("fingerfist")
+
+
+def frame(truth):
+    ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM, stride=1, target_points=None,
+                 smooth=0, segmenter=SEG)
+    return ob, Silhouette(ob.mask, ob.depth, CAM)
+
+
+def protocol_frames(bundle, rows, slots=None):
+    """The experiments' single-frame protocol: fingerfist rows at 0.6–0.9 m (frame ``i`` of the experiment
+    at 0.6 + 0.1·(i mod 4) m; ``slots``: the experiment's frame indices, default 0, 1, …), every pixel; the
+    start is the truth's global pose with the synergy mean."""
+    P = E.fingerfist_postures()
+    out = []
+    for i, row in zip(range(len(rows)) if slots is None else slots, rows):
+        truth = E.sequence(P[row:row + 1], bundle.model.mean_, lead=0, distance=0.6 + 0.3 * (i % 4) / 3)[0]
+        start = truth.copy()
+        start[~HAND.pose_mask] = bundle.model.mean_
+        out.append((truth, start, *frame(truth)))
+    return out
+
+
+def test_fit_many_is_one_fit_and_score_per_start(bundle):
+    """Every row of the batch is what :meth:`FitContext.fit` and :func:`score` give for that start, in every
+    mode, and ``gn`` is the ICP settings' Gauss-Newton count replaced (not ignored)."""
+    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    ctx = tr.context
+    (_, start, ob, sil), = protocol_frames(bundle, [2500])
+    sub = thin(ob.points, 400)
+    pts, nrm = ob.points[sub], ob.normals[sub]
+    rng = np.random.default_rng(0)
+    starts = [start + np.r_[np.zeros(6), rng.normal(0.0, 0.15, HAND.n_dofs - 6)] for _ in range(3)]
+    for mode, through in (("full", False), ("reduced", False), ("hierarchical", True)):
+        T, S = ctx.fit_many(starts, pts, mode, 1, 3, silhouette=sil, normals=nrm, through=through)
+        for th0, th, s in zip(starts, T, S):
+            ref, corr = ctx.fit(th0, pts, mode, 1, 3, silhouette=sil, normals=nrm, through=through)
+            np.testing.assert_array_equal(th, ref)
+            assert s == score(ctx, ref, corr, sil)
+    T1, _ = ctx.fit_many(starts[:1], pts, "full", 0, 2, silhouette=sil, normals=nrm, gn=1)
+    ctx1 = replace(ctx, icp=replace(ctx.icp, gn_iterations=1))
+    np.testing.assert_array_equal(T1[0], ctx1.fit(starts[0], pts, "full", 0, 2, silhouette=sil, normals=nrm)[0])
+    assert not np.array_equal(T1[0], ctx.fit(starts[0], pts, "full", 0, 2, silhouette=sil, normals=nrm)[0])
+
+
+@pytest.mark.slow
+def test_halving_search_is_accurate_from_the_global_pose(bundle):
+    """The report's protocol (hierarchical, 30 ICP iterations): the halving search gets every frame
+    under 1° (the issue's floor: mean ≤ 0.5°, each ≤ 2°) and never scores much worse than the
+    exhaustive search on the same frame (it would when it dropped the right start)."""
+    rows = np.random.default_rng(0).choice(len(E.fingerfist_postures()), 24, replace=False)[:4]  # the report's first
+    tr = E._tracker(HAND, bundle, mode="full", init_icp_iterations=30)
+    assert tr.settings.init.strategy == "halving"
+    ex = replace(tr.settings.init, strategy="exhaustive")
+    errs = []
+    for truth, start, ob, sil in protocol_frames(bundle, rows):
+        th, corr = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", silhouette=sil, normals=ob.normals)
+        tho, co = fit_single_frame(tr.context, ob.points, ex, theta0=start, mode="hierarchical", silhouette=sil,
+                                   normals=ob.normals)
+        errs.append(float(posture_error_deg(th, truth, HAND.pose_mask)))
+        s, so = score(tr.context, th, corr, sil), score(tr.context, tho, co, sil)
+        print(f"\nrow: halving {errs[-1]:.2f} deg (score {s:.2f}), exhaustive "
+              f"{posture_error_deg(tho, truth, HAND.pose_mask):.2f} deg (score {so:.2f})")
+        assert s < so + 0.5
+    assert max(errs) <= 1.0 and np.mean(errs) <= 0.5
+
+
+@pytest.mark.slow
+def test_halving_search_from_no_pose_finds_the_hand(bundle):
+    """No pose given: the placements from the cloud, fitted longer before the synergy grid, find an open
+    hand and a partly closed one within 1° (the frame that the short fits from the placements alone
+    left 20° off is the second)."""
+    tr = E._tracker(HAND, bundle, mode="full", init_icp_iterations=30)
+    rows = np.random.default_rng(0).choice(len(E.fingerfist_postures()), 24, replace=False)  # the report's rows
+    for truth, _, ob, sil in protocol_frames(bundle, rows[[0, 6]], slots=[0, 6]):
+        th, _ = tr.fit_single_frame(ob.points, mode="hierarchical", silhouette=sil, normals=ob.normals)
+        err = float(posture_error_deg(th, truth, HAND.pose_mask))
+        print(f"\nno pose: {err:.2f} deg")
+        assert err <= 1.0
+
+
+def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
+    """A ring finger curled alone (PIP-led), the fit holding it straight and the rest right: the
+    finger shapes ranked in one batch find the curl; without the ring finger's shapes they cannot."""
+    names = list(HAND.dof_names)
+    truth = E.sequence(bundle.model.mean_[None], bundle.model.mean_, lead=0, distance=0.7)[0]
+    for n in names:
+        if "flex" in n and not n.startswith("thumb"):
+            truth[names.index(n)] = np.radians(-5.0)
+    for n, deg in (("ring1_flex", -45.0), ("ring2_flex", -100.0), ("ring3_flex", -15.0)):
+        truth[names.index(n)] = np.radians(deg)
+    ob, sil = frame(truth)
+    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    ctx = tr.context
+    wrong = truth.copy()
+    for n in ("ring1_flex", "ring2_flex", "ring3_flex"):
+        wrong[names.index(n)] = np.radians(-5.0)
+    st = InitSettings()
+    th = finger_search_batched(ctx, wrong, ob.points, st, silhouette=sil, normals=ob.normals)
+    err = float(posture_error_deg(th, truth, HAND.pose_mask))
+    no_ring = replace(ctx, finger_shapes=[(fi, v) for fi, v in ctx.finger_shapes if not names[fi[0]].startswith("ring")])
+    th_n = finger_search_batched(no_ring, wrong, ob.points, st, silhouette=sil, normals=ob.normals)
+    err_n = float(posture_error_deg(th_n, truth, HAND.pose_mask))
+    print(f"\nring finger alone: from straight {posture_error_deg(wrong, truth, HAND.pose_mask):.1f} deg, batched "
+          f"finger search {err:.2f} deg, without the ring finger's shapes {err_n:.2f} deg")
+    assert err <= 1.5
+    assert err_n > 2.0 * err
+
+
+@pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"keep": (0, 3)}, "keep"),
+                                          ({"keep": (4,)}, "keep")])
+def test_bad_search_settings_are_refused(bundle, change, word):
+    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    st = replace(InitSettings(), **change)
+    with pytest.raises(TrackerError, match=word) as e:
+        fit_single_frame(tr.context, np.zeros((50, 3)) + [0.0, 0.0, 0.7], st)
+    assert "\n" not in str(e.value)
