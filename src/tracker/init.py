@@ -60,6 +60,16 @@ class InitSettings:
     refine_icp: int = 8
     polish_icp: int = 4
     finger_sweeps: int = 3
+    refit_pose: bool = False
+
+    @classmethod
+    def cheap(cls, **changes) -> InitSettings:
+        """A search about 3× cheaper than the default, for a frame whose global pose is roughly known
+        (e.g. from the last tracked frame: ``fit_single_frame(ctx, points, InitSettings.cheap(),
+        theta0=last, extra=(last,))``): fewer starts go on after the ranking, shorter refinements on
+        fewer points, one sweep of finger-wise restarts."""
+        return replace(cls(icp_iterations=10, rank_points=200, keep=(6, 2), refine_points=800, refine_icp=6,
+                           polish_icp=2, finger_sweeps=1), **changes)
 
     def check(self):
         if self.strategy not in STRATEGIES:
@@ -329,9 +339,9 @@ def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta
 
 def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals, extra,
                     search):
-    """Successive halving: every start fitted briefly on a small thinned cloud, in one compiled batch
-    per fit mode; the best few fitted longer on larger clouds; the winner polished on the full cloud,
-    then the finger-wise restarts (:func:`finger_search_batched`)."""
+    """Successive halving: every start fitted briefly on a small thinned cloud (:meth:`FitContext.fit_many`
+    per fit mode); the best few fitted longer on larger clouds; the finger-wise restarts
+    (:func:`finger_search_batched`) from the best; the winner converged with all DoF."""
     hand = ctx.hand
 
     def cloud(n):
@@ -343,6 +353,9 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
     pc, nc = cloud(st.coarse_points)
     if theta0 is not None:
         poses = [np.array(theta0, float)]
+        if st.refit_pose:
+            # the given pose may be off (a previous frame's): the same start fitted longer goes on beside it
+            poses += list(ctx.fit_many(poses, pc, mode, 1, 3 * st.refine_icp // 2, normals=nc, **kw)[0])
     else:
         # every placement × a few postures, briefly fitted; the best few that differ in orientation go on
         n_post = int((~hand.pose_mask).sum())
