@@ -317,25 +317,27 @@ def _node_sums(G, G0, mom, j, A, b, P1, P2, X):
 
 
 @njit(cache=True)
-def moment_normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
-                            M, m, eye, G, wa, wo, Aa, ba, dids, ca, ck, sa, sk):
-    """A = J_αᵀW²J_α and b = J_αᵀW²e (mm units) of the stage's coordinates α from the moments; returns
-    the energy. Relative to node ``j``'s reference origin every column of its Jacobian is
-    c(p) = ã × p + k̃ (a rotation DoF: ã its axis, k̃ = −ã × its origin; a translation: ã = 0, k̃ its axis), and
-    so is any combination Σ_d M[d, c]·column_d: a subspace column costs what a DoF column costs.
-    Then Σ_pairs c_a·c_b = (ã_a·ã_b) tr P2 − ã_aᵀP2 ã_b + k̃_b·(ã_a×P1) + k̃_a·(ã_b×P1) + W k̃_a·k̃_b
-    and Σ_pairs c_a·(u − p) = ã_a·X + k̃_a·(Σw²u − P1)."""
-    n = dof_axes.shape[0]
-    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
-    for r in range(m):
+def moment_normal_equations(parents, dof_ptr, dof_idx, dof_types, mom, G0, G, wa, wo, Aa, ba, dids, sa, sk):
+    """A = JᵀW²J and b = JᵀW²e (mm units, all DoF) from the moments at the frames ``G`` (with the DoF
+    axes ``wa`` and origins ``wo`` of the same θ); returns the energy. Relative to node ``j``'s
+    reference origin every column of its Jacobian is c(p) = ã × p + k̃ (a rotation DoF: ã its axis,
+    k̃ = −ã × its origin; a translation: ã = 0, k̃ its axis). Then Σ_pairs c_a·c_b = (ã_a·ã_b) tr P2
+    − ã_aᵀP2 ã_b + k̃_b·(ã_a×P1) + k̃_a·(ã_b×P1) + W k̃_a·k̃_b, a 6×6 quadratic form in (ã, k̃),
+    and Σ_pairs c_a·(u − p) = ã_a·X + k̃_a·(Σw²u − P1). Only the DoFs moving the node enter its
+    terms (a finger's columns are zero on other fingers)."""
+    n = Aa.shape[0]
+    for r in range(n):
         ba[r] = 0.0
-        for c in range(m):
+        for c in range(n):
             Aa[r, c] = 0.0
     A = np.empty((3, 3))
     b = np.empty(3)
     P1 = np.empty(3)
     P2 = np.empty((3, 3))
     X = np.empty(3)
+    Q = np.empty((6, 6))
+    z = np.empty(6)
+    Qz = np.empty((sa.shape[0], 6))
     # the same expression as every trial step's energy: step halving compares like with like
     E = moment_energy(G, G0, mom, A, b)
     for j in range(mom.shape[0]):
@@ -350,77 +352,96 @@ def moment_normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, d
                 d = dof_idx[q]
                 a0, a1, a2 = wa[d, 0], wa[d, 1], wa[d, 2]
                 if dof_types[d] == 1:
-                    ca[nd, 0] = 0.0
-                    ca[nd, 1] = 0.0
-                    ca[nd, 2] = 0.0
-                    ck[nd, 0] = a0
-                    ck[nd, 1] = a1
-                    ck[nd, 2] = a2
+                    sa[nd, 0] = 0.0
+                    sa[nd, 1] = 0.0
+                    sa[nd, 2] = 0.0
+                    sk[nd, 0] = a0
+                    sk[nd, 1] = a1
+                    sk[nd, 2] = a2
                 else:
                     o0 = wo[d, 0] - G0[j, 0, 3]
                     o1 = wo[d, 1] - G0[j, 1, 3]
                     o2 = wo[d, 2] - G0[j, 2, 3]
-                    ca[nd, 0] = a0
-                    ca[nd, 1] = a1
-                    ca[nd, 2] = a2
-                    ck[nd, 0] = -(a1 * o2 - a2 * o1)
-                    ck[nd, 1] = -(a2 * o0 - a0 * o2)
-                    ck[nd, 2] = -(a0 * o1 - a1 * o0)
+                    sa[nd, 0] = a0
+                    sa[nd, 1] = a1
+                    sa[nd, 2] = a2
+                    sk[nd, 0] = -(a1 * o2 - a2 * o1)
+                    sk[nd, 1] = -(a2 * o0 - a0 * o2)
+                    sk[nd, 2] = -(a0 * o1 - a1 * o0)
                 dids[nd] = d
                 nd += 1
             k = parents[k]
-        if eye:
-            nc = nd
-            for a in range(nd):
-                for r in range(3):
-                    sa[a, r] = ca[a, r]
-                    sk[a, r] = ck[a, r]
-        else:
-            # columns of the subspace: Σ_d M[d, c] (ã_d, k̃_d)
-            nc = m
-            for c in range(m):
-                s0 = s1 = s2 = t0 = t1 = t2 = 0.0
-                for a in range(nd):
-                    f = M[dids[a], c]
-                    if f != 0.0:
-                        s0 += f * ca[a, 0]
-                        s1 += f * ca[a, 1]
-                        s2 += f * ca[a, 2]
-                        t0 += f * ck[a, 0]
-                        t1 += f * ck[a, 1]
-                        t2 += f * ck[a, 2]
-                sa[c, 0], sa[c, 1], sa[c, 2] = s0, s1, s2
-                sk[c, 0], sk[c, 1], sk[c, 2] = t0, t1, t2
+        nc = nd
+        # Σ_pairs c_a·c_b = z_aᵀ Q z_b with z = (ã, k̃) and Q = [[tr P2·I − P2, [P1]×], [−[P1]×, W·I]]
         trP = P2[0, 0] + P2[1, 1] + P2[2, 2]
+        for r in range(3):
+            for c in range(3):
+                Q[r, c] = -P2[r, c]
+                Q[r + 3, c + 3] = 0.0
+            Q[r, r] += trP
+            Q[r + 3, r + 3] = W
+        Q[0, 3], Q[0, 4], Q[0, 5] = 0.0, -P1[2], P1[1]
+        Q[1, 3], Q[1, 4], Q[1, 5] = P1[2], 0.0, -P1[0]
+        Q[2, 3], Q[2, 4], Q[2, 5] = -P1[1], P1[0], 0.0
+        for r in range(3):
+            for c in range(3):
+                Q[c + 3, r] = Q[r, c + 3]
         r0 = mom[j, 4] - P1[0]
         r1 = mom[j, 5] - P1[1]
         r2 = mom[j, 6] - P1[2]
         for a in range(nc):
-            A0, A1, A2 = sa[a, 0], sa[a, 1], sa[a, 2]
-            K0, K1, K2 = sk[a, 0], sk[a, 1], sk[a, 2]
-            ia = dids[a] if eye else a
-            ba[ia] += A0 * X[0] + A1 * X[1] + A2 * X[2] + K0 * r0 + K1 * r1 + K2 * r2
-            # P2·ã_a and ã_a × P1, shared by every partner b
-            Pa0 = P2[0, 0] * A0 + P2[0, 1] * A1 + P2[0, 2] * A2
-            Pa1 = P2[1, 0] * A0 + P2[1, 1] * A1 + P2[1, 2] * A2
-            Pa2 = P2[2, 0] * A0 + P2[2, 1] * A1 + P2[2, 2] * A2
-            xa0 = A1 * P1[2] - A2 * P1[1]
-            xa1 = A2 * P1[0] - A0 * P1[2]
-            xa2 = A0 * P1[1] - A1 * P1[0]
-            for c in range(a, nc):
-                B0, B1, B2 = sa[c, 0], sa[c, 1], sa[c, 2]
-                L0, L1, L2 = sk[c, 0], sk[c, 1], sk[c, 2]
-                xb0 = B1 * P1[2] - B2 * P1[1]
-                xb1 = B2 * P1[0] - B0 * P1[2]
-                xb2 = B0 * P1[1] - B1 * P1[0]
-                v = ((A0 * B0 + A1 * B1 + A2 * B2) * trP - (Pa0 * B0 + Pa1 * B1 + Pa2 * B2)
-                     + L0 * xa0 + L1 * xa1 + L2 * xa2 + K0 * xb0 + K1 * xb1 + K2 * xb2
-                     + W * (K0 * L0 + K1 * L1 + K2 * L2))
-                ic = dids[c] if eye else c
+            z[0], z[1], z[2] = sa[a, 0], sa[a, 1], sa[a, 2]
+            z[3], z[4], z[5] = sk[a, 0], sk[a, 1], sk[a, 2]
+            for r in range(6):
+                acc = 0.0
+                for c in range(6):
+                    acc += Q[r, c] * z[c]
+                Qz[a, r] = acc
+            ia = dids[a]
+            ba[ia] += z[0] * X[0] + z[1] * X[1] + z[2] * X[2] + z[3] * r0 + z[4] * r1 + z[5] * r2
+            for c in range(a + 1):
+                v = (sa[c, 0] * Qz[a, 0] + sa[c, 1] * Qz[a, 1] + sa[c, 2] * Qz[a, 2]
+                     + sk[c, 0] * Qz[a, 3] + sk[c, 1] * Qz[a, 4] + sk[c, 2] * Qz[a, 5])
+                ic = dids[c]
                 Aa[ia, ic] += v
                 if ic != ia:
                     Aa[ic, ia] += v
     return E
+
+
+@njit(cache=True)
+def project_normal_equations(A, b, eye, nz_ptr, nz_row, nz_val, Aa, ba, T):
+    """MᵀAM and Mᵀb into ``Aa``/``ba`` for the subspace basis M given by its non-zeros per column
+    (column ``c``: rows ``nz_row[nz_ptr[c]:nz_ptr[c+1]]``, values ``nz_val``); the identity copies.
+    A synergy basis is sparse (pose columns one entry; a PC column zero on the pose rows), so this
+    costs a fraction of the dense product."""
+    m = Aa.shape[0]
+    n = A.shape[0]
+    if eye:
+        for r in range(m):
+            ba[r] = b[r]
+            for c in range(m):
+                Aa[r, c] = A[r, c]
+        return
+    for e in range(m):
+        for r in range(n):
+            T[r, e] = 0.0
+        for q in range(nz_ptr[e], nz_ptr[e + 1]):
+            l = nz_row[q]
+            v = nz_val[q]
+            for r in range(n):
+                T[r, e] += A[r, l] * v
+    for c in range(m):
+        acc = 0.0
+        for q in range(nz_ptr[c], nz_ptr[c + 1]):
+            acc += nz_val[q] * b[nz_row[q]]
+        ba[c] = acc
+        for e in range(c, m):
+            acc = 0.0
+            for q in range(nz_ptr[c], nz_ptr[c + 1]):
+                acc += nz_val[q] * T[nz_row[q], e]
+            Aa[c, e] = acc
+            Aa[e, c] = acc
 
 
 @njit(cache=True)
@@ -453,20 +474,39 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
     g_prev = np.empty(m)
     th_new = np.empty(n)
     dids = np.empty(n, np.int64)
-    ca = np.empty((n, 3))
-    ck = np.empty((n, 3))
-    cs = max(n, m)
-    sa = np.empty((cs, 3))
-    sk = np.empty((cs, 3))
+    sa = np.empty((n, 3))
+    sk = np.empty((n, 3))
+    A = np.empty((n, n))
+    b = np.empty(n)
+    T = np.empty((n, m))
+    # the basis' non-zeros per column
+    nz_ptr = np.zeros(m + 1, np.int64)
+    for c in range(m):
+        cnt = 0
+        for r in range(n):
+            if not eye and M[r, c] != 0.0:
+                cnt += 1
+        nz_ptr[c + 1] = nz_ptr[c] + cnt
+    nz_row = np.empty(nz_ptr[m], np.int64)
+    nz_val = np.empty(nz_ptr[m])
+    q = 0
+    for c in range(m):
+        for r in range(n):
+            if not eye and M[r, c] != 0.0:
+                nz_row[q] = r
+                nz_val[q] = M[r, c]
+                q += 1
     theta = theta0.copy()
     _to_alpha(theta, M, mu, m, eye, alpha)
     if not eye:
         _to_theta(alpha, M, mu, m, eye, theta)
     for c in range(m):
         g_prev[c] = _limit_grad(alpha[c], lo[c], hi[c])
+    # G, wa, wo hold θ's frames: computed here, then left by the energy of each accepted step
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
     for it in range(iters):
-        E = moment_normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
-                                    M, m, eye, G, wa, wo, Aa, ba, dids, ca, ck, sa, sk)
+        E = moment_normal_equations(parents, dof_ptr, dof_idx, dof_types, mom, G0, G, wa, wo, A, b, dids, sa, sk)
+        project_normal_equations(A, b, eye, nz_ptr, nz_row, nz_val, Aa, ba, T)
         for c in range(m):
             lam = damp[c]
             if limit_avoid:
