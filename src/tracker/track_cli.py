@@ -1,4 +1,5 @@
-"""``tracker track`` and ``tracker eval``: track a recording folder, score it against its truth.
+"""``tracker track``, ``tracker live`` and ``tracker eval``: track one recording, many (one by one or
+on Dask) or a live RealSense camera, and score a tracking against a recording's truth.
 
 ``register(app, errors_exit_2)`` adds the commands to the ``tracker`` typer app. The commands only
 parse, call :mod:`tracker.run`, print and draw progress; heavy modules are imported inside them so
