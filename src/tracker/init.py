@@ -366,7 +366,7 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
                 th = pose.copy()
                 th[~hand.pose_mask] = p
                 quick.append(th)
-        T, S = ctx.fit_many(quick, pc, mode, 2, 4, normals=nc, **kw)
+        T, S = ctx.fit_many(quick, pr, mode, 2, 3, normals=nr, gn=st.rank_gn, **kw)
         order = np.argsort(S, kind="stable")
         poses = diverse([(S[i], T[i]) for i in order], st.placements)
         # a placement is only roughly turned (the cloud's axes are not the hand's): the synergy grid
