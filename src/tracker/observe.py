@@ -34,8 +34,9 @@ class ObserveSettings:
     enough, a near one not oversampled); ``smooth``: radius (px) of the edge-preserving depth
     smoothing before sampling (0 = off, the paper's); ``normal_max_jump``: depth step (m) across which
     no normal is computed. ``gate_mm``: while tracking, points farther than this from the hand
-    predicted for the frame are dropped before correspondence (:func:`gate`; 0 = off), unless fewer
-    than ``gate_min_share`` of them would remain."""
+    predicted for the frame are dropped before correspondence (:func:`gate`; 0 = off), unless less
+    than ``gate_min_share`` of the predicted hand's surface has data that near (the prediction
+    missed a fast motion)."""
 
     stride: int = 3
     target_points: int | None = 600
@@ -166,16 +167,19 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride)
 
 
-def gate(points, predicted, radius=0.03, *, min_share=0.5, min_points=30) -> np.ndarray:
+def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30) -> np.ndarray:
     """Boolean ``(N,)``: the data ``points`` ``(N, 3)`` within ``radius`` m of the predicted hand's
     surface (``predicted``: ``(M, 3)`` model surface samples at the predicted pose,
     :meth:`tracker.correspond.ModelSamples.pose`).
 
     A table, torso, forearm or second object that the segmentation left next to the hand is then
-    out of reach of the correspondences. Guard against a fast motion that the prediction missed:
-    when fewer than ``min_share`` of the points (or fewer than ``min_points``) would remain, the
-    prediction is what is wrong, not the points, and every point is kept. NaN points are never kept
-    by the gate (they are never near) but do count in the share.
+    out of reach of the correspondences, however many of its points there are. Guard against a
+    fast motion that the prediction missed: the prediction is trusted only when at least
+    ``min_share`` of its surface samples have a data point within ``radius`` (the hand is where
+    it was predicted; clutter cannot fake this, it only adds points) and at least ``min_points``
+    points would remain; otherwise every point is kept. NaN points are never near. With the
+    samples' ``normals``, only samples facing the camera (at the origin) count: the camera sees
+    the hand's near side, and a body close behind the hand stays out of the gate.
 
     >>> model = np.array([[0.0, 0.0, 0.5], [0.02, 0.0, 0.5]])
     >>> data = np.array([[0.0, 0.01, 0.5], [0.02, 0.0, 0.52], [0.3, 0.0, 0.5]])
@@ -186,7 +190,10 @@ def gate(points, predicted, radius=0.03, *, min_share=0.5, min_points=30) -> np.
     """
     P = np.asarray(points, float).reshape(-1, 3)
     M = np.asarray(predicted, float).reshape(-1, 3)
-    M = M[np.isfinite(M).all(1)]
+    ok = np.isfinite(M).all(1)
+    if normals is not None:
+        ok &= np.einsum("ij,ij->i", np.asarray(normals, float).reshape(-1, 3), M) < 0
+    M = M[ok]
     keep = np.ones(len(P), bool)
     finite = np.isfinite(P).all(1)
     if len(M) == 0 or not finite.any():
@@ -194,7 +201,10 @@ def gate(points, predicted, radius=0.03, *, min_share=0.5, min_points=30) -> np.
     d, _ = cKDTree(M).query(P[finite], distance_upper_bound=float(radius))
     near = np.zeros(len(P), bool)
     near[finite] = np.isfinite(d)
-    n = int(near.sum())
-    if n < max(int(min_points), 1) or n < float(min_share) * len(P):
+    if int(near.sum()) < max(int(min_points), 1):
+        return keep
+    # how much of the predicted hand has data near it (the model samples near a kept point)
+    dm, _ = cKDTree(P[near]).query(M, distance_upper_bound=float(radius))
+    if np.mean(np.isfinite(dm)) < float(min_share):
         return keep
     return near

@@ -331,8 +331,9 @@ class HandTracker:
             pred = self.predict()
             if st.observe.gate_mm > 0:
                 # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit
-                keep = gate(pts, ctx.score_samples.pose(pred)[0], st.observe.gate_mm / 1000.0,
-                            min_share=st.observe.gate_min_share, min_points=st.min_points)
+                P, N = ctx.score_samples.pose(pred)
+                keep = gate(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
+                            min_points=st.min_points)
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
             theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from tracker.cameras import Camera, preset
-from tracker.observe import ObserveSettings, backproject, kept_fraction, observe, stride_for_density
+from tracker.observe import ObserveSettings, backproject, gate, kept_fraction, observe, stride_for_density
 from tracker.segment import Segmenter, in_box
 
 cameras = st.builds(
@@ -123,3 +123,43 @@ def test_in_box_and_segmenter_box():
     X = backproject(d, cam)
     mask = Segmenter(box_min=(0.0, None, None), box_max=(None, None, 0.7), band=1.0, min_pixels=1, reach=None)(d, None, X)
     np.testing.assert_array_equal(mask, (X[..., 0] >= 0) & (d <= 0.7))
+
+
+def test_gate_keeps_points_near_the_predicted_hand_only(hand):
+    """Points on the predicted hand's surface (with sensor-sized noise) pass, a table 5 cm behind
+    and a box beside the hand do not; every rejected point is farther than the radius from the model."""
+    from tracker.correspond import ModelSamples
+
+    th = np.zeros(hand.n_dofs)
+    th[2] = 0.6
+    model = ModelSamples(hand, spacing=0.006).pose(th)[0]
+    rng = np.random.default_rng(0)
+    on_hand = model[rng.choice(len(model), 400, replace=False)] + rng.normal(0, 0.003, (400, 3))
+    table = np.column_stack([rng.uniform(-0.2, 0.2, 300), rng.uniform(-0.2, 0.2, 300), np.full(300, model[:, 2].max() + 0.05)])
+    box = rng.uniform([0.15, -0.05, 0.55], [0.2, 0.05, 0.6], (100, 3))
+    pts = np.vstack([on_hand, table, box])
+    keep = gate(pts, model, 0.03)
+    assert keep[:400].all()
+    assert not keep[700:].any()
+    # the table is dropped except where it passes within the radius of the hand's surface
+    d = np.min(np.linalg.norm(table[:, None] - model[None], axis=-1), axis=1)
+    np.testing.assert_array_equal(keep[400:700], d <= 0.03)
+    assert keep[400:700].mean() < 0.2
+
+
+def test_gate_falls_back_to_every_point_when_the_prediction_is_off(hand):
+    """A fast motion the prediction missed: gating would leave less than half the points, so none
+    are dropped (the segmenter's cloud is used); NaN rows are never kept by a gate that applies."""
+    from tracker.correspond import ModelSamples
+
+    th = np.zeros(hand.n_dofs)
+    th[2] = 0.6
+    model = ModelSamples(hand, spacing=0.006).pose(th)[0]
+    pts = model[::3].copy()
+    moved = model + np.array([0.12, 0.0, 0.0])  # 12 cm off: under half the hand stays within 3 cm
+    assert gate(pts, moved, 0.03).all()
+    assert 0 < gate(pts, moved, 0.03, min_share=0.0, min_points=1).sum() < 0.5 * len(pts)
+    pts[:5] = np.nan
+    keep = gate(pts, model, 0.03)
+    assert not keep[:5].any() and keep[5:].all()
+    assert gate(pts[:10], model, 0.03, min_points=30).all()  # too few would remain: no gating

@@ -304,10 +304,11 @@ REALISTIC_SCALES = (0.8, 1.0, 1.3)
 FIRST_FRAME_MM = 20.0  # a first frame counts as found when its mean keypoint error is at most this
 
 
-def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, seed=0, color=True):
+def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, seed=0, color=True, segmenter=None):
     """Render the hand ``shown`` (possibly resized, :class:`~tracker.sim.hands.HandShape`) at each θ of
     ``truth`` with ``clutter`` and ``noise``, observe it with the default segmentation (colour frame
-    included when ``color``) and track it with ``tracker``, whose model is ``hand``.
+    included when ``color``; ``segmenter``: a :class:`tracker.segment.Segmenter` instead of the default)
+    and track it with ``tracker``, whose model is ``hand``.
 
     Returns a dict of per-frame arrays: ``keypoint_mm`` (mean distance of the 21 keypoints of the
     tracker's hand at its θ to the rendered hand's at the truth, mm), ``posture_deg``, ``status``,
@@ -332,7 +333,7 @@ def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, 
         depth = r.depth
         if noise is not None:
             depth = noise.apply(depth, cam, np.random.default_rng([seed, f]), r.cos_incidence, r.reflectance)
-        ob = observe(depth, cam, tracker.settings.observe, color=r.color)
+        ob = observe(depth, cam, tracker.settings.observe, color=r.color, segmenter=segmenter)
         t0 = time.perf_counter()
         res = tracker.track(ob, cam)
         out["ms"][f] = (time.perf_counter() - t0) * 1000.0
