@@ -35,13 +35,16 @@ class InitSettings:
     how many orientation-diverse placements go on; ``coarse_points``: size of the thinned cloud that
     ranks candidates.
 
-    ``strategy``: ``"halving"`` (default) fits every start briefly on ``rank_points`` points in one
-    compiled batch (:meth:`FitContext.fit_many`), then keeps the best ``keep[0]`` for a longer fit on
-    ``coarse_points``, the best ``keep[1]`` of those for ``icp_iterations`` on ``refine_points``, and
-    polishes the winner with ``polish_icp`` iterations on the full cloud; the finger-wise restarts
-    likewise rank all fingers' shapes at once and refit only the promising ones. ``"exhaustive"``: the
-    earlier search, every start refined with ``icp_iterations`` on the full cloud (≈ 10–30× slower,
-    kept as the reference the benchmark compares with).
+    ``strategy``: ``"halving"`` (default, successive halving) fits every start briefly on
+    ``rank_points`` points (``rank_icp`` ICP iterations of ``rank_gn`` Gauss-Newton steps,
+    :meth:`FitContext.fit_many`), fits the best ``keep[0]`` longer on ``coarse_points``, the best
+    ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; the finger-wise restarts
+    rank all fingers' shapes at once and refit only the promising ones (at most ``finger_sweeps``
+    sweeps); the winner is converged with all DoF (``icp_iterations`` on ``refine_points``, then
+    ``polish_icp`` on the full cloud). ``refit_pose``: a given ``theta0`` may be off (a previous
+    frame's), so it is also fitted longer and both go on. ``"exhaustive"``: the earlier search, every
+    start refined with ``icp_iterations`` on the full cloud (2–3× the CPU time with the compiled ICP
+    loop, ~14× with the Python one; kept as the reference the benchmark compares with).
     """
 
     icp_iterations: int = 12
