@@ -1,0 +1,232 @@
+"""The compiled ICP loop (tracker.icp.fit) against the Python loop kept as the reference
+(tracker.icp.fit_reference), its moment-sum Gauss-Newton against the per-pair solver kernels, and the
+pruned closest-point search against an exhaustive one."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from handmodel import HandModel
+from handmodel import _geometry_kernels as GK
+from handmodel import _solver_kernels as SK
+from tracker import _icp_kernels as K
+from tracker.correspond import Matcher, CorrespondSettings, Silhouette, local_offsets
+from tracker.icp import IcpSettings, cauchy_weights, fit, fit_reference, search_schedule
+from tracker.observe import observe
+from tracker.sim import experiments as E
+from tracker.sim.render import DepthRenderer
+from tracker.track import HandTracker, TrackerSettings, _usable
+
+HAND = HandModel.load()
+# Kinect v1 intrinsics (the tests do not depend on the camera-preset module)
+CAM = SimpleNamespace(width=640, height=480, fx=575.8, fy=575.8, cx=319.5, cy=239.5, name="kinect1")
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    from synergy.bundle import load_bundle
+
+    return load_bundle("fingerfist")
+
+
+@pytest.fixture(scope="module")
+def frames(bundle):
+    """Rendered frames of postures along the first synergies (truth, observation, silhouette) and, per
+    frame, a start like a tracker's: the previous frame's truth."""
+    model = bundle.model
+    rng = np.random.default_rng(3)
+    C = model.all_components_[:4]
+    a = rng.uniform(-1.0, 1.0, (7, 4)) * np.sqrt(np.maximum(model.all_explained_variance_[:4], 1e-6))
+    post = np.clip(model.mean_ + a @ C, HAND.limits[6:, 0], HAND.limits[6:, 1])
+    truth = E.sequence(post, model.mean_, lead=2)
+    ren = DepthRenderer(HAND, CAM)
+    out = []
+    for f in range(1, len(truth)):
+        ob = observe(ren.render(truth[f], labels=False).depth, CAM, TrackerSettings.paper().observe)
+        pts, nrm = _usable(ob.points, ob.normals, 0)
+        out.append((truth[f - 1], pts, nrm, Silhouette(ob.mask, ob.depth, CAM)))
+    return out
+
+
+def _tracker(bundle, ours, **kw):
+    base = TrackerSettings() if ours else TrackerSettings.paper()
+    return HandTracker(HAND, base.replace(**kw), synergies=bundle)
+
+
+def _both(tr, start, pts, nrm, sil, stages=None, **kw):
+    ctx = tr.context
+    args = (HAND, pts, start, tr.stages if stages is None else stages, ctx.matcher, tr.settings.icp)
+    kw = dict(n_rigid=tr.settings.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil, **kw)
+    return fit_reference(*args, **kw), fit(*args, **kw), fit(*args, moments=False, **kw)
+
+
+def _one(fitter, tr, theta, pts, nrm, sil, stages, n_rigid=0, **kw):
+    ctx = tr.context
+    return fitter(HAND, pts, theta, stages, ctx.matcher, tr.settings.icp, n_rigid=n_rigid, normals=nrm,
+                  samples=ctx.samples, silhouette=sil, **kw)[0]
+
+
+def _check_stage_by_stage(tr, start, pts, nrm, sil, stages):
+    """Each step of the loop (the rigid steps, then every stage) from the reference's θ before it:
+    the compiled step gives the reference's θ (moment sums to 2e-6, per pair to 2e-7: step halving
+    amplifies round-off), unless the reference itself jumps when that θ moves by round-off
+    (1e-15..1e-13: a coordinate at a PC limit switches Chan–Dubey damping on or off, a step is
+    taken or not), which no reimplementation can follow bit for bit. Returns the number of such steps."""
+    edges = 0
+    theta = start
+    steps = [([], tr.settings.icp.rigid_iterations)] + [([st], 0) for st in stages]
+    for sts, n_rigid in steps:
+        ref = _one(fit_reference, tr, theta, pts, nrm, sil, sts, n_rigid)
+        mom = _one(fit, tr, theta, pts, nrm, sil, sts, n_rigid)
+        pair = _one(fit, tr, theta, pts, nrm, sil, sts, n_rigid, moments=False)
+        if np.abs(mom - ref).max() > 2e-6 or np.abs(pair - ref).max() > 2e-7:
+            jumps = [np.abs(_one(fit_reference, tr, theta + eps, pts, nrm, sil, sts, n_rigid) - ref).max()
+                     for eps in (1e-15, -1e-15, 1e-13, -1e-13)]
+            assert max(jumps) > 1e-4, "compiled and reference fits differ"
+            edges += 1
+        theta = ref
+    return edges
+
+
+@pytest.mark.parametrize("mode,ours,extra", [("full", True, {}), ("full", False, {}), ("reduced", True, {}),
+                                             ("reduced", False, {}), ("reduced", True, {"projected_steps": 2}),
+                                             ("hierarchical", True, {}), ("full", True, {"point_to_plane": True})])
+def test_compiled_loop_gives_the_reference_result(bundle, frames, mode, ours, extra):
+    """Every mode and stage entry (clamp, through, projected steps), both estimations, point-to-plane:
+    the whole fit gives the reference's θ and correspondences on (nearly) every frame, and every
+    step of it does (see :func:`_check_stage_by_stage`)."""
+    tr = _tracker(bundle, ours, mode=mode, **extra)
+    moved, same, edges = 0.0, 0, 0
+    for start, pts, nrm, sil in frames:
+        (t_ref, c_ref), (t_mom, c_mom), (t_pair, c_pair) = _both(tr, start, pts, nrm, sil)
+        moved = max(moved, np.abs(t_ref - start).max())
+        edges += _check_stage_by_stage(tr, start, pts, nrm, sil, tr.stages)
+        if np.abs(t_mom - t_ref).max() > 2e-6 or np.abs(t_pair - t_ref).max() > 2e-7:
+            continue
+        same += 1
+        for c in (c_mom, c_pair):
+            assert (c.valid == c_ref.valid).all()
+            assert (c.nodes[c.valid] == c_ref.nodes[c_ref.valid]).all()
+            np.testing.assert_allclose(c.distance[c.valid], c_ref.distance[c_ref.valid], atol=1e-8)
+    assert same >= len(frames) - 1 and edges <= 1
+    assert moved > 1e-3  # the fits did move θ: equal results are not just the start returned
+
+
+def test_search_schedules_match_the_reference(bundle, frames):
+    """The start search's schedules: the hierarchical ladder clamped and through θ, several rigid steps."""
+    tr = _tracker(bundle, True)
+    ctx = tr.context
+    start, pts, nrm, sil = frames[2]
+    flat = start.copy()
+    flat[6:] = bundle.model.mean_
+    for through in (False, True):
+        stages = search_schedule("hierarchical", 6, ctx.full, ctx.reduced, ctx.ladder, through=through)
+        assert {s.entry for s in stages} >= {"none", "through" if through else "clamp"}
+        assert _check_stage_by_stage(tr, flat, pts, nrm, sil, stages) <= 1
+
+
+def test_other_matchers_take_the_reference_loop(frames):
+    """A matcher the compiled loop does not know (the mesh surface) gets exactly the Python loop."""
+    from tracker.icp import Stage
+    from handmodel.subspace import Subspace
+
+    start, pts, nrm, _ = frames[0]
+    matcher = Matcher(HAND, CorrespondSettings(model="mesh"))
+    stages = [Stage(Subspace.full(HAND))] * 2
+    a, ca = fit_reference(HAND, pts, start, stages, matcher, IcpSettings(), n_rigid=1, normals=nrm)
+    b, cb = fit(HAND, pts, start, stages, matcher, IcpSettings(), n_rigid=1, normals=nrm)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ca.valid, cb.valid)
+
+
+def test_moment_sums_give_the_per_pair_energy_and_normal_equations(bundle, frames):
+    """At poses away from the reference frames (where the pairs were fixed), the energy and JᵀW²J,
+    JᵀW²e from the per-node moments equal the per-pair kernels' to round-off — including the model's
+    rest frames being orthonormal to 1e-6 only, which a rotation-invariant shortcut would get wrong."""
+    tr = _tracker(bundle, True)
+    start, pts, nrm, _ = frames[1]
+    c = tr.context.matcher(start, pts, nrm)
+    v = c.valid
+    nodes, tg = c.nodes[v], pts[v]
+    loc = local_offsets(HAND, start, nodes, c.model[v])
+    w = cauchy_weights(c.distance[v], 8.0)
+    n, N = HAND.n_dofs, HAND.n_nodes
+    G0 = HAND.node_frames(start)
+    mom = np.zeros((N, 23))
+    K.node_moments(nodes, loc, tg, w, G0, N, mom)
+    rng = np.random.default_rng(0)
+    G, wa, wo = np.empty((N, 4, 4)), np.empty((n, 3)), np.empty((n, 3))
+    for scale in (0.0, 0.02, 0.2):
+        th = start + rng.normal(scale=scale, size=n)
+        A, b = np.empty((n, n)), np.empty(n)
+        e_pair = SK.normal_equations(th, *HAND.kernel_args(), nodes, loc, tg, w, np.zeros((0, 3)), G, wa, wo, A, b,
+                                     np.empty((n, 3)), np.empty(n, np.int64), np.empty(3), np.empty(3))
+        A2, b2 = np.empty((n, n)), np.empty(n)
+        e_mom = K.moment_normal_equations(HAND.parents, HAND.dof_ptr, HAND.dof_idx, HAND.dof_types, mom, G0, G, wa,
+                                          wo, A2, b2, np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)))
+        e_at = K.moment_energy_at(th, *HAND.kernel_args(), mom, G0, G, wa, wo, np.empty((3, 3)), np.empty(3))
+        assert e_pair > 1.0
+        assert abs(e_mom - e_pair) <= 1e-10 * e_pair and abs(e_at - e_pair) <= 1e-10 * e_pair
+        np.testing.assert_allclose(A2, A, rtol=0, atol=1e-10 * np.abs(A).max())
+        np.testing.assert_allclose(b2, b, rtol=0, atol=1e-10 * np.abs(b).max())
+    # projected onto the synergy subspace through its non-zeros = MᵀAM, Mᵀb
+    M = tr.context.reduced.M
+    m = M.shape[1]
+    nz = [np.flatnonzero(M[:, c]) for c in range(m)]
+    ptr = np.r_[0, np.cumsum([len(z) for z in nz])].astype(np.int64)
+    rows = np.concatenate(nz).astype(np.int64)
+    vals = np.concatenate([M[z, c] for c, z in enumerate(nz)])
+    Aa, ba = np.empty((m, m)), np.empty(m)
+    K.project_normal_equations(A, b, False, ptr, rows, vals, Aa, ba, np.empty((n, m)))
+    np.testing.assert_allclose(Aa, M.T @ A @ M, rtol=1e-12, atol=1e-9 * np.abs(A).max())
+    np.testing.assert_allclose(ba, M.T @ b, rtol=1e-12, atol=1e-9 * np.abs(b).max())
+
+
+def _exhaustive(G, caps, points, facing, signed):
+    """Every primitive for every point: the smallest (signed or absolute) distance among the
+    candidates facing the camera at the origin, ties to the lowest index."""
+    seg_node, shape, length, r0, r1, th = caps
+    P = len(points)
+    best, seg = np.full(P, np.inf), np.full(P, -1)
+    loc = np.empty(7)
+    for i, p in enumerate(points):
+        for s in range(len(seg_node)):
+            g = G[seg_node[s]]
+            GK.closest_local(shape[s], length[s], r0[s], r1[s], th[s], g[:3, :3].T @ (p - g[:3, 3]), loc)
+            d = loc[6] if signed else abs(loc[6])
+            wp, wn = g[:3, :3] @ loc[:3] + g[:3, 3], g[:3, :3] @ loc[3:6]
+            if facing and wp @ wn > 0:
+                continue
+            if d < best[i]:
+                best[i], seg[i] = d, s
+    return seg, best
+
+
+@pytest.mark.parametrize("spread", [0.005, 0.03, 0.2])
+def test_pruned_closest_points_equal_the_exhaustive_search(spread):
+    """Bounding-sphere pruning and the warm start change nothing: same segment, same distance, for
+    points on, near and far from the hand, inside it too (signed), in the order a scan gives them
+    and shuffled."""
+    rng = np.random.default_rng(int(spread * 1000))
+    caps = HAND.capsules.kernel_args()
+    for k in range(4):
+        theta = HAND.zero()
+        theta[2] = 0.7
+        theta[3:6] = rng.normal(size=3)
+        theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
+        G = HAND.node_frames(theta)
+        pts = HAND.keypoints(theta)[rng.integers(0, 21, 150)] + rng.normal(scale=spread, size=(150, 3))
+        if k % 2:
+            pts = pts[np.argsort(pts[:, 0])]  # scan-like order: neighbours share their winner
+        P = len(pts)
+        for facing, signed in ((True, False), (False, False), (False, True)):
+            out = np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P)
+            if signed:
+                GK.closest_points(G, *caps, pts, *out)
+            else:
+                GK.closest_points_facing(G, *caps, pts, np.zeros(3), facing, *out)
+            seg, best = _exhaustive(G, caps, pts, facing, signed)
+            np.testing.assert_array_equal(out[2], seg)
+            found = seg >= 0
+            np.testing.assert_allclose(out[3][found], best[found], rtol=0, atol=1e-12)
+            assert found.mean() > 0.3
