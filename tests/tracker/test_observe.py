@@ -148,15 +148,16 @@ def test_gate_keeps_points_near_the_predicted_hand_only(hand):
 
 
 def test_gate_falls_back_to_every_point_when_the_prediction_is_off(hand):
-    """A fast motion the prediction missed: gating would leave less than half the points, so none
-    are dropped (the segmenter's cloud is used); NaN rows are never kept by a gate that applies."""
+    """A fast motion the prediction missed: less than half of the predicted hand has data near it,
+    so no point is dropped (the segmenter's cloud is used); NaN rows are never kept by a gate that
+    applies."""
     from tracker.correspond import ModelSamples
 
     th = np.zeros(hand.n_dofs)
     th[2] = 0.6
     model = ModelSamples(hand, spacing=0.006).pose(th)[0]
     pts = model[::3].copy()
-    moved = model + np.array([0.12, 0.0, 0.0])  # 12 cm off: under half the hand stays within 3 cm
+    moved = model + np.array([0.12, 0.0, 0.0])  # 12 cm off: under half the hand has data within 3 cm
     assert gate(pts, moved, 0.03).all()
     assert 0 < gate(pts, moved, 0.03, min_share=0.0, min_points=1).sum() < 0.5 * len(pts)
     pts[:5] = np.nan

@@ -300,7 +300,10 @@ REALISTIC_SCENES = {"hand alone": None, "+forearm": "forearm", "+forearm+torso":
                     "+table": "forearm,table", "+object": "forearm,box"}
 #: Sensor label → (camera preset, noise preset).
 REALISTIC_SENSORS = {"kinect1": ("kinect1", "kinect1"), "realsense": ("sr305", "sr305")}
-REALISTIC_SCALES = (0.8, 1.0, 1.3)
+REALISTIC_SCALES = (0.8, 1.0, 1.5)
+#: The tracker of the realistic scenes: today's defaults with the hand size calibrated from the
+#: first frames (the rendered hands are not the model's size).
+REALISTIC_SETTINGS = {"hand_scale": "auto"}
 FIRST_FRAME_MM = 20.0  # a first frame counts as found when its mean keypoint error is at most this
 
 
@@ -351,7 +354,8 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
                          motion="open-close", settings=None, seed=0, progress=None):
     """Realistic scenes: each scene (:data:`REALISTIC_SCENES`) × sensor (:data:`REALISTIC_SENSORS`) ×
     rendered hand scale, tracked from its first frame by a fresh tracker of the model ``hand``
-    (``settings``: :class:`TrackerSettings` changes; default: today's defaults).
+    (``settings``: :class:`TrackerSettings` changes; default: :data:`REALISTIC_SETTINGS`, today's
+    defaults with the size calibrated).
 
     Returns one dict per run: ``scene``, ``sensor``, ``scale``, ``frames``, ``keypoint_mm`` (mean over
     the frames with a θ), ``posture_deg``, ``first_frame_mm``, ``first_ok`` (≤ :data:`FIRST_FRAME_MM`),
@@ -367,7 +371,8 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
             shown = HandShape(float(scale)).apply(hand)
             truth = make_motion(motion, hand=shown, frames=frames, seed=seed).theta
             for k, (scene, spec) in enumerate(scenes.items()):
-                tracker = HandTracker(hand, TrackerSettings().replace(**(settings or {})), synergies=bundle)
+                tracker = HandTracker(hand, TrackerSettings().replace(**(REALISTIC_SETTINGS if settings is None
+                                                                        else settings)), synergies=bundle)
                 r = run_scene(hand, shown, truth, cam, tracker, clutter=spec, noise=nm, seed=seed + k)
                 ke = r["keypoint_mm"]
                 fitted = np.isfinite(ke)
