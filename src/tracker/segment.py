@@ -43,6 +43,7 @@ DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
+OPPOSITE_ARM_REACH_R = 2.2  # a wide part opposite the fingers is an arm when it reaches at least this far
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -501,15 +502,19 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     pieces = np.bincount(owner[big[big > 0]], minlength=n + 1)[1:]
     continues[1:] &= pieces < 2
     ends = ~continues[1:]
-    for j in np.flatnonzero(ends & (width >= 0.45 * r)):
+    for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= OPPOSITE_ARM_REACH_R * r)):
         # the other parts that end here, weighted by their width: the fingers' side of the palm
+        # (at least a finger's width of them: noise specks at the outline are no fingers, and a hand
+        # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
         others = ends.copy()
         others[j] = False
-        if not others.any():
+        if width[others].sum() < 0.3 * r:
             continue
         fy, fx = np.sum(width[others] * cy_p[others]), np.sum(width[others] * cx_p[others])
         cosang = (cy_p[j] * fy + cx_p[j] * fx) / (np.hypot(cy_p[j], cx_p[j]) * np.hypot(fy, fx) + 1e-12)
         continues[j + 1] |= cosang < -0.5
+    # spread fingers stay fingers whichever rule called them an arm
+    continues[1:] &= pieces < 2
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:
