@@ -254,11 +254,12 @@ SINGLE_METHODS = (  # key, mode, search, settings: the paper's two fits from the
     ("flat", "full", True, "ours"), ("hierarchical", "hierarchical", True, "ours"))
 
 
-def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=SINGLE_METHODS):
+def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=SINGLE_METHODS, from_pose=True):
     """Single frames from the global pose only (posture unknown), full cloud. The paper's flat (all
     DoF) and hierarchical (1 → 4 → l PCs → all DoF) fits from the synergy mean, with
     ``TrackerSettings.paper()`` (``*_paper``) and with our estimation (``*_plain``), and ours: our
-    defaults after the start search (synergy grid, finger-wise restarts).
+    defaults after the start search (synergy grid, finger-wise restarts). ``from_pose`` False: the same
+    frames from no pose at all (the search places the hand from the cloud).
 
     Returns per method ``(mean, median)`` degrees, ``<key>_frames`` (per frame), ``<key>_share``
     (share of frames ≤ 1, 2, 5°) and ``s_<key>`` (seconds per frame, mean and median)."""
@@ -279,8 +280,9 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
         start[~hand.pose_mask] = bundle.model.mean_
         for key, mode, search, which in methods:
             t0 = time.perf_counter()
-            th, _ = trackers[which].fit_single_frame(ob.points, theta0=start, mode=mode, silhouette=sil, normals=ob.normals,
-                                        postures=None if search else [bundle.model.mean_], search=search)
+            th, _ = trackers[which].fit_single_frame(ob.points, theta0=start if from_pose else None, mode=mode,
+                                                     silhouette=sil, normals=ob.normals,
+                                                     postures=None if search else [bundle.model.mean_], search=search)
             sec[key].append(time.perf_counter() - t0)
             out[key].append(float(posture_error_deg(th, truth, hand.pose_mask)))
     res = {"rows": [int(r) for r in rows]}
