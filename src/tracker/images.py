@@ -13,9 +13,9 @@ import struct
 from pathlib import Path
 
 import imageio.v3 as iio
-import numba
 import numpy as np
 
+from ._image_kernels import RVL_OK, RVL_OVERRUN, RVL_SHORT, RVL_VALUE, rvl_decode
 from .cameras import MAX_UNITS, Camera
 from .errors import RecordingError
 
@@ -164,61 +164,9 @@ def encode_depth(depth_m, camera: Camera, where="depth") -> np.ndarray:
 # ----------------------------------------------------------------------------- recording files
 #: Where a ROS ``compressedDepth`` message's 12-byte ConfigHeader says PNG (0) or RVL (1) follows.
 COMPRESSED_DEPTH_HEADER = 12
-_RVL_OK, _RVL_SHORT, _RVL_OVERRUN, _RVL_VALUE = 0, 1, 2, 3
-_RVL_REASONS = {_RVL_SHORT: "the RVL stream ends before the image is complete",
-                _RVL_OVERRUN: "an RVL run is longer than the image",
-                _RVL_VALUE: "an RVL value has more than 32 bits"}
-
-
-@numba.njit(cache=True)
-def _rvl_decode(words, n):  # pragma: no cover - compiled
-    out = np.zeros(n, np.uint16)
-    wi = 0
-    left = 0          # nibbles left in `word`
-    word = np.uint32(0)
-    pos = 0
-    prev = 0
-    phase = 0         # 0: a run of zeros, 1: a run of non-zeros, 2+: deltas of that run
-    run = 0
-    while pos < n:
-        # one variable-length value: 3 bits a nibble, most significant nibble of each word first
-        value = 0
-        shift = 0
-        while True:
-            if left == 0:
-                if wi >= words.size:
-                    return out, _RVL_SHORT
-                word = words[wi]
-                wi += 1
-                left = 8
-            nib = (word >> np.uint32(28)) & np.uint32(15)
-            word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
-            left -= 1
-            if shift > 30:
-                return out, _RVL_VALUE
-            value |= int(nib & np.uint32(7)) << shift
-            shift += 3
-            if (nib & np.uint32(8)) == 0:
-                break
-        if phase == 0:
-            if value > n - pos:
-                return out, _RVL_OVERRUN
-            pos += value          # zeros: out is zero already
-            phase = 1
-        elif phase == 1:
-            if value > n - pos:
-                return out, _RVL_OVERRUN
-            run = value
-            phase = 0 if run == 0 else 2
-        else:
-            delta = (value >> 1) ^ -(value & 1)
-            prev = (prev + delta) & 0xFFFF
-            out[pos] = prev
-            pos += 1
-            run -= 1
-            if run == 0:
-                phase = 0
-    return out, _RVL_OK
+_RVL_REASONS = {RVL_SHORT: "the RVL stream ends before the image is complete",
+                RVL_OVERRUN: "an RVL run is longer than the image",
+                RVL_VALUE: "an RVL value has more than 32 bits"}
 
 
 def decode_rvl(data: bytes, width: int, height: int, where) -> np.ndarray:
@@ -230,8 +178,8 @@ def decode_rvl(data: bytes, width: int, height: int, where) -> np.ndarray:
     n = int(width) * int(height)
     pad = (-len(data)) % 4
     words = np.frombuffer(bytes(data) + b"\0" * pad, "<u4").astype(np.uint32)
-    out, status = _rvl_decode(words, n)
-    if status != _RVL_OK:
+    out, status = rvl_decode(words, n)
+    if status != RVL_OK:
         raise RecordingError(where, f"damaged RVL depth image ({_RVL_REASONS[status]})")
     return out.reshape(height, width)
 
