@@ -145,9 +145,11 @@ def import_(
     if is_recording_file(src):
         given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
                                 ("--width", width), ("--height", height), ("--depth-scale", depth_scale),
-                                ("--depth-encoding", depth_encoding), ("--color", color)) if v is not None]
+                                ("--depth-encoding", depth_encoding), ("--color", color),
+                                ("--fps", None if fps == 30.0 else fps)) if v is not None]
         if given:
-            raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera")
+            raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera, "
+                                    "frame rate and colour")
         with _progress("importing") as p:
             bar = p.add_task("import", total=None)
             rec = import_recording_file(src, output, topic=topic, color_topic=color_topic, start_s=start, end_s=end,

@@ -492,8 +492,8 @@ def test_damaged_bags_are_one_line_errors(tmp_path):
     assert "no topic '/nope' (image topics: /device_0/sensor_0/Depth_0/image/data)" in line
     line = _one_error_line(_cli("info", good, "--topic", f"{DEV}/option/Depth Units/value"), good)
     assert "carries std_msgs/msg/Float32, not a depth image" in line
-    line = _one_error_line(_cli("import", good, "-o", tmp_path / "x", "--camera", "sr305"), good)
-    assert "--camera do not apply" in line
+    line = _one_error_line(_cli("import", good, "-o", tmp_path / "x", "--camera", "sr305", "--fps", "15"), good)
+    assert "--camera, --fps do not apply" in line
 
 
 def _bag_file(tmp_path, kind, frames):
