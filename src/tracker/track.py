@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from handmodel.dofs import anatomical_limits
+from handmodel.rigid import euler_to_matrix
 from handmodel.subspace import Subspace, hierarchical_schedule
 
 from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
@@ -48,6 +49,13 @@ class TrackerSettings:
     refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``.
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
     whether it fits clearly better (the recording's handedness is likely wrong).
+
+    ``safety_net``: every tracked frame is tested (its start-search score, :func:`tracker.init.score`,
+    above ``net_score_mm`` and above ``net_score_ratio`` × the median of the last good frames', or a
+    jump from the prediction of more than ``net_jump_deg`` / ``net_jump_mm``); a doubtful frame gets
+    the cheap start search (:meth:`tracker.init.InitSettings.cheap`) on its cloud, and the better of
+    the two estimates by score is kept. ``recentre``: when the segmented cloud's centre is farther
+    than the rejection radius from the predicted hand's, the prediction is moved onto it first.
     """
 
     mode: str = "full"
@@ -64,6 +72,12 @@ class TrackerSettings:
     scale_frames: int = 3
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
+    safety_net: bool = True
+    net_score_mm: float = 2.5
+    net_score_ratio: float = 2.0
+    net_jump_deg: float = 30.0
+    net_jump_mm: float = 40.0
+    recentre: bool = True
     observe: ObserveSettings = field(default_factory=ObserveSettings)
     correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
     icp: IcpSettings = field(default_factory=IcpSettings)
@@ -79,7 +93,7 @@ class TrackerSettings:
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0),
-                   init=InitSettings(search=False, finger_search=False))
+                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -162,6 +176,7 @@ class FrameResult:
     points_in: int
     ms: float
     rejected_share: float = 0.0
+    net: str = ""               # the safety net on this frame: "" (not run), "kept" or "replaced"
 
 
 def fit_context(hand, settings: TrackerSettings, synergies=None):
@@ -207,6 +222,9 @@ class HandTracker:
     scale_ : the hand size in use (None while ``hand_scale="auto"`` has not seen a frame)
     scale_estimates_ : the per-frame estimates an automatic calibration took the median of
     hand_check_ : :class:`HandCheck` of the first frame (``check_hand``), else None
+    net_runs_, net_replaced_, net_ms_ : how often the safety net ran, how often its estimate won, and
+        the time it took (ms, all runs together)
+    recentred_ : how often the prediction was moved onto the cloud
     """
 
     def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None):
@@ -219,6 +237,8 @@ class HandTracker:
         self._contexts = {}
         self.scale_estimates_ = []
         self.hand_check_ = None
+        self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
+        self._good_scores = []
         auto = settings.hand_scale == "auto"
         self._use_scale(1.0 if auto else float(settings.hand_scale))
         self.scale_ = None if auto else float(settings.hand_scale)
@@ -307,6 +327,7 @@ class HandTracker:
         st = self.settings
         pts, nrm = _usable(points, normals, st.max_points)
         n_in = len(pts)
+        net, recentred = "", False
         if n_in < st.min_points:
             self.lost = True
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
@@ -329,6 +350,10 @@ class HandTracker:
         else:
             ctx = self.context
             pred = self.predict()
+            all_pts, all_nrm = pts, nrm
+            if st.recentre:
+                moved = self._recentred(pred, pts)
+                recentred, pred = moved is not pred, moved
             if st.observe.gate_mm > 0:
                 # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit
                 P, N = ctx.score_samples.pose(pred)
@@ -338,19 +363,76 @@ class HandTracker:
             theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
             status = "tracked"
+            if st.safety_net:
+                theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
+                if net == "replaced":
+                    status = "reinit"
         if st.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
         rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
         if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
+            if recentred and self.prev is not None:
+                # the jump was no velocity: the next prediction must not repeat it
+                self.prev = self.prev.copy()
+                self.prev[:3] = theta[:3]
             self.last_good = theta
             self.lost = False
             if status == "tracked" and len(self.scale_estimates_) < (st.scale_frames if st.hand_scale == "auto" else 0):
                 self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
-        return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected))
+        return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+
+    def _recentred(self, pred, pts):
+        """The prediction moved onto the cloud when their centres are farther apart than the rejection
+        radius (a hand faster than the prediction: no correspondence would reach it). The cloud is the
+        near side of the hand, so only the model's camera-facing samples are its counterpart."""
+        P, N = self.context.score_samples.pose(pred)
+        facing = np.einsum("ij,ij->i", N, P) < 0
+        if facing.sum() < 10:
+            return pred
+        shift = np.median(pts, axis=0) - np.median(P[facing], axis=0)
+        if np.linalg.norm(shift) * 1000.0 <= self.settings.correspond.reject_mm:
+            return pred
+        self.recentred_ += 1
+        out = pred.copy()
+        out[:3] += shift
+        return out
+
+    def _doubtful(self, theta, pred, s) -> bool:
+        """The safety net's test of a tracked frame: a poor score for this sequence, or a jump."""
+        st = self.settings
+        level = np.median(self._good_scores[-30:]) if self._good_scores else 0.0
+        if s > max(st.net_score_mm, st.net_score_ratio * level):
+            return True
+        R = euler_to_matrix(theta[3:6]) @ euler_to_matrix(pred[3:6]).T
+        turn = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+        return turn > st.net_jump_deg or np.linalg.norm(theta[:3] - pred[:3]) * 1000.0 > st.net_jump_mm
+
+    def _safety_net(self, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil):
+        """``(θ, corr, points, normals, what)``: the tracked estimate, or the cheap start search's on the
+        whole segmented cloud when the frame is doubtful and the search scores better."""
+        ctx = self.context
+        s = score(ctx, theta, corr, sil)
+        if not self._doubtful(theta, pred, s):
+            self._good_scores.append(s)
+            return theta, corr, pts, nrm, ""
+        t0 = time.perf_counter()
+        self.net_runs_ += 1
+        # both on the same (whole) cloud, so that their scores compare
+        c_all = corr if all_pts is pts else ctx.matcher(theta, all_pts, all_nrm)
+        s_track = score(ctx, theta, c_all, sil)
+        starts = (theta,) if self.last_good is None else (theta, self.last_good)
+        th2, c2 = fit_single_frame(ctx, all_pts, InitSettings.cheap(), silhouette=sil, normals=all_nrm, extra=starts)
+        s2 = score(ctx, th2, c2, sil)
+        self.net_ms_ += (time.perf_counter() - t0) * 1e3
+        if s2 < s_track - 1e-6:
+            self.net_replaced_ += 1
+            self.prev = None
+            return th2, c2, all_pts, all_nrm, "replaced"
+        return theta, corr, pts, nrm, "kept"
 
 
 def _usable(points, normals, max_points):
