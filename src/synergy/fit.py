@@ -29,7 +29,7 @@ from synergy.bundle import Bundle, read_bundle, save_bundle
 from synergy.c3d import read_c3d, task_from_events
 from synergy.calibrate import Calibration
 from synergy.errors import MarkerSetError, SynergyError, TaskMapError
-from synergy.markers import MarkerSet, choose_markerset, load_markerset, shipped_markersets
+from synergy.markers import MarkerSet, available_markersets, choose_markerset, load_markerset
 from synergy.pca import SufficientStats, SynergyModel, heldout_curve
 from synergy.postures import postures_from_table, read_csv_postures, read_schroeder26
 from synergy.tasks import TaskMap, label_for
@@ -83,7 +83,8 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
 
     C3D only: ``markers`` (name, path or :class:`~synergy.markers.MarkerSet`) and ``hand`` ('left'
     or 'right') are chosen from the file's labels when not given (among ``markersets``, default
-    the shipped ones; a hand the labels cannot tell is the one the handedness check prefers);
+    the shipped ones and the user's, :func:`~synergy.markers.available_markersets`; a hand the
+    labels cannot tell is the one the handedness check prefers);
     ``calibration`` is passed to :func:`~synergy.angles.markers_to_angles` (a subject
     :class:`~synergy.calibrate.Calibration` also names the set and hand to use);
     ``check_hand`` False skips the handedness check. A trial with a wrong hand is converted and
@@ -123,7 +124,7 @@ def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
     if markers is not None:
         pool = [markers if isinstance(markers, MarkerSet) else load_markerset(markers)]
     else:
-        pool = list(markersets) if markersets is not None else shipped_markersets()
+        pool = list(markersets) if markersets is not None else available_markersets()
         if isinstance(calibration, Calibration) and calibration.markerset:
             # the subject was calibrated with one set: a trial of that subject is read with it
             pool = [m for m in pool if m.name == calibration.markerset] or pool

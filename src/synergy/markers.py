@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import fnmatch
 import json
+import os
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -204,10 +206,51 @@ def _hand_model(name, where):
         raise MarkerSetError(where, f"field hand_model: {err}") from None
 
 
-def load_markerset(name_or_path) -> MarkerSet:
-    """Load a shipped marker set by name, or a marker-set YAML file by path; validates it."""
-    from handmodel.fileio import load_yaml, resolve_model_file
+#: Environment variable: folders (``os.pathsep``-separated) of the user's own marker sets.
+MARKERSETS_ENV = "SYNERGY_MARKERSETS"
 
+
+def user_markerset_dirs(extra=()) -> list:
+    """Folders searched for the user's own marker sets, in order: ``extra`` (e.g. ``--markersets
+    DIR``), the folders in ``$SYNERGY_MARKERSETS``, then ``$XDG_CONFIG_HOME/synergy/markersets``
+    (default ``~/.config/synergy/markersets``) when it exists. A folder named explicitly (``extra``
+    or the variable) that does not exist is an error, not silently skipped.
+    """
+    dirs = [Path(d) for d in extra]
+    dirs += [Path(d) for d in os.environ.get(MARKERSETS_ENV, "").split(os.pathsep) if d.strip()]
+    for d in dirs:
+        if not d.is_dir():
+            raise MarkerSetError(d, "marker-set folder not found (from --markersets or $" + MARKERSETS_ENV + ")")
+    config = Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config") / "synergy" / "markersets"
+    if config.is_dir():
+        dirs.append(config)
+    out = []
+    for d in dirs:
+        if d.resolve() not in [o.resolve() for o in out]:
+            out.append(d)
+    return out
+
+
+def _user_files(dirs):
+    return [p for d in dirs for p in sorted(d.iterdir()) if p.suffix in (".yaml", ".yml") and p.is_file()]
+
+
+def load_markerset(name_or_path, user_dirs=None) -> MarkerSet:
+    """Load a marker set by name (shipped, or a ``<name>.yaml`` in :func:`user_markerset_dirs`) or
+    a marker-set YAML file by path; validates it."""
+    from handmodel.fileio import load_yaml, models_dir, resolve_model_file
+
+    name = str(name_or_path)
+    if Path(name).suffix not in (".yaml", ".yml") and not (models_dir() / "markersets" / f"{name}.yaml").exists():
+        dirs = user_markerset_dirs() if user_dirs is None else list(user_dirs)
+        mine = [p for p in _user_files(dirs) if p.stem == name]
+        if mine:
+            return markerset_from_dict(load_yaml(mine[0], MarkerSetError), mine[0])
+        if dirs:
+            known = sorted({p.stem for p in (models_dir() / "markersets").glob("*.yaml")}
+                           | {p.stem for p in _user_files(dirs)})
+            raise MarkerSetError(name, f"no such marker set (known: {', '.join(known)}; searched the shipped "
+                                       f"sets and {', '.join(str(d) for d in dirs)})")
     p = resolve_model_file("markersets", name_or_path, MarkerSetError, "marker set")
     return markerset_from_dict(load_yaml(p, MarkerSetError), p)
 
@@ -217,6 +260,22 @@ def shipped_markersets() -> list:
     from handmodel.fileio import models_dir
 
     return [load_markerset(p) for p in sorted((models_dir() / "markersets").glob("*.yaml"))]
+
+
+def available_markersets(extra_dirs=()) -> list:
+    """The shipped marker sets, then the user's (every YAML in :func:`user_markerset_dirs`), for
+    :func:`choose_markerset`. Every file must be a valid marker set; two sets of one name (a user
+    set named like a shipped one, or in two folders) are an error naming both files, so the set a
+    trial is converted with is never ambiguous."""
+    sets = shipped_markersets()
+    by_name = {m.name: m.path for m in sets}
+    for p in _user_files(user_markerset_dirs(extra_dirs)):
+        ms = load_markerset(p)
+        if ms.name in by_name:
+            raise MarkerSetError(p, f"marker set {ms.name!r} is also defined in {by_name[ms.name]}; rename one")
+        by_name[ms.name] = ms.path
+        sets.append(ms)
+    return sets
 
 
 def _hands_of(ms: MarkerSet) -> list:
