@@ -190,6 +190,7 @@ def angles(
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Use the model as it is."),
     plot: bool = typer.Option(False, "--plot", help="Also write a PNG per trial: angles and per-marker residuals."),
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="Convert even if the other hand fits clearly better."),
+    dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off)."),
 ):
     """Convert C3D trials to joint-angle tables (marker IK), with a summary per trial."""
     from handmodel.fileio import check_output
@@ -207,6 +208,9 @@ def angles(
     from synergy.errors import SynergyError
     from synergy.markers import load_markerset
 
+    if dip_prior_sd is not None and not dip_prior_sd >= 0:
+        raise SynergyError("--dip-prior-sd", f"must be 0 (off) or a positive SD in degrees, got {dip_prior_sd}")
+    coupling = {} if dip_prior_sd is None else {"ip_coupling_sd_deg": dip_prior_sd or None}
     ms = load_markerset(markers)
     targets = [(f, out / f"{f.stem}.csv") for f in files]
     for f, dst in targets:
@@ -233,7 +237,7 @@ def angles(
                 data = read_c3d(f)
                 t0 = time.perf_counter()
                 df = markers_to_angles(data, ms, hand=hand, calibration=cal, smooth_hz=smooth_hz,
-                                       check_hand=None if no_hand_check else "stop")
+                                       check_hand=None if no_hand_check else "stop", **coupling)
                 dt = time.perf_counter() - t0
                 write_angles_csv(df, dst)
                 if plot:
