@@ -13,7 +13,10 @@ import os
 import time
 from unittest import mock
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+# one core for every library: a threaded BLAS under scipy's SVD thrashes on a shared machine (0.1 s per
+# 1500×26 SVD at load 10) and would time the machine, not the peer
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 import numpy as np
 from scipy.optimize import least_squares
