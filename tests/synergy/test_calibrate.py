@@ -6,7 +6,7 @@ from typer.testing import CliRunner
 
 from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
-from synergy.angles import markers_to_angles
+from synergy.angles import markers_to_angles, read_angles_csv
 from synergy.c3d import write_c3d
 from synergy.calibrate import calibrate, load_calibration, save_calibration, scale_only
 from synergy.cli import app
@@ -16,10 +16,11 @@ from synergy.simulate import motion, random_subject, simulate_markers
 
 HAND = HandModel.load()
 NOISE_MM = 0.5
-# hand19 (3 markers per digit) meets the issue's 2° floor. hand16 leaves each proximal phalanx
-# unmarked: its fingers' bone lengths and marker places trade off against PIP/DIP angles, and for
-# this subject the middle finger's DIP stays ~14° RMS off (seeds 0-2: 1.5-2.2° overall).
-ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 4.5}
+# The issue's floor: 2° RMS after calibration. hand16 leaves each proximal phalanx unmarked, so in a
+# fist a finger's PIP and DIP can trade (+23°/−37° moves its markers ~1 mm): the IK's weak DIP-PIP
+# prior decides there (seed 3: 3.94° without it, 1.89° with it). Over seeds 0-7 hand16 still misses
+# the floor on some subjects (README "Calibration"); hand19 meets it on every seed.
+ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 2.0}
 
 
 def subject_trials(markers, seed):
@@ -43,18 +44,35 @@ def rms_deg(df, theta):
     return float(np.degrees(np.sqrt(np.mean((est[ok, 6:] - theta[ok, 6:]) ** 2))))
 
 
-@pytest.fixture(scope="module", params=[("hand19", 1), ("hand16", 3)], ids=["hand19", "hand16"])
+@pytest.fixture(scope="module")
+def hand19_files(tmp_path_factory):
+    """hand19 subject (seed 1) as C3D files, calibrated by `synergy calibrate` once: the floors below
+    are checked on what the command wrote, and the command's own output in the round-trip test."""
+    out = tmp_path_factory.mktemp("hand19")
+    rom, static, trial, th = subject_trials("hand19", 1)
+    for name, tr in (("rom", rom), ("static", static), ("grasp", trial)):
+        write_c3d(out / f"{name}.c3d", tr.points, tr.labels, tr.rate)
+    r = CliRunner().invoke(app, ["calibrate", str(out / "rom.c3d"), "--static", str(out / "static.c3d"),
+                                 "--markers", "hand19", "-o", str(out / "subject.yaml")])
+    assert r.exit_code == 0, r.output
+    return out, r.output, trial, th
+
+
+@pytest.fixture(scope="module", params=["hand19", "hand16"])
 def calibrated(request):
-    markers, seed = request.param
-    rom, static, trial, th = subject_trials(markers, seed)
+    markers = request.param
+    if markers == "hand19":
+        out, _, trial, th = request.getfixturevalue("hand19_files")
+        return markers, load_calibration(out / "subject.yaml"), trial, th
+    rom, static, trial, th = subject_trials(markers, 3)
     cal = calibrate(rom, load_markerset(markers), HAND, static=static)
     return markers, cal, trial, th
 
 
 def test_calibration_recovers_angles_beside_scale_only(calibrated):
     markers, cal, trial, th = calibrated
-    full = markers_to_angles(trial, markers, calibration=cal, smooth_hz=6.0)
-    only = markers_to_angles(trial, markers, calibration=scale_only(cal), smooth_hz=6.0)
+    full = markers_to_angles(trial, markers, calibration=cal, smooth_hz=6.0, check_hand=None)
+    only = markers_to_angles(trial, markers, calibration=scale_only(cal), smooth_hz=6.0, check_hand=None)
     e_full, e_scale = rms_deg(full, th), rms_deg(only, th)
     print(f"\n{markers}: angles {e_full:.2f}° RMS calibrated, {e_scale:.2f}° hand scale only; "
           f"held-out {cal.held_out['residual_mm']:.2f} mm vs {cal.held_out['scale_only_residual_mm']:.2f} mm")
@@ -67,7 +85,7 @@ def test_calibration_recovers_angles_beside_scale_only(calibrated):
 
 def test_residual_at_noise_floor_and_no_false_limits(calibrated):
     markers, cal, trial, th = calibrated
-    df = markers_to_angles(trial, markers, calibration=cal)
+    df = markers_to_angles(trial, markers, calibration=cal, check_hand=None)
     M = len(trial.labels)
     # a perfect model leaves the noise the 26 DoF cannot absorb: σ√3 · √((3M − 26) / 3M) per frame
     floor = NOISE_MM * np.sqrt(3) * np.sqrt((3 * M - 26) / (3 * M))
@@ -120,16 +138,12 @@ def test_poor_frames_relative_to_noise_floor():
     assert d["poor_threshold_mm"] < 3.0 and d["marker_residuals_mm"]["MC3"][1] > 2.0
 
 
-def test_subject_file_round_trip_and_commands(tmp_path):
-    rom, static, trial, th = subject_trials("hand19", 7)
-    write_c3d(tmp_path / "rom.c3d", rom.points, rom.labels, rom.rate)
-    write_c3d(tmp_path / "static.c3d", static.points, static.labels, static.rate)
-    write_c3d(tmp_path / "grasp.c3d", trial.points, trial.labels, trial.rate)
+def test_subject_file_round_trip_and_commands(hand19_files, tmp_path):
+    files, output, trial, th = hand19_files
     runner = CliRunner()
-    r = runner.invoke(app, ["calibrate", str(tmp_path / "rom.c3d"), "--static", str(tmp_path / "static.c3d"),
-                            "--markers", "hand19", "-o", str(tmp_path / "subject.yaml")])
-    assert r.exit_code == 0, r.output
-    assert "held out" in r.output and max(len(line) for line in r.output.splitlines()) <= 80
+    assert "held out" in output and max(len(line) for line in output.splitlines()) <= 80
+    for name in ("grasp.c3d", "subject.yaml"):
+        (tmp_path / name).write_bytes((files / name).read_bytes())
     cal = load_calibration(tmp_path / "subject.yaml")
     assert cal.hand == "left" and cal.markerset == "hand19" and len(cal.source_sha256) == 64
     assert cal.scale != 1.0 and cal.bone_scales and cal.uncertainty["offsets_mm"]
@@ -144,11 +158,13 @@ def test_subject_file_round_trip_and_commands(tmp_path):
     # the calibration is reported as estimated, not "1.000"
     assert f"{cal.scale:.3f}" in r.output
     assert (tmp_path / "out" / "grasp.png").stat().st_size > 10_000
-    from synergy.angles import read_angles_csv
-
     df = read_angles_csv(tmp_path / "out" / "grasp.csv")
     assert df.attrs["diagnostics"]["marker_residuals_mm"]["INAIL"][0] < 1.5
     assert rms_deg(df, th) < 5.0  # unsmoothed (noise-limited per frame); smoothed bounds are tested above
+    assert df.attrs["dip_prior"] == {"ratio": pytest.approx(2 / 3), "sd_deg": 10.0}
+    r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--dip-prior-sd", "-1",
+                            "-o", str(tmp_path / "o3")])
+    assert r.exit_code == 2 and "--dip-prior-sd" in r.output and len(r.output.strip().splitlines()) == 1
     # a calibration for the other hand is refused
     r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--hand", "right",
                             "--no-hand-check", "--subject", str(tmp_path / "subject.yaml"), "-o", str(tmp_path / "o2")])
