@@ -72,7 +72,8 @@ def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
     return {"recording": str(recording_path), "mode": st.mode, "synergies": synergies_spec or "",
             "pcs": "" if tracker.n_pcs is None else str(tracker.n_pcs), "stride": str(st.observe.stride),
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
-            "hand_model": f"{hand.name} {hand.sha256}", "hand_scale": _scale_text(tracker),
+            "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,
+            "hand_scale": _scale_text(tracker),
             "hand_check": str(getattr(tracker, "hand_check_", None) or ""), "units": "metres, radians"}
 
 
@@ -167,6 +168,10 @@ class TrackJob:
     rerun, rerun_spawn : the Rerun ``.rrd`` to write, and whether to stream to a spawned viewer
     overwrite : replace existing outputs
     handedness : the hand tracked when the source does not say (a live camera)
+    hand : ``left``/``right`` overriding what the recording says (a recording file says nothing)
+    topic, color_topic : depth and colour topics of a ROS bag (None: found in the file)
+    start_s, end_s, every : a recording file's frames from ``start_s`` to ``end_s`` (s of file time),
+        every ``every``-th
     """
 
     recording: str
@@ -183,6 +188,23 @@ class TrackJob:
     rerun_spawn: bool = False
     overwrite: bool = False
     handedness: str = "left"
+    hand: str | None = None
+    topic: str | None = None
+    color_topic: str | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    every: int = 1
+
+
+def open_job_recording(job: TrackJob):
+    """The recording of ``job`` as its options ask: handedness, topics, and for a recording file the
+    time range and frame step (a folder refuses them: its frames are already chosen)."""
+    rec = Recording.open(job.recording, topic=job.topic, color_topic=job.color_topic, handedness=job.hand)
+    if job.start_s is not None or job.end_s is not None or job.every != 1:
+        if not hasattr(rec, "select"):
+            raise TrackerError(job.recording, "--start, --end and --every are for recording files (.bag, .db3, .mcap, .mkv)")
+        rec = rec.select(start_s=job.start_s, end_s=job.end_s, every=job.every)
+    return rec
 
 
 @dataclass
@@ -207,7 +229,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
 
     ``on_frame(frame, result, observation)`` is called after each frame, after the overlay and
     viewer have had it. Outputs are written only after the last frame, each atomically."""
-    rec = source if source is not None else Recording.open(job.recording)
+    rec = source if source is not None else open_job_recording(job)
     if job.settings.mode != "full" and not job.synergies:
         raise TrackerError("--synergies", f"mode {job.settings.mode!r} needs a synergy bundle")
     bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None

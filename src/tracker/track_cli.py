@@ -46,6 +46,12 @@ def track(
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
     forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
+    hand: Optional[str] = typer.Option(None, "--hand", help="left or right: the hand tracked, overriding the recording's (a recording file does not say; then left)."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file]."),
+    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file]."),
+    start: Optional[float] = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame)."),
+    end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
+    every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through one or many recordings; writes per-frame hand parameters and a summary."""
@@ -71,11 +77,20 @@ def track(
                    registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
                    keypoints=None if keypoints is None else str(keypoints),
                    overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
-                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite)
+                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
+                   hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start, end_s=end, every=every)
     if len(recordings) > 1 or dask is not None:
         _track_many(recordings, output, job, dask, overwrite)
         return
     _track_one(job, recordings[0], output, keypoints, overlay, mode, paper)
+
+
+def _hand_side(hand):
+    from .errors import TrackerError
+
+    if hand is not None and hand not in ("left", "right"):
+        raise TrackerError("--hand", f"must be left or right, got {hand!r}")
+    return hand
 
 
 def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False):
@@ -127,10 +142,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     from rich.table import Table
 
     from .cli import _progress
-    from .recording import Recording
-    from .run import run_job
+    from .run import open_job_recording, run_job
 
-    rec = Recording.open(recording)
+    rec = open_job_recording(job)
     with _progress("tracking") as progress:
         bar = progress.add_task("track", total=_length(rec))
         run = run_job(job, lambda frame, r, ob: progress.advance(bar), source=rec)
