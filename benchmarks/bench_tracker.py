@@ -4,6 +4,9 @@ with each non-rigid step solved by scipy.optimize.least_squares (analytic Jacobi
 our own ICP loop in Python around the compiled kernels (:func:`tracker.icp.fit_reference`, what
 :func:`tracker.icp.fit` was before the loop was compiled).
 
+Times are CPU seconds of this process (every library on one thread, so that is the time on one core):
+on a shared machine wall-clock medians measure the other jobs.
+
 Run: .venv/bin/python benchmarks/bench_tracker.py [--frames 60]
 """
 from __future__ import annotations
@@ -50,9 +53,9 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
     tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
     ms, err = [], []
     for t, ob in zip(truth, obs):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         r = tr.track(ob, cam)
-        ms.append((time.perf_counter() - t0) * 1000)
+        ms.append((time.process_time() - t0) * 1000)
         err.append(E.posture_error_deg(r.theta, t, hand.pose_mask))
     return float(np.median(ms[10:])), float(np.mean(err[10:]))
 
@@ -65,7 +68,7 @@ def peer(hand, bundle, cam, truth, obs):
     theta = truth[0].copy()
     ms, err = [], []
     for t, ob in zip(truth, obs):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         pts = ob.points
         corr = match(theta, pts, ob.normals)
         theta = rigid_step(theta, pts, corr)
@@ -79,7 +82,7 @@ def peer(hand, bundle, cam, truth, obs):
                               jac=lambda q: hand.jacobian(q, nodes, loc).reshape(-1, 26) * 1000.0,
                               bounds=(lo, hi), method="trf", max_nfev=5)
             theta = r.x
-        ms.append((time.perf_counter() - t0) * 1000)
+        ms.append((time.process_time() - t0) * 1000)
         err.append(E.posture_error_deg(theta, t, hand.pose_mask))
     return float(np.median(ms[10:])), float(np.mean(err[10:]))
 
