@@ -26,12 +26,12 @@ from scipy.optimize import least_squares
 
 from handmodel import HandModel
 from synergy.bundle import load_bundle
-from tracker.sim import experiments as E
 from tracker.cameras import preset
 from tracker.correspond import local_offsets
-from tracker.observe import observe
 from tracker.icp import fit_reference, rigid_step
 from tracker.init import InitSettings
+from tracker.observe import observe
+from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
 from tracker.track import HandTracker, TrackerSettings
 

@@ -23,7 +23,13 @@ from handmodel.solver import SolverSettings, solve
 from handmodel.subspace import Subspace
 
 from . import _icp_kernels as K
-from .correspond import CapsuleModel, Correspondences, Matcher, local_offsets, silhouette_pairs
+from .correspond import (
+    CapsuleModel,
+    Correspondences,
+    Matcher,
+    local_offsets,
+    silhouette_pairs,
+)
 from .errors import TrackerError
 
 

@@ -10,7 +10,7 @@ from handmodel import HandModel
 from handmodel import _geometry_kernels as GK
 from handmodel import _solver_kernels as SK
 from tracker import _icp_kernels as K
-from tracker.correspond import Matcher, CorrespondSettings, Silhouette, local_offsets
+from tracker.correspond import CorrespondSettings, Matcher, Silhouette, local_offsets
 from tracker.icp import IcpSettings, cauchy_weights, fit, fit_reference, search_schedule
 from tracker.observe import observe
 from tracker.sim import experiments as E
@@ -127,8 +127,8 @@ def test_search_schedules_match_the_reference(bundle, frames):
 
 def test_other_matchers_take_the_reference_loop(frames):
     """A matcher the compiled loop does not know (the mesh surface) gets exactly the Python loop."""
-    from tracker.icp import Stage
     from handmodel.subspace import Subspace
+    from tracker.icp import Stage
 
     start, pts, nrm, _ = frames[0]
     matcher = Matcher(HAND, CorrespondSettings(model="mesh"))
