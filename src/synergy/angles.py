@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from scipy.signal import butter, filtfilt
+from threadpoolctl import threadpool_limits
 
 from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
@@ -243,8 +244,9 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     t0 = th[ok]
     coupled = t0.copy()
     coupled[:, pairs[:, 1]] = ratio * coupled[:, pairs[:, 0]]
-    a, ca = solve_from(t0)
-    b, cb = solve_from(coupled)
+    with threadpool_limits(limits=1, user_api="blas"):  # 26×26 systems per frame: threads only contend
+        a, ca = solve_from(t0)
+        b, cb = solve_from(coupled)
     th[ok] = np.where((cb < ca)[:, None], b, a)
     return th
 

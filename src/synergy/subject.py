@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from threadpoolctl import threadpool_limits
+
 from handmodel.dofs import anatomical_limits
 from handmodel.solver import SolverSettings, fit_points
 
@@ -121,8 +123,15 @@ def _jacobians(model0, model, nodes, local, theta, lay):
     return 1000.0 * p, Jt, Js
 
 
-def _gauss_newton(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, data_sd_mm, iterations, huber_mm,
-                  theta_ref=None, theta_w=None, s0=None):
+def _gauss_newton(*args, **kw):
+    """:func:`_gauss_newton_run` on one BLAS thread: its products are a few hundred rows wide, where
+    threads only contend (hand16 calibration on 2 busy cores: 2 s on one thread, 27 s on all)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _gauss_newton_run(*args, **kw)
+
+
+def _gauss_newton_run(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, data_sd_mm, iterations, huber_mm,
+                      theta_ref=None, theta_w=None, s0=None):
     """Joint Levenberg-Marquardt over the postures of the calibration frames and the subject vector;
     the postures are eliminated per frame (Schur complement), so a step costs F small solves.
     ``theta_ref``/``theta_w`` (F, n): a known posture and its weight (1/SD, 0 = unknown) per frame,
@@ -156,7 +165,8 @@ def _gauss_newton(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, data_s
         rw = (ww[..., None] * r).reshape(F, 3 * M)
         At = (ww[..., None, None] * Jt).reshape(F, 3 * M, n)
         As = (ww[..., None, None] * Js).reshape(F, 3 * M, n_s)
-        AtT = At.transpose(0, 2, 1)
+        # contiguous: matmul on a transposed view skips BLAS (this loop was 3/4 of a calibration)
+        AtT = np.ascontiguousarray(At.transpose(0, 2, 1))
         A = AtT @ At
         A += tw2[..., None] * np.eye(n)
         A += (mu * (np.einsum("fii->fi", A) + 1e-6))[..., None] * np.eye(n)
@@ -167,7 +177,7 @@ def _gauss_newton(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, data_s
         gs = As2.T @ rw.reshape(-1) + s / lay.prior_sd ** 2
         Ainv_B = np.linalg.solve(A, B)
         Ainv_g = np.linalg.solve(A, gt[..., None])[..., 0]
-        S = C - np.einsum("fij,fik->jk", B, Ainv_B, optimize=True)
+        S = C - B.reshape(-1, n_s).T @ Ainv_B.reshape(-1, n_s)  # Σ_f B_fᵀ A_f⁻¹ B_f
         H_s = S.copy()
         S[np.diag_indices(n_s)] *= 1.0 + mu
         rhs = gs - np.einsum("fij,fi->j", B, Ainv_g)
