@@ -1,6 +1,8 @@
 """The user's own marker sets: `synergy fit` on C3D files without --markers matches their labels
 against the shipped sets and the user's folders (--markersets DIR, $SYNERGY_MARKERSETS, the user
 config folder), says which set and hand it chose, and refuses ambiguous or missing folders."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -9,8 +11,14 @@ from typer.testing import CliRunner
 from synergy.c3d import write_c3d
 from synergy.cli import app
 from synergy.errors import MarkerSetError
-from synergy.markers import (MARKERSETS_ENV, available_markersets, choose_markerset, load_markerset,
-                             markerset_from_dict, user_markerset_dirs)
+from synergy.markers import (
+    MARKERSETS_ENV,
+    available_markersets,
+    choose_markerset,
+    load_markerset,
+    markerset_from_dict,
+    user_markerset_dirs,
+)
 from synergy.simulate import motion, simulate_markers
 
 runner = CliRunner()
@@ -18,7 +26,7 @@ runner = CliRunner()
 
 def lab_set(name="lab19"):
     """hand19 under a lab's own labels (``LAB_<label>``, no aliases): no shipped set matches them."""
-    doc = yaml.safe_load(open(load_markerset("hand19").path))
+    doc = yaml.safe_load(Path(load_markerset("hand19").path).read_text())
     doc["name"] = name
     for m in doc["markers"]:
         m["label"] = "LAB_" + m["label"]
@@ -48,7 +56,7 @@ def test_user_folder_joins_the_automatic_choice(user_dir, lab_trial, tmp_path, m
     labels = ["S1:LAB_" + m.label for m in load_markerset("hand19").markers]
     with pytest.raises(MarkerSetError, match="no marker set fits"):
         choose_markerset(labels, available_markersets())
-    ms, hand, rep = choose_markerset(labels, available_markersets([user_dir]))
+    ms, _, rep = choose_markerset(labels, available_markersets([user_dir]))
     assert (ms.name, rep["matched"], rep["total"]) == ("lab19", 19, 19)
     # the same folder through the environment variable, and by name for --markers
     monkeypatch.setenv(MARKERSETS_ENV, str(user_dir))
