@@ -22,6 +22,7 @@ from handmodel.rigid import euler_to_matrix, matrix_to_euler
 from .correspond import Matcher, ModelSamples, model_to_data_mm
 from .errors import TrackerError
 from .icp import IcpSettings, fit, search_schedule
+from .wrist import wrist_cost_mm
 
 
 @dataclass
@@ -130,11 +131,16 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     (× 100 mm), plus, with a silhouette, the mean model→data cost (:func:`tracker.correspond.model_to_data_mm`:
     model parts outside the silhouette or in front of the observed surface) × ``MODEL_TO_DATA_WEIGHT``.
     Both directions: an upside-down or mirrored hand can cover the data as well as the right one, but
-    then puts fingers where the camera saw past them."""
+    then puts fingers where the camera saw past them. A silhouette that carries the frame's wrist
+    cue (``silhouette.wrist``, :func:`tracker.wrist.wrist_cue`) adds :func:`tracker.wrist.wrist_cost_mm`:
+    a hand whose fingers point up the arm loses even where both directions fit."""
     s = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     if silhouette is not None and samples is not None and not silhouette.empty:
         s += MODEL_TO_DATA_WEIGHT * float(np.mean(model_to_data_mm(samples, theta, silhouette)))
+    cue = getattr(silhouette, "wrist", None)
+    if cue is not None:
+        s += wrist_cost_mm(cue, ctx.hand, theta)
     return s
 
 

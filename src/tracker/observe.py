@@ -121,9 +121,10 @@ class Observation:
     points: np.ndarray        # (N, 3) metres
     normals: np.ndarray       # (N, 3), NaN where unknown
     mask: np.ndarray          # (H, W) hand silhouette
-    depth: np.ndarray         # (H, W) metres
+    depth: np.ndarray         # (H, W) metres, the hand's pixels only (NaN elsewhere)
     density: float            # share of silhouette pixels kept (≈ 1/stride²)
     stride: int = 1
+    frame_depth: np.ndarray | None = None   # the whole frame it came from (the wrist cue looks past the mask)
 
 
 def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter=None, color=None,
@@ -142,7 +143,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     boxed = seg.box_min is not None or seg.box_max is not None
     mask = seg(d, color, backproject(d, camera) if boxed else None, focal=0.5 * (camera.fx + camera.fy))
     if not mask.any():
-        return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride))
+        return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride), d)
     (ya, yb), (xa, xb) = bounds(mask)
     pad = int(st.smooth) + 2
     y0, y1 = max(ya - pad, 0), min(yb + pad + 1, H)
@@ -164,7 +165,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     n_mask = max(int(mw.sum()), 1)
     out_d = np.full((H, W), np.nan)
     out_d[y0:y1, x0:x1] = np.where(mw, dw, np.nan)
-    return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride)
+    return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride, d)
 
 
 def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30) -> np.ndarray:

@@ -43,7 +43,7 @@ DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
-OPPOSITE_ARM_REACH_R = 2.2  # a wide part opposite the fingers is an arm when it reaches at least this far
+OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 

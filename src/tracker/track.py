@@ -30,6 +30,7 @@ from .icp import MODES, IcpSettings, fit, tracking_schedule
 from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
                    score, thin)
 from .observe import ObserveSettings, gate
+from .wrist import wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
 
@@ -51,11 +52,16 @@ class TrackerSettings:
     whether it fits clearly better (the recording's handedness is likely wrong).
 
     ``safety_net``: every tracked frame is tested (its start-search score, :func:`tracker.init.score`,
-    above ``net_score_mm`` and above ``net_score_ratio`` × the median of the last good frames', or a
+    above ``net_score_mm`` and above ``net_score_ratio`` × the scene's level — the median of the last
+    undoubted frames' scores, or the last full start search's if higher: clutter that stays raises
+    every fit's score — or a
     jump from the prediction of more than ``net_jump_deg`` / ``net_jump_mm``); a doubtful frame gets
     the cheap start search (:meth:`tracker.init.InitSettings.cheap`) on its cloud, and the better of
     the two estimates by score is kept. ``recentre``: when the segmented cloud's centre is farther
     than the rejection radius from the predicted hand's, the prediction is moved onto it first.
+    ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
+    (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
+    fingers point up the arm never wins.
     """
 
     mode: str = "full"
@@ -78,6 +84,7 @@ class TrackerSettings:
     net_jump_deg: float = 30.0
     net_jump_mm: float = 40.0
     recentre: bool = True
+    wrist_cue: bool = True
     observe: ObserveSettings = field(default_factory=ObserveSettings)
     correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
     icp: IcpSettings = field(default_factory=IcpSettings)
@@ -93,7 +100,7 @@ class TrackerSettings:
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0),
-                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False)
+                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -238,7 +245,8 @@ class HandTracker:
         self.scale_estimates_ = []
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
-        self._good_scores = []
+        self._scores = []
+        self._search_level = 0.0
         auto = settings.hand_scale == "auto"
         self._use_scale(1.0 if auto else float(settings.hand_scale))
         self.scale_ = None if auto else float(settings.hand_scale)
@@ -274,7 +282,7 @@ class HandTracker:
     def track(self, observation, camera) -> FrameResult:
         """Track one :class:`tracker.observe.Observation`."""
         return self.step(observation.points, normals=observation.normals, mask=observation.mask,
-                         depth=observation.depth, camera=camera)
+                         depth=observation.depth, camera=camera, frame_depth=observation.frame_depth)
 
     def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
         """The single-frame search with the mirror-image hand (same size) against this frame's fit."""
@@ -317,12 +325,15 @@ class HandTracker:
             theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
         return theta
 
-    def step(self, points, *, normals=None, mask=None, depth=None, camera=None) -> FrameResult:
+    def step(self, points, *, normals=None, mask=None, depth=None, camera=None, frame_depth=None) -> FrameResult:
         """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored).
 
         With the hand ``mask``, the ``depth`` image (metres) and the ``camera``, model parts that
-        leave the silhouette are pulled back (the silhouette term)."""
+        leave the silhouette are pulled back (the silhouette term); with the whole ``frame_depth`` too,
+        the start searches use the wrist cue (``wrist_cue``)."""
         sil = None if mask is None or camera is None or depth is None else Silhouette(mask, depth, camera)
+        if sil is not None:
+            sil.frame_depth = frame_depth
         t0 = time.perf_counter()
         st = self.settings
         pts, nrm = _usable(points, normals, st.max_points)
@@ -333,6 +344,7 @@ class HandTracker:
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
         if self.settings.hand_scale == "auto" and self.scale_ is None:
+            self._add_wrist(sil)
             s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                              scale_range=st.scale_range)
             self.scale_estimates_.append(s)
@@ -342,24 +354,35 @@ class HandTracker:
             self._contexts = {k: v for k, v in self._contexts.items() if k == round(s, 5)}
             status = "reinit"
             self.prev = None
+            if st.safety_net:
+                # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
+                self._search_level = score(self.context, theta, corr, sil)
         elif self.lost or self.theta is None:
             extra = () if self.last_good is None else (self.last_good,)
+            self._add_wrist(sil)
             theta, corr = self.fit_single_frame(pts, silhouette=sil, normals=nrm, extra=extra)
             status = "reinit"
             self.prev = None
+            if st.safety_net:
+                # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
+                self._search_level = score(self.context, theta, corr, sil)
         else:
             ctx = self.context
             pred = self.predict()
             all_pts, all_nrm = pts, nrm
-            if st.recentre:
+            # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
+            # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
+            keep = self._gate(pred, pts) if st.observe.gate_mm > 0 else None
+            if st.recentre and (keep is None or keep.all()):
                 moved = self._recentred(pred, pts)
                 recentred, pred = moved is not pred, moved
-            if st.observe.gate_mm > 0:
-                # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit
-                P, N = ctx.score_samples.pose(pred)
-                keep = gate(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
-                            min_points=st.min_points)
+                if recentred and keep is not None:
+                    keep = self._gate(pred, pts)
+            if keep is not None:
+                # the safety net searches the gated cloud too (a start search on the whole cloud would
+                # find the clutter); the gate keeps every point when it does not trust the prediction
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+                all_pts, all_nrm = pts, nrm
             theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
             status = "tracked"
@@ -385,6 +408,21 @@ class HandTracker:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
 
+    def _add_wrist(self, sil):
+        """The frame's wrist cue on its silhouette, where :func:`tracker.init.score` finds it (found only
+        when a search is about to run: tracking does not need it)."""
+        if sil is not None and self.settings.wrist_cue and not hasattr(sil, "wrist"):
+            frame = getattr(sil, "frame_depth", None)
+            sil.wrist = None if frame is None else wrist_cue(sil.mask, frame, sil.camera)
+
+    def _gate(self, pred, pts):
+        """:func:`tracker.observe.gate` of the points by the hand predicted at ``pred`` (all True when
+        the prediction is not trusted or nothing is far)."""
+        st = self.settings
+        P, N = self.context.score_samples.pose(pred)
+        return gate(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
+                    min_points=st.min_points)
+
     def _recentred(self, pred, pts):
         """The prediction moved onto the cloud when their centres are farther apart than the rejection
         radius (a hand faster than the prediction: no correspondence would reach it). The cloud is the
@@ -404,7 +442,7 @@ class HandTracker:
     def _doubtful(self, theta, pred, s) -> bool:
         """The safety net's test of a tracked frame: a poor score for this sequence, or a jump."""
         st = self.settings
-        level = np.median(self._good_scores[-30:]) if self._good_scores else 0.0
+        level = max(np.median(self._scores[-30:]) if self._scores else 0.0, self._search_level)
         if s > max(st.net_score_mm, st.net_score_ratio * level):
             return True
         R = euler_to_matrix(theta[3:6]) @ euler_to_matrix(pred[3:6]).T
@@ -417,11 +455,14 @@ class HandTracker:
         ctx = self.context
         s = score(ctx, theta, corr, sil)
         if not self._doubtful(theta, pred, s):
-            self._good_scores.append(s)
+            # the sequence's level that later frames are judged against: undoubted frames only (a
+            # level learnt from doubtful ones rises with a fit going wrong and stops the net)
+            self._scores.append(s)
             return theta, corr, pts, nrm, ""
         t0 = time.perf_counter()
         self.net_runs_ += 1
-        # both on the same (whole) cloud, so that their scores compare
+        self._add_wrist(sil)
+        # both on the same (whole) cloud, and with the wrist cue, so that their scores compare
         c_all = corr if all_pts is pts else ctx.matcher(theta, all_pts, all_nrm)
         s_track = score(ctx, theta, c_all, sil)
         starts = (theta,) if self.last_good is None else (theta, self.last_good)

@@ -26,6 +26,10 @@ from scipy import ndimage
 from .segment import surfaces
 
 
+WRIST_REACH_MM = 50.0
+WRIST_TURN_MM = 30.0
+
+
 @dataclass(frozen=True)
 class WristCue:
     """The wrist line's centre (``point``, camera frame, m; ``pixel`` (u, v)), the unit direction from
@@ -130,3 +134,32 @@ def _points(camera, u, v, z):
     u = np.asarray(u, float)
     v = np.asarray(v, float)
     return np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
+
+
+def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_mm=WRIST_TURN_MM) -> float:
+    """How far (mm) a hand at ``theta`` is from agreeing with the wrist ``cue``: its wrist keypoint
+    farther than ``reach_mm`` from the cue's point costs the excess, and its fingers pointing up the
+    arm in the image cost up to ``turn_mm`` (× the cosine between the hand's axis, wrist → middle
+    base, and the arm's direction, both as seen in the image; nothing while they are 90° or more
+    apart).
+
+    The wrist bends up to ~80°, and a forearm receding from the camera says little about the hand's
+    axis in depth, so only the image directions count, and only a hand folded back along its arm
+    pays the full cost — an upside-down fit does. The reach is generous: the cue sits where the mask
+    ends, which a mask that keeps a little forearm puts a few centimetres past the wrist joint
+    (measured 13–20 mm on rendered arms, up to ~45 mm on a real frame); a hand behind the camera
+    costs the most."""
+    kp = hand.keypoints(np.asarray(theta, float))
+    # across the image only (at the cue's depth): the mask's end can lie on forearm receding from the
+    # camera, centimetres behind the wrist joint, while where it is in the image is sharp
+    w, p = kp[0], np.asarray(cue.point, float)
+    if w[2] <= 1e-3:
+        return reach_mm + 1.5 * turn_mm
+    far = float(np.hypot(w[0] / w[2] - p[0] / p[2], w[1] / w[2] - p[1] / p[2]) * p[2]) * 1000.0
+    cost = max(far - reach_mm, 0.0)
+    arm = np.asarray(cue.direction[:2], float)
+    fingers = (kp[9] - kp[0])[:2]
+    na, nf = float(np.linalg.norm(arm)), float(np.linalg.norm(fingers))
+    if na > 0.3 and nf > 1e-6:
+        cost += turn_mm * max(float(arm @ fingers) / (na * nf), 0.0)
+    return cost

@@ -70,3 +70,19 @@ def test_paper_method_has_no_net_and_no_recentring():
     s = TrackerSettings.paper()
     assert not s.safety_net and not s.recentre
     assert TrackerSettings().safety_net and TrackerSettings().recentre
+
+
+def test_track_summary_reports_the_net(tmp_path):
+    """`tracker track` prints how often the net ran and what it cost (none on an easy recording)."""
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+    from tracker.sim.synthesize import synthesize
+
+    synthesize("open-close", "kinect1", None, tmp_path / "rec", frames=8)
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--no-check-hand", "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0, r.output
+    assert "safety net: ran on 0/8 frames (0%), replaced 0; re-centred 0" in " ".join(r.output.split())
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--paper", "--no-check-hand",
+                                 "-o", str(tmp_path / "p.csv")])
+    assert r.exit_code == 0 and "safety net" not in r.output, r.output

@@ -200,12 +200,15 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
     """One tracking step from the true θ on a frame with 10 % flying pixels: least squares is dragged
     far off, the Cauchy-weighted data term stays close."""
     from tracker.observe import observe
+    from tracker.segment import Segmenter
     from tracker.sim.render import DepthRenderer
 
     truth = E.sequence(postures[row:row + 1], bundle.model.mean_, lead=0)[0]
     depth = _FlyingPixels().apply(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM,
                                   np.random.default_rng(row))
-    ob = observe(depth, CAM, stride=3, target_points=600, smooth=0)
+    # the weights are under test, not the forearm cut: flying pixels beside a hand alone in space can make
+    # the cut take a finger for an arm (row 320: 16 % of the hand cut; noted, not fixed here)
+    ob = observe(depth, CAM, stride=3, target_points=600, smooth=0, segmenter=Segmenter(forearm="keep"))
     err = {}
     for c in (0.0, 8.0):
         # without the gate by the predicted hand, which would drop most flying pixels before the weights see them
