@@ -30,6 +30,7 @@ from .icp import MODES, IcpSettings, fit, tracking_schedule
 from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
                    score, thin)
 from .observe import ObserveSettings, gate
+from .rgb import RgbSeed
 from .wrist import wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
@@ -61,7 +62,9 @@ class TrackerSettings:
     than the rejection radius from the predicted hand's, the prediction is moved onto it first.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
-    fingers point up the arm never wins.
+    fingers point up the arm never wins. ``rgb_seed``: frames given with their colour image start
+    their search also from the hand fitted to the colour keypoints (:mod:`tracker.rgb`, extra
+    ``[rgb]``; not with ``hand_scale="auto"``'s first frame, whose search also finds the size).
     """
 
     mode: str = "full"
@@ -85,6 +88,7 @@ class TrackerSettings:
     net_jump_mm: float = 40.0
     recentre: bool = True
     wrist_cue: bool = True
+    rgb_seed: bool = False
     observe: ObserveSettings = field(default_factory=ObserveSettings)
     correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
     icp: IcpSettings = field(default_factory=IcpSettings)
@@ -232,9 +236,11 @@ class HandTracker:
     net_runs_, net_replaced_, net_ms_ : how often the safety net ran, how often its estimate won, and
         the time it took (ms, all runs together)
     recentred_ : how often the prediction was moved onto the cloud
+    rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
+        instead of MediaPipe), else None; rgb_seeds_ : the searches it seeded
     """
 
-    def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None):
+    def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None, keypoint_detector=None):
         self.base_hand = hand
         self.settings = settings = settings or TrackerSettings()
         settings.check()
@@ -245,6 +251,8 @@ class HandTracker:
         self.scale_estimates_ = []
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
+        self.rgb_ = RgbSeed(keypoint_detector) if settings.rgb_seed else None
+        self.rgb_seeds_ = 0
         self._scores = []
         self._search_level = 0.0
         auto = settings.hand_scale == "auto"
@@ -279,10 +287,10 @@ class HandTracker:
         """A fit without temporal prior with this tracker's parts (see :func:`tracker.init.fit_single_frame`)."""
         return fit_single_frame(self.context, points, self.settings.init, **kw)
 
-    def track(self, observation, camera) -> FrameResult:
-        """Track one :class:`tracker.observe.Observation`."""
+    def track(self, observation, camera, color=None) -> FrameResult:
+        """Track one :class:`tracker.observe.Observation` (``color``: its registered colour frame)."""
         return self.step(observation.points, normals=observation.normals, mask=observation.mask,
-                         depth=observation.depth, camera=camera, frame_depth=observation.frame_depth)
+                         depth=observation.depth, camera=camera, frame_depth=observation.frame_depth, color=color)
 
     def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
         """The single-frame search with the mirror-image hand (same size) against this frame's fit."""
@@ -325,12 +333,14 @@ class HandTracker:
             theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
         return theta
 
-    def step(self, points, *, normals=None, mask=None, depth=None, camera=None, frame_depth=None) -> FrameResult:
+    def step(self, points, *, normals=None, mask=None, depth=None, camera=None, frame_depth=None,
+             color=None) -> FrameResult:
         """Track one frame's segmented points ``(N, 3)`` (camera frame, metres; NaN rows ignored).
 
         With the hand ``mask``, the ``depth`` image (metres) and the ``camera``, model parts that
         leave the silhouette are pulled back (the silhouette term); with the whole ``frame_depth`` too,
-        the start searches use the wrist cue (``wrist_cue``)."""
+        the start searches use the wrist cue (``wrist_cue``); with the ``color`` frame (and
+        ``rgb_seed``) they start also from the colour keypoints."""
         sil = None if mask is None or camera is None or depth is None else Silhouette(mask, depth, camera)
         if sil is not None:
             sil.frame_depth = frame_depth
@@ -359,6 +369,7 @@ class HandTracker:
                 self._search_level = score(self.context, theta, corr, sil)
         elif self.lost or self.theta is None:
             extra = () if self.last_good is None else (self.last_good,)
+            extra += self._rgb_start(color, frame_depth if frame_depth is not None else depth, camera)
             self._add_wrist(sil)
             theta, corr = self.fit_single_frame(pts, silhouette=sil, normals=nrm, extra=extra)
             status = "reinit"
@@ -407,6 +418,17 @@ class HandTracker:
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+
+    def _rgb_start(self, color, depth, camera) -> tuple:
+        """``(θ,)`` fitted to the colour keypoints of this frame, or ``()`` (no ``rgb_seed``, no
+        colour, no hand found)."""
+        if self.rgb_ is None or color is None or depth is None or camera is None:
+            return ()
+        th = self.rgb_(self.hand, color, depth, camera)
+        if th is None:
+            return ()
+        self.rgb_seeds_ += 1
+        return (th,)
 
     def _add_wrist(self, sil):
         """The frame's wrist cue on its silhouette, where :func:`tracker.init.score` finds it (found only

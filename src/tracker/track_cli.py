@@ -52,10 +52,16 @@ def track(
     start: Optional[float] = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame)."),
     end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
+    rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through one or many recordings; writes per-frame hand parameters and a summary."""
     from .errors import TrackerError
+
+    if rgb_seed:
+        from .rgb import require_mediapipe  # light: finds mediapipe without importing it
+
+        require_mediapipe("--rgb-seed")
 
     if len(recordings) > 1 or dask is not None:
         per_file = [n for n, v in (("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
@@ -69,6 +75,7 @@ def track(
     segmenter = _segmenter(depth_range, box, forearm)
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
+    settings.rgb_seed = rgb_seed
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob
@@ -167,6 +174,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
         console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}), replaced "
                       f"{tracker.net_replaced_}{cost}; re-centred {tracker.recentred_}")
+    if tracker.settings.rgb_seed:
+        # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
+        console.print(f"colour seed: {tracker.rgb_seeds_} start searches seeded by colour keypoints"
+                      + ("" if tracker.rgb_seeds_ else " (no colour frames, or no hand found in them)"))
     if tracker.hand_check_ is not None and tracker.hand_check_.other_fits_better:
         console.print(f"warning: {rec.handedness} hand tracked, but {tracker.hand_check_}")
     console.print(f"wrote {output}")
