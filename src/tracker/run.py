@@ -55,7 +55,7 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
         ob = None
         if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
             ob = observe(depth, cam, tracker.settings.observe, segmenter=segmenter, color=frame.color)
-            r = tracker.track(ob, cam)
+            r = tracker.track(ob, cam, color=frame.color)
         else:
             r = tracker.step(np.zeros((0, 3)))
         rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used,

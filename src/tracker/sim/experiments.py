@@ -340,7 +340,7 @@ def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, 
             depth = noise.apply(depth, cam, np.random.default_rng([seed, f]), r.cos_incidence, r.reflectance)
         ob = observe(depth, cam, tracker.settings.observe, color=r.color, segmenter=segmenter)
         t0 = time.perf_counter()
-        res = tracker.track(ob, cam)
+        res = tracker.track(ob, cam, color=r.color)
         out["ms"][f] = (time.perf_counter() - t0) * 1000.0
         out["status"][f] = res.status
         if np.all(np.isfinite(res.theta)):
