@@ -169,7 +169,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
                   f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
-    if tracker.settings.safety_net and len(df):
+    if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
         console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}), replaced "
