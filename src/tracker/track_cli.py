@@ -42,6 +42,7 @@ def track(
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
+    safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [1]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
@@ -76,6 +77,8 @@ def track(
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
     settings.rgb_seed = rgb_seed
+    if safety_net is not None:
+        settings.safety_net = safety_net
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob

@@ -83,9 +83,13 @@ def test_track_summary_reports_the_net(tmp_path):
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--no-check-hand", "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
     assert "safety net: ran on 0/8 frames (0%), replaced 0; re-centred 0" in " ".join(r.output.split())
-    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--paper", "--no-check-hand",
-                                 "-o", str(tmp_path / "p.csv")])
-    assert r.exit_code == 0 and "safety net" not in r.output, r.output
+    for off in (["--paper"], ["--no-safety-net"]):
+        r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), *off, "--no-check-hand", "--overwrite",
+                                     "-o", str(tmp_path / "p.csv")])
+        assert r.exit_code == 0 and "safety net" not in r.output, r.output
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--paper", "--safety-net", "--no-check-hand",
+                                 "--overwrite", "-o", str(tmp_path / "p.csv")])
+    assert r.exit_code == 0 and "safety net: ran on" in r.output, r.output
 
 
 def test_reduced_mode_keeps_its_subspace(hand):
