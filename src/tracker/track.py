@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -256,7 +257,7 @@ class HandTracker:
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
         self.rgb_ = RgbSeed(keypoint_detector) if settings.rgb_seed else None
         self.rgb_seeds_, self.rgb_kept_ = 0, 0
-        self._scores = []
+        self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
         self._search_level = 0.0
         auto = settings.hand_scale == "auto"
         self._use_scale(1.0 if auto else float(settings.hand_scale))
@@ -485,7 +486,7 @@ class HandTracker:
     def _doubtful(self, theta, pred, s) -> bool:
         """The safety net's test of a tracked frame: a poor score for this sequence, or a jump."""
         st = self.settings
-        level = max(np.median(self._scores[-30:]) if self._scores else 0.0, self._search_level)
+        level = max(np.median(self._scores) if self._scores else 0.0, self._search_level)
         if s > max(st.net_score_mm, st.net_score_ratio * level):
             return True
         R = euler_to_matrix(theta[3:6]) @ euler_to_matrix(pred[3:6]).T
