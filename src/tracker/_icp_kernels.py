@@ -677,3 +677,233 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
           agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
     return theta
+
+
+# ----------------------------------------------------------------------------- per-frame helpers of the tracker
+@njit(cache=True)
+def pose_samples(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, nodes, local, local_n, P, N):
+    """Model surface samples stored in their nodes' frames (:class:`tracker.correspond.ModelSamples`)
+    posed at θ: points into ``P``, normals into ``N`` (what ``ModelSamples.pose`` returns)."""
+    G = np.empty((parents.shape[0], 4, 4))
+    wa = np.empty((dof_axes.shape[0], 3))
+    wo = np.empty((dof_axes.shape[0], 3))
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    for i in range(nodes.shape[0]):
+        j = nodes[i]
+        l0, l1, l2 = local[i, 0], local[i, 1], local[i, 2]
+        n0, n1, n2 = local_n[i, 0], local_n[i, 1], local_n[i, 2]
+        for r in range(3):
+            P[i, r] = G[j, r, 0] * l0 + G[j, r, 1] * l1 + G[j, r, 2] * l2 + G[j, r, 3]
+            N[i, r] = G[j, r, 0] * n0 + G[j, r, 1] * n1 + G[j, r, 2] * n2
+
+
+@njit(cache=True)
+def _grid(X, use, cell):
+    """A uniform grid of cell size ``cell`` over the rows of ``X`` with ``use`` set: its origin, shape
+    and the rows sorted by cell (CSR: ``start[c]:start[c+1]`` index ``order``). The cell grows when
+    the rows are spread so far that the grid would exceed 2²⁰ cells (a neighbour search of radius ≤
+    cell still only needs the 27 cells around a point)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(X.shape[0]):
+        if use[i]:
+            for r in range(3):
+                lo[r] = min(lo[r], X[i, r])
+                hi[r] = max(hi[r], X[i, r])
+    while True:
+        dims = np.empty(3, np.int64)
+        for r in range(3):
+            dims[r] = int((hi[r] - lo[r]) / cell) + 1
+        if dims[0] * dims[1] * dims[2] <= 1 << 20:
+            break
+        cell *= 2.0
+    n_cells = dims[0] * dims[1] * dims[2]
+    start = np.zeros(n_cells + 1, np.int64)
+    cid = np.full(X.shape[0], -1, np.int64)
+    for i in range(X.shape[0]):
+        if use[i]:
+            c = 0
+            for r in range(3):
+                c = c * dims[r] + min(int((X[i, r] - lo[r]) / cell), dims[r] - 1)
+            cid[i] = c
+            start[c + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(start[n_cells], np.int64)
+    for i in range(X.shape[0]):
+        c = cid[i]
+        if c >= 0:
+            order[fill[c]] = i
+            fill[c] += 1
+    return lo, dims, cell, start, order
+
+
+@njit(cache=True)
+def _any_within(p, X, lo, dims, cell, start, order, r2):
+    """Whether any gridded row of ``X`` lies closer than √r2 to the point ``p`` (r2 ≤ cell²)."""
+    c0 = np.empty(3, np.int64)
+    for r in range(3):
+        f = (p[r] - lo[r]) / cell
+        if f < -1.0 or f >= dims[r] + 1.0:
+            return False
+        c0[r] = int(np.floor(f))
+    for a in range(max(c0[0] - 1, 0), min(c0[0] + 2, dims[0])):
+        for b in range(max(c0[1] - 1, 0), min(c0[1] + 2, dims[1])):
+            for c in range(max(c0[2] - 1, 0), min(c0[2] + 2, dims[2])):
+                k = (a * dims[1] + b) * dims[2] + c
+                for q in range(start[k], start[k + 1]):
+                    i = order[q]
+                    d0 = X[i, 0] - p[0]
+                    d1 = X[i, 1] - p[1]
+                    d2 = X[i, 2] - p[2]
+                    if d0 * d0 + d1 * d1 + d2 * d2 < r2:
+                        return True
+    return False
+
+
+@njit(cache=True)
+def gate_kernel(points, model, model_n, use_normals, radius, min_share, min_points, near):
+    """:func:`tracker.observe.gate` compiled (a uniform grid instead of two KD-trees): ``near[i]``
+    whether data point ``i`` lies closer than ``radius`` to a (finite; with ``use_normals``
+    camera-facing) model sample. Returns whether the gate applies — at least ``min_points`` near
+    points and at least ``min_share`` of those samples near one of them; when it returns False every
+    point is to be kept."""
+    nM = model.shape[0]
+    ok = np.zeros(nM, np.bool_)
+    n_ok = 0
+    for i in range(nM):
+        good = np.isfinite(model[i, 0]) and np.isfinite(model[i, 1]) and np.isfinite(model[i, 2])
+        if good and use_normals:
+            good = model_n[i, 0] * model[i, 0] + model_n[i, 1] * model[i, 1] + model_n[i, 2] * model[i, 2] < 0.0
+        ok[i] = good
+        if good:
+            n_ok += 1
+    P = points.shape[0]
+    for i in range(P):
+        near[i] = False
+    if n_ok == 0 or P == 0:
+        return False
+    r2 = radius * radius
+    lo, dims, cell, start, order = _grid(model, ok, max(radius, 1e-9))
+    n_near = 0
+    for i in range(P):
+        if np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2]):
+            if _any_within(points[i], model, lo, dims, cell, start, order, r2):
+                near[i] = True
+                n_near += 1
+    if n_near < max(min_points, 1):
+        return False
+    lo, dims, cell, start, order = _grid(points, near, max(radius, 1e-9))
+    hits = 0
+    for i in range(nM):
+        if ok[i] and _any_within(model[i], points, lo, dims, cell, start, order, r2):
+            hits += 1
+    return hits / n_ok >= min_share
+
+
+@njit(cache=True)
+def centre_shift(points, model, model_n, shift):
+    """The per-axis median of the data ``points`` minus that of the camera-facing model samples into
+    ``shift`` (what :meth:`tracker.track.HandTracker._recentred` compares with the rejection radius);
+    returns the number of facing samples (the shift is left unset below 1)."""
+    nM = model.shape[0]
+    facing = np.empty(nM, np.bool_)
+    nf = 0
+    for i in range(nM):
+        f = model_n[i, 0] * model[i, 0] + model_n[i, 1] * model[i, 1] + model_n[i, 2] * model[i, 2] < 0.0
+        facing[i] = f
+        if f:
+            nf += 1
+    if nf == 0 or points.shape[0] == 0:
+        return nf
+    col = np.empty(points.shape[0])
+    sel = np.empty(nf)
+    for r in range(3):
+        for i in range(points.shape[0]):
+            col[i] = points[i, r]
+        k = 0
+        for i in range(nM):
+            if facing[i]:
+                sel[k] = model[i, r]
+                k += 1
+        shift[r] = np.median(col) - np.median(sel)
+    return nf
+
+
+@njit(cache=True)
+def feature_transform(mask, dist, iv, iu):
+    """The exact Euclidean distance of every pixel to the nearest ``mask`` pixel (0 on the mask) into
+    ``dist`` and that pixel's row and column into ``iv``/``iu``: what
+    ``scipy.ndimage.distance_transform_edt(~mask, return_indices=True)`` returns (the same distances;
+    of several equally near mask pixels either may be named), in two separable passes (Felzenszwalb &
+    Huttenlocher 2012: per column the nearest mask pixel, then per row the lower envelope of the
+    parabolas). Returns False (outputs unset) when the mask is empty. Every tracked frame builds its
+    silhouette's transform; scipy's takes ~4× as long."""
+    H, W = mask.shape
+    big = H + W + 1
+    g = np.empty((H, W), np.int64)     # per column: rows to the nearest mask pixel (big: none)
+    gr = np.empty((H, W), np.int64)    # and its row
+    # row by row (the arrays' memory order), every column's last mask row carried along
+    last = np.full(W, -1, np.int64)
+    any_mask = False
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                last[u] = v
+                any_mask = True
+            if last[u] >= 0:
+                g[v, u] = v - last[u]
+                gr[v, u] = last[u]
+            else:
+                g[v, u] = big
+                gr[v, u] = -1
+    last[:] = -1
+    for v in range(H - 1, -1, -1):
+        for u in range(W):
+            if mask[v, u]:
+                last[u] = v
+            if last[u] >= 0 and last[u] - v < g[v, u]:
+                g[v, u] = last[u] - v
+                gr[v, u] = last[u]
+    if not any_mask:
+        return False
+    # per row: the lower envelope of u ↦ (u − q)² + g[v, q]² over the columns q that have a mask pixel
+    inf = np.inf
+    cols = np.empty(W, np.int64)
+    zs = np.empty(W + 1)
+    for v in range(H):
+        k = -1
+        for q in range(W):
+            if g[v, q] >= big:
+                continue
+            fq = float(g[v, q] * g[v, q])
+            while k >= 0:
+                p = cols[k]
+                fp = float(g[v, p] * g[v, p])
+                s = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p))
+                if s <= zs[k]:
+                    k -= 1
+                else:
+                    break
+            k += 1
+            cols[k] = q
+            if k == 0:
+                zs[0] = -inf
+            else:
+                p = cols[k - 1]
+                fp = float(g[v, p] * g[v, p])
+                zs[k] = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p))
+            zs[k + 1] = inf
+        j = 0
+        for u in range(W):
+            while zs[j + 1] < u:
+                j += 1
+            q = cols[j]
+            rv = gr[v, q]
+            du = u - q
+            dv = v - rv
+            dist[v, u] = np.sqrt(float(du * du + dv * dv))
+            iv[v, u] = rv
+            iu[v, u] = q
+    return True

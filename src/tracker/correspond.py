@@ -10,12 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from handmodel._geometry_kernels import closest_points_facing
 from handmodel.geometry import surface_samples
 
+from ._icp_kernels import feature_transform
 from ._silhouette_kernels import silhouette_pairs_kernel
 from .errors import TrackerError
 
@@ -192,7 +192,10 @@ class Silhouette:
         v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
         u1 = min(cols[-1] + margin + 1, self.mask.shape[1])
         sub = self.mask[self.v0:v1, self.u0:u1]
-        self.dist, (self.iv, self.iu) = ndimage.distance_transform_edt(~sub, return_indices=True)
+        h, w = sub.shape
+        self.dist, self.iv, self.iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
+        # scipy's distance_transform_edt(~sub, return_indices=True) compiled: every tracked frame builds one
+        feature_transform(sub, self.dist, self.iv, self.iu)
 
 
 def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):

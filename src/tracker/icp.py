@@ -278,6 +278,27 @@ def _stage_arrays(hand, stages, solver):
     return out
 
 
+def posed_samples(hand, samples, theta):
+    """``(P, N)``: the :class:`tracker.correspond.ModelSamples` posed at θ, their points and normals
+    (``samples.pose(theta)`` in one compiled call: the tracker poses the predicted hand every frame
+    for the gate and the re-centring)."""
+    P, N = np.empty((len(samples.nodes), 3)), np.empty((len(samples.nodes), 3))
+    K.pose_samples(np.ascontiguousarray(theta, dtype=np.float64), *hand.kernel_args(), samples.nodes,
+                   samples.local, samples.local_n, P, N)
+    return P, N
+
+
+def centre_shift(points, samples_posed):
+    """The shift (m, ``(3,)``) that moves the camera-facing model samples' per-axis median onto the
+    data ``points``' (``samples_posed``: ``(P, N)`` from :func:`posed_samples`), or None with fewer
+    than 10 facing samples (too little of the hand faces the camera to say where it is)."""
+    P, N = samples_posed
+    shift = np.empty(3)
+    if K.centre_shift(np.ascontiguousarray(points, dtype=np.float64), P, N, shift) < 10:
+        return None
+    return shift
+
+
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
                   normals=None, samples=None, silhouette=None):
     """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from ._icp_kernels import gate_kernel
 from .segment import Segmenter, bounds
 
 
@@ -189,23 +189,14 @@ def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_poi
     >>> gate(data, model + 0.2, 0.03, min_points=1).tolist()   # prediction far off: keep everything
     [True, True, True]
     """
-    P = np.asarray(points, float).reshape(-1, 3)
-    M = np.asarray(predicted, float).reshape(-1, 3)
-    ok = np.isfinite(M).all(1)
-    if normals is not None:
-        ok &= np.einsum("ij,ij->i", np.asarray(normals, float).reshape(-1, 3), M) < 0
-    M = M[ok]
-    keep = np.ones(len(P), bool)
-    finite = np.isfinite(P).all(1)
-    if len(M) == 0 or not finite.any():
-        return keep
-    d, _ = cKDTree(M).query(P[finite], distance_upper_bound=float(radius))
-    near = np.zeros(len(P), bool)
-    near[finite] = np.isfinite(d)
-    if int(near.sum()) < max(int(min_points), 1):
-        return keep
-    # how much of the predicted hand has data near it (the model samples near a kept point)
-    dm, _ = cKDTree(P[near]).query(M, distance_upper_bound=float(radius))
-    if np.mean(np.isfinite(dm)) < float(min_share):
-        return keep
-    return near
+    P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    M = np.ascontiguousarray(predicted, dtype=np.float64).reshape(-1, 3)
+    Mn = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    near = np.empty(len(P), bool)
+    # compiled (a grid instead of two KD-trees): the gate runs on every tracked frame
+    if gate_kernel(P, M, Mn, normals is not None, float(radius), float(min_share), int(min_points), near):
+        return near
+    return np.ones(len(P), bool)
+
+
+_NO_ROWS = np.zeros((0, 3))

@@ -27,7 +27,7 @@ from handmodel.subspace import Subspace, hierarchical_schedule
 
 from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
 from .errors import TrackerError
-from .icp import MODES, IcpSettings, fit, tracking_schedule
+from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
 from .init import (FitContext, InitSettings, calibrate_scale, finger_shapes, fit_scale, fit_single_frame, rescaled,
                    score, thin)
 from .observe import ObserveSettings, gate
@@ -463,7 +463,7 @@ class HandTracker:
         """:func:`tracker.observe.gate` of the points by the hand predicted at ``pred`` (all True when
         the prediction is not trusted or nothing is far)."""
         st = self.settings
-        P, N = self.context.score_samples.pose(pred)
+        P, N = posed_samples(self.hand, self.context.score_samples, pred)
         return gate(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
                     min_points=st.min_points)
 
@@ -471,12 +471,8 @@ class HandTracker:
         """The prediction moved onto the cloud when their centres are farther apart than the rejection
         radius (a hand faster than the prediction: no correspondence would reach it). The cloud is the
         near side of the hand, so only the model's camera-facing samples are its counterpart."""
-        P, N = self.context.score_samples.pose(pred)
-        facing = np.einsum("ij,ij->i", N, P) < 0
-        if facing.sum() < 10:
-            return pred
-        shift = np.median(pts, axis=0) - np.median(P[facing], axis=0)
-        if np.linalg.norm(shift) * 1000.0 <= self.settings.correspond.reject_mm:
+        shift = centre_shift(pts, posed_samples(self.hand, self.context.score_samples, pred))
+        if shift is None or np.linalg.norm(shift) * 1000.0 <= self.settings.correspond.reject_mm:
             return pred
         self.recentred_ += 1
         out = pred.copy()

@@ -230,3 +230,58 @@ def test_pruned_closest_points_equal_the_exhaustive_search(spread):
             found = seg >= 0
             np.testing.assert_allclose(out[3][found], best[found], rtol=0, atol=1e-12)
             assert found.mean() > 0.3
+
+
+def test_posed_samples_and_centre_shift_are_the_numpy_ones(bundle):
+    """The compiled posing of the model samples is ModelSamples.pose (to round-off), and the
+    re-centring's shift is the numpy medians' (bit for bit); too few facing samples give None."""
+    from tracker.icp import centre_shift, posed_samples
+
+    tr = _tracker(bundle, True)
+    samples = tr.context.score_samples
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        th = np.clip(rng.normal(0, 0.4, HAND.n_dofs), HAND.limits[:, 0], HAND.limits[:, 1])
+        th[:3] = rng.normal(0, 0.05, 3) + [0, 0, 0.7]
+        P, N = posed_samples(HAND, samples, th)
+        P0, N0 = samples.pose(th)
+        np.testing.assert_allclose(P, P0, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(N, N0, rtol=0, atol=1e-15)
+        pts = P0[rng.choice(len(P0), 201, replace=False)] + rng.normal(0, 0.01, (201, 3))
+        facing = np.einsum("ij,ij->i", N, P) < 0
+        want = np.median(pts, axis=0) - np.median(P[facing], axis=0)
+        np.testing.assert_array_equal(centre_shift(pts, (P, N)), want)
+    # a hand seen from behind everywhere: nothing faces the camera
+    assert centre_shift(pts, (P, np.abs(N) * np.sign(P))) is None
+
+
+def test_feature_transform_is_scipys():
+    """The compiled distance transform of the silhouette gives scipy's distances bit for bit, and its
+    nearest mask pixel is at that distance (scipy may name another of equally near ones), on masks
+    from a single pixel to nearly full, one row or column wide; an empty mask is reported."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        H, W = rng.integers(1, 50, 2)
+        m = rng.random((H, W)) < rng.choice([0.002, 0.03, 0.3, 0.95])
+        m[rng.integers(H), rng.integers(W)] = True
+        want = ndimage.distance_transform_edt(~m)
+        d, iv, iu = np.empty((H, W)), np.empty((H, W), np.int32), np.empty((H, W), np.int32)
+        assert K.feature_transform(m, d, iv, iu)
+        np.testing.assert_array_equal(d, want)
+        assert m[iv, iu].all()
+        np.testing.assert_array_equal(np.sqrt((iv - np.arange(H)[:, None]) ** 2.0 + (iu - np.arange(W)) ** 2.0), d)
+    assert not K.feature_transform(np.zeros((3, 4), bool), d, iv, iu)
+
+
+def test_silhouette_matches_scipys_transform(frames):
+    """A tracked frame's Silhouette holds scipy's distances and the same nearest pixels (no ties on a
+    rendered hand's mask), so the silhouette pairs do not change."""
+    from scipy import ndimage
+
+    for _, _, _, sil in frames[:3]:
+        sub = sil.mask[sil.v0:sil.v0 + sil.dist.shape[0], sil.u0:sil.u0 + sil.dist.shape[1]]
+        d, (iv, iu) = ndimage.distance_transform_edt(~sub, return_indices=True)
+        np.testing.assert_array_equal(sil.dist, d)
+        assert (sil.iv == iv).mean() > 0.99 and (sil.iu == iu).mean() > 0.99

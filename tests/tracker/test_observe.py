@@ -164,3 +164,59 @@ def test_gate_falls_back_to_every_point_when_the_prediction_is_off(hand):
     keep = gate(pts, model, 0.03)
     assert not keep[:5].any() and keep[5:].all()
     assert gate(pts[:10], model, 0.03, min_points=30).all()  # too few would remain: no gating
+
+
+def _gate_kdtree(points, predicted, radius, normals=None, min_share=0.5, min_points=30):
+    """The gate as it was written with two KD-trees (the reference of the compiled one)."""
+    from scipy.spatial import cKDTree
+
+    P, M = np.asarray(points, float), np.asarray(predicted, float)
+    ok = np.isfinite(M).all(1)
+    if normals is not None:
+        ok &= np.einsum("ij,ij->i", normals, M) < 0
+    M = M[ok]
+    keep = np.ones(len(P), bool)
+    finite = np.isfinite(P).all(1)
+    if len(M) == 0 or not finite.any():
+        return keep
+    d, _ = cKDTree(M).query(P[finite], distance_upper_bound=radius)
+    near = np.zeros(len(P), bool)
+    near[finite] = np.isfinite(d)
+    if near.sum() < max(min_points, 1):
+        return keep
+    dm, _ = cKDTree(P[near]).query(M, distance_upper_bound=radius)
+    return keep if np.mean(np.isfinite(dm)) < min_share else near
+
+
+def test_compiled_gate_is_the_kdtree_gate(hand):
+    """The compiled gate (a uniform grid) keeps exactly the points the two-KD-tree gate keeps, on hands
+    posed anywhere near the data, with and without the facing test, at radii from below the samples'
+    spacing to beyond the hand's size (a grid wrongly bounded or a neighbour cell missed drops or keeps
+    points the reference does not), and with NaN rows on either side."""
+    from tracker.correspond import ModelSamples
+    from tracker.icp import posed_samples
+
+    samples = ModelSamples(hand, spacing=0.006)
+    rng = np.random.default_rng(5)
+    th = np.zeros(hand.n_dofs)
+    th[2] = 0.6
+    truth = samples.pose(th)[0]
+    data = np.vstack([truth[rng.choice(len(truth), 300, replace=False)] + rng.normal(0, 0.003, (300, 3)),
+                      rng.uniform([-0.3, -0.3, 0.4], [0.3, 0.3, 0.8], (150, 3))])
+    data[::37] = np.nan
+    gated = 0
+    for k in range(40):
+        t = th.copy()
+        t[:3] += rng.normal(0, 0.03, 3)
+        t[3:6] += rng.normal(0, 0.3, 3)
+        P, N = posed_samples(hand, samples, t)
+        if k % 5 == 0:
+            P[rng.integers(len(P))] = np.nan
+        for radius in (0.004, 0.01, 0.03, 0.1, 0.5):
+            for normals in (None, N):
+                got = gate(data, P, radius, normals=normals, min_share=0.3, min_points=20)
+                np.testing.assert_array_equal(got, _gate_kdtree(data, P, radius, normals, 0.3, 20))
+                gated += not got.all()
+    assert gated > 50  # the comparison covered frames where the gate applies, not only fall-backs
+    assert gate(np.zeros((0, 3)), truth, 0.03).shape == (0,)
+    assert gate(data, np.full((5, 3), np.nan), 0.03).all()
