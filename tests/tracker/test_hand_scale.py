@@ -6,7 +6,7 @@ from test_init_orientation import CAM, kp_mm, scene
 
 from handmodel import HandModel
 from tracker.errors import TrackerError
-from tracker.init import extent_scale, rescaled
+from tracker.scale import extent_scale, rescaled
 from tracker.run import tracking_metadata
 from tracker.sim.motions import POSTURES
 from tracker.track import HandTracker, TrackerSettings

@@ -1,0 +1,193 @@
+"""The user's hand size: the global scale of the hand model estimated from depth.
+
+The size is found by fitting: a hand of the wrong size either leaves data uncovered or puts model
+surface outside the silhouette, so short all-DoF fits at probed sizes (:func:`scale_score`) are
+compared by :func:`tracker.init.score`, and a golden-section search (:func:`fit_scale`) finds the best.
+:func:`calibrate_scale` does it on one frame without a prior; :class:`tracker.track.HandTracker`
+refines it over the next frames.
+
+A probe needs the :class:`tracker.init.FitContext` of the hand at that size. Building one samples the
+model's surface anew (~0.17 s); :func:`resized_context` derives it from the model-sized context
+instead: every bone, radius and thickness of :meth:`handmodel.HandModel.scaled` is multiplied by the
+same factor, so the surface samples in their nodes' frames are the same points times the factor
+(:func:`resized_samples`), and limits, subspaces and finger shapes do not depend on the size.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import replace
+
+import numpy as np
+
+from .correspond import Matcher
+from .init import InitSettings, _palm_side, fit_single_frame, score, thin
+
+
+def extent_scale(hand, points, posture) -> float:
+    """A first guess of the hand's global scale: the spread of the cloud over that of the model's
+    palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
+    this only brackets the scale; :func:`fit_scale` finds it."""
+    ms = _palm_side(hand, posture)[3]
+    ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+    ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
+    return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
+
+
+def rescaled(hand_from, hand_to, theta) -> np.ndarray:
+    """θ for ``hand_to`` with the same posture and rotation and the same keypoint centroid as
+    ``theta`` on ``hand_from`` (a hand resized about its wrist would slide off the data)."""
+    th = np.array(theta, float)
+    th[:3] += hand_from.keypoints(theta).mean(0) - hand_to.keypoints(theta).mean(0)
+    return th
+
+
+def resized_samples(samples, hand, factor):
+    """:class:`tracker.correspond.ModelSamples` of ``hand``, the hand the samples were taken on resized
+    by ``factor``: the same points in their nodes' frames × ``factor`` (normals unchanged). The
+    points keep their number, so they are ``factor`` × as far apart as freshly sampled ones would be;
+    the costs they enter are means over the samples, which the spacing does not bias."""
+    if samples is None:
+        return None
+    out = copy.copy(samples)
+    out.hand = hand
+    out.local = samples.local * float(factor)
+    return out
+
+
+def resized_context(ctx, hand, factor):
+    """The :class:`tracker.init.FitContext` of ``hand``, ``ctx``'s hand resized by ``factor``
+    (``ctx.hand.scaled(factor)``, or the model file's hand scaled to the same overall size): a new
+    matcher, the surface samples resized (:func:`resized_samples`); limits, subspaces, synergies and
+    finger shapes shared (none depends on the size)."""
+    return replace(ctx, hand=hand, matcher=Matcher(hand, ctx.matcher.settings),
+                   samples=resized_samples(ctx.samples, hand, factor),
+                   score_samples=resized_samples(ctx.score_samples, hand, factor))
+
+
+def scale_score(context_for, s, theta_from, hand_from, points, *, silhouette=None, normals=None, n_icp=6):
+    """``(score, θ, corr)`` of a short all-DoF fit of the hand scaled by ``s`` from ``theta_from``
+    (found on ``hand_from``); ``context_for(s)`` gives that hand's :class:`tracker.init.FitContext`."""
+    ctx = context_for(s)
+    th = rescaled(hand_from, ctx.hand, theta_from)
+    th, corr = ctx.fit(th, points, "full", 2, n_icp, silhouette=silhouette, normals=normals)
+    return score(ctx, th, corr, without_wrist(silhouette)), th, corr
+
+
+def without_wrist(silhouette):
+    """``silhouette`` without its wrist cue, for comparing sizes: the cue's cost grows with the hand's
+    size wherever the cue is not at the wrist joint (the mask's end lies 1–5 cm up the arm, or on a
+    finger when no arm is seen), measured 4 → 19 mm from 0.85× to 1.1× a 0.8× rendered hand, far more
+    than the data terms change; it pulled estimates 5–12 % small. The cue judges orientation only."""
+    if getattr(silhouette, "wrist", None) is None:
+        return silhouette
+    out = copy.copy(silhouette)
+    out.wrist = None
+    return out
+
+
+def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None, normals=None, tol=0.005,
+              n_icp=6):
+    """The global scale in ``[lo, hi]`` whose short fit from ``theta`` scores best (golden-section
+    search on log scale, each probe an all-DoF fit: a wrong size leaves either data uncovered or model
+    outside the silhouette). Returns ``(scale, θ, corr, score)``."""
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = np.log(lo), np.log(hi)
+    seen = {}
+
+    def f(x):
+        if x not in seen:
+            seen[x] = scale_score(context_for, float(np.exp(x)), theta, hand_from, points, silhouette=silhouette,
+                                  normals=normals, n_icp=n_icp)
+        return seen[x][0]
+
+    c, d = b - g * (b - a), a + g * (b - a)
+    while b - a > tol:
+        if f(c) < f(d):
+            b, d = d, c
+            c = b - g * (b - a)
+        else:
+            a, c = c, d
+            d = a + g * (b - a)
+    x = min(seen, key=lambda k: seen[k][0])
+    s_best, th, corr = seen[x]
+    return float(np.exp(x)), th, corr, s_best
+
+
+def calibrate_scale_searched(context_for, points, settings: InitSettings | None = None, *, silhouette=None,
+                             normals=None, scale_range=(0.6, 2.0), guesses=(1.0, 1.25, 1.5), good_score=2.0):
+    """The earlier calibration (kept as the benchmark's peer). The cloud's extent against the open
+    model's gives a first guess ``g`` (right for an open hand, too small for a curled one, which the
+    cloud cannot tell apart). From each of ``guesses`` × ``g`` in turn, the single-frame search runs
+    at that size and :func:`fit_scale` refines the size around it; when the size moved far, the search
+    runs again at the new size (a much wrong size favours a wrong posture or orientation) and the size
+    is refined once more. The guesses stop at the first fit scoring below ``good_score`` (mm,
+    :func:`tracker.init.score`), else the best-scoring one wins; a last narrow search settles the
+    size. ``context_for(s)``: the :class:`tracker.init.FitContext` of the hand scaled by ``s``.
+    Returns ``(scale, θ, corr)``."""
+    st = settings or InitSettings()
+    base = context_for(1.0)
+    lo, hi = scale_range
+    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
+    sub = thin(points, st.coarse_points)
+    nsub = None if normals is None else normals[sub]
+
+    def search(s0, width):
+        th, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
+        s1, th1, _, sc = fit_scale(context_for, th, context_for(s0).hand, points[sub], max(lo, s0 / width),
+                                   min(hi, s0 * width), silhouette=silhouette, normals=nsub)
+        return sc, s0, s1, th1
+
+    best = None
+    for s0 in dict.fromkeys(float(np.clip(g * k, lo, hi)) for k in guesses):
+        found = search(s0, 1.2)
+        if abs(np.log(found[2] / s0)) > 0.08:
+            found = min(found, search(found[2], 1.1), key=lambda f: f[0])
+        if best is None or found[0] < best[0]:
+            best = found
+        if best[0] < good_score:
+            break
+    _, _, s1, th1 = best
+    # a last narrow search from a fit at (nearly) the final size: the probes of a wide one start from
+    # a pose fitted at another size, and their short fits lean towards it
+    s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.06),
+                              min(hi, s1 * 1.06), silhouette=silhouette, normals=nsub, n_icp=10)
+    ctx = context_for(s1)
+    th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
+    return s1, th, corr
+
+
+def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
+                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06):
+    """The user's hand size from one frame, with one single-frame search. The cloud's extent against
+    the open model's gives a first guess ``g`` (right for an open hand, too small for a curled one,
+    which the cloud cannot tell apart); the search runs at ``guess`` × ``g`` and :func:`fit_scale`
+    finds the size within ``width`` × either way from its fit. When the size moved by more than
+    ``research`` (log), the cheap search (:meth:`tracker.init.InitSettings.cheap`) runs again at the
+    new size from that fit (a much wrong size favours a wrong posture) and the size is searched again
+    within 10 %; a last narrow search from a fit at (nearly) the final size settles it (the probes of
+    a wide one start from a pose fitted at another size and lean towards it). Sizes are compared
+    without the wrist cue (:func:`without_wrist`). ``context_for(s)``: the
+    :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`resized_context`).
+    Returns ``(scale, θ, corr)``; :func:`calibrate_scale_searched` is the earlier, ~10× slower
+    calibration (several full searches)."""
+    st = settings or InitSettings()
+    lo, hi = scale_range
+    base = context_for(1.0)
+    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
+    sub = thin(points, st.coarse_points)
+    nsub = None if normals is None else normals[sub]
+    kw = {"silhouette": silhouette, "normals": nsub}
+    s0 = float(np.clip(g * guess, lo, hi))
+    th0, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
+    s1, th1, _, _ = fit_scale(context_for, th0, context_for(s0).hand, points[sub], max(lo, s0 / width),
+                              min(hi, s0 * width), **kw)
+    if abs(np.log(s1 / s0)) > research:
+        ctx = context_for(s1)
+        th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
+                                  theta0=th1, extra=(th1,))
+        s1, th1, _, _ = fit_scale(context_for, th2, ctx.hand, points[sub], max(lo, s1 / 1.1), min(hi, s1 * 1.1), **kw)
+    s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.04),
+                              min(hi, s1 * 1.04), n_icp=10, **kw)
+    ctx = context_for(s1)
+    th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
+    return s1, th, corr
