@@ -795,10 +795,19 @@ def gate_kernel(points, model, model_n, use_normals, radius, min_share, min_poin
     if n_near < max(min_points, 1):
         return False
     lo, dims, cell, start, order = _grid(points, near, max(radius, 1e-9))
+    # stops as soon as the share is reached or out of reach (the common case decides early)
     hits = 0
+    left = n_ok
     for i in range(nM):
-        if ok[i] and _any_within(model[i], points, lo, dims, cell, start, order, r2):
+        if not ok[i]:
+            continue
+        left -= 1
+        if _any_within(model[i], points, lo, dims, cell, start, order, r2):
             hits += 1
+            if hits / n_ok >= min_share:
+                return True
+        elif (hits + left) / n_ok < min_share:
+            return False
     return hits / n_ok >= min_share
 
 
@@ -907,3 +916,44 @@ def feature_transform(mask, dist, iv, iu):
             iv[v, u] = rv
             iu[v, u] = q
     return True
+
+
+@njit(cache=True)
+def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, nodes, local, fx, fy, cx, cy,
+                       dist, depth, v0, u0, tolerance_mm, tolerance_px, cap_mm):
+    """The mean over the samples of :func:`tracker.correspond.model_to_data_mm` (the model→data part
+    of :func:`tracker.init.score`) at θ, the samples posed here: the same per-sample costs, summed in
+    order (numpy's mean sums pairwise: equal to ~1e-15 relative)."""
+    n = nodes.shape[0]
+    if n == 0:
+        return np.nan
+    G = np.empty((parents.shape[0], 4, 4))
+    wa = np.empty((dof_axes.shape[0], 3))
+    wo = np.empty((dof_axes.shape[0], 3))
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    h, w = dist.shape
+    H, W = depth.shape
+    total = 0.0
+    for i in range(n):
+        j = nodes[i]
+        l0, l1, l2 = local[i, 0], local[i, 1], local[i, 2]
+        x = G[j, 0, 0] * l0 + G[j, 0, 1] * l1 + G[j, 0, 2] * l2 + G[j, 0, 3]
+        y = G[j, 1, 0] * l0 + G[j, 1, 1] * l1 + G[j, 1, 2] * l2 + G[j, 1, 3]
+        z = G[j, 2, 0] * l0 + G[j, 2, 1] * l1 + G[j, 2, 2] * l2 + G[j, 2, 3]
+        if not z > 1e-3:
+            total += cap_mm
+            continue
+        u = int(np.rint(fx * x / z + cx))
+        v = int(np.rint(fy * y / z + cy))
+        uu = min(max(u - u0, 0), w - 1)
+        vv = min(max(v - v0, 0), h - 1)
+        d_px = dist[vv, uu] + np.hypot(float(u - u0 - uu), float(v - v0 - vv))
+        if d_px > 0:
+            cost = max(d_px - tolerance_px, 0.0) * z / fx * 1000.0
+        elif u >= 0 and u < W and v >= 0 and v < H:
+            zo = depth[v, u]
+            cost = max((zo - z) * 1000.0 - tolerance_mm, 0.0) if np.isfinite(zo) else 0.0
+        else:
+            cost = 0.0
+        total += min(cost, cap_mm)
+    return total / n

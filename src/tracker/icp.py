@@ -299,6 +299,21 @@ def centre_shift(points, samples_posed):
     return shift
 
 
+def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=6.0, tolerance_px=1.0, cap_mm=30.0) -> float:
+    """``np.mean(tracker.correspond.model_to_data_mm(samples, θ, silhouette, …))`` in one compiled call
+    (the model→data part of :func:`tracker.init.score`, which the safety net computes on every tracked
+    frame; equal to ~1e-15 relative, the sum's order differs). ``samples``:
+    :class:`tracker.correspond.ModelSamples` (posed with their own hand)."""
+    if silhouette.empty:
+        return float(cap_mm)
+    cam = silhouette.camera
+    return float(K.model_to_data_mean(np.ascontiguousarray(theta, dtype=np.float64), *samples.hand.kernel_args(),
+                                      samples.nodes, samples.local, float(cam.fx), float(cam.fy), float(cam.cx),
+                                      float(cam.cy), silhouette.dist, np.asarray(silhouette.depth, np.float64),
+                                      int(silhouette.v0), int(silhouette.u0), float(tolerance_mm),
+                                      float(tolerance_px), float(cap_mm)))
+
+
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
                   normals=None, samples=None, silhouette=None):
     """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled

@@ -285,3 +285,30 @@ def test_silhouette_matches_scipys_transform(frames):
         d, (iv, iu) = ndimage.distance_transform_edt(~sub, return_indices=True)
         np.testing.assert_array_equal(sil.dist, d)
         assert (sil.iv == iv).mean() > 0.99 and (sil.iu == iu).mean() > 0.99
+
+
+def test_model_to_data_mean_is_the_numpy_score_term(bundle, frames):
+    """The compiled model→data mean (the safety net's per-frame score term) equals the mean of
+    tracker.correspond.model_to_data_mm to 1e-13 relative, for hands on, beside, turned against and
+    behind the camera (samples outside the silhouette, in front of the surface, behind it; every
+    branch of the cost), and the cap for an empty silhouette."""
+    from tracker.correspond import model_to_data_mm
+    from tracker.icp import model_to_data_mean
+
+    samples = _tracker(bundle, True).context.score_samples
+    rng = np.random.default_rng(6)
+    values = []
+    for truth, _, _, sil in frames:
+        for k in range(12):
+            th = truth.copy()
+            th[:3] += rng.normal(0, 0.03, 3)
+            th[3:6] += rng.normal(0, 0.6, 3)
+            if k == 0:
+                th[2] = -0.1   # behind the camera: every sample costs the cap
+            want = float(np.mean(model_to_data_mm(samples, th, sil)))
+            got = model_to_data_mean(samples, th, sil)
+            assert got == pytest.approx(want, rel=1e-13, abs=1e-12)
+            values.append(want)
+    assert min(values) < 5.0 and max(values) == pytest.approx(30.0)  # near fits and the cap were both covered
+    empty = Silhouette(np.zeros((48, 64), bool), np.full((48, 64), np.nan), CAM)
+    assert model_to_data_mean(samples, frames[0][0], empty) == 30.0
