@@ -1,8 +1,9 @@
 """Tracking speed at the paper's settings (1 rigid + 4 non-rigid ICP iterations × 5 Gauss-Newton steps,
-stride 3) for full, reduced and hierarchical modes, next to peers on the same frames: the same ICP loop
-with each non-rigid step solved by scipy.optimize.least_squares (analytic Jacobian, 5 evaluations), and
-our own ICP loop in Python around the compiled kernels (:func:`tracker.icp.fit_reference`, what
-:func:`tracker.icp.fit` was before the loop was compiled).
+stride 3) for full, reduced and hierarchical modes, ours with the safety net on and off, next to peers on
+the same frames: the same ICP loop with each non-rigid step solved by scipy.optimize.least_squares
+(analytic Jacobian, 5 evaluations), and our own ICP loop in Python around the compiled kernels
+(:func:`tracker.icp.fit_reference`, what :func:`tracker.icp.fit` was before the loop was compiled).
+Then where a frame's time goes in :meth:`tracker.track.HandTracker.step`, per mode.
 
 Times are CPU seconds of this process (every library on one thread, so that is the time on one core):
 on a shared machine wall-clock medians measure the other jobs.
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from contextlib import ExitStack, contextmanager
 from unittest import mock
 
 # one core for every library: a threaded BLAS under scipy's SVD thrashes on a shared machine (0.1 s per
@@ -24,6 +26,7 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import numpy as np
 from scipy.optimize import least_squares
 
+import tracker.track as track_module
 from handmodel import HandModel
 from synergy.bundle import load_bundle
 from tracker.cameras import preset
@@ -46,9 +49,11 @@ def frames(hand, bundle, cam, n):
 
 
 def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
-    """``ours``: the defaults (silhouette term, Cauchy-weighted data term, normal test); else
-    ``TrackerSettings.paper()`` (plain least squares on data→model pairs) after our start search on the
-    first frame: the paper's method has no cold start of its own, and this benchmark times tracking."""
+    """``ours``: the defaults (silhouette term, Cauchy-weighted data term, normal test, gate,
+    re-centring, safety net); else ``TrackerSettings.paper()`` (plain least squares on data→model
+    pairs) after our start search on the first frame: the paper's method has no cold start of its own,
+    and this benchmark times tracking. Returns the median ms per frame, the mean posture error (°)
+    and the tracker."""
     base = TrackerSettings() if ours else TrackerSettings.paper(init=InitSettings())
     tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
     ms, err = [], []
@@ -57,7 +62,50 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
         r = tr.track(ob, cam)
         ms.append((time.process_time() - t0) * 1000)
         err.append(E.posture_error_deg(r.theta, t, hand.pose_mask))
-    return float(np.median(ms[10:])), float(np.mean(err[10:]))
+    return float(np.median(ms[10:])), float(np.mean(err[10:])), tr
+
+
+# the parts of HandTracker.step timed by the breakdown: (label, object, attribute)
+PARTS = [("silhouette", track_module, "Silhouette"), ("gate", HandTracker, "_gate"),
+         ("re-centre", HandTracker, "_recentred"), ("ICP fit", track_module, "fit"),
+         ("net test", HandTracker, "_safety_net")]
+
+
+@contextmanager
+def timed_parts(acc):
+    """The :data:`PARTS` wrapped to add their CPU ms to ``acc[label]`` (the net's cheap search, when a
+    frame is doubtful, counts in "net test"; the rest of step is "other")."""
+    def wrapped(label, f):
+        def g(*a, **k):
+            t0 = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[label] = acc.get(label, 0.0) + (time.process_time() - t0) * 1000
+        return g
+
+    with ExitStack() as stack:
+        for label, obj, name in PARTS:
+            stack.enter_context(mock.patch.object(obj, name, wrapped(label, getattr(obj, name))))
+        yield acc
+
+
+def breakdown(hand, bundle, cam, obs, mode, ours=True):
+    """Mean CPU ms per tracked frame of each part of ``HandTracker.step`` (frames after the 10th)."""
+    base = TrackerSettings() if ours else TrackerSettings.paper(init=InitSettings())
+    tr = HandTracker(hand, base.replace(mode=mode), synergies=bundle)
+    for ob in obs[:10]:
+        tr.track(ob, cam)
+    acc, total = {}, 0.0
+    with timed_parts(acc):
+        for ob in obs[10:]:
+            t0 = time.process_time()
+            tr.track(ob, cam)
+            total += (time.process_time() - t0) * 1000
+    n = len(obs) - 10
+    parts = {label: acc.get(label, 0.0) / n for label, _, _ in PARTS}
+    parts["other"] = total / n - sum(parts.values())
+    return total / n, parts
 
 
 def peer(hand, bundle, cam, truth, obs):
@@ -98,24 +146,35 @@ def main():
     run(hand, bundle, cam, truth[:12], obs[:12], "full", True)  # compile kernels
     print(f"bench_tracker: {len(truth)} mesh-rendered Kinect v1 frames (fingerfist rows 3000+, 0.75 m), stride 3, "
           f"{np.mean([len(o.points) for o in obs]):.0f} points/frame, 1 rigid + 4 ICP × 5 GN, one core")
-    print(f"  {'method':<52} {'ms/frame':>9} {'fps':>7} {'posture error':>14}")
+    print(f"  {'method':<58} {'ms/frame':>9} {'fps':>7} {'posture error':>14}")
     k = bundle.model.n_components_for(0.99)
-    for mode, ours, label in [("full", False, "full, paper's method (our first frame)"),
-                              ("full", True, "full, ours (+ silhouette, Cauchy weights)"),
-                              ("reduced", False, f"reduced ({k} PCs), paper's method (our first frame)"),
-                              ("reduced", True, f"reduced ({k} PCs), ours"),
-                              ("reduced", {"projected_steps": 2}, f"reduced ({k} PCs), ours, 2 steps projected"),
-                              ("hierarchical", True, "hierarchical, ours")]:
-        kw = ours if isinstance(ours, dict) else {}
-        ms, e = run(hand, bundle, cam, truth, obs, mode, bool(ours), **kw)
-        print(f"  {label:<52} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+    rows = [("full", False, {}, "full, paper's method (our first frame)"),
+            ("reduced", False, {}, f"reduced ({k} PCs), paper's method (our first frame)")]
+    for mode, label in [("full", "full"), ("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
+        rows += [(mode, True, {}, f"{label}, ours, safety net on"),
+                 (mode, True, {"safety_net": False}, f"{label}, ours, safety net off")]
+    rows.append(("reduced", True, {"projected_steps": 2, "safety_net": False}, f"reduced ({k} PCs), ours, 2 steps projected"))
+    for mode, ours, kw, label in rows:
+        ms, e, tr = run(hand, bundle, cam, truth, obs, mode, ours, **kw)
+        net = f"  (net ran on {tr.net_runs_} frames)" if tr.settings.safety_net and tr.net_runs_ else ""
+        print(f"  {label:<58} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
     ms, e = peer(hand, bundle, cam, truth, obs)
-    print(f"  {'peer: paper ICP, scipy least_squares (full)':<52} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+    print(f"  {'peer: paper ICP, scipy least_squares (full)':<58} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
     # the tracker calls tracker.track.fit; the peer swaps in the Python loop for these two rows
     with mock.patch("tracker.track.fit", fit_reference):
-        for ours, label in [(False, "peer: full, paper's method, Python ICP loop"), (True, "peer: full, ours, Python ICP loop")]:
-            ms, e = run(hand, bundle, cam, truth, obs, "full", ours)
-            print(f"  {label:<52} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+        for ours, label in [(False, "peer: full, paper's method, Python ICP loop"),
+                            (True, "peer: full, ours (net off), Python ICP loop")]:
+            ms, e, _ = run(hand, bundle, cam, truth, obs, "full", ours, **({"safety_net": False} if ours else {}))
+            print(f"  {label:<58} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°")
+    print("  where a tracked frame's time goes (mean CPU ms; 'net test': the safety net's score and test, and its "
+          "search when a frame is doubtful):")
+    names = [label for label, _, _ in PARTS] + ["other"]
+    print(f"  {'':<34} {'total':>7}" + "".join(f" {n:>11}" for n in names))
+    for mode, ours, label in [("full", False, "full, paper's method"), ("full", True, "full, ours"),
+                              ("reduced", True, "reduced, ours (no net in reduced)"),
+                              ("hierarchical", True, "hierarchical, ours")]:
+        total, parts = breakdown(hand, bundle, cam, obs, mode, ours)
+        print(f"  {label:<34} {total:>7.3f}" + "".join(f" {parts[n]:>11.3f}" for n in names))
 
 
 if __name__ == "__main__":

@@ -957,3 +957,71 @@ def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_ax
             cost = 0.0
         total += min(cost, cap_mm)
     return total / n
+
+
+# ----------------------------------------------------------------------------- the observe stage's window
+@njit(cache=True)
+def observe_window(dw, mw, fx, fy, cx, cy, smooth, max_diff, max_jump, stride, oy, ox, dsm, pts, nrm):
+    """One hand window of :func:`tracker.observe.observe` compiled: the depth ``dw`` smoothed into
+    ``dsm`` (:func:`tracker.observe.smooth_depth` with ``smooth`` px and ``max_diff`` m; a copy when
+    0), then at the kept pixels only — the mask ``mw``, every ``stride``-th row and column from
+    ``(oy, ox)``, finite depth — the back-projected point (window camera ``fx fy cx cy``) and the
+    normal of :func:`tracker.observe.image_normals` (central differences, NaN at the window's border
+    or across a depth jump above ``max_jump``), written to ``pts``/``nrm`` in row-major order. The
+    numpy path computed smoothing, points and normals for every pixel of the window and then kept
+    one in stride². Returns the number of kept pixels."""
+    h, w = dw.shape
+    for v in range(h):
+        for u in range(w):
+            d = dw[v, u]
+            if smooth == 0:
+                dsm[v, u] = d
+                continue
+            if not np.isfinite(d):
+                dsm[v, u] = np.nan
+                continue
+            # the numpy version's order of summation (rows, then columns), so the mean is bit-identical
+            acc = 0.0
+            cnt = 0
+            for dy in range(-smooth, smooth + 1):
+                vv = v + dy
+                for dx in range(-smooth, smooth + 1):
+                    uu = u + dx
+                    if vv < 0 or vv >= h or uu < 0 or uu >= w:
+                        continue
+                    nb = dw[vv, uu]
+                    if np.isfinite(nb) and abs(nb - d) <= max_diff:
+                        acc += nb
+                        cnt += 1
+            dsm[v, u] = acc / cnt if cnt > 0 else np.nan
+    k = 0
+    for v in range(oy, h, stride):
+        for u in range(ox, w, stride):
+            d = dsm[v, u]
+            if not mw[v, u] or not np.isfinite(d):
+                continue
+            X0 = d * ((u - cx) / fx)
+            X1 = d * ((v - cy) / fy)
+            pts[k, 0], pts[k, 1], pts[k, 2] = X0, X1, d
+            n0 = n1 = n2 = np.nan
+            if 0 < u < w - 1 and 0 < v < h - 1:
+                dl, dr, du, dd = dsm[v, u - 1], dsm[v, u + 1], dsm[v - 1, u], dsm[v + 1, u]
+                a0 = dr * ((u + 1 - cx) / fx) - dl * ((u - 1 - cx) / fx)
+                a1 = dr * ((v - cy) / fy) - dl * ((v - cy) / fy)
+                a2 = dr - dl
+                b0 = dd * ((u - cx) / fx) - du * ((u - cx) / fx)
+                b1 = dd * ((v + 1 - cy) / fy) - du * ((v - 1 - cy) / fy)
+                b2 = dd - du
+                c0 = a1 * b2 - a2 * b1
+                c1 = a2 * b0 - a0 * b2
+                c2 = a0 * b1 - a1 * b0
+                nn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) + 1e-300
+                c0, c1, c2 = c0 / nn, c1 / nn, c2 / nn
+                # oriented towards the camera; a jump (not NaN: NaN compares False) voids the normal
+                dot = c0 * X0 + c1 * X1 + c2 * d
+                sg = -1.0 if dot > 0 else (1.0 if dot < 0 else (0.0 if dot == 0 else np.nan))
+                if not (abs(a2) > max_jump or abs(b2) > max_jump):
+                    n0, n1, n2 = c0 * sg, c1 * sg, c2 * sg
+            nrm[k, 0], nrm[k, 1], nrm[k, 2] = n0, n1, n2
+            k += 1
+    return k

@@ -19,11 +19,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
-from ._icp_kernels import gate_kernel
+from ._icp_kernels import gate_kernel, observe_window
 from .segment import Segmenter, bounds
 
 
@@ -148,24 +147,23 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     pad = int(st.smooth) + 2
     y0, y1 = max(ya - pad, 0), min(yb + pad + 1, H)
     x0, x1 = max(xa - pad, 0), min(xb + pad + 1, W)
-    dw = d[y0:y1, x0:x1]
-    if st.smooth:
-        dw = smooth_depth(dw, int(st.smooth))
-    shifted = SimpleNamespace(fx=camera.fx, fy=camera.fy, cx=camera.cx - x0, cy=camera.cy - y0)
-    X = backproject(dw, shifted)
-    N = image_normals(X, st.normal_max_jump)
-    mw = mask[y0:y1, x0:x1]
+    dw = np.ascontiguousarray(d[y0:y1, x0:x1])
+    mw = np.ascontiguousarray(mask[y0:y1, x0:x1], dtype=np.bool_)
     stride = int(st.stride)
+    n_mask = int(mw.sum())
     if st.target_points:
-        stride = int(np.clip(np.floor(np.sqrt(mw.sum() / float(st.target_points))), 1, stride))
-    # the stride grid is anchored at the image's pixel (0, 0), not at the window's corner
-    sub = np.zeros_like(mw)
-    sub[(-y0) % stride::stride, (-x0) % stride::stride] = True
-    keep = mw & sub & np.isfinite(X).all(-1)
-    n_mask = max(int(mw.sum()), 1)
+        stride = int(np.clip(np.floor(np.sqrt(n_mask / float(st.target_points))), 1, stride))
+    # one compiled pass (smooth_depth, backproject and image_normals, the last two at the kept pixels
+    # only); the stride grid is anchored at the image's pixel (0, 0), not at the window's corner
+    h, w = dw.shape
+    cap = ((h + stride - 1) // stride) * ((w + stride - 1) // stride)
+    dsm, pts, nrm = np.empty((h, w)), np.empty((cap, 3)), np.empty((cap, 3))
+    k = observe_window(dw, mw, float(camera.fx), float(camera.fy), float(camera.cx - x0), float(camera.cy - y0),
+                       int(st.smooth), 0.01, float(st.normal_max_jump), stride, (-y0) % stride, (-x0) % stride,
+                       dsm, pts, nrm)
     out_d = np.full((H, W), np.nan)
-    out_d[y0:y1, x0:x1] = np.where(mw, dw, np.nan)
-    return Observation(X[keep], N[keep], mask, out_d, float(keep.sum()) / n_mask, stride, d)
+    out_d[y0:y1, x0:x1] = np.where(mw, dsm, np.nan)
+    return Observation(pts[:k], nrm[:k], mask, out_d, float(k) / max(n_mask, 1), stride, d)
 
 
 def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30) -> np.ndarray:

@@ -220,3 +220,56 @@ def test_compiled_gate_is_the_kdtree_gate(hand):
     assert gated > 50  # the comparison covered frames where the gate applies, not only fall-backs
     assert gate(np.zeros((0, 3)), truth, 0.03).shape == (0,)
     assert gate(data, np.full((5, 3), np.nan), 0.03).all()
+
+
+def _observe_numpy(depth, camera, st, mask):
+    """observe's window as it was written in numpy (smooth_depth, backproject and image_normals over
+    the whole window, then the stride grid): the reference of the compiled window."""
+    from types import SimpleNamespace
+
+    from tracker.observe import image_normals, smooth_depth
+    from tracker.segment import bounds
+
+    d = np.asarray(depth, np.float64)
+    H, W = d.shape
+    (ya, yb), (xa, xb) = bounds(mask)
+    pad = int(st.smooth) + 2
+    y0, y1, x0, x1 = max(ya - pad, 0), min(yb + pad + 1, H), max(xa - pad, 0), min(xb + pad + 1, W)
+    dw = smooth_depth(d[y0:y1, x0:x1], int(st.smooth)) if st.smooth else d[y0:y1, x0:x1]
+    X = backproject(dw, SimpleNamespace(fx=camera.fx, fy=camera.fy, cx=camera.cx - x0, cy=camera.cy - y0))
+    N = image_normals(X, st.normal_max_jump)
+    mw = mask[y0:y1, x0:x1]
+    stride = int(st.stride)
+    if st.target_points:
+        stride = int(np.clip(np.floor(np.sqrt(mw.sum() / float(st.target_points))), 1, stride))
+    sub = np.zeros_like(mw)
+    sub[(-y0) % stride::stride, (-x0) % stride::stride] = True
+    keep = mw & sub & np.isfinite(X).all(-1)
+    out_d = np.full((H, W), np.nan)
+    out_d[y0:y1, x0:x1] = np.where(mw, dw, np.nan)
+    return X[keep], N[keep], out_d, float(keep.sum()) / max(int(mw.sum()), 1), stride
+
+
+@pytest.mark.parametrize("settings", [ObserveSettings(), ObserveSettings(stride=3, target_points=None, smooth=0),
+                                      ObserveSettings(stride=1, target_points=None, smooth=2),
+                                      ObserveSettings(stride=2, target_points=None, normal_max_jump=0.003)])
+def test_compiled_observe_is_the_numpy_one(hand, settings):
+    """observe's compiled window gives the numpy composition's points, normals (NaN where unknown),
+    silhouette depth, density and stride bit for bit, on a rendered hand with and without sensor-like
+    noise and holes (every branch: smoothing across holes, depth jumps, the window's border)."""
+    from tracker.sim.render import DepthRenderer
+
+    cam = preset("kinect1")
+    th = np.zeros(hand.n_dofs)
+    th[2], th[3] = 0.7, 0.4
+    depth = DepthRenderer(hand, cam).render(th, labels=False).depth
+    rng = np.random.default_rng(2)
+    noisy = np.where(rng.random(depth.shape) < 0.05, np.nan, depth + rng.normal(0, 0.004, depth.shape))
+    for d in (depth, noisy):
+        ob = observe(d, cam, settings)
+        X, N, out_d, density, stride = _observe_numpy(d, cam, settings, ob.mask)
+        np.testing.assert_array_equal(ob.points, X)
+        np.testing.assert_array_equal(ob.normals, N)
+        np.testing.assert_array_equal(ob.depth, out_d)
+        assert (ob.density, ob.stride) == (density, stride)
+        assert len(X) > 100 and 0 < np.isnan(N).any(1).mean() < 0.7
