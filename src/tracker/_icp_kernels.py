@@ -319,99 +319,126 @@ def _node_sums(G, G0, mom, j, A, b, P1, P2, X):
 @njit(cache=True)
 def moment_normal_equations(parents, dof_ptr, dof_idx, dof_types, mom, G0, G, wa, wo, Aa, ba, dids, sa, sk):
     """A = JᵀW²J and b = JᵀW²e (mm units, all DoF) from the moments at the frames ``G`` (with the DoF
-    axes ``wa`` and origins ``wo`` of the same θ); returns the energy. Relative to node ``j``'s
-    reference origin every column of its Jacobian is c(p) = ã × p + k̃ (a rotation DoF: ã its axis,
-    k̃ = −ã × its origin; a translation: ã = 0, k̃ its axis). Then Σ_pairs c_a·c_b = (ã_a·ã_b) tr P2
-    − ã_aᵀP2 ã_b + k̃_b·(ã_a×P1) + k̃_a·(ã_b×P1) + W k̃_a·k̃_b, a 6×6 quadratic form in (ã, k̃),
-    and Σ_pairs c_a·(u − p) = ã_a·X + k̃_a·(Σw²u − P1). Only the DoFs moving the node enter its
-    terms (a finger's columns are zero on other fingers)."""
+    axes ``wa`` and origins ``wo`` of the same θ); returns the energy. Relative to one point c (the
+    root's reference origin) every column of the Jacobian is c(p) = ã × p + k̃ (a rotation DoF: ã its
+    axis, k̃ = −ã × (its origin − c); a translation: ã = 0, k̃ its axis), the same on every node the
+    DoF moves. Then Σ_pairs c_a·c_b = z_aᵀ Q z_b with z = (ã, k̃) and
+    Q = [[tr P2·I − P2, [P1]×], [−[P1]×, W·I]] (P1 = Σw²p, P2 = Σw²ppᵀ, W = Σw² over the pairs both
+    DoFs move), and Σ_pairs c_a·(u − p) = ã·X + k̃·(Σw²u − P1) with X = Σw² p×u. These sums are linear,
+    so they are summed once per subtree (parents come before their children): DoFs a and b, a on b's
+    node or an ancestor, share exactly the pairs of b's subtree. Per node the sums are formed relative
+    to its own reference origin (a few cm: the moments' precision) and then moved to c. ``dids``,
+    ``sa``, ``sk``: scratch of n rows."""
     n = Aa.shape[0]
     for r in range(n):
         ba[r] = 0.0
         for c in range(n):
             Aa[r, c] = 0.0
+    N = mom.shape[0]
     A = np.empty((3, 3))
     b = np.empty(3)
     P1 = np.empty(3)
     P2 = np.empty((3, 3))
     X = np.empty(3)
     Q = np.empty((6, 6))
-    z = np.empty(6)
-    Qz = np.empty((sa.shape[0], 6))
+    y = np.empty(6)
     # the same expression as every trial step's energy: step halving compares like with like
     E = moment_energy(G, G0, mom, A, b)
-    for j in range(mom.shape[0]):
-        if mom[j, 0] == 0.0:
+    c0, c1, c2 = G0[0, 0, 3], G0[0, 1, 3], G0[0, 2, 3]
+    # per node, relative to c: W, P1 (3), P2 (9), X (3), r = Σw²u − P1 (3)
+    S = np.zeros((N, 19))
+    for j in range(N):
+        W = mom[j, 0]
+        if W == 0.0:
             continue
-        W = _node_sums(G, G0, mom, j, A, b, P1, P2, X)
-        # the node's DoF columns (its own and its ancestors'), relative to its reference origin
-        nd = 0
-        k = j
-        while k >= 0:
-            for q in range(dof_ptr[k], dof_ptr[k + 1]):
-                d = dof_idx[q]
-                a0, a1, a2 = wa[d, 0], wa[d, 1], wa[d, 2]
-                if dof_types[d] == 1:
-                    sa[nd, 0] = 0.0
-                    sa[nd, 1] = 0.0
-                    sa[nd, 2] = 0.0
-                    sk[nd, 0] = a0
-                    sk[nd, 1] = a1
-                    sk[nd, 2] = a2
-                else:
-                    o0 = wo[d, 0] - G0[j, 0, 3]
-                    o1 = wo[d, 1] - G0[j, 1, 3]
-                    o2 = wo[d, 2] - G0[j, 2, 3]
-                    sa[nd, 0] = a0
-                    sa[nd, 1] = a1
-                    sa[nd, 2] = a2
-                    sk[nd, 0] = -(a1 * o2 - a2 * o1)
-                    sk[nd, 1] = -(a2 * o0 - a0 * o2)
-                    sk[nd, 2] = -(a0 * o1 - a1 * o0)
-                dids[nd] = d
-                nd += 1
-            k = parents[k]
-        nc = nd
-        # Σ_pairs c_a·c_b = z_aᵀ Q z_b with z = (ã, k̃) and Q = [[tr P2·I − P2, [P1]×], [−[P1]×, W·I]]
-        trP = P2[0, 0] + P2[1, 1] + P2[2, 2]
+        _node_sums(G, G0, mom, j, A, b, P1, P2, X)
+        d0, d1, d2 = G0[j, 0, 3] - c0, G0[j, 1, 3] - c1, G0[j, 2, 3] - c2
+        Su0, Su1, Su2 = mom[j, 4], mom[j, 5], mom[j, 6]
+        S[j, 0] = W
+        S[j, 1] = P1[0] + W * d0
+        S[j, 2] = P1[1] + W * d1
+        S[j, 3] = P1[2] + W * d2
+        dd = (d0, d1, d2)
         for r in range(3):
             for c in range(3):
-                Q[r, c] = -P2[r, c]
+                S[j, 4 + 3 * r + c] = P2[r, c] + P1[r] * dd[c] + dd[r] * P1[c] + W * dd[r] * dd[c]
+        # Σw² (p + d) × (u + d) = X + P1 × d + d × Σw²u
+        S[j, 13] = X[0] + (P1[1] * d2 - P1[2] * d1) + (d1 * Su2 - d2 * Su1)
+        S[j, 14] = X[1] + (P1[2] * d0 - P1[0] * d2) + (d2 * Su0 - d0 * Su2)
+        S[j, 15] = X[2] + (P1[0] * d1 - P1[1] * d0) + (d0 * Su1 - d1 * Su0)
+        S[j, 16] = Su0 - P1[0]
+        S[j, 17] = Su1 - P1[1]
+        S[j, 18] = Su2 - P1[2]
+    for k in range(N - 1, 0, -1):
+        p = parents[k]
+        if p >= 0:
+            for q in range(19):
+                S[p, q] += S[k, q]
+    # every DoF's column z = (ã, k̃) relative to c
+    for k in range(N):
+        for q in range(dof_ptr[k], dof_ptr[k + 1]):
+            d = dof_idx[q]
+            a0, a1, a2 = wa[d, 0], wa[d, 1], wa[d, 2]
+            if dof_types[d] == 1:
+                sa[d, 0] = 0.0
+                sa[d, 1] = 0.0
+                sa[d, 2] = 0.0
+                sk[d, 0] = a0
+                sk[d, 1] = a1
+                sk[d, 2] = a2
+            else:
+                o0, o1, o2 = wo[d, 0] - c0, wo[d, 1] - c1, wo[d, 2] - c2
+                sa[d, 0] = a0
+                sa[d, 1] = a1
+                sa[d, 2] = a2
+                sk[d, 0] = -(a1 * o2 - a2 * o1)
+                sk[d, 1] = -(a2 * o0 - a0 * o2)
+                sk[d, 2] = -(a0 * o1 - a1 * o0)
+    for kb in range(N):
+        W = S[kb, 0]
+        if dof_ptr[kb] == dof_ptr[kb + 1] or W == 0.0:
+            continue
+        trP = S[kb, 4] + S[kb, 8] + S[kb, 12]
+        for r in range(3):
+            for c in range(3):
+                Q[r, c] = -S[kb, 4 + 3 * r + c]
                 Q[r + 3, c + 3] = 0.0
             Q[r, r] += trP
             Q[r + 3, r + 3] = W
-        Q[0, 3], Q[0, 4], Q[0, 5] = 0.0, -P1[2], P1[1]
-        Q[1, 3], Q[1, 4], Q[1, 5] = P1[2], 0.0, -P1[0]
-        Q[2, 3], Q[2, 4], Q[2, 5] = -P1[1], P1[0], 0.0
+        p0, p1, p2 = S[kb, 1], S[kb, 2], S[kb, 3]
+        Q[0, 3], Q[0, 4], Q[0, 5] = 0.0, -p2, p1
+        Q[1, 3], Q[1, 4], Q[1, 5] = p2, 0.0, -p0
+        Q[2, 3], Q[2, 4], Q[2, 5] = -p1, p0, 0.0
         for r in range(3):
             for c in range(3):
                 Q[c + 3, r] = Q[r, c + 3]
-        r0 = mom[j, 4] - P1[0]
-        r1 = mom[j, 5] - P1[1]
-        r2 = mom[j, 6] - P1[2]
-        for a in range(nc):
-            z[0], z[1], z[2] = sa[a, 0], sa[a, 1], sa[a, 2]
-            z[3], z[4], z[5] = sk[a, 0], sk[a, 1], sk[a, 2]
+        for qb in range(dof_ptr[kb], dof_ptr[kb + 1]):
+            db = dof_idx[qb]
+            zb = (sa[db, 0], sa[db, 1], sa[db, 2], sk[db, 0], sk[db, 1], sk[db, 2])
             for r in range(6):
                 acc = 0.0
                 for c in range(6):
-                    acc += Q[r, c] * z[c]
-                Qz[a, r] = acc
-            ia = dids[a]
-            ba[ia] += z[0] * X[0] + z[1] * X[1] + z[2] * X[2] + z[3] * r0 + z[4] * r1 + z[5] * r2
-            for c in range(a + 1):
-                v = (sa[c, 0] * Qz[a, 0] + sa[c, 1] * Qz[a, 1] + sa[c, 2] * Qz[a, 2]
-                     + sk[c, 0] * Qz[a, 3] + sk[c, 1] * Qz[a, 4] + sk[c, 2] * Qz[a, 5])
-                ic = dids[c]
-                Aa[ia, ic] += v
-                if ic != ia:
-                    Aa[ic, ia] += v
+                    acc += Q[r, c] * zb[c]
+                y[r] = acc
+            ba[db] = (zb[0] * S[kb, 13] + zb[1] * S[kb, 14] + zb[2] * S[kb, 15]
+                      + zb[3] * S[kb, 16] + zb[4] * S[kb, 17] + zb[5] * S[kb, 18])
+            # the DoFs on b's node (up to b) and on its ancestors share b's subtree's pairs
+            k = kb
+            while k >= 0:
+                last = qb + 1 if k == kb else dof_ptr[k + 1]
+                for qa in range(dof_ptr[k], last):
+                    da = dof_idx[qa]
+                    v = (sa[da, 0] * y[0] + sa[da, 1] * y[1] + sa[da, 2] * y[2]
+                         + sk[da, 0] * y[3] + sk[da, 1] * y[4] + sk[da, 2] * y[5])
+                    Aa[da, db] = v
+                    Aa[db, da] = v
+                k = parents[k]
     return E
 
 
 @njit(cache=True)
 def project_normal_equations(A, b, eye, nz_ptr, nz_row, nz_val, Aa, ba, T):
-    """MᵀAM and Mᵀb into ``Aa``/``ba`` for the subspace basis M given by its non-zeros per column
+    """MᵀAM and Mᵀb into ``Aa``/``ba`` (``T``: ``(m, n)`` scratch) for the subspace basis M given by its non-zeros per column
     (column ``c``: rows ``nz_row[nz_ptr[c]:nz_ptr[c+1]]``, values ``nz_val``); the identity copies.
     A synergy basis is sparse (pose columns one entry; a PC column zero on the pose rows), so this
     costs a fraction of the dense product."""
@@ -423,14 +450,15 @@ def project_normal_equations(A, b, eye, nz_ptr, nz_row, nz_val, Aa, ba, T):
             for c in range(m):
                 Aa[r, c] = A[r, c]
         return
+    # T = (A M)ᵀ row by row: A is symmetric, so each term adds a row of A (contiguous, vectorised)
     for e in range(m):
         for r in range(n):
-            T[r, e] = 0.0
+            T[e, r] = 0.0
         for q in range(nz_ptr[e], nz_ptr[e + 1]):
             l = nz_row[q]
             v = nz_val[q]
             for r in range(n):
-                T[r, e] += A[r, l] * v
+                T[e, r] += A[l, r] * v
     for c in range(m):
         acc = 0.0
         for q in range(nz_ptr[c], nz_ptr[c + 1]):
@@ -439,7 +467,7 @@ def project_normal_equations(A, b, eye, nz_ptr, nz_row, nz_val, Aa, ba, T):
         for e in range(c, m):
             acc = 0.0
             for q in range(nz_ptr[c], nz_ptr[c + 1]):
-                acc += nz_val[q] * T[nz_row[q], e]
+                acc += nz_val[q] * T[e, nz_row[q]]
             Aa[c, e] = acc
             Aa[e, c] = acc
 
@@ -478,7 +506,7 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
     sk = np.empty((n, 3))
     A = np.empty((n, n))
     b = np.empty(n)
-    T = np.empty((n, m))
+    T = np.empty((m, n))
     # the basis' non-zeros per column
     nz_ptr = np.zeros(m + 1, np.int64)
     for c in range(m):

@@ -177,7 +177,7 @@ def test_moment_sums_give_the_per_pair_energy_and_normal_equations(bundle, frame
     rows = np.concatenate(nz).astype(np.int64)
     vals = np.concatenate([M[z, c] for c, z in enumerate(nz)])
     Aa, ba = np.empty((m, m)), np.empty(m)
-    K.project_normal_equations(A, b, False, ptr, rows, vals, Aa, ba, np.empty((n, m)))
+    K.project_normal_equations(A, b, False, ptr, rows, vals, Aa, ba, np.empty((m, n)))
     np.testing.assert_allclose(Aa, M.T @ A @ M, rtol=1e-12, atol=1e-9 * np.abs(A).max())
     np.testing.assert_allclose(ba, M.T @ b, rtol=1e-12, atol=1e-9 * np.abs(b).max())
 
