@@ -19,8 +19,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .correspond import Matcher
-from .init import InitSettings, _palm_side, fit_single_frame, score, thin
+from .correspond import Matcher, model_to_data_mm
+from .init import MODEL_TO_DATA_WEIGHT, InitSettings, _palm_side, fit_single_frame, score, thin
 
 
 def extent_scale(hand, points, posture) -> float:
@@ -70,7 +70,24 @@ def scale_score(context_for, s, theta_from, hand_from, points, *, silhouette=Non
     ctx = context_for(s)
     th = rescaled(hand_from, ctx.hand, theta_from)
     th, corr = ctx.fit(th, points, "full", 2, n_icp, silhouette=silhouette, normals=normals)
-    return score(ctx, th, corr, without_wrist(silhouette)), th, corr
+    return size_score(ctx, th, corr, silhouette), th, corr
+
+
+#: pixels of silhouette edge a model sample may overshoot for free when sizes are compared (see :func:`size_score`)
+EDGE_PX = 3.0
+
+
+def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
+    """:func:`tracker.init.score` as sizes are compared: without the wrist cue (:func:`without_wrist`)
+    and with ``edge_px`` pixels of the silhouette's edge free (the sensors lose the hand's outline by
+    about a pixel, so a hand of the right size sticks out of the mask there)."""
+    edge_px = EDGE_PX if edge_px is None else edge_px
+    sil = without_wrist(silhouette)
+    if sil is None or sil.empty or edge_px == 1.0:
+        return score(ctx, theta, corr, sil)
+    s = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
+    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
+    return s + MODEL_TO_DATA_WEIGHT * float(np.mean(model_to_data_mm(samples, theta, sil, tolerance_px=edge_px)))
 
 
 def without_wrist(silhouette):
@@ -111,6 +128,25 @@ def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None,
     x = min(seen, key=lambda k: seen[k][0])
     s_best, th, corr = seen[x]
     return float(np.exp(x)), th, corr, s_best
+
+
+def parabola_scale(context_for, theta, hand_from, points, centre, *, half_width=0.06, probes=7, silhouette=None,
+                   normals=None, n_icp=10):
+    """The global scale near ``centre``: ``probes`` sizes evenly spread on log scale within
+    ``half_width`` (log) either way, each scored by a fit from ``theta`` (:func:`scale_score`), and a
+    parabola through the scores; its vertex (kept within the probed sizes) is the size, the probe
+    nearest it gives θ. Probe scores are noisy at the percent level (each short fit ends a little
+    differently), so a golden-section search, which trusts every comparison, wanders by a few percent
+    on a flat score; a parabola averages the noise over every probe. Returns ``(scale, θ, corr, score)``."""
+    x = np.log(centre) + np.linspace(-half_width, half_width, probes)
+    found = [scale_score(context_for, float(np.exp(v)), theta, hand_from, points, silhouette=silhouette,
+                         normals=normals, n_icp=n_icp) for v in x]
+    y = np.array([f[0] for f in found])
+    a, b, _ = np.polyfit(x - x.mean(), y, 2)
+    best = int(np.argmin(y))
+    v = x[best] if a <= 0 else float(np.clip(x.mean() - b / (2 * a), x[0], x[-1]))
+    near = int(np.argmin(np.abs(x - v)))
+    return float(np.exp(v)), found[near][1], found[near][2], float(y[near])
 
 
 def calibrate_scale_searched(context_for, points, settings: InitSettings | None = None, *, silhouette=None,
@@ -157,7 +193,7 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06):
+                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, final="parabola", probes=7, hw=0.06):
     """The user's hand size from one frame, with one single-frame search. The cloud's extent against
     the open model's gives a first guess ``g`` (right for an open hand, too small for a curled one,
     which the cloud cannot tell apart); the search runs at ``guess`` × ``g`` and :func:`fit_scale`
@@ -186,8 +222,14 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
         th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
                                   theta0=th1, extra=(th1,))
         s1, th1, _, _ = fit_scale(context_for, th2, ctx.hand, points[sub], max(lo, s1 / 1.1), min(hi, s1 * 1.1), **kw)
-    s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.04),
-                              min(hi, s1 * 1.04), n_icp=10, **kw)
+    if final == "parabola":
+        fine = thin(points, st.refine_points)
+        s1, th1, _, _ = parabola_scale(context_for, th1, context_for(s1).hand, points[fine], s1, silhouette=silhouette,
+                                       normals=None if normals is None else normals[fine], probes=probes, half_width=hw)
+        s1 = float(np.clip(s1, lo, hi))
+    else:
+        s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.04),
+                                  min(hi, s1 * 1.04), n_icp=10, **kw)
     ctx = context_for(s1)
     th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
     return s1, th, corr

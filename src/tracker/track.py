@@ -31,7 +31,7 @@ from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
 from .observe import ObserveSettings, gate
 from .rgb import RgbSeed
-from .scale import calibrate_scale, fit_scale, rescaled, resized_context
+from .scale import calibrate_scale, parabola_scale, rescaled, resized_context, size_score
 from .wrist import wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
@@ -49,7 +49,9 @@ class TrackerSettings:
     ``lost_rejected`` of its points are rejected, or it has fewer than ``min_points``; ``max_points``
     caps the points a frame fits (None = all). ``hand_scale``: the user's hand size as a factor on
     the model (:meth:`handmodel.HandModel.scaled`), or ``"auto"``: estimated on the first frame and
-    refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``.
+    refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``;
+    while the calibrated frames' fits score above ``scale_trust_mm``, the next frame is calibrated
+    again (at most ``scale_frames`` frames) and the best-scoring frame's size is used.
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
     whether it fits clearly better (the recording's handedness is likely wrong).
 
@@ -81,7 +83,8 @@ class TrackerSettings:
     min_points: int = 30
     max_points: int | None = None
     hand_scale: float | str = 1.0
-    scale_frames: int = 3
+    scale_frames: int = 5
+    scale_trust_mm: float = 6.0
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
@@ -253,6 +256,8 @@ class HandTracker:
         self.synergies = synergies
         self._contexts = {}
         self._base = None  # the model-sized hand's (FitContext, n_pcs): every size is made from it
+        self._calibrations = []  # (size score, size) of the frames calibrated so far
+        self._scale_open = False  # an automatic size not settled yet: the next frame is calibrated again
         self.scale_estimates_ = []
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
@@ -310,13 +315,41 @@ class HandTracker:
         th, c = fit_single_frame(ctx, pts, self.settings.init, silhouette=sil, normals=nrm)
         return HandCheck(score(self.context, theta, corr, sil), score(ctx, th, c, sil), other.handedness)
 
+    def _calibrate(self, pts, nrm, sil):
+        """``(θ, corr)`` of a frame fitted with :func:`tracker.scale.calibrate_scale`; the size in use
+        (``scale_``) becomes the best-scoring (:func:`tracker.scale.size_score`) of the frames
+        calibrated so far. The calibration is settled when that score is at most ``scale_trust_mm``
+        or after ``scale_frames`` frames; until then the next frame is calibrated again (a first frame
+        whose segmentation kept the arm or the object instead of the hand gives the size of whatever
+        was fitted: rendered scenes scored 7–24 there, ≤ 6 where the hand was found)."""
+        st = self.settings
+        s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
+                                         scale_range=st.scale_range)
+        q = size_score(self.context_for(s), theta, corr, sil)
+        self._calibrations.append((q, s))
+        self._use_scale(s)
+        q_best, best = min(self._calibrations)
+        self._scale_open = q_best > st.scale_trust_mm and len(self._calibrations) < st.scale_frames
+        self.scale_estimates_ = [best]
+        self.scale_ = best
+        if round(best, 5) != round(s, 5):
+            old = self.hand
+            self._use_scale(best)
+            theta, corr = self.context.fit(rescaled(old, self.hand, theta), pts, "full", 1, st.init.icp_iterations,
+                                           silhouette=sil, normals=nrm)
+        # the sizes the search probed are not needed again
+        self._contexts = {k: v for k, v in self._contexts.items() if k == round(best, 5)}
+        return theta, corr
+
     def _refine_scale(self, pts, nrm, sil):
-        """One more frame's size estimate (a narrow search around the current size from this frame's
-        fit); the size becomes the median of the estimates so far, θ follows it."""
+        """One more frame's size estimate (:func:`tracker.scale.parabola_scale` around the current
+        size from this frame's fit, on ``refine_points`` of the cloud); the size becomes the median of
+        the estimates so far, θ follows it."""
         s = self.scale_
-        sub = thin(pts, self.settings.init.coarse_points)
-        est, _, _, _ = fit_scale(self.context_for, self.theta, self.hand, pts[sub], s / 1.1, s * 1.1, silhouette=sil,
-                                 normals=None if nrm is None else nrm[sub])
+        sub = thin(pts, self.settings.init.refine_points)
+        est, _, _, _ = parabola_scale(self.context_for, self.theta, self.hand, pts[sub], s, silhouette=sil,
+                                      normals=None if nrm is None else nrm[sub])
+        est = float(np.clip(est, *self.settings.scale_range))
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
         if round(new, 5) != round(s, 5):
@@ -364,15 +397,9 @@ class HandTracker:
             self.lost = True
             th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             return FrameResult(np.array(th, float), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
-        if self.settings.hand_scale == "auto" and self.scale_ is None:
+        if self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open):
             self._add_wrist(sil)
-            s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
-                                             scale_range=st.scale_range)
-            self.scale_estimates_.append(s)
-            self.scale_ = s
-            self._use_scale(s)
-            # the sizes the search probed are not needed again
-            self._contexts = {k: v for k, v in self._contexts.items() if k == round(s, 5)}
+            theta, corr = self._calibrate(pts, nrm, sil)
             status = "reinit"
             self.prev = None
             if st.safety_net:
