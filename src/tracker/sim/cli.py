@@ -138,6 +138,7 @@ def experiments(
     quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
     only: Optional[str] = typer.Option(None, "--only", help="Run one part: paper (the paper's experiments) or "
                                        "realistic (clutter x sensor noise x hand size)."),
+    jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes (the parts run side by side)."),
 ):
     """Reproduce the paper's experiments on our renderer, and realistic scenes (clutter, RealSense and
     Kinect v1 noise, hand sizes); writes report.md with tables and plots."""
@@ -152,7 +153,7 @@ def experiments(
 
     with Progress(console=Console(stderr=True), transient=True) as p:
         bar = p.add_task("experiments", total=None)
-        res = report(output, quick=quick, parts=None if only is None else [only],
+        res = report(output, quick=quick, parts=None if only is None else [only], jobs=jobs,
                      progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
     if res.get("realistic") is not None:
         t = Table(title=f"realistic scenes (details: {output / 'report.md'})")

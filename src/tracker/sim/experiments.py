@@ -87,6 +87,7 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
     stride = stride or tracker.settings.observe.stride
     F = len(truth)
     err, ms, status, th = np.full(F, np.nan), np.zeros(F), np.empty(F, object), np.full((F, hand.n_dofs), np.nan)
+    net = np.empty(F, object)
     for f in range(F):
         depth = ren.render(truth[f], labels=False).depth
         if noise is not None:
@@ -98,10 +99,11 @@ def run_sequence(hand, truth, camera, tracker, *, renderer=None, noise=None, str
         r = tracker.track(ob, camera)
         ms[f] = (time.perf_counter() - t0) * 1000.0
         status[f] = r.status
+        net[f] = r.net
         th[f] = r.theta
         if np.all(np.isfinite(r.theta)):
             err[f] = posture_error_deg(r.theta, truth[f], hand.pose_mask)
-    return SequenceResult(err, ms, status, th, lead)
+    return SequenceResult(err, ms, status, th, lead, {"net": net})
 
 
 def segments(n, length, seed=0):
@@ -206,18 +208,24 @@ def experiment_reduced_pcs(hand, bundle, camera, segs, counts=(6, 8, 10, 12, 14)
 SCENARIO_NAMES = ("still", "open-close", "count", "spread", "random", "fast", "rotate", "grasp-back")
 
 
-def experiment_scenarios(hand, bundle, camera, names=SCENARIO_NAMES, modes=("full", "hierarchical"), noise=None):
+def experiment_scenarios(hand, bundle, camera, names=SCENARIO_NAMES, modes=("full", "hierarchical"), noise=None,
+                         settings=None):
     """Our synthetic scenarios (tracker.sim.motions: finger counting, random postures, fast sweeps, a turn
-    from palm to back, a grasp seen from the back) tracked from their first frame: mean posture error,
-    share of frames ≤ 5° and share lost, per mode."""
+    from palm to back, a grasp seen from the back) tracked from their first frame by our default tracker
+    changed by ``settings`` (e.g. ``{"safety_net": False}``): mean posture error, share of frames ≤ 5°,
+    share lost, share of frames the safety net ran on and fps (frames over the tracker's whole time,
+    the net's searches included), per mode."""
     out = {}
     for name in names:
         th = make_motion(name, hand=hand).theta
         for mode in modes:
-            r = run_sequence(hand, th, camera, _tracker(hand, bundle, mode=mode), noise=noise, seed=0)
+            tr = _tracker(hand, bundle, mode=mode, **(settings or {}))
+            r = run_sequence(hand, th, camera, tr, noise=noise, seed=0)
             e = np.nan_to_num(r.error_deg, nan=np.inf)
             out[name, mode] = {"error_deg": r.mean_error, "share_5deg": float(np.mean(e <= 5.0)),
-                               "lost": float(np.mean(r.status == "lost")), "frames": len(th)}
+                               "lost": float(np.mean(r.status == "lost")), "frames": len(th),
+                               "net_share": float(np.mean(r.extra["net"] != "")),
+                               "fps": float(1000.0 * len(th) / np.sum(r.ms))}
     return out
 
 

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import io
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import lru_cache
+from multiprocessing import get_context
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -14,7 +18,7 @@ from handmodel.fileio import atomic_write_bytes, atomic_write_text
 from synergy.bundle import load_bundle
 
 from .experiments import (
-    FIRST_FRAME_MM, PAPER, REALISTIC_SCENES, SCENARIO_NAMES, default_camera,
+    FIRST_FRAME_MM, PAPER, REALISTIC_SCENES, REALISTIC_SENSORS, SCENARIO_NAMES, default_camera,
     experiment_density, experiment_icp, experiment_modes, experiment_occlusion, experiment_realistic,
     experiment_reduced_pcs, experiment_scenarios, experiment_single_frame, segments,
 )
@@ -80,11 +84,6 @@ def realistic_frames(quick: bool) -> int:
     return 5 if quick else 30
 
 
-def run_realistic(hand, bundle, *, quick=False, progress=None):
-    """The realistic-scenes experiment at the report's sizes."""
-    return experiment_realistic(hand, bundle, frames=realistic_frames(quick), progress=progress)
-
-
 def realistic_lines(rows, frames) -> list:
     """The "realistic scenes" section of the report (markdown lines)."""
     L = ["## Realistic scenes (clutter × sensor noise × hand size)", "",
@@ -124,57 +123,92 @@ def realistic_lines(rows, frames) -> list:
     return L
 
 
-def report(out_dir, *, quick=False, progress=None, parts=None):
-    """Run every experiment (or only ``parts``: ``{"paper", "realistic"}``) and write ``report.md``
-    with tables and PNG plots next to the paper's numbers."""
+def _context(quick):
+    """What every part of the report shares: the hand, the bundle, the camera, the fingerfist segments."""
+    return SimpleNamespace(hand=HandModel.load(), bundle=load_bundle("fingerfist"), cam=default_camera(),
+                           segs=segments(2 if quick else 4, 30 if quick else 60), quick=quick,
+                           scen=("count", "grasp-back") if quick else SCENARIO_NAMES, kinect=NoiseModel.preset("kinect1"))
+
+
+NO_NET = {"safety_net": False}
+#: The report's parts, each a function of the shared context, the longest first (workers take them in order).
+STEPS = {
+    "realistic kinect1": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+                                                        sensors={"kinect1": REALISTIC_SENSORS["kinect1"]}),
+    "realistic realsense": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+                                                          sensors={"realsense": REALISTIC_SENSORS["realsense"]}),
+    "scenarios, Kinect v1 noise": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen, noise=c.kinect),
+    "scenarios": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen),
+    "single": lambda c: experiment_single_frame(c.hand, c.bundle, c.cam, n=4 if c.quick else 24),
+    "scenarios, no net": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen, modes=("full",), settings=NO_NET),
+    "scenarios, Kinect v1 noise, no net": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen, modes=("full",),
+                                                                         noise=c.kinect, settings=NO_NET),
+    "reduced PCs": lambda c: experiment_reduced_pcs(c.hand, c.bundle, c.cam, c.segs,
+                                                    (6, 10, 14) if c.quick else (4, 6, 8, 10, 12, 14, 16)),
+    "icp": lambda c: experiment_icp(c.hand, c.bundle, c.cam, c.segs, (0, 1, 2, 4) if c.quick else (0, 1, 2, 3, 4, 6, 8)),
+    "density": lambda c: experiment_density(c.hand, c.bundle, c.cam, c.segs, (2, 3, 4) if c.quick else (1, 2, 3, 4, 6)),
+    "modes": lambda c: experiment_modes(c.hand, c.bundle, c.cam, c.segs),
+    "noise": lambda c: experiment_modes(c.hand, c.bundle, c.cam, c.segs, noise=c.kinect),
+    "mesh": lambda c: experiment_modes(c.hand, c.bundle, c.cam, c.segs[:1] if c.quick else c.segs[:2], model="mesh"),
+    "occlusion": lambda c: experiment_occlusion(c.hand, c.cam, frames=30 if c.quick else 60),
+}
+
+
+@lru_cache(maxsize=2)
+def _shared(quick):
+    return _context(quick)
+
+
+def run_step(name, quick):
+    """One part of the report (:data:`STEPS`); a worker process builds the shared context once."""
+    return STEPS[name](_shared(quick))
+
+
+def run_steps(names, quick, jobs=1, progress=None):
+    """Run the report's parts ``names``, in ``jobs`` worker processes when ``jobs`` > 1 (the parts are
+    independent: two cores halve the report's time). Returns ``{name: result}``."""
+    out = {}
+
+    def tick(name):
+        if progress:
+            progress(len(out), len(names), name)
+
+    if jobs <= 1:
+        for name in names:
+            out[name] = run_step(name, quick)
+            tick(name)
+        return out
+    # spawn, not fork: numba's and BLAS's threads do not survive a fork
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        futures = {pool.submit(run_step, name, quick): name for name in names}
+        for fut in as_completed(futures):
+            out[futures[fut]] = fut.result()
+            tick(futures[fut])
+    return out
+
+
+def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1):
+    """Run every experiment (or only ``parts``: ``{"paper", "realistic"}``), in ``jobs`` processes, and
+    write ``report.md`` with tables and PNG plots next to the paper's numbers."""
     parts = {"paper", "realistic"} if parts is None else set(parts)
     bad = parts - {"paper", "realistic"}
     if bad or not parts:
         raise TrackerError("experiments", f"unknown part(s) {', '.join(sorted(bad))} (paper, realistic)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    hand = HandModel.load()
-    bundle = load_bundle("fingerfist")
+    names = [n for n in STEPS if ("realistic" if n.startswith("realistic") else "paper") in parts]
+    res = run_steps(names, quick, jobs, progress)
+    realistic = ([r for n in names if n.startswith("realistic") for r in res[n]] if "realistic" in parts else None)
     if parts == {"realistic"}:
-        rows = run_realistic(hand, bundle, quick=quick, progress=progress)
-        L = ["# Experiments: realistic scenes", "", *realistic_lines(rows, realistic_frames(quick))]
+        L = ["# Experiments: realistic scenes", "", *realistic_lines(realistic, realistic_frames(quick))]
         atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
-        return {"realistic": rows}
-    cam = default_camera()
-    segs = segments(2 if quick else 4, 30 if quick else 60)
-    steps = ["icp", "density", "modes", "reduced PCs", "noise", "mesh", "occlusion", "single", "scenarios"]
-    steps += ["realistic"] if "realistic" in parts else []
-    done = 0
-
-    def tick(name):
-        nonlocal done
-        done += 1
-        if progress:
-            progress(done, len(steps), name)
-
-    icp = experiment_icp(hand, bundle, cam, segs, (0, 1, 2, 4) if quick else (0, 1, 2, 3, 4, 6, 8))
-    tick("icp")
-    dens = experiment_density(hand, bundle, cam, segs, (2, 3, 4) if quick else (1, 2, 3, 4, 6))
-    tick("density")
-    modes = experiment_modes(hand, bundle, cam, segs)
-    tick("modes")
-    pcs = experiment_reduced_pcs(hand, bundle, cam, segs, (6, 10, 14) if quick else (4, 6, 8, 10, 12, 14, 16))
-    tick("reduced PCs")
-    noisy = experiment_modes(hand, bundle, cam, segs, noise=NoiseModel.preset("kinect1"))
-    tick("noise")
-    mesh = experiment_modes(hand, bundle, cam, segs[:1] if quick else segs[:2], model="mesh")
-    tick("mesh")
-    occ = experiment_occlusion(hand, cam, frames=30 if quick else 60)
-    tick("occlusion")
-    single = experiment_single_frame(hand, bundle, cam, n=4 if quick else 24)
-    tick("single")
-    scen_names = ("count", "grasp-back") if quick else SCENARIO_NAMES
-    scen = {"none": experiment_scenarios(hand, bundle, cam, scen_names),
-            "kinect1": experiment_scenarios(hand, bundle, cam, scen_names, noise=NoiseModel.preset("kinect1"))}
-    tick("scenarios")
-    realistic = run_realistic(hand, bundle, quick=quick) if "realistic" in parts else None
-    if realistic is not None:
-        tick("realistic")
+        return {"realistic": realistic}
+    c = _shared(quick)
+    hand, bundle, cam, segs, scen_names = c.hand, c.bundle, c.cam, c.segs, c.scen
+    icp, dens, modes, pcs = res["icp"], res["density"], res["modes"], res["reduced PCs"]
+    noisy, mesh, occ, single = res["noise"], res["mesh"], res["occlusion"], res["single"]
+    scen = {("none", True): res["scenarios"], ("kinect1", True): res["scenarios, Kinect v1 noise"],
+            ("none", False): res["scenarios, no net"], ("kinect1", False): res["scenarios, Kinect v1 noise, no net"]}
     _fig(out / "fig8_icp_iterations.png", [k + 1 for k, _, _ in icp], [e for _, e, _ in icp], "ICP iterations (1 rigid + k)",
          "posture error (°)", [t for _, _, t in icp], "ms / frame", PAPER["fig8_error_5icp_deg"], "Fig. 8: stride 3")
     _fig(out / "fig9_density.png", [d for _, d, _, _ in dens], [e for _, _, e, _ in dens], "share of pixels used (1/stride²)",
@@ -230,19 +264,28 @@ def report(out_dir, *, quick=False, progress=None, parts=None):
     L += ["", "Worst frames (hierarchical, ours): " + ", ".join(
         f"row {single['rows'][i]} {single['hierarchical_frames'][i]:.1f}°" for i in worst), "",
           "## Hard cases: our synthetic scenarios (not the paper's)", "",
-          "Tracked from the first frame, fingerfist bundle. Mean posture error ° (share of frames ≤ 5°, share lost).", "",
-          "| scenario | frames | full | hierarchical | full, Kinect v1 noise | hierarchical, Kinect v1 noise |",
-          "|---|---|---|---|---|---|"]
+          "Tracked from the first frame, fingerfist bundle, our default tracker (safety net on) and the same without "
+          "the safety net (*no net*). Mean posture error ° (share of frames ≤ 5°, share lost); *net ran*: share of "
+          "frames the safety net searched on (full DoF); fps: frames over the tracker's whole time, the net's "
+          "searches included (full DoF, one core).", "",
+          "| scenario | frames | full | full, no net | hierarchical | full, Kinect v1 noise | full, Kinect v1, no net | "
+          "hierarchical, Kinect v1 | net ran (noise-free / Kinect v1) | fps (noise-free / Kinect v1) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def cell(c):
+        return f"{c['error_deg']:.1f} ({100 * c['share_5deg']:.0f} %, {100 * c['lost']:.0f} %)"
+
     for name in scen_names:
         cells = []
         for nz in ("none", "kinect1"):
-            for mode in ("full", "hierarchical"):
-                c = scen[nz][name, mode]
-                cells.append(f"{c['error_deg']:.1f} ({100 * c['share_5deg']:.0f} %, {100 * c['lost']:.0f} %)")
-        L.append(f"| {name} | {scen['none'][name, 'full']['frames']} | " + " | ".join(cells) + " |")
+            cells += [cell(scen[nz, True][name, "full"]), cell(scen[nz, False][name, "full"]),
+                      cell(scen[nz, True][name, "hierarchical"])]
+        on, onk = scen["none", True][name, "full"], scen["kinect1", True][name, "full"]
+        L.append(f"| {name} | {on['frames']} | " + " | ".join(cells) +
+                 f" | {100 * on['net_share']:.0f} % / {100 * onk['net_share']:.0f} % | {on['fps']:.0f} / {onk['fps']:.0f} |")
     L.append("")
     if realistic is not None:
         L += realistic_lines(realistic, realistic_frames(quick))
     atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
     return {"icp": icp, "density": dens, "modes": modes, "reduced_pcs": pcs, "noise": noisy, "mesh": mesh, "occlusion": occ, "single": single,
-            "scenarios": scen, "realistic": realistic}
+            "scenarios": {f"{nz}{'' if net else ', no net'}": v for (nz, net), v in scen.items()}, "realistic": realistic}
