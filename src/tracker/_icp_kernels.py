@@ -878,60 +878,48 @@ def feature_transform(mask, dist, iv, iu):
     parabolas). Returns False (outputs unset) when the mask is empty. Every tracked frame builds its
     silhouette's transform; scipy's takes ~4× as long."""
     H, W = mask.shape
-    big = H + W + 1
-    g = np.empty((H, W), np.int64)     # per column: rows to the nearest mask pixel (big: none)
-    gr = np.empty((H, W), np.int64)    # and its row
-    # row by row (the arrays' memory order), every column's last mask row carried along
-    last = np.full(W, -1, np.int64)
+    # per column: the nearest mask pixel's row (−1: none), row by row (the arrays' memory order)
+    gr = np.empty((H, W), np.int32)
+    last = np.full(W, -1, np.int32)
     any_mask = False
     for v in range(H):
         for u in range(W):
             if mask[v, u]:
                 last[u] = v
                 any_mask = True
-            if last[u] >= 0:
-                g[v, u] = v - last[u]
-                gr[v, u] = last[u]
-            else:
-                g[v, u] = big
-                gr[v, u] = -1
+            gr[v, u] = last[u]
+    if not any_mask:
+        return False
     last[:] = -1
     for v in range(H - 1, -1, -1):
         for u in range(W):
             if mask[v, u]:
                 last[u] = v
-            if last[u] >= 0 and last[u] - v < g[v, u]:
-                g[v, u] = last[u] - v
+            # the upper one wins ties (as scipy's)
+            if last[u] >= 0 and (gr[v, u] < 0 or last[u] - v < v - gr[v, u]):
                 gr[v, u] = last[u]
-    if not any_mask:
-        return False
-    # per row: the lower envelope of u ↦ (u − q)² + g[v, q]² over the columns q that have a mask pixel
-    inf = np.inf
+    # per row: the lower envelope of u ↦ (u − q)² + (v − gr[v, q])² over the columns q with a mask pixel
     cols = np.empty(W, np.int64)
+    fs = np.empty(W)
     zs = np.empty(W + 1)
     for v in range(H):
         k = -1
         for q in range(W):
-            if g[v, q] >= big:
+            r = gr[v, q]
+            if r < 0:
                 continue
-            fq = float(g[v, q] * g[v, q])
+            fq = float((v - r) * (v - r) + q * q)
             while k >= 0:
-                p = cols[k]
-                fp = float(g[v, p] * g[v, p])
-                s = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p))
+                s = (fq - fs[k]) / (2.0 * (q - cols[k]))
                 if s <= zs[k]:
                     k -= 1
                 else:
                     break
             k += 1
             cols[k] = q
-            if k == 0:
-                zs[0] = -inf
-            else:
-                p = cols[k - 1]
-                fp = float(g[v, p] * g[v, p])
-                zs[k] = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p))
-            zs[k + 1] = inf
+            fs[k] = fq
+            zs[k] = -np.inf if k == 0 else (fq - fs[k - 1]) / (2.0 * (q - cols[k - 1]))
+            zs[k + 1] = np.inf
         j = 0
         for u in range(W):
             while zs[j + 1] < u:
