@@ -25,7 +25,7 @@ import numpy as np
 
 from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
-from synergy.angles import IP_COUPLING_SD_DEG, LIMIT_SHARE_WARN, markers_to_angles
+from synergy.angles import ACCEL_SD_DEG_S2, IP_COUPLING_SD_DEG, LIMIT_SHARE_WARN, markers_to_angles
 from synergy.calibrate import Calibration, calibrate, scale_only
 from synergy.markers import load_markerset
 from synergy.simulate import motion, random_subject, simulate_markers
@@ -90,8 +90,15 @@ def main():
     ap.add_argument("--sets", nargs="+", default=["hand16", "hand19"])
     ap.add_argument("--seeds", type=seeds_arg, default=list(range(16)), help="e.g. 0-15 or 1,4,7")
     ap.add_argument("--dip-prior-sd", type=float, default=IP_COUPLING_SD_DEG)
+    ap.add_argument("--accel-sd", type=float, default=ACCEL_SD_DEG_S2,
+                    help="SD (deg/s²) of the IK's acceleration prior (0: frames solved on their own)")
     ap.add_argument("--no-scale-only", action="store_true", help="skip the scale-only conversion (faster)")
     ap.add_argument("--no-oracle", action="store_true", help="skip the oracle conversion (faster)")
+    ap.add_argument("--frames", type=int, default=None, help="calibration frames (default: calibrate's)")
+    ap.add_argument("--data-sd", type=float, default=None, help="calibrate's data_sd_mm (default: its own)")
+    ap.add_argument("--calib-smooth-hz", type=float, default=None,
+                    help="calibrate's low-pass cut-off (Hz; 0: raw markers, as before issue 13's second session)")
+    ap.add_argument("--with-trial", action="store_true", help="calibrate on the ROM and the trial together")
     args = ap.parse_args()
     hand = HandModel.load()
     names = list(hand.dof_names)
@@ -104,8 +111,18 @@ def main():
         for seed in args.seeds:
             t0 = time.process_time()
             rom, static, trial, th, bones, shift = subject_trials(markers, seed)
-            cal = calibrate(rom, ms, hand, static=static)
-            kw = dict(smooth_hz=SMOOTH_HZ, check_hand=None, ip_coupling_sd_deg=args.dip_prior_sd)
+            ckw = {} if args.frames is None else {"frames": args.frames}
+            if args.data_sd is not None:
+                ckw["data_sd_mm"] = args.data_sd
+            data = rom
+            if args.with_trial:
+                data = type(rom)(**{**rom.__dict__, "points": np.concatenate([rom.points, trial.points]),
+                                    "theta": np.concatenate([rom.theta, trial.theta])})
+            if args.calib_smooth_hz is not None:
+                ckw["smooth_hz"] = args.calib_smooth_hz
+            cal = calibrate(data, ms, hand, static=static, **ckw)
+            kw = dict(smooth_hz=SMOOTH_HZ, check_hand=None, ip_coupling_sd_deg=args.dip_prior_sd,
+                      accel_sd_deg_s2=args.accel_sd)
             df = markers_to_angles(trial, ms, calibration=cal, **kw)
             e_cal, per = errors(df, th, names)
             e_sc = e_or = float("nan")

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.signal import butter, filtfilt
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 from threadpoolctl import threadpool_limits
 
 from handmodel import HandModel
@@ -25,25 +26,7 @@ from .c3d import read_c3d
 from .calibrate import Calibration, calibrate, golden_section, sample_frames
 from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
-
-
-def lowpass_markers(points, rate, cutoff_hz, order=4):
-    """Zero-phase Butterworth low-pass of marker trajectories ``(F, M, 3)``, gap-aware: each
-    contiguous run of valid samples is filtered on its own; runs too short to filter stay raw."""
-
-    if not cutoff_hz or cutoff_hz >= rate / 2:
-        return points
-    b, a = butter(order, cutoff_hz / (rate / 2))
-    pad = 3 * max(len(a), len(b))
-    out = points.copy()
-    valid = ~np.isnan(points[..., 0])
-    for m in range(points.shape[1]):
-        v = np.r_[False, valid[:, m], False].astype(np.int8)
-        starts, ends = np.flatnonzero(np.diff(v) == 1), np.flatnonzero(np.diff(v) == -1)
-        for s, e in zip(starts, ends):
-            if e - s > pad:
-                out[s:e, m] = filtfilt(b, a, points[s:e, m], axis=0)
-    return out
+from .smoothing import lowpass_markers
 
 
 #: A joint on a limit in more than this share of frames is reported.
@@ -67,6 +50,10 @@ IP_COUPLING = 2.0 / 3.0
 #: a flat valley (hand16 in a fist: PIP +23°, DIP −37° moves its two finger markers by 1.2 and
 #: 0.6 mm on the true hand, within the noise).
 IP_COUPLING_SD_DEG = 10.0
+#: SD (degrees/s²) of the weak prior on each finger joint's angular acceleration that ties a
+#: trajectory's frames together (:func:`refine_trajectory`). A power grasp closes at ~900°/s², and
+#: fast tapping (30° at 5 Hz) reaches ~30000°/s² only where the markers fix the joint anyway.
+ACCEL_SD_DEG_S2 = 3000.0
 
 
 def _targets(data, ms, where):
@@ -251,9 +238,96 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     return th
 
 
+def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, rate, accel_sd_deg_s2=None,
+                      ip_sd_deg=IP_COUPLING_SD_DEG, ratio=IP_COUPLING, iterations=6):
+    """Marker IK of a whole trajectory at once, with a weak prior on each finger joint's angular
+    acceleration (SD ``accel_sd_deg_s2``) beside the DIP prior of :func:`refine_with_coupling`.
+
+    Where the markers fix a joint (a posture SD of ~1°), the prior changes only what lies above
+    ~9 Hz; where they leave a flat valley (hand16's PIP/DIP trade in a fist: SDs of ~10°), a frame's
+    noise moved the joint along the valley by several degrees from one frame to the next, and the
+    prior lets the neighbouring frames decide (a low-pass at ~3 Hz along such directions only).
+    Starts from ``theta`` (``(F, n)``, NaN rows for frames not solved; consecutive solved frames are
+    tied); Levenberg-Marquardt on the sparse banded system; limits are the model's. Returns ``theta``
+    refined.
+
+    >>> h = HandModel.load()
+    >>> th = np.zeros((5, 26)); th[:, 2] = 0.5; th[:, 9] = np.linspace(-0.5, -0.3, 5)
+    >>> n, l = np.arange(h.n_nodes), np.zeros((h.n_nodes, 3))
+    >>> out = refine_trajectory(h, n, l, h.points(th, n, l), th, None, noise_mm=0.5, rate=100.0,
+    ...                         accel_sd_deg_s2=3000.0)
+    >>> bool(np.abs(out - th).max() < 1e-6)
+    True
+    """
+    th = np.array(theta, float)
+    ok = np.isfinite(th).all(1)
+    if ok.sum() < 3 or not accel_sd_deg_s2 or not rate:
+        return th
+    at = np.flatnonzero(ok)
+    F, n = len(at), hand.n_dofs
+    post = np.flatnonzero(~hand.pose_mask)
+    # acceleration rows for each run of three consecutive solved frames, posture DoFs only (the
+    # pose is well observed by the palm markers, and its units differ)
+    k = np.flatnonzero((at[1:-1] == at[:-2] + 1) & (at[2:] == at[:-2] + 2))
+    a_sd = np.radians(accel_sd_deg_s2) / float(rate) ** 2  # radians per frame²
+    rows = np.arange(len(k) * len(post))
+    cols0 = (k[:, None] * n + post[None, :]).ravel()
+    D = sparse.csr_matrix((np.r_[np.ones_like(cols0), -2 * np.ones_like(cols0), np.ones_like(cols0)] / a_sd,
+                           (np.r_[rows, rows, rows], np.r_[cols0, cols0 + n, cols0 + 2 * n])),
+                          shape=(len(rows), F * n))
+    DtD = (D.T @ D).tocsr()
+    pairs = ip_coupling_pairs(hand) if ip_sd_deg else np.zeros((0, 2), np.int64)
+    P = np.zeros((len(pairs), n))
+    P[np.arange(len(pairs)), pairs[:, 1]] = 1.0
+    P[np.arange(len(pairs)), pairs[:, 0]] = -ratio
+    if len(pairs):
+        P /= np.radians(ip_sd_deg)
+    lim = np.asarray(hand.limits, float)
+    tg = 1000.0 * np.asarray(targets, float)[at]
+    present = np.isfinite(tg[..., 0])
+    y = np.nan_to_num(tg)
+    w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
+    ww = (w[None, :] * present) / float(noise_mm)
+
+    def cost_of(t):
+        r = ww[..., None] * (1000.0 * hand.points(t, nodes, local) - y)
+        rp = t @ P.T
+        dt = D @ t.ravel()
+        return float(np.sum(r ** 2) + np.sum(rp ** 2) + dt @ dt), r, rp
+
+    t = np.clip(th[at], lim[:, 0], lim[:, 1])
+    with threadpool_limits(limits=1, user_api="blas"):  # 26×26 blocks: threads only contend
+        c, r, rp = cost_of(t)
+        mu = 1e-3
+        for _ in range(iterations):
+            J = (1000.0 * ww[..., None, None] * hand.jacobian(t, nodes, local)).reshape(F, -1, n)
+            JT = np.ascontiguousarray(J.transpose(0, 2, 1))
+            Hb = JT @ J + P.T @ P
+            g = ((JT @ r.reshape(F, -1, 1))[..., 0] + rp @ P).ravel() + DtD @ t.ravel()
+            H = sparse.bsr_matrix((Hb, np.arange(F), np.arange(F + 1)), shape=(F * n, F * n)).tocsr() + DtD
+            while True:
+                Hd = H + sparse.diags(mu * (H.diagonal() + 1e-9))
+                step = spsolve(Hd.tocsc(), -g, permc_spec="NATURAL").reshape(F, n)
+                t_new = np.clip(t + step, lim[:, 0], lim[:, 1])
+                c_new, r_new, rp_new = cost_of(t_new)
+                if c_new < c:
+                    done = c - c_new < 1e-6 * c
+                    t, c, r, rp, mu = t_new, c_new, r_new, rp_new, max(mu / 3, 1e-7)
+                    break
+                mu *= 10
+                if mu > 1e4:
+                    done = True
+                    break
+            if done:
+                break
+    th[at] = t
+    return th
+
+
 def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibration="trial",
                       settings=None, poor_residual_mm: float | None = None, min_markers: int = 4, smooth_hz=None,
-                      check_hand="stop", static=None, ip_coupling_sd_deg=IP_COUPLING_SD_DEG):
+                      check_hand="stop", static=None, ip_coupling_sd_deg=IP_COUPLING_SD_DEG,
+                      accel_sd_deg_s2=ACCEL_SD_DEG_S2):
     """Joint angles of every frame of a trial.
 
     Parameters
@@ -275,6 +349,8 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     ip_coupling_sd_deg : SD (degrees) of the weak prior that each finger's DIP flexes ~2/3 as much as
         its PIP (see :data:`IP_COUPLING_SD_DEG`); decides only where the markers leave the DIP
         undetermined; None or 0 turns it off
+    accel_sd_deg_s2 : SD (degrees/s²) of the weak prior on the finger joints' angular acceleration
+        (:func:`refine_trajectory`, :data:`ACCEL_SD_DEG_S2`); None or 0 solves every frame on its own
 
     Returns
     -------
@@ -312,8 +388,10 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     if isinstance(calibration, str) and calibration == "trial":
         # automatic: the bone and marker fit is kept only where it clearly beats the hand scale on
         # held-out frames (a trial without a range of motion or a static posture leaves some of
-        # it to the priors, and then the simpler hand is the safer one)
-        cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN)
+        # it to the priors, and then the simpler hand is the safer one). It sees the markers as this
+        # conversion does (smoothed only if asked): a short trial low-passed holds few independent
+        # samples, and its calibration then fails the held-out check (a 0.5 s grasp at 6 Hz)
+        cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN, smooth_hz=smooth_hz)
     elif calibration is None:
         cal = Calibration(method="none")
     elif isinstance(calibration, Calibration):
@@ -344,7 +422,7 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     theta, rep = fit_points(hm, nodes, local, targets, weights=weights, warm_start=True, settings=settings,
                             subspace=Subspace.full(hm, lim), restarts=2, restart_rms_mm=max(3 * np.nanmedian(
                                 np.r_[cal.median_residual_mm, 1.0]), 2.0))
-    if ip_coupling_sd_deg:
+    if ip_coupling_sd_deg or accel_sd_deg_s2:
         solved0 = rep.iterations >= 0
         # per-coordinate noise of the markers as fitted (smoothed, if asked), from the trial's own
         # median residual (a frame's 3-D RMS) with the DoFs' share of it restored (3M coordinates,
@@ -353,9 +431,13 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         res = float(np.nanmedian(rep.rms_mm[solved0])) if solved0.any() else 1.0
         m3 = 3 * float(np.median(n_present[solved0])) if solved0.any() else 3.0 * len(nodes)
         noise = max(res * np.sqrt(m3 / max(m3 - hm.n_dofs, 1.0) / 3.0), 0.01)
-        th_in = np.where(solved0[:, None], theta, np.nan)
-        th_out = refine_with_coupling(hm, nodes, local, targets, th_in, weights, noise_mm=noise,
-                                      sd_deg=ip_coupling_sd_deg)
+        th_out = np.where(solved0[:, None], theta, np.nan)
+        if ip_coupling_sd_deg:
+            th_out = refine_with_coupling(hm, nodes, local, targets, th_out, weights, noise_mm=noise,
+                                          sd_deg=ip_coupling_sd_deg)
+        if accel_sd_deg_s2:
+            th_out = refine_trajectory(hm, nodes, local, targets, th_out, weights, noise_mm=noise, rate=rate,
+                                       accel_sd_deg_s2=accel_sd_deg_s2, ip_sd_deg=ip_coupling_sd_deg)
         theta = np.where(solved0[:, None], th_out, theta)
         if solved0.any():
             # the report as the solver would give it for the refined postures (weighted RMS, limits)
@@ -387,6 +469,7 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         "markerset": ms.name, "hand": hand, "hand_model": base.name, "calibration": cal.to_dict(),
         "extra_markers": extra, "frames": F, "smooth_hz": smooth_hz,
         "dip_prior": {"ratio": IP_COUPLING, "sd_deg": ip_coupling_sd_deg} if ip_coupling_sd_deg else None,
+        "accel_prior_sd_deg_s2": float(accel_sd_deg_s2) if accel_sd_deg_s2 else None,
         "gap_fraction": float(np.isnan(targets[..., 0]).mean()), "diagnostics": diag,
     })
     return df

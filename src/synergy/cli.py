@@ -62,6 +62,7 @@ def fit(
     accept_poor: bool = typer.Option(False, "--accept-poor", help="C3D input: fit trials whose conversion is judged poor."),
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="C3D input: skip the handedness check."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
+    dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="C3D input: SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off; recorded in the manifest)."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
     dask: Optional[str] = typer.Option(None, "--dask", help="Convert files and compute statistics as Dask tasks: local, local:N or a scheduler address."),
     version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),
@@ -84,6 +85,8 @@ def fit(
     from synergy.tasks import load_task_map
 
     _check_variance(variance)
+    if dip_prior_sd is not None and not dip_prior_sd >= 0:
+        raise SynergyError("--dip-prior-sd", f"must be 0 (off) or a positive SD in degrees, got {dip_prior_sd}")
     inputs = [*(angles or []), *(files or [])]
     if not inputs:
         raise SynergyError("fit", "no input files (give --angles FILE... or files)")
@@ -93,6 +96,8 @@ def fit(
     labels = task_labels(inputs, task, task_map)
     read_kw = dict(markers=markers, hand=hand, smooth_hz=smooth_hz, check_hand=not no_hand_check,
                    calibration=load_calibration(subject) if subject is not None else "trial")
+    if dip_prior_sd is not None:  # otherwise read_trial's default, the same as synergy angles'
+        read_kw["dip_prior_sd"] = dip_prior_sd
     if markersets:  # user folders named here join the shipped sets and $SYNERGY_MARKERSETS
         from synergy.markers import available_markersets, load_markerset, user_markerset_dirs
 

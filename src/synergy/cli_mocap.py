@@ -128,6 +128,7 @@ def calibrate(
     frames: int = typer.Option(150, "--frames", help="Calibration frames sampled from the trial."),
     held_out: float = typer.Option(0.25, "--held-out", help="Share of frames held out to check the calibration."),
     force: bool = typer.Option(False, "--force", help="Write the calibration even if the held-out check fails."),
+    smooth_hz: float = typer.Option(6.0, "--smooth-hz", help="Low-pass the markers (Hz) before calibrating (0: raw markers)."),
 ):
     """Estimate the subject's bone lengths, finger bases and marker places (synergy angles/fit --subject)."""
     from handmodel.fileio import check_output
@@ -149,7 +150,8 @@ def calibrate(
     data = read_c3d(trial)
     st = read_c3d(static) if static is not None else None
     with _console(stderr=True).status("calibrating"):
-        cal = run(data, msh, base, right=hand == "right", frames=frames, held_out=held_out, static=st)
+        cal = run(data, msh, base, right=hand == "right", frames=frames, held_out=held_out, static=st,
+                  smooth_hz=smooth_hz or None)
     con = _console()
     con.print(f"[bold]{escape(trial.name)}[/bold]: {cal.method}")
     rows = [("hand scale", f"{cal.scale:.3f}", "")]

@@ -24,7 +24,7 @@ import numpy as np
 
 from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.fileio import sha256_file
-from synergy.angles import POOR_TRIAL_SHARE, check_handedness, markers_to_angles
+from synergy.angles import IP_COUPLING_SD_DEG, POOR_TRIAL_SHARE, check_handedness, markers_to_angles
 from synergy.bundle import Bundle, read_bundle, save_bundle
 from synergy.c3d import read_c3d, task_from_events
 from synergy.calibrate import Calibration
@@ -67,13 +67,14 @@ class Trial:
             out["conversion"] = {"markerset": c["markerset"], "hand": c["hand"],
                                  "residual_median_mm": c["residual_median_mm"],
                                  "residual_p95_mm": c["residual_p95_mm"], "ok_share": c["ok_share"],
-                                 "verdict": c["verdict"]}
+                                 "verdict": c["verdict"], "dip_prior": c.get("dip_prior")}
         return out
 
 
 def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
                markers: str | MarkerSet | None = None, hand: str | None = None, smooth_hz=None,
-               calibration="trial", check_hand: bool = True, markersets: Sequence[MarkerSet] | None = None) -> Trial:
+               calibration="trial", check_hand: bool = True, markersets: Sequence[MarkerSet] | None = None,
+               dip_prior_sd: float | None = IP_COUPLING_SD_DEG) -> Trial:
     """Read the posture frames of one file.
 
     Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
@@ -87,8 +88,10 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
     labels cannot tell is the one the handedness check prefers);
     ``calibration`` is passed to :func:`~synergy.angles.markers_to_angles` (a subject
     :class:`~synergy.calibrate.Calibration` also names the set and hand to use);
-    ``check_hand`` False skips the handedness check. A trial with a wrong hand is converted and
-    judged poor, not refused: :func:`quality_problems` decides. ``Trial.conversion`` records it all.
+    ``check_hand`` False skips the handedness check; ``dip_prior_sd`` is the SD (degrees) of the IK's
+    weak DIP = 2/3 PIP prior (:data:`~synergy.angles.IP_COUPLING_SD_DEG`; 0 or None: off). A trial
+    with a wrong hand is converted and judged poor, not refused: :func:`quality_problems` decides.
+    ``Trial.conversion`` records it all, the DIP prior included.
     """
     p = Path(path)
     if fmt == "auto":
@@ -107,7 +110,7 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
         X = read_schroeder26(p)
     else:
         X, stored_task, conversion = _read_c3d_postures(p, markers, hand, smooth_hz, calibration, check_hand,
-                                                        markersets)
+                                                        markersets, dip_prior_sd)
         task = task or stored_task
     return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p), conversion)
 
@@ -149,13 +152,13 @@ def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
     return ms, hand, rep
 
 
-def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_hand, markersets):
+def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_hand, markersets, dip_prior_sd):
     """C3D → marker IK → the frames of good quality; the task label stored in the file, if any; and
     the record of the conversion (:attr:`Trial.conversion`)."""
     data = read_c3d(p)
     ms, hand, rep = _choose(data, p, markers, hand, calibration, check_hand, markersets)
     table = markers_to_angles(data, ms, hand=hand, smooth_hz=smooth_hz, calibration=calibration,
-                              check_hand="warn" if check_hand else None)
+                              check_hand="warn" if check_hand else None, ip_coupling_sd_deg=dip_prior_sd or None)
     d = table.attrs["diagnostics"]
     r = table["residual_mm"].to_numpy()
     with np.errstate(all="ignore"):
@@ -165,7 +168,7 @@ def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_han
         "matched": rep["matched"], "total": rep["total"], "others": rep.get("others", []),
         "residual_median_mm": med, "residual_p95_mm": p95, "ok_share": float((table["quality"] == "ok").mean()),
         "verdict": d["verdict"], "warnings": list(d["warnings"]), "reasons": poor_reasons(d),
-        "calibration": table.attrs["calibration"].get("method", ""),
+        "calibration": table.attrs["calibration"].get("method", ""), "dip_prior": table.attrs["dip_prior"],
     }
     table = table[table["quality"] == "ok"]
     if table.empty:

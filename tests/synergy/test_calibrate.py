@@ -16,10 +16,11 @@ from synergy.simulate import motion, random_subject, simulate_markers
 
 HAND = HandModel.load()
 NOISE_MM = 0.5
-# The issue's floor: 2° RMS after calibration. hand16 leaves each proximal phalanx unmarked, so in a
-# fist a finger's PIP and DIP can trade (+23°/−37° moves its markers ~1 mm): the IK's weak DIP-PIP
-# prior decides there (seed 3: 3.94° without it, 1.89° with it). Over seeds 0-7 hand16 still misses
-# the floor on some subjects (README "Calibration"); hand19 meets it on every seed.
+# The issue's floor: 2° RMS after calibration, on every simulated subject. hand16 leaves each
+# proximal phalanx unmarked, so in a fist a finger's PIP and DIP can trade (+23°/−37° moves its
+# markers ~1 mm): the IK's weak DIP-PIP prior and its acceleration prior decide there; calibrating
+# on low-passed markers keeps the noise from lengthening middle phalanges. Seeds 0-15 of both sets
+# (benchmarks/bench_calibrate.py): hand16 ≤ 1.96°, hand19 ≤ 1.7° (README "Calibration").
 ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 2.0}
 
 
@@ -36,6 +37,17 @@ def subject_trials(markers, seed):
     th, _ = motion("power_grasp", duration_s=3.0, seed=seed + 3)
     trial = simulate_markers(th, markers, seed=seed + 4, **kw)
     return rom, static, trial, th
+
+
+def false_limits(df, theta):
+    """Joints on a limit in more than 5 % of frames whose true trajectory never comes within 2° of it."""
+    lim = anatomical_limits(HAND)
+    out = []
+    for dof, share in df.attrs["diagnostics"]["limit_share"].items():
+        j = HAND.dof_names.index(dof)
+        if share > 0.05 and np.abs(theta[:, j, None] - lim[j][None, :]).min() >= np.radians(2):
+            out.append(dof)
+    return out
 
 
 def rms_deg(df, theta):
@@ -92,13 +104,23 @@ def test_residual_at_noise_floor_and_no_false_limits(calibrated):
     assert df.residual_mm.median() <= 1.5 * floor
     d = df.attrs["diagnostics"]
     assert d["noise_floor_mm"] <= 1.5 * floor and (df.quality == "ok").mean() > 0.97
-    lim = anatomical_limits(HAND)
-    for dof, share in d["limit_share"].items():
-        j = HAND.dof_names.index(dof)
-        reaches = np.any(np.abs(th[:, j] - lim[j, 0]) < np.radians(2)) or np.any(np.abs(th[:, j] - lim[j, 1]) < np.radians(2))
-        assert share <= 0.05 or reaches, (dof, share)
+    assert not false_limits(df, th), d["limit_share"]
     # per-marker residuals travel with the table
     assert set(d["marker_residuals_mm"]) == set(trial.labels)
+
+
+@pytest.mark.parametrize("markers,seed", [("hand16", 4), ("hand16", 9), ("hand16", 10), ("hand16", 14),
+                                          ("hand19", 4)])
+def test_floor_on_more_subjects(markers, seed):
+    """Subjects that missed the floor before the calibration low-passed its markers and the IK tied
+    frames together (hand16 2.4-3.8°, hand19 2.2°)."""
+    rom, static, trial, th = subject_trials(markers, seed)
+    cal = calibrate(rom, load_markerset(markers), HAND, static=static)
+    df = markers_to_angles(trial, markers, calibration=cal, smooth_hz=6.0, check_hand=None)
+    err = rms_deg(df, th)
+    print(f"\n{markers} seed {seed}: {err:.2f}° RMS")
+    assert err <= ANGLE_BOUND_DEG[markers] and not false_limits(df, th)
+    assert df.attrs["accel_prior_sd_deg_s2"] == 3000.0 and "low-passed at 6 Hz" in cal.method
 
 
 def test_overfitting_is_caught_by_held_out_frames():
@@ -121,6 +143,9 @@ def test_wrong_hand_stops_or_warns():
     df = markers_to_angles(tr, "hand19", hand="right", check_hand="warn", calibration=None)
     d = df.attrs["diagnostics"]
     assert d["handedness"]["verdict"] == "wrong hand" and d["verdict"] == "poor"
+    # the limit check of the floors above sees what a wrong hand does: joints held on limits the
+    # true motion never reaches
+    assert false_limits(df, th)
     ok = markers_to_angles(tr, "hand19", hand="left", calibration=None)
     assert ok.attrs["diagnostics"]["handedness"]["verdict"] == "ok"
 

@@ -178,3 +178,22 @@ def test_file_no_set_fits_is_one_line_exit_2(tmp_path):
     r = runner.invoke(app, ["fit", str(f), "--markers", "hand16", "--name", "odd", "-o", str(tmp_path / "reg")])
     assert r.exit_code == 2 and len(_lines(r.output)) == 1
     assert "marker set 'hand16': missing marker(s) MC3, MC5, TMC" in r.output and "the file has A1, A2, WRR" in r.output
+
+
+def test_fit_dip_prior_sd_reaches_the_ik_and_the_manifest(sims, tmp_path):
+    from synergy.bundle import read_bundle
+
+    # the option is passed to the IK: with the prior off, the DIPs of this grasp come out differently
+    on = read_trial(sims["hand16"], calibration=None, check_hand=False)
+    off = read_trial(sims["hand16"], calibration=None, check_hand=False, dip_prior_sd=0)
+    assert on.conversion["dip_prior"] == {"ratio": pytest.approx(2 / 3), "sd_deg": 10.0}
+    assert off.conversion["dip_prior"] is None and np.abs(on.postures - off.postures).max() > 1e-4
+    for args, sd in ((["--dip-prior-sd", "5"], 5.0), ([], 10.0), (["--dip-prior-sd", "0"], None)):
+        name = f"dip{int(sd or 0)}"
+        r = runner.invoke(app, ["fit", str(sims["hand16"]), "--name", name, "-o", str(tmp_path), "--no-hand-check",
+                                *args])
+        assert r.exit_code == 0, r.output
+        rec = read_bundle(tmp_path / f"{name}-1.0.0.npz").manifest["sources"][0]["conversion"]["dip_prior"]
+        assert rec == (None if sd is None else {"ratio": pytest.approx(2 / 3), "sd_deg": sd})
+    r = runner.invoke(app, ["fit", str(sims["hand16"]), "--name", "bad", "-o", str(tmp_path), "--dip-prior-sd", "-2"])
+    assert r.exit_code == 2 and len(_lines(r.output)) == 1 and "--dip-prior-sd" in r.output
