@@ -216,43 +216,8 @@ def _median(x):
     return float(np.nanmedian(x)) if np.isfinite(x).any() else float("nan")
 
 
-def _debiased(model0, ms, right, scale, lay, s, theta, tg_mm, weights, lim, *, replicates, seed=0, **gn):
-    """The subject vector ``s`` with its noise-induced bias removed (parametric bootstrap).
-
-    Fitting every frame's posture together with the subject is a Neyman-Scott problem: each frame's
-    posture absorbs part of that frame's noise, and what it cannot absorb pulls the shared numbers
-    off their true values by an amount that more frames do not shrink (hand16, seed 4: the index's
-    middle phalanx 2.7 mm long with 150 frames and with 400; 0.3 mm without noise). The bias is
-    measured on copies of the fit: markers placed exactly where the fitted hand puts them, once
-    without noise and ``replicates`` times with noise of the fit's own level, each refitted from
-    ``s``; the mean difference of the noisy refits from the noise-free one is the bias (the priors'
-    pull, the same in both, cancels).
-    """
-    model, nodes, local, _, _ = _apply(model0, ms, right, scale, lay, s)
-    present = np.isfinite(tg_mm[..., 0])
-    p = 1000.0 * model.points(theta, nodes, local)
-    r = np.where(present[..., None], p - np.nan_to_num(tg_mm), 0.0)
-    n_obs = 3 * int(present.sum())
-    n_par = theta.size + lay.size
-    if n_obs <= n_par:
-        return s
-    sigma = float(np.sqrt(np.sum(r ** 2) / (n_obs - n_par)))
-    clean = np.where(present[..., None], p, np.nan)
-    s_clean = _gauss_newton(model0, ms, right, scale, lay, theta, clean, weights, lim, s0=s, **gn)[0]
-    rng = np.random.default_rng(seed)
-    bias = np.zeros_like(s)
-    for _ in range(replicates):
-        noisy = clean + rng.normal(0.0, sigma, clean.shape)
-        bias += (_gauss_newton(model0, ms, right, scale, lay, theta, noisy, weights, lim, s0=s, **gn)[0]
-                 - s_clean) / replicates
-    out = s - bias
-    nb, nl = 3 * len(lay.bases), len(lay.lengths)
-    out[nb:nb + nl] = np.clip(out[nb:nb + nl], -0.5, 1.0)
-    return out
-
-
 def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_sd, offset_scale, data_sd_mm,
-                    iterations, cal, tg_static=None, static_posture=None, static_sd_deg=3.0, rounds=3, debias=0):
+                    iterations, cal, tg_static=None, static_posture=None, static_sd_deg=3.0, rounds=3):
     """Route 2 of the module docstring, on top of the hand scale in ``cal``; fills ``cal``.
     Frames of a static trial (``tg_static``) are fitted with their posture pulled to
     ``static_posture`` (default: the model's zero, a flat hand): a marker on the last bone of a
@@ -301,11 +266,6 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
         s, th_fit, H, _cost = _gauss_newton(model0, ms, right, scale, lay, th_fit, tg_fit, weights, lim,
                                             data_sd_mm=data_sd_mm, iterations=iterations,
                                             huber_mm=max(3.0 * data_sd_mm, 2.0), theta_ref=th_ref, theta_w=th_w, s0=s)
-    if debias:
-        s = _debiased(model0, ms, right, scale, lay, s, th_fit, tg_fit, weights, lim, replicates=debias,
-                      data_sd_mm=data_sd_mm, iterations=iterations, huber_mm=max(3.0 * data_sd_mm, 2.0),
-                      theta_ref=th_ref, theta_w=th_w)
-        cal.method += " + noise bias removed"
     model, nodes, local, factors, pos = _apply(model0, ms, right, scale, lay, s)
     th_tr, rep_tr = _ik(model, nodes, local, tg_train, weights, lim)
     train = _median(rep_tr.rms_mm)
