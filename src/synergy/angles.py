@@ -51,8 +51,8 @@ IP_COUPLING = 2.0 / 3.0
 #: 0.6 mm on the true hand, within the noise).
 IP_COUPLING_SD_DEG = 10.0
 #: SD (degrees/s²) of the weak prior on each finger joint's angular acceleration that ties a
-#: trajectory's frames together (:func:`refine_trajectory`). A power grasp closes at ~900°/s², and
-#: fast tapping (30° at 5 Hz) reaches ~30000°/s² only where the markers fix the joint anyway.
+#: trajectory's frames together when the markers are low-passed (:func:`refine_trajectory`). A power
+#: grasp closes at ~900°/s²; a joint the markers fix keeps a 30° swing at 4 Hz (~19000°/s²) within ~2°.
 ACCEL_SD_DEG_S2 = 3000.0
 
 
@@ -350,7 +350,8 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         its PIP (see :data:`IP_COUPLING_SD_DEG`); decides only where the markers leave the DIP
         undetermined; None or 0 turns it off
     accel_sd_deg_s2 : SD (degrees/s²) of the weak prior on the finger joints' angular acceleration
-        (:func:`refine_trajectory`, :data:`ACCEL_SD_DEG_S2`); None or 0 solves every frame on its own
+        (:func:`refine_trajectory`, :data:`ACCEL_SD_DEG_S2`), applied with ``smooth_hz`` (a smooth
+        trajectory asked for); None or 0, or no ``smooth_hz``, solves every frame on its own
 
     Returns
     -------
@@ -422,6 +423,10 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     theta, rep = fit_points(hm, nodes, local, targets, weights=weights, warm_start=True, settings=settings,
                             subspace=Subspace.full(hm, lim), restarts=2, restart_rms_mm=max(3 * np.nanmedian(
                                 np.r_[cal.median_residual_mm, 1.0]), 2.0))
+    # tying frames together trades residual for steadiness: on raw real recordings it costs residual
+    # the frames' own fits do not (DFKI glove median 0.61 → 0.77 mm, 95th 1.53 → 2.39 mm; ART
+    # 1.60 → 1.70 mm), so it comes with the low-pass, when a smooth trajectory is what was asked for
+    accel_sd_deg_s2 = accel_sd_deg_s2 if smooth_hz else None
     if ip_coupling_sd_deg or accel_sd_deg_s2:
         solved0 = rep.iterations >= 0
         # per-coordinate noise of the markers as fitted (smoothed, if asked), from the trial's own

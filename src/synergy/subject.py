@@ -265,7 +265,7 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
                 break
         s, th_fit, H, _cost = _gauss_newton(model0, ms, right, scale, lay, th_fit, tg_fit, weights, lim,
                                             data_sd_mm=data_sd_mm, iterations=iterations,
-                                            huber_mm=max(3.0 * data_sd_mm, 2.0), theta_ref=th_ref, theta_w=th_w, s0=s)
+                                            huber_mm=max(3.0 * data_sd_mm, 2.0), theta_ref=th_ref, theta_w=th_w, s0=None)
     model, nodes, local, factors, pos = _apply(model0, ms, right, scale, lay, s)
     th_tr, rep_tr = _ik(model, nodes, local, tg_train, weights, lim)
     train = _median(rep_tr.rms_mm)

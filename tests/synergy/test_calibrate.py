@@ -187,6 +187,7 @@ def test_subject_file_round_trip_and_commands(hand19_files, tmp_path):
     assert df.attrs["diagnostics"]["marker_residuals_mm"]["INAIL"][0] < 1.5
     assert rms_deg(df, th) < 5.0  # unsmoothed (noise-limited per frame); smoothed bounds are tested above
     assert df.attrs["dip_prior"] == {"ratio": pytest.approx(2 / 3), "sd_deg": 10.0}
+    assert df.attrs["accel_prior_sd_deg_s2"] is None  # frames tied together only when the markers are low-passed
     r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--dip-prior-sd", "-1",
                             "-o", str(tmp_path / "o3")])
     assert r.exit_code == 2 and "--dip-prior-sd" in r.output and len(r.output.strip().splitlines()) == 1
