@@ -23,12 +23,19 @@ from .correspond import Matcher, model_to_data_mm
 from .init import MODEL_TO_DATA_WEIGHT, InitSettings, _palm_side, fit_single_frame, score, thin
 
 
+_MODEL_SPREAD = {}  # (hand sha256, posture) → the palm-side surface's variances along its principal axes
+
+
 def extent_scale(hand, points, posture) -> float:
     """A first guess of the hand's global scale: the spread of the cloud over that of the model's
     palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
     this only brackets the scale; :func:`fit_scale` finds it."""
-    ms = _palm_side(hand, posture)[3]
-    ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+    key = (hand.sha256, np.asarray(posture, float).tobytes())
+    if key not in _MODEL_SPREAD:
+        # sampling the model's surface costs ~0.1 s, a tenth of the calibration's budget: once per hand
+        ms = _palm_side(hand, posture)[3]
+        _MODEL_SPREAD[key] = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+    ev_m = _MODEL_SPREAD[key]
     ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
     return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
 
@@ -193,16 +200,17 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, final="parabola", probes=7, hw=0.06):
+                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06):
     """The user's hand size from one frame, with one single-frame search. The cloud's extent against
     the open model's gives a first guess ``g`` (right for an open hand, too small for a curled one,
     which the cloud cannot tell apart); the search runs at ``guess`` × ``g`` and :func:`fit_scale`
     finds the size within ``width`` × either way from its fit. When the size moved by more than
     ``research`` (log), the cheap search (:meth:`tracker.init.InitSettings.cheap`) runs again at the
     new size from that fit (a much wrong size favours a wrong posture) and the size is searched again
-    within 10 %; a last narrow search from a fit at (nearly) the final size settles it (the probes of
-    a wide one start from a pose fitted at another size and lean towards it). Sizes are compared
-    without the wrist cue (:func:`without_wrist`). ``context_for(s)``: the
+    within 10 %; a last :func:`parabola_scale` (±6 %, longer fits on ``refine_points`` of the cloud)
+    from a fit at (nearly) the final size settles it (the probes of a wide search start from a pose
+    fitted at another size and lean towards it). Sizes are compared by :func:`size_score`.
+    ``context_for(s)``: the
     :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`resized_context`).
     Returns ``(scale, θ, corr)``; :func:`calibrate_scale_searched` is the earlier, ~10× slower
     calibration (several full searches)."""
@@ -222,14 +230,10 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
         th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
                                   theta0=th1, extra=(th1,))
         s1, th1, _, _ = fit_scale(context_for, th2, ctx.hand, points[sub], max(lo, s1 / 1.1), min(hi, s1 * 1.1), **kw)
-    if final == "parabola":
-        fine = thin(points, st.refine_points)
-        s1, th1, _, _ = parabola_scale(context_for, th1, context_for(s1).hand, points[fine], s1, silhouette=silhouette,
-                                       normals=None if normals is None else normals[fine], probes=probes, half_width=hw)
-        s1 = float(np.clip(s1, lo, hi))
-    else:
-        s1, th1, _, _ = fit_scale(context_for, th1, context_for(s1).hand, points[sub], max(lo, s1 / 1.04),
-                                  min(hi, s1 * 1.04), n_icp=10, **kw)
+    fine = thin(points, st.refine_points)
+    s1, th1, _, _ = parabola_scale(context_for, th1, context_for(s1).hand, points[fine], s1, silhouette=silhouette,
+                                   normals=None if normals is None else normals[fine])
+    s1 = float(np.clip(s1, lo, hi))
     ctx = context_for(s1)
     th, corr = ctx.fit(th1, points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=normals)
     return s1, th, corr

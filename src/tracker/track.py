@@ -82,7 +82,7 @@ class TrackerSettings:
     lost_rejected: float = 0.6
     min_points: int = 30
     max_points: int | None = None
-    hand_scale: float | str = 1.0
+    hand_scale: float | str = "auto"
     scale_frames: int = 5
     scale_trust_mm: float = 6.0
     scale_range: tuple = (0.6, 2.0)
@@ -105,12 +105,14 @@ class TrackerSettings:
         """The paper's method: fixed stride 3 without smoothing, plain least squares on data→model
         pairs (rejected at 50 mm, no normal test, no silhouette term), 1 rigid + 4 non-rigid ICP
         iterations × 5 Gauss-Newton steps, λ = 1 on posture and 0 on pose, single-frame fits from the
-        synergy mean without our coarse or finger-wise searches; ``changes`` as in :meth:`replace`."""
+        synergy mean without our coarse or finger-wise searches, the model's own size (``hand_scale``
+        1.0; the default is ``"auto"``); ``changes`` as in :meth:`replace`."""
         base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0),
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0),
-                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False)
+                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
+                   hand_scale=1.0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":

@@ -43,7 +43,7 @@ def track(
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
-    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [1]."),
+    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [auto; 1 with --paper]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
     forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
@@ -172,6 +172,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
                   f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
+    if tracker.scale_ is not None:
+        # the size a later run takes back with --hand-scale (it is in the output header too)
+        console.print(f"hand size: {run.meta['hand_scale']}; reuse it with --hand-scale {tracker.scale_:.4f}")
     if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
@@ -377,7 +380,7 @@ def live(
     paper: bool = typer.Option(False, "--paper", help="The paper's method (as tracker track --paper)."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
-    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [1]."),
+    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
     forearm: str = typer.Option("cut", "--forearm", help="cut or keep (as tracker track) [cut]."),

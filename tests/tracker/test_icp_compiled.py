@@ -49,7 +49,7 @@ def frames(bundle):
 
 
 def _tracker(bundle, ours, **kw):
-    base = TrackerSettings() if ours else TrackerSettings.paper()
+    base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper()
     return HandTracker(HAND, base.replace(**kw), synergies=bundle)
 
 

@@ -86,7 +86,7 @@ def test_upside_down_and_flipped_fits_lose(bundle, facing, posture):
     swapped, a mirror image in silhouette) — each refined by the same fit: the true one scores best,
     by a margin."""
     th, ob, sil = scene(BASE, facing, POSTURES[posture])
-    tr = HandTracker(BASE, TrackerSettings(), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings(hand_scale=1.0), synergies=bundle)
     ctx = tr.context
     scores = {}
     for name, start in (("true", th), ("upside down", turned(BASE, th, (0, 0, 1))),
@@ -137,7 +137,7 @@ def test_the_wrong_hand_is_reported(bundle):
     _, ob, _ = scene(BASE, "palm", bundle.model.mean_)
     checks = {}
     for side, hand in (("left", BASE), ("right", BASE.mirrored())):
-        tr = HandTracker(hand, TrackerSettings().replace(check_hand=True), synergies=bundle)
+        tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(check_hand=True), synergies=bundle)
         tr.track(ob, CAM)
         checks[side] = tr.hand_check_
         print(f"\ntracked as {side}: {tr.hand_check_}")

@@ -146,7 +146,7 @@ def test_track_recording_then_write_and_read_back(bundle, tmp_path):
     ren = DepthRenderer(HAND, cam)
     depths = [ren.render(t, labels=False).depth for t in truth]
     depths[3] = np.zeros((10, 10))  # not this camera's size: tracked as empty, so lost
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0), synergies=bundle)
     seen = []
     df = track_recording(_MemoryRecording(cam, depths), tr, lambda f, r, ob: seen.append((f.index, ob is None)))
     assert list(df.columns) == [*FRAME_COLUMNS, *DOF_NAMES] and len(df) == 6

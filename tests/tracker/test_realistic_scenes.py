@@ -371,7 +371,7 @@ def test_gating_by_the_predicted_hand_keeps_leaked_clutter_out_of_the_fit(hand):
     assert min(leaked) > 0.25
     bundle = load_bundle("fingerfist")
     for gate_mm in (30.0, 0.0):
-        tr = HandTracker(hand, TrackerSettings().replace(gate_mm=gate_mm), synergies=bundle)
+        tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(gate_mm=gate_mm), synergies=bundle)
         res = [tr.track(ob, cam) for ob in obs]
         lost = sum(r.status == "lost" for r in res)
         assert (lost == 0) if gate_mm else (lost >= len(truth) // 2), [r.status for r in res]  # measured: 5 of 6

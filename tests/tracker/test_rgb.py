@@ -149,7 +149,7 @@ def test_colour_seed_decides_what_the_depth_cannot(hand):
     bundle = load_bundle("fingerfist")
     errs = {}
     for on in (False, True):
-        tr = HandTracker(hand, TrackerSettings(rgb_seed=on, check_hand=False), synergies=bundle,
+        tr = HandTracker(hand, TrackerSettings(hand_scale=1.0, rgb_seed=on, check_hand=False), synergies=bundle,
                          keypoint_detector=Projected(shown, truth))
         ob = observe(depth, CAM, tr.settings.observe, color=r.color)
         th = tr.track(ob, CAM, color=r.color).theta

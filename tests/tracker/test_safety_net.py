@@ -27,7 +27,7 @@ def _jumped(hand, at, shift, turn_deg=0.0, frames=30):
 
 
 def _track(hand, truth, **kw):
-    tr = HandTracker(hand, TrackerSettings().replace(**kw))
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw))
     return E.run_sequence(hand, truth, CAM, tr), tr
 
 
@@ -100,7 +100,7 @@ def test_reduced_mode_keeps_its_subspace(hand):
 
     bundle = load_bundle("fingerfist")
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0, frames=20)
-    tr = HandTracker(hand, TrackerSettings().replace(mode="reduced"), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(mode="reduced"), synergies=bundle)
     r = E.run_sequence(hand, truth, CAM, tr)
     assert tr.net_runs_ == 0
     post = r.theta[:, ~hand.pose_mask] - bundle.model.mean_

@@ -33,7 +33,7 @@ def postures():
 
 def _run(bundle, postures, mode, start, n=40, distance=0.75, **kw):
     truth = E.sequence(postures[start:start + n], bundle.model.mean_, distance=distance)
-    tr = HandTracker(HAND, TrackerSettings().replace(mode=mode, **kw), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(mode=mode, **kw), synergies=bundle)
     return E.run_sequence(HAND, truth, CAM, tr, lead=10), truth, tr
 
 
@@ -71,7 +71,7 @@ def test_reduced_with_projected_steps_stays_in_the_subspace_and_gains(bundle, po
 
 def test_subspace_oracle_recovers_postures_inside_the_subspace(bundle, postures):
     """On postures that lie in the subspace the geometric optimum is the posture itself."""
-    tr = HandTracker(HAND, TrackerSettings().replace(mode="reduced"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(mode="reduced"), synergies=bundle)
     truth = tr.reduced.project(E.sequence(postures[1000:1012], bundle.model.mean_, lead=0))
     start = truth.copy()
     start[:, ~HAND.pose_mask] = bundle.model.mean_  # from the mean posture: the fit has to get there
@@ -93,7 +93,7 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
     th = make_motion("random", hand=HAND, frames=90, seed=3).theta
     err = {}
     for mode in ("full", "hierarchical"):
-        tr = HandTracker(HAND, TrackerSettings().replace(mode=mode), synergies=bundle)
+        tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(mode=mode), synergies=bundle)
         err[mode] = E.run_sequence(HAND, th, CAM, tr).mean_error
     print(f"\nrandom postures: full {err['full']:.2f} deg, hierarchical {err['hierarchical']:.2f} deg")
     assert err["hierarchical"] <= err["full"] + 1.0
@@ -103,7 +103,7 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
 def test_coarse_step_through_theta_keeps_theta_feasible(bundle):
     """A posture outside the PC limits (rarer than every training posture): the subspace through it
     must admit it (α = 0), else the coarse step would clamp it back."""
-    tr = HandTracker(HAND, TrackerSettings().replace(mode="hierarchical"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(mode="hierarchical"), synergies=bundle)
     sp = tr.reduced
     theta = np.zeros(HAND.n_dofs)
     theta[~HAND.pose_mask] = bundle.model.mean_ + 3.0 * (sp.hi[6] + 0.1) * bundle.model.all_components_[0]
@@ -159,7 +159,7 @@ def test_finger_search_finds_a_finger_flexed_alone(bundle):
     start[~HAND.pose_mask] = bundle.model.mean_
     err = {}
     for fs in (False, True):
-        tr = HandTracker(HAND, TrackerSettings().replace(finger_search=fs, init_icp_iterations=20), synergies=bundle)
+        tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(finger_search=fs, init_icp_iterations=20), synergies=bundle)
         th, _ = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", silhouette=sil, normals=ob.normals)
         err[fs] = float(E.posture_error_deg(th, truth, HAND.pose_mask))
     print(f"\nring finger alone: without finger search {err[False]:.2f} deg, with {err[True]:.2f} deg")
@@ -212,7 +212,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
     err = {}
     for c in (0.0, 8.0):
         # without the gate by the predicted hand, which would drop most flying pixels before the weights see them
-        tr = HandTracker(HAND, TrackerSettings().replace(robust_mm=c, smooth=0, gate_mm=0.0), synergies=bundle)
+        tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(robust_mm=c, smooth=0, gate_mm=0.0), synergies=bundle)
         tr.theta, tr.lost = truth.copy(), False
         r = tr.track(ob, CAM)
         assert r.status == "tracked"
@@ -224,7 +224,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
 
 def test_blank_frames_lost_then_recovered(bundle, postures):
     truth = E.sequence(postures[3000:3040], bundle.model.mean_)
-    tr = HandTracker(HAND, TrackerSettings().replace(mode="full"), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0).replace(mode="full"), synergies=bundle)
     r = E.run_sequence(HAND, truth, CAM, tr, lead=10, blank=(20, 30))
     assert (r.status[20:30] == "lost").all()
     back = r.error_deg[33:]

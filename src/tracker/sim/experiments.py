@@ -114,8 +114,9 @@ def segments(n, length, seed=0):
 
 # ----------------------------------------------------------------------------------------- report
 def _tracker(hand, bundle, paper=False, **kw):
-    """A tracker with our defaults, or with ``TrackerSettings.paper()``, changed by ``kw``."""
-    base = TrackerSettings.paper() if paper else TrackerSettings()
+    """A tracker with our defaults, or with ``TrackerSettings.paper()``, changed by ``kw``; at the
+    model's size (``hand_scale=1.0``: these experiments render our own hand)."""
+    base = TrackerSettings.paper() if paper else TrackerSettings(hand_scale=1.0)
     return HandTracker(hand, base.replace(**kw), synergies=bundle)
 
 
