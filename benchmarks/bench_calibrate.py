@@ -9,7 +9,9 @@ hands, the calibration's held-out residual, the worst joint (calibrated) and the
 more than 5 % of frames that the truth never comes within 2° of.
 
 Run: .venv/bin/python benchmarks/bench_calibrate.py [--sets hand16 hand19] [--seeds 0-15]
-     [--dip-prior-sd 10]   (≈ 10 s per subject on one core)
+     [--dip-prior-sd 10] [--accel-sd 3000] [--calib-smooth-hz 6]   (≈ 3 s CPU per subject, one core)
+The methods before issue 13's second session (raw markers to calibrate, frames solved on their own):
+     --calib-smooth-hz 0 --accel-sd 0
 """
 from __future__ import annotations
 
@@ -25,7 +27,12 @@ import numpy as np
 
 from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
-from synergy.angles import ACCEL_SD_DEG_S2, IP_COUPLING_SD_DEG, LIMIT_SHARE_WARN, markers_to_angles
+from synergy.angles import (
+    ACCEL_SD_DEG_S2,
+    IP_COUPLING_SD_DEG,
+    LIMIT_SHARE_WARN,
+    markers_to_angles,
+)
 from synergy.calibrate import Calibration, calibrate, scale_only
 from synergy.markers import load_markerset
 from synergy.simulate import motion, random_subject, simulate_markers
@@ -37,7 +44,7 @@ SMOOTH_HZ = 6.0
 def subject_trials(markers, seed):
     """The test suite's protocol (tests/synergy/test_calibrate.py): ROM, static flat hand, power grasp."""
     bones, shift = random_subject(markers, bone_range=0.2, marker_shift_mm=5.0, seed=seed)
-    kw = dict(noise_mm=NOISE_MM, bone_scales=bones, marker_shift=shift)
+    kw = {"noise_mm": NOISE_MM, "bone_scales": bones, "marker_shift": shift}
     th_rom, _ = motion("rom", duration_s=5.0, seed=seed)
     rom = simulate_markers(th_rom, markers, seed=seed + 1, **kw)
     th_st = np.zeros((50, 26))
@@ -51,7 +58,7 @@ def subject_trials(markers, seed):
 def oracle(ms, hand, bones, shift):
     """The subject's true hand and marker places as a calibration (what a perfect calibration gives)."""
     true = hand.scaled(1.0, bones)
-    nodes, local = ms.attachments(true)
+    _, local = ms.attachments(true)
     offsets = {m.label: local[i] + np.asarray(shift[m.label]) for i, m in enumerate(ms.markers)}
     return Calibration(scale=1.0, bone_scales=dict(bones), offsets=offsets, method="oracle", hand="left",
                        markerset=ms.name, median_residual_mm=NOISE_MM)
@@ -121,8 +128,8 @@ def main():
             if args.calib_smooth_hz is not None:
                 ckw["smooth_hz"] = args.calib_smooth_hz
             cal = calibrate(data, ms, hand, static=static, **ckw)
-            kw = dict(smooth_hz=SMOOTH_HZ, check_hand=None, ip_coupling_sd_deg=args.dip_prior_sd,
-                      accel_sd_deg_s2=args.accel_sd)
+            kw = {"smooth_hz": SMOOTH_HZ, "check_hand": None, "ip_coupling_sd_deg": args.dip_prior_sd,
+                  "accel_sd_deg_s2": args.accel_sd}
             df = markers_to_angles(trial, ms, calibration=cal, **kw)
             e_cal, per = errors(df, th, names)
             e_sc = e_or = float("nan")

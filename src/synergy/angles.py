@@ -28,7 +28,6 @@ from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
 from .smoothing import lowpass_markers
 
-
 #: A joint on a limit in more than this share of frames is reported.
 LIMIT_SHARE_WARN = 0.05
 #: Frames whose residual exceeds this multiple of the trial's noise floor are ``poor`` …

@@ -5,7 +5,12 @@ does not slow a joint they see."""
 import numpy as np
 
 from handmodel import HandModel
-from synergy.angles import IP_COUPLING, ip_coupling_pairs, refine_trajectory, refine_with_coupling
+from synergy.angles import (
+    IP_COUPLING,
+    ip_coupling_pairs,
+    refine_trajectory,
+    refine_with_coupling,
+)
 
 HAND = HandModel.load()
 PAIRS = ip_coupling_pairs(HAND)
