@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import butter, filtfilt
 
+from .errors import SynergyError
+
 
 def lowpass_markers(points, rate, cutoff_hz, order=4):
     """Zero-phase Butterworth low-pass of marker trajectories ``(F, M, 3)``, gap-aware: each
@@ -16,6 +18,8 @@ def lowpass_markers(points, rate, cutoff_hz, order=4):
     >>> bool(np.abs(lowpass_markers(noisy, 100.0, 6.0) - x)[20:-20].max() < 0.01)
     True
     """
+    if cutoff_hz is not None and not cutoff_hz >= 0:
+        raise SynergyError("--smooth-hz", f"the low-pass cut-off must be 0 (off) or positive (Hz), got {cutoff_hz}")
     if not cutoff_hz or cutoff_hz >= rate / 2:
         return points
     b, a = butter(order, cutoff_hz / (rate / 2))

@@ -109,11 +109,11 @@ def test_residual_at_noise_floor_and_no_false_limits(calibrated):
     assert set(d["marker_residuals_mm"]) == set(trial.labels)
 
 
-@pytest.mark.parametrize("markers,seed", [("hand16", 4), ("hand16", 9), ("hand16", 10), ("hand16", 14),
-                                          ("hand19", 4)])
+@pytest.mark.parametrize("markers,seed", [("hand16", 4), ("hand16", 9), ("hand16", 10), ("hand19", 4)])
 def test_floor_on_more_subjects(markers, seed):
     """Subjects that missed the floor before the calibration low-passed its markers and the IK tied
-    frames together (hand16 2.4-3.8°, hand19 2.2°)."""
+    frames together (hand16 2.4-3.8°, hand19 2.2°; the sweep over seeds 0-15 is
+    benchmarks/bench_calibrate.py)."""
     rom, static, trial, th = subject_trials(markers, seed)
     cal = calibrate(rom, load_markerset(markers), HAND, static=static)
     df = markers_to_angles(trial, markers, calibration=cal, smooth_hz=6.0, check_hand=None)
@@ -172,6 +172,10 @@ def test_subject_file_round_trip_and_commands(hand19_files, tmp_path):
     cal = load_calibration(tmp_path / "subject.yaml")
     assert cal.hand == "left" and cal.markerset == "hand19" and len(cal.source_sha256) == 64
     assert cal.scale != 1.0 and cal.bone_scales and cal.uncertainty["offsets_mm"]
+    assert cal.method.endswith("(markers low-passed at 6 Hz)")  # synergy calibrate's default
+    r = runner.invoke(app, ["calibrate", str(files / "rom.c3d"), "--markers", "hand19", "--smooth-hz", "-3",
+                            "-o", str(tmp_path / "s2.yaml")])
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1 and "--smooth-hz" in r.output
     with pytest.raises(FileExistsError):
         save_calibration(cal, tmp_path / "subject.yaml")
     r = runner.invoke(app, ["angles", str(tmp_path / "grasp.c3d"), "--markers", "hand19", "--subject",
