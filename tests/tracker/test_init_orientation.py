@@ -7,8 +7,9 @@ import pytest
 from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 from tracker.cameras import preset
-from tracker.correspond import ModelSamples, Silhouette, model_to_data_mm
-from tracker.init import placements, score
+from handmodel.geometry import surface_samples
+from tracker.correspond import DATA_CAP_MM, Matcher, ModelSamples, Silhouette, data_to_model_mm, model_to_data_mm
+from tracker.init import REJECTED_PAIR_MM, data_cost_mm, placements, score
 from tracker.observe import observe
 from tracker.segment import Segmenter
 from tracker.sim.motions import FACING, POSTURES, hand_centre
@@ -53,6 +54,32 @@ def turned(hand, theta, axis_hand, deg=180.0):
 
 def kp_mm(h1, t1, h2, t2):
     return float(np.mean(np.linalg.norm(h1.keypoints(t1) - h2.keypoints(t2), axis=1)) * 1000.0)
+
+
+def test_data_cost_measures_every_point_against_the_whole_model(bundle):
+    """Each data point costs its distance to the nearest model surface on either side (a point 3 mm
+    off the back of the hand, which faces away from the camera, costs 3 mm, not a far miss), capped
+    at ``DATA_CAP_MM`` (a point a metre away costs the cap, not a metre); a pair ICP rejected adds
+    ``REJECTED_PAIR_MM``; and the score of a fit is that mean, taken from the fit's own points."""
+    th, ob, sil = scene(BASE, "palm", POSTURES["open"])
+    matcher = Matcher(BASE)
+    P, _, N = surface_samples(BASE, th, spacing=0.006)
+    away = N[:, 2] > 0.5  # the back of the hand, seen from the camera
+    assert away.sum() > 50
+    near = P[away] + 0.003 * N[away]
+    far = np.array([[0.0, 0.0, 1.7]])
+    d = data_to_model_mm(matcher, th, np.vstack([near, far]))
+    # (samples where two parts overlap lie closer to the other one)
+    assert np.all(d[:-1] <= 3.05) and np.mean(np.abs(d[:-1] - 3.0) < 0.05) >= 0.8, np.round(d[:-1], 2)
+    assert d[-1] == DATA_CAP_MM
+    tr = HandTracker(BASE, TrackerSettings(), synergies=bundle)
+    corr = matcher(th, ob.points, ob.normals)
+    assert corr.points is ob.points or np.array_equal(corr.points, ob.points)
+    want = np.minimum(data_to_model_mm(matcher, th, ob.points) + REJECTED_PAIR_MM * ~corr.valid, DATA_CAP_MM)
+    assert data_cost_mm(tr.context, th, corr) == pytest.approx(float(want.mean()))
+    # the fit's correspondences carry their points, so the score measures the points it was fitted to
+    th2, c2 = tr.context.fit(th, ob.points, "full", 0, 2, silhouette=sil, normals=ob.normals)
+    assert c2.points is not None and len(c2.points) == len(ob.points)
 
 
 def test_model_to_data_cost_sees_free_space_and_the_silhouette():

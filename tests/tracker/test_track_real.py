@@ -3,7 +3,8 @@ fingertip pixels made by eye) tracked as a user would: the camera preset, the ri
 size calibrated on each recording's first labelled frame (``hand_scale="auto"``) and reused for its
 other frames, everything else default. The keypoint-in-mask floor is the issue's; the tip and wrist
 floors are what the tracker reaches today (the issue's: tips ≤ 15 px and wrist ≤ 20 px on every
-frame); they catch a fit on the body, an upside-down hand or a lost wrist."""
+frame); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
+swapped, the thumb folded into the palm) or a lost wrist."""
 from __future__ import annotations
 
 import json
@@ -51,7 +52,7 @@ def fits():
 def test_every_real_frame_fits_the_hand_not_the_body(fits):
     """≥ 90 % of the 21 projected keypoints inside the labelled hand mask dilated by 8 px on every
     frame (measured 0.95–1.00), and the size found is a hand's (this subject's hand is 1.2–1.5× the
-    model; measured 1.254 and 1.237 on the two recordings)."""
+    model; measured 1.293 and 1.230 on the two recordings)."""
     for name, (_, truth, uv, _, scale) in fits.items():
         near = ndimage.binary_dilation(truth, iterations=8)
         ui = np.clip(np.rint(uv).astype(int), 0, [truth.shape[1] - 1, truth.shape[0] - 1])
@@ -61,7 +62,7 @@ def test_every_real_frame_fits_the_hand_not_the_body(fits):
 
 
 def test_no_real_frame_is_fitted_upside_down(fits):
-    """The wrist within 40 px of the labelled wrist on every frame (measured ≤ 37.5 px, median 12.6;
+    """The wrist within 30 px of the labelled wrist on every frame (measured ≤ 25.1 px, median 11.0;
     before the wrist cue one frame had it 125 px away, in the palm, the hand upside down), and the
     hand's axis (wrist → middle base) within 60° of the labelled wrist → middle tip."""
     errs = []
@@ -71,18 +72,32 @@ def test_no_real_frame_is_fitted_upside_down(fits):
         want = np.asarray(lab["middle"], float) - lab["wrist"]
         cos = axis @ want / (np.linalg.norm(axis) * np.linalg.norm(want))
         assert cos >= np.cos(np.radians(60)), f"{name}: hand axis {np.degrees(np.arccos(cos)):.0f}° off"
-    assert max(errs) <= 40 and np.median(errs) <= 14, np.round(errs, 1)
+    assert max(errs) <= 30 and np.median(errs) <= 13, np.round(errs, 1)
+
+
+def test_no_open_hand_is_fitted_turned_over(fits):
+    """The open and spread hands of recording 230536 (palm or back to the camera, every finger seen
+    in the image): every tip within 20 px (measured ≤ 15.7). Before the score measured each data
+    point against the whole model (:func:`tracker.init.data_cost_mm`), five of its eight frames were
+    fitted with the palm turned over — thumb folded into the palm, the model's index on the real
+    thumb, 70–120 px at the thumb and pinky."""
+    for name, (lab, _, uv, names, _) in fits.items():
+        if name.startswith("20210326-230536"):
+            e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
+            assert max(e) <= 20, f"{name}: tips {np.round(e, 1)} px"
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 7 of the 19 frames have every labelled tip within 15 px of its model tip
-    and the wrist within 20 px (the issue's floor for every frame; measured 8), and the median tip
-    error over all frames is ≤ 10 px (measured 9.0). Five open-hand frames of the first recording
-    are fitted with the palm turned over (~70–120 px at the thumb and pinky)."""
+    """Fingertips: at least 10 of the 19 frames have every labelled tip within 15 px of its model tip
+    and the wrist within 20 px (the issue's floor for every frame; measured 11), at least 80 of the
+    95 labelled tips are within 15 px (measured 85; 64 before the score's change) and the median tip
+    error over all frames is ≤ 6 px (measured 4.9; 9.0 before). What is left: curled fingers seen
+    as blobs in front of the palm (recording 231615) fitted on a neighbour's blob, 20–60 px."""
     ok, tip_errs = 0, []
     for name, (lab, _, uv, names, _) in fits.items():
         e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
         tip_errs += e
         ok += max(e) <= 15 and np.hypot(*(uv[0] - lab["wrist"])) <= 20
-    assert ok >= 7, ok
-    assert np.median(tip_errs) <= 10, np.median(tip_errs)
+    assert ok >= 10, ok
+    assert np.sum(np.asarray(tip_errs) <= 15) >= 80, np.sum(np.asarray(tip_errs) <= 15)
+    assert np.median(tip_errs) <= 6, np.median(tip_errs)
