@@ -225,7 +225,7 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
                       float(st.robust_mm), bool(st.point_to_plane), bool(moments),
                       sil_on, *sil_args, 1.5, float(st.silhouette_weight),
                       out_p, out_n, out_seg, out_d, out_node, out_valid)
-    return th, Correspondences(out_p, out_node, out_n, out_d, out_valid)
+    return th, Correspondences(out_p, out_node, out_n, out_d, out_valid, pts)
 
 
 _NO_ROWS = np.zeros((0, 3))
