@@ -31,7 +31,14 @@ from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
 from .observe import ObserveSettings, gate
 from .rgb import RgbSeed
-from .scale import calibrate_scale, parabola_scale, rescaled, resized_context, size_score
+from .scale import (
+    calibrate_scale,
+    hand_side,
+    parabola_scale,
+    rescaled,
+    resized_context,
+    size_score,
+)
 from .wrist import wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
@@ -348,6 +355,9 @@ class HandTracker:
         size from this frame's fit, on ``refine_points`` of the cloud); the size becomes the median of
         the estimates so far, θ follows it."""
         s = self.scale_
+        # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
+        keep = hand_side(pts, self.hand, self.theta)
+        pts, nrm = pts[keep], None if nrm is None else nrm[keep]
         sub = thin(pts, self.settings.init.refine_points)
         est, _, _, _ = parabola_scale(self.context_for, self.theta, self.hand, pts[sub], s, silhouette=sil,
                                       normals=None if nrm is None else nrm[sub])

@@ -12,8 +12,14 @@ from handmodel import HandModel
 from tracker.cameras import preset
 from tracker.correspond import CapsuleModel
 from tracker.init import score
-from tracker.scale import (calibrate_scale, calibrate_scale_searched, parabola_scale, rescaled, resized_context,
-                           size_score, without_wrist)
+from tracker.scale import (
+    calibrate_scale,
+    calibrate_scale_searched,
+    parabola_scale,
+    rescaled,
+    size_score,
+    without_wrist,
+)
 from tracker.sim.motions import POSTURES
 from tracker.track import HandTracker, TrackerSettings, fit_context
 from tracker.wrist import WristCue
@@ -152,7 +158,7 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
     again (a start search, status reinit), at most ``scale_frames`` frames, and the size of the
     best-scoring one is used; then the tracker tracks and refines the size."""
     hand = BASE.scaled(1.2)
-    _, ob, sil = scene(hand, "palm", POSTURES["open"])
+    _, ob, _ = scene(hand, "palm", POSTURES["open"])
     tr = HandTracker(BASE, TrackerSettings(hand_scale="auto", scale_trust_mm=0.0, scale_frames=3), synergies=bundle)
     status = [tr.track(ob, CAM).status for _ in range(4)]
     assert status[:3] == ["reinit"] * 3 and status[3] == "tracked", status
