@@ -3,7 +3,9 @@
 One solver serves marker IK (fixed correspondences) and ICP tracking (closest-point correspondences
 re-found by the caller). Each Gauss-Newton step solves ``(JᵀW²J + D) δ = JᵀW²e`` in the coordinates
 α of a :class:`~handmodel.subspace.Subspace` (``J_PC = J M``), with selective damping ``D`` (pose
-damping on global-pose coordinates, ``damping`` on the rest), Chan–Dubey joint-limit damping and
+damping on global-pose coordinates, ``damping`` on the rest), Chan–Dubey joint-limit damping,
+an active set at the limits (a coordinate at its bound whose descent direction points outwards is
+left out of that step's normal equations: :func:`handmodel._solver_kernels.freeze_at_limits`) and
 clamping, and step halving until the energy drops. A schedule runs stages of growing subspaces
 (hierarchical optimisation). Residuals are in millimetres, so damping values match the paper
 (λ = 1) and the original code (λ = 5, applied squared).

@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from handmodel._geometry_kernels import closest_points_facing
-from handmodel._solver_kernels import MM, _limit_grad, cholesky_solve, solve_stages
+from handmodel._solver_kernels import MM, _limit_grad, cholesky_solve, freeze_at_limits, solve_stages
 from handmodel.kinematics import fk_single
 
 from ._silhouette_kernels import silhouette_pairs_kernel
@@ -482,10 +482,12 @@ def moment_energy_at(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
 # ----------------------------------------------------------------------------- one stage's Gauss-Newton
 @njit(cache=True)
 def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
-                        M, mu, m, lo, hi, damp, eye, iters, max_halvings, tol, limit_avoid, clamp, margin):
+                        M, mu, m, lo, hi, damp, eye, iters, max_halvings, tol, limit_avoid, clamp, margin, stats):
     """Damped Gauss-Newton in one subspace on the moments: the steps of
-    :func:`handmodel._solver_kernels.solve_stages` (selective and Chan–Dubey damping, clamping, step
-    halving until the energy drops, the same stopping rule) for a single stage. Returns θ."""
+    :func:`handmodel._solver_kernels.solve_stages` (selective and Chan–Dubey damping, the active set
+    at the limits, clamping, step halving until the energy drops, the same stopping rule) for a single
+    stage. Adds the steps taken to ``stats[0]`` and a step that failed to lower the energy after
+    ``max_halvings`` halvings (it ends the stage) to ``stats[1]``. Returns θ."""
     n = dof_axes.shape[0]
     N = parents.shape[0]
     G = np.empty((N, 4, 4))
@@ -543,6 +545,8 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
                     lam *= 1.0 + min(g, 1e12)
                 g_prev[c] = g
             Aa[c, c] += lam
+        if clamp:
+            freeze_at_limits(Aa, ba, alpha, lo, hi, m, margin)
         if not cholesky_solve(Aa, ba, delta, L):
             tr = 0.0
             for c in range(m):
@@ -573,7 +577,9 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
                 break
             step *= 0.5
         if not accepted:
+            stats[1] += 1
             break
+        stats[0] += 1
         big = 0.0
         for c in range(m):
             alpha[c] = a_new[c]
@@ -594,12 +600,13 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
                gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
                sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
-               sil_weight, out_p, out_n, out_seg, out_d, out_node, out_valid):
+               sil_weight, out_p, out_n, out_seg, out_d, out_node, out_valid, stats):
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
     correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
     silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result
     (in the ``out_*`` arrays). ``moments``: Gauss-Newton on moment sums (point-to-point only), else
-    the per-pair solver. Returns θ."""
+    the per-pair solver; the moment path adds its steps taken and failed to ``stats`` (see
+    :func:`solve_stage_moments`). Returns θ."""
     n = dof_axes.shape[0]
     N = parents.shape[0]
     P = points.shape[0]
@@ -686,7 +693,7 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
             node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)
             theta = solve_stage_moments(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G,
                                         M[:, :m], mu, m, lo[:m], hi[:m], st_damp[s, :m], eye, gn_iters, max_halvings,
-                                        tol, limit_avoid, clamp, margin)
+                                        tol, limit_avoid, clamp, margin, stats)
         else:
             ident = eye
             for r in range(n):

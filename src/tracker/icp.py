@@ -168,7 +168,7 @@ def cauchy_weights(distance_m, scale_mm) -> np.ndarray:
 
 
 def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0, normals=None,
-        samples=None, silhouette=None, moments=True):
+        samples=None, silhouette=None, moments=True, stats=None):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
 
     The whole loop runs in one compiled call (:func:`tracker._icp_kernels.fit_kernel`) when
@@ -191,6 +191,9 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         for the model→data term (both or neither)
     moments : bool
         Gauss-Newton on moment sums (default) or on every pair.
+    stats : int64 array (2,), optional
+        Gauss-Newton steps taken and steps that failed to lower the energy (each ends its stage) are
+        added to ``stats[0]`` and ``stats[1]`` (the compiled moment path counts; the others add nothing).
 
     Returns
     -------
@@ -224,7 +227,8 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
                       bool(solver.joint_limit_avoidance), bool(solver.clamp), float(solver.clamp_margin),
                       float(st.robust_mm), bool(st.point_to_plane), bool(moments),
                       sil_on, *sil_args, 1.5, float(st.silhouette_weight),
-                      out_p, out_n, out_seg, out_d, out_node, out_valid)
+                      out_p, out_n, out_seg, out_d, out_node, out_valid,
+                      np.zeros(2, np.int64) if stats is None else stats)
     return th, Correspondences(out_p, out_node, out_n, out_d, out_valid, pts)
 
 

@@ -191,6 +191,35 @@ def test_subspace_maps_and_fit_stays_in_subspace(fingerfist):
     assert np.all(alpha >= lo[:5] - 1e-9) and np.all(alpha <= hi[:5] + 1e-9)
 
 
+@pytest.mark.parametrize("limit_avoidance", [False, True])
+def test_steps_at_pc_limits_reach_the_bounded_optimum(fingerfist, limit_avoidance):
+    """Postures outside a tight PC box: the solve must reach the box-constrained least-squares optimum
+    (scipy's bounded ``least_squares`` as the peer). A step that clamps a coordinate pushed against
+    its limit after solving for all of them fails to lower the energy at any length and stops the
+    solve at 1–4 iterations with 2–4× the optimal energy; with the active set (coordinates at a
+    limit and pushed outwards frozen for the step) it does not."""
+    from scipy.optimize import least_squares
+
+    C, mu, lo, hi = _fingerfist_pca(fingerfist)
+    sp = Subspace.from_synergies(HAND, C, mu, 0.3 * lo, 0.3 * hi, n_components=5)
+    truth = np.zeros((12, 26))
+    truth[:, 6:] = fingerfist[::500, 6:]
+    truth[:, 2] = 0.7
+    start = sp.to_theta(np.r_[0, 0, 0.7, np.zeros(3 + 5)])
+    tg = HAND.keypoints(truth)
+    est, rep = solve(HAND, start, np.arange(21), np.zeros((21, 3)), tg, subspace=sp,
+                     settings=SolverSettings(iterations=40, damping=0.01, joint_limit_avoidance=limit_avoidance))
+    a0 = np.clip(sp.to_alpha(start), sp.lo + 1e-6, sp.hi - 1e-6)
+    at_limit = 0
+    for f in range(len(tg)):
+        peer = least_squares(lambda a: (HAND.keypoints(sp.to_theta(a)) - tg[f]).ravel() * 1000.0, a0,
+                             bounds=(sp.lo, sp.hi), method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=2000)
+        assert rep.energy[f] <= 1.01 * peer.cost + 1e-9
+        a = sp.to_alpha(est[f])
+        at_limit += int(np.any((a - sp.lo < 1e-3) | (sp.hi - a < 1e-3)))
+    assert at_limit >= len(tg) // 2  # the limits were in play
+
+
 def test_flat_vs_hierarchical_on_fingerfist(fingerfist):
     """100 fingerfist postures from the flat hand: the hierarchical schedule must not be worse."""
     C, mu, lo, hi = _fingerfist_pca(fingerfist)
