@@ -58,7 +58,9 @@ class TrackerSettings:
     the model (:meth:`handmodel.HandModel.scaled`), or ``"auto"``: estimated on the first frame and
     refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``;
     while the calibrated frames' fits score above ``scale_trust_mm``, the next frame is calibrated
-    again (at most ``scale_frames`` frames) and the best-scoring frame's size is used.
+    again (at most ``scale_frames`` frames) and the best-scoring frame's size is used;
+    ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own) or
+    ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`).
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
     whether it fits clearly better (the recording's handedness is likely wrong).
 
@@ -92,6 +94,7 @@ class TrackerSettings:
     hand_scale: float | str = "auto"
     scale_frames: int = 5
     scale_trust_mm: float = 6.0
+    scale_refine: str = "search"
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
@@ -150,6 +153,8 @@ class TrackerSettings:
         lo, hi = self.scale_range
         if not 0 < lo < hi or self.scale_frames < 1:
             raise TrackerError("settings", "scale_range must be 0 < low < high and scale_frames ≥ 1")
+        if self.scale_refine not in ("search", "local"):
+            raise TrackerError("settings", f"scale_refine must be 'search' or 'local', got {self.scale_refine!r}")
         if self.observe.stride < 1:
             raise TrackerError("settings", "stride must be positive")
         self.correspond.check()
@@ -351,17 +356,28 @@ class HandTracker:
         return theta, corr
 
     def _refine_scale(self, pts, nrm, sil):
-        """One more frame's size estimate (:func:`tracker.scale.parabola_scale` around the current
-        size from this frame's fit, on ``refine_points`` of the cloud); the size becomes the median of
-        the estimates so far, θ follows it."""
-        s = self.scale_
-        # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
-        keep = hand_side(pts, self.hand, self.theta)
-        pts, nrm = pts[keep], None if nrm is None else nrm[keep]
-        sub = thin(pts, self.settings.init.refine_points)
-        est, _, _, _ = parabola_scale(self.context_for, self.theta, self.hand, pts[sub], s, silhouette=sil,
-                                      normals=None if nrm is None else nrm[sub])
-        est = float(np.clip(est, *self.settings.scale_range))
+        """One more frame's size estimate; the size becomes the median of the estimates so far, θ
+        follows it. ``scale_refine="search"``: the frame calibrated on its own
+        (:func:`tracker.scale.calibrate_scale`, ~0.4 s), so that one frame's wrong size is outvoted (a
+        first frame 16 % off stayed off: the local estimates, fitted from its size, lean towards it);
+        ``"local"``: :func:`tracker.scale.parabola_scale` around the current size from this frame's fit
+        (~30 ms)."""
+        s, st = self.scale_, self.settings
+        if st.scale_refine == "search":
+            self._add_wrist(sil)
+            est = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
+                                  scale_range=st.scale_range)[0]
+        else:
+            # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
+            keep = hand_side(pts, self.hand, self.theta)
+            pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+            sub = thin(pts, st.init.refine_points)
+            est, _, _, _ = parabola_scale(self.context_for, self.theta, self.hand, pts[sub], s, silhouette=sil,
+                                          normals=None if nrm is None else nrm[sub])
+        est = float(np.clip(est, *st.scale_range))
+        keep_key = round(float(np.median(self.scale_estimates_ + [est])), 5)
+        # the sizes the search probed are not needed again
+        self._contexts = {k: v for k, v in self._contexts.items() if k in (keep_key, round(s, 5))}
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
         if round(new, 5) != round(s, 5):
