@@ -178,6 +178,19 @@ def freeze_at_limits(Aa, ba, alpha, lo, hi, m, margin):
 
 
 @njit(cache=True)
+def converged(delta, ba, m, E, tol):
+    """Whether the step δ solving the damped normal equations ``Aa δ = ba`` would lower the energy
+    ``E`` by at most ``tol·E`` even on the quadratic model (½ δᵀba, its decrease for that δ): at
+    convergence the energy's round-off exceeds what the step can gain, so every trial of the step
+    halving fails, and the stage would end anyway after ``max_halvings + 1`` wasted energy
+    evaluations."""
+    pred = 0.0
+    for c in range(m):
+        pred += delta[c] * ba[c]
+    return 0.5 * pred <= tol * E
+
+
+@njit(cache=True)
 def solve_stages(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                  pt_node, pt_local, targets, w, normals,
                  st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_iters, st_ident,
@@ -281,6 +294,8 @@ def solve_stages(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                     Aa[c, c] += 1e-9 * tr / m + 1e-12
                 if not cholesky_solve(Aa[:m, :m], ba[:m], delta[:m], L[:m, :m]):
                     break
+            if converged(delta, ba, m, E, tol):
+                break
             # step halving until the energy drops
             accepted = False
             step = 1.0

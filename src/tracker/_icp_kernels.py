@@ -20,7 +20,14 @@ import numpy as np
 from numba import njit
 
 from handmodel._geometry_kernels import closest_points_facing
-from handmodel._solver_kernels import MM, _limit_grad, cholesky_solve, freeze_at_limits, solve_stages
+from handmodel._solver_kernels import (
+    MM,
+    _limit_grad,
+    cholesky_solve,
+    converged,
+    freeze_at_limits,
+    solve_stages,
+)
 from handmodel.kinematics import fk_single
 
 from ._silhouette_kernels import silhouette_pairs_kernel
@@ -485,7 +492,7 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
                         M, mu, m, lo, hi, damp, eye, iters, max_halvings, tol, limit_avoid, clamp, margin, stats):
     """Damped Gauss-Newton in one subspace on the moments: the steps of
     :func:`handmodel._solver_kernels.solve_stages` (selective and Chan–Dubey damping, the active set
-    at the limits, clamping, step halving until the energy drops, the same stopping rule) for a single
+    at the limits, clamping, step halving until the energy drops, the same stopping rules) for a single
     stage. Adds the steps taken to ``stats[0]`` and a step that failed to lower the energy after
     ``max_halvings`` halvings (it ends the stage) to ``stats[1]``. Returns θ."""
     n = dof_axes.shape[0]
@@ -555,6 +562,8 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
                 Aa[c, c] += 1e-9 * tr / m + 1e-12
             if not cholesky_solve(Aa, ba, delta, L):
                 break
+        if converged(delta, ba, m, E, tol):
+            break
         accepted = False
         step = 1.0
         E_new = E

@@ -212,7 +212,7 @@ def test_steps_at_pc_limits_reach_the_bounded_optimum(fingerfist, limit_avoidanc
     a0 = np.clip(sp.to_alpha(start), sp.lo + 1e-6, sp.hi - 1e-6)
     at_limit = 0
     for f in range(len(tg)):
-        peer = least_squares(lambda a: (HAND.keypoints(sp.to_theta(a)) - tg[f]).ravel() * 1000.0, a0,
+        peer = least_squares(lambda a, t=tg[f]: (HAND.keypoints(sp.to_theta(a)) - t).ravel() * 1000.0, a0,
                              bounds=(sp.lo, sp.hi), method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=2000)
         assert rep.energy[f] <= 1.01 * peer.cost + 1e-9
         a = sp.to_alpha(est[f])
