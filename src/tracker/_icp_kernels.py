@@ -493,8 +493,9 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
     """Damped Gauss-Newton in one subspace on the moments: the steps of
     :func:`handmodel._solver_kernels.solve_stages` (selective and Chan–Dubey damping, the active set
     at the limits, clamping, step halving until the energy drops, the same stopping rules) for a single
-    stage. Adds the steps taken to ``stats[0]`` and a step that failed to lower the energy after
-    ``max_halvings`` halvings (it ends the stage) to ``stats[1]``. Returns θ."""
+    stage. Adds the steps taken to ``stats[0]``, a step that failed to lower the energy after
+    ``max_halvings`` halvings (it ends the stage) to ``stats[1]`` and the trial steps' energy
+    evaluations to ``stats[2]``. Returns θ."""
     n = dof_axes.shape[0]
     N = parents.shape[0]
     G = np.empty((N, 4, 4))
@@ -581,6 +582,7 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
             _to_theta(a_new, M, mu, m, eye, th_new)
             E_new = moment_energy_at(th_new, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, G, wa,
                                      wo, A3, b3)
+            stats[2] += 1
             if E_new < E:
                 accepted = True
                 break

@@ -191,9 +191,10 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         for the model→data term (both or neither)
     moments : bool
         Gauss-Newton on moment sums (default) or on every pair.
-    stats : int64 array (2,), optional
-        Gauss-Newton steps taken and steps that failed to lower the energy (each ends its stage) are
-        added to ``stats[0]`` and ``stats[1]`` (the compiled moment path counts; the others add nothing).
+    stats : int64 array (3,), optional
+        Gauss-Newton steps taken, steps that failed to lower the energy (each ends its stage) and the
+        trial steps' energy evaluations are added to ``stats[0]``, ``stats[1]`` and ``stats[2]`` (the
+        compiled moment path counts; the others add nothing).
 
     Returns
     -------
@@ -228,7 +229,7 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
                       float(st.robust_mm), bool(st.point_to_plane), bool(moments),
                       sil_on, *sil_args, 1.5, float(st.silhouette_weight),
                       out_p, out_n, out_seg, out_d, out_node, out_valid,
-                      np.zeros(2, np.int64) if stats is None else stats)
+                      np.zeros(3, np.int64) if stats is None else stats)
     return th, Correspondences(out_p, out_node, out_n, out_d, out_valid, pts)
 
 
