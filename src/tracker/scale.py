@@ -106,13 +106,19 @@ def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
 
 
 
-def hand_side(points, hand, theta, margin_m=0.01) -> np.ndarray:
+#: how far behind the fitted wrist points still count for the size (:func:`hand_side`)
+WRIST_MARGIN_M = 0.0
+
+
+def hand_side(points, hand, theta, margin_m=None) -> np.ndarray:
     """Which ``points`` lie on the fingers' side of the wrist of ``hand`` at ``theta`` (or at most
-    ``margin_m`` behind it, along the wrist → middle-finger-base axis). A mask keeps up to ~15 % of
+    ``margin_m``, default :data:`WRIST_MARGIN_M`, behind it, along the wrist → middle-finger-base axis;
+    a 1 cm margin left 0.8× hands 5–15 % large in rendered forearm scenes, none 0–6 %). A mask keeps up to ~15 % of
     forearm past the wrist; a larger hand covers those points and scores better for it (+9–16 % on
     rendered Kinect forearm scenes), so the size is searched without them. The cut is made once, from
     one fit: cut at each probed size's own wrist, a smaller hand drops more of the palm's base and
     scores better for that instead (−4 to −6 %)."""
+    margin_m = WRIST_MARGIN_M if margin_m is None else margin_m
     kp = hand.keypoints(np.asarray(theta, float))
     axis = kp[9] - kp[0]
     ahead = (np.asarray(points, float) - kp[0]) @ (axis / max(float(np.linalg.norm(axis)), 1e-9)) >= -margin_m
