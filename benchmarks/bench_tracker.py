@@ -3,7 +3,8 @@ stride 3) for full, reduced and hierarchical modes, ours with the safety net on 
 the same frames: the same ICP loop with each non-rigid step solved by scipy.optimize.least_squares
 (analytic Jacobian, 5 evaluations), and our own ICP loop in Python around the compiled kernels
 (:func:`tracker.icp.fit_reference`, what :func:`tracker.icp.fit` was before the loop was compiled).
-Then where a frame's time goes in :meth:`tracker.track.HandTracker.step`, per mode.
+Then the Gauss-Newton steps per frame (taken, failed, energy evaluations) and where a frame's time goes
+in :meth:`tracker.track.HandTracker.step`, per mode.
 
 Times are CPU seconds of this process (every library on one thread, so that is the time on one core):
 on a shared machine wall-clock medians measure the other jobs. Even CPU time grows when other jobs
@@ -18,6 +19,7 @@ import argparse
 import os
 import time
 from contextlib import ExitStack, contextmanager
+from functools import partial
 from unittest import mock
 
 # one core for every library: a threaded BLAS under scipy's SVD thrashes on a shared machine (0.1 s per
@@ -33,7 +35,7 @@ from handmodel import HandModel
 from synergy.bundle import load_bundle
 from tracker.cameras import preset
 from tracker.correspond import local_offsets
-from tracker.icp import fit_reference, rigid_step
+from tracker.icp import fit, fit_reference, rigid_step
 from tracker.init import InitSettings
 from tracker.observe import observe
 from tracker.sim import experiments as E
@@ -111,6 +113,21 @@ def breakdown(hand, bundle, cam, obs, mode, ours=True):
     return total / n, parts
 
 
+def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
+    """Gauss-Newton steps per tracked frame (frames after the 10th) of the compiled ICP fits: taken,
+    failed (no energy drop after the halvings; each ends its stage) and the trial steps' energy
+    evaluations (:func:`tracker.icp.fit`'s ``stats``)."""
+    base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
+    tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
+    stats = np.zeros(3, np.int64)
+    for ob in obs[:10]:
+        tr.track(ob, cam)
+    with mock.patch("tracker.track.fit", partial(fit, stats=stats)):
+        for ob in obs[10:]:
+            tr.track(ob, cam)
+    return stats / (len(obs) - 10)
+
+
 def peer(hand, bundle, cam, truth, obs):
     """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
     tr = HandTracker(hand, TrackerSettings.paper(mode="full"), synergies=bundle)
@@ -182,6 +199,15 @@ def main():
         ms, e, tr = best[label]
         net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.safety_net and tr.net_runs_ else ""
         print(f"  {label:<74} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
+    print("  Gauss-Newton steps per tracked frame (taken / failed: no energy drop after the halvings / trial energy "
+          "evaluations):")
+    for mode, ours, label, kw in [("full", False, "full, paper's method", {}),
+                                  ("reduced", False, f"reduced ({k} PCs), paper's method", {}),
+                                  ("full", True, "full, ours (net off)", {"safety_net": False}),
+                                  ("reduced", True, f"reduced ({k} PCs), ours", {"safety_net": False}),
+                                  ("hierarchical", True, "hierarchical, ours (net off)", {"safety_net": False})]:
+        taken, failed, evals = steps(hand, bundle, cam, obs, mode, ours, **kw)
+        print(f"  {label:<40} {taken:6.2f} / {failed:5.2f} / {evals:6.1f}")
     print("  where a tracked frame's time goes (mean CPU ms; 'net test': the safety net's score and test, and its "
           "search when a frame is doubtful):")
     names = [label for label, _, _ in PARTS] + ["other"]
