@@ -69,9 +69,14 @@ class TrackerSettings:
     undoubted frames' scores, or the last full start search's if higher: clutter that stays raises
     every fit's score — or a
     jump from the prediction of more than ``net_jump_deg`` / ``net_jump_mm``); a doubtful frame gets
-    the cheap start search (:meth:`tracker.init.InitSettings.cheap`) on its cloud, and the better of
-    the two estimates by score is kept. ``recentre``: when the segmented cloud's centre is farther
-    than the rejection radius from the predicted hand's, the prediction is moved onto it first. The net
+    the cheap start search (:meth:`tracker.init.InitSettings.cheap`) on its cloud — with
+    ``net_anchored`` first from the tracked global pose (postures only), and from placements found in
+    the cloud only when that still scores above the threshold — and the best estimate by score is
+    kept when it beats the tracked one by ``net_margin_mm`` (a search's estimate a hair better in score
+    can be degrees worse in posture: the tracked one was consistent with the frames before it). The
+    wrist cue is used only with an arm's worth of surface behind it (:func:`arm_behind`).
+    ``recentre``: when the segmented cloud's centre is farther than the rejection radius from the
+    predicted hand's, the prediction is moved onto it first. The net
     does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
     undoes what the mode is for (the demo's grasp seen from the back: 8.0° with the net, 5.0° without).
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
@@ -98,10 +103,12 @@ class TrackerSettings:
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
-    net_score_mm: float = 2.5
-    net_score_ratio: float = 2.0
+    net_score_mm: float = 0.7
+    net_score_ratio: float = 2.5
     net_jump_deg: float = 30.0
     net_jump_mm: float = 40.0
+    net_anchored: bool = True
+    net_margin_mm: float = 0.2
     recentre: bool = True
     wrist_cue: bool = True
     rgb_seed: bool = False
@@ -254,7 +261,8 @@ class HandTracker:
     scale_estimates_ : the per-frame estimates an automatic calibration took the median of
     hand_check_ : :class:`HandCheck` of the first frame (``check_hand``), else None
     net_runs_, net_replaced_, net_ms_ : how often the safety net ran, how often its estimate won, and
-        the time it took (ms, all runs together)
+        the time it took (ms, all runs together); net_anchored_, net_placed_ : how often it searched
+        from the tracked pose and from placements
     recentred_ : how often the prediction was moved onto the cloud
     rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
         instead of MediaPipe), else None; rgb_seeds_ : the searches it seeded; rgb_kept_ : how often
@@ -275,6 +283,7 @@ class HandTracker:
         self.scale_estimates_ = []
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
+        self.net_anchored_, self.net_placed_ = 0, 0
         self.rgb_ = RgbSeed(keypoint_detector) if settings.rgb_seed else None
         self.rgb_seeds_, self.rgb_kept_ = 0, 0
         self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
@@ -519,7 +528,8 @@ class HandTracker:
         when a search is about to run: tracking does not need it)."""
         if sil is not None and self.settings.wrist_cue and not hasattr(sil, "wrist"):
             frame = getattr(sil, "frame_depth", None)
-            sil.wrist = None if frame is None else wrist_cue(sil.mask, frame, sil.camera)
+            cue = None if frame is None else wrist_cue(sil.mask, frame, sil.camera)
+            sil.wrist = cue if cue is None or arm_behind(cue, sil.mask, frame, sil.camera) else None
 
     def _gate(self, pred, pts):
         """:func:`tracker.observe.gate` of the points by the hand predicted at ``pred`` (all True when
@@ -541,11 +551,17 @@ class HandTracker:
         out[:3] += shift
         return out
 
+    def _net_threshold(self) -> float:
+        """The score (mm) above which a frame is doubtful: ``net_score_mm``, or ``net_score_ratio`` ×
+        the scene's level when higher."""
+        st = self.settings
+        level = max(np.median(self._scores) if self._scores else 0.0, self._search_level)
+        return max(st.net_score_mm, st.net_score_ratio * level)
+
     def _doubtful(self, theta, pred, s) -> bool:
         """The safety net's test of a tracked frame: a poor score for this sequence, or a jump."""
         st = self.settings
-        level = max(np.median(self._scores) if self._scores else 0.0, self._search_level)
-        if s > max(st.net_score_mm, st.net_score_ratio * level):
+        if s > self._net_threshold():
             return True
         R = euler_to_matrix(theta[3:6]) @ euler_to_matrix(pred[3:6]).T
         turn = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
@@ -568,14 +584,52 @@ class HandTracker:
         c_all = corr if all_pts is pts else ctx.matcher(theta, all_pts, all_nrm)
         s_track = score(ctx, theta, c_all, sil)
         starts = (theta,) if self.last_good is None else (theta, self.last_good)
-        th2, c2 = fit_single_frame(ctx, all_pts, InitSettings.cheap(), silhouette=sil, normals=all_nrm, extra=starts)
-        s2 = score(ctx, th2, c2, sil)
+        st = self.settings
+        best = (s_track, None, None)
+        if st.net_anchored:
+            # a posture gone wrong under a right global pose (fingers hidden, a fast close) is the
+            # common failure: the posture search from the tracked pose fits no placements and cannot
+            # pick a wrong one
+            th2, c2 = fit_single_frame(ctx, all_pts, InitSettings.cheap(refit_pose=True), theta0=theta,
+                                       silhouette=sil, normals=all_nrm, extra=starts)
+            self.net_anchored_ += 1
+            best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
+        if not st.net_anchored or best[0] > self._net_threshold():
+            # still doubtful: the hand may have turned beyond the tracked pose's reach
+            th2, c2 = fit_single_frame(ctx, all_pts, InitSettings.cheap(), silhouette=sil, normals=all_nrm, extra=starts)
+            self.net_placed_ += 1
+            best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
         self.net_ms_ += (time.perf_counter() - t0) * 1e3
-        if s2 < s_track - 1e-6:
+        if best[1] is not None and best[0] < s_track - st.net_margin_mm:
             self.net_replaced_ += 1
             self.prev = None
-            return th2, c2, all_pts, all_nrm, "replaced"
+            return best[1], best[2], all_pts, all_nrm, "replaced"
         return theta, corr, pts, nrm, "kept"
+
+
+def arm_behind(cue, mask, frame_depth, camera, *, reach_m=0.06, step_m=0.05, min_share=0.15) -> bool:
+    """Whether an arm's worth of surface lies beyond the wrist ``cue``: the frame's pixels outside the
+    hand ``mask`` within ``reach_m`` of the cue's centre and within ``step_m`` of its depth cover at
+    least ``min_share`` of the area a forearm as wide as the wrist line would there (``width_m`` ×
+    ``reach_m``). A few stray hand pixels the segmentation left outside the mask make a line of
+    :func:`tracker.wrist.wrist_cue` too (measured on rendered hands without an arm: 15 pixels gave a
+    2.5 cm "wrist" that cost the true pose 20–40 mm of score and sent the safety net's search to
+    turned-over hands); an arm fills its area."""
+    z = float(cue.point[2])
+    r = reach_m * camera.fx / z
+    h, w = mask.shape
+    u, v = cue.pixel
+    y0, y1 = max(int(v - r), 0), min(int(np.ceil(v + r)) + 1, h)
+    x0, x1 = max(int(u - r), 0), min(int(np.ceil(u + r)) + 1, w)
+    if y0 >= y1 or x0 >= x1:
+        return False
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    d = frame_depth[y0:y1, x0:x1]
+    near = ((yy - v) ** 2 + (xx - u) ** 2 <= r * r) & ~mask[y0:y1, x0:x1]
+    with np.errstate(invalid="ignore"):
+        near &= np.abs(d - z) <= step_m
+    expected = (cue.width_m * camera.fx / z) * r
+    return bool(near.sum() >= min_share * expected)
 
 
 def _usable(points, normals, max_points):
