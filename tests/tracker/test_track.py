@@ -144,7 +144,9 @@ def test_single_frame_hierarchical_better_than_flat(bundle, postures):
 
 def test_finger_search_finds_a_finger_flexed_alone(bundle):
     """A ring finger curled alone (PIP-led, as in fingerfist) lies outside every synergy start; the
-    finger-wise restarts find it, the synergy search alone does not."""
+    finger-wise restarts find it. The synergy search alone now comes close too (measured 0.43°
+    against 0.26° with the restarts, on the tree of 2026-11-23; earlier more than twice as far), so
+    the restarts must still improve on it."""
     from tracker.correspond import Silhouette
     from tracker.observe import observe
     from tracker.sim.render import DepthRenderer
@@ -167,7 +169,7 @@ def test_finger_search_finds_a_finger_flexed_alone(bundle):
         err[fs] = float(E.posture_error_deg(th, truth, HAND.pose_mask))
     print(f"\nring finger alone: without finger search {err[False]:.2f} deg, with {err[True]:.2f} deg")
     assert err[True] <= 1.0
-    assert err[False] > 2.0 * err[True]
+    assert err[True] < err[False] - 0.1
 
 
 def test_diverse_placements_keep_a_flipped_candidate():
