@@ -195,9 +195,9 @@ class HandCheck:
 
     @property
     def other_fits_better(self) -> bool:
-        """The other hand clearly better: by 1 mm and by a third of the score (a fit of the wrong hand
+        """The other hand clearly better: by 0.5 mm and by a third of the score (a fit of the wrong hand
         can be nearly as good; a clearly worse one is the wrong hand, not noise)."""
-        return self.other_score < self.score - 1.0 and self.other_score < 0.67 * self.score
+        return self.other_score < self.score - 0.5 and self.other_score < 0.67 * self.score
 
     def __str__(self) -> str:
         verdict = (f"the {self.other_side} hand fits clearly better: is the recording's handedness wrong?"
