@@ -132,20 +132,20 @@ def test_colour_seed_reaches_the_start_search(hand, scene):
 
 
 def test_colour_seed_decides_what_the_depth_cannot(hand):
-    """Realistic scene (Kinect noise, hand alone, open-close frame 15): the default start search
-    picks a hand turned over (measured 87.7 mm; its fit error 3.5 mm, its score with the wrist cue
-    lower than the right hand's); the colour seed refined by ICP fits the depth better (0.5 mm) and
-    is kept (measured 1.2 mm)."""
+    """Realistic scene (Kinect noise, hand alone, open-close frame 24, the fingers half closed): the
+    depth-only start search lands a few mm off (measured 5.7 mm; since its score measures every point
+    against the whole model it no longer turns open hands over, the case this test first held); the
+    colour seed refined by ICP fits the depth better and is kept (measured 3.1 mm)."""
     from synergy.bundle import load_bundle
     from tracker.sim.hands import HandShape
     from tracker.sim.noise import NoiseModel
 
     shown = HandShape(1.0).apply(hand)  # the realistic scenes' rendered hand (its own proportions)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[15]
+    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[24]
     nm = NoiseModel.preset("kinect1")
     r = render(shown, truth, CAM, labels=False, color=True, incidence=nm.needs_incidence,
                reflectance=nm.needs_reflectance)
-    depth = nm.apply(r.depth, CAM, np.random.default_rng([0, 15]), r.cos_incidence, r.reflectance)
+    depth = nm.apply(r.depth, CAM, np.random.default_rng([0, 24]), r.cos_incidence, r.reflectance)
     bundle = load_bundle("fingerfist")
     errs = {}
     for on in (False, True):
@@ -155,7 +155,7 @@ def test_colour_seed_decides_what_the_depth_cannot(hand):
         th = tr.track(ob, CAM, color=r.color).theta
         errs[on] = float(np.linalg.norm(hand.keypoints(th) - shown.keypoints(truth), axis=-1).mean() * 1000)
         assert tr.rgb_kept_ == int(on)
-    assert errs[True] < 10.0 and errs[False] > 40.0
+    assert errs[True] < 4.0 and errs[True] < errs[False] - 1.5
 
 
 def test_colour_seed_without_colour_is_the_depth_only_start(hand, scene):
