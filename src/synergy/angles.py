@@ -159,22 +159,34 @@ def verdict(diag) -> str:
     return "check" if diag.get("warnings") else "good"
 
 
-def ip_coupling_pairs(hand):
+def dip_fixed_fingers(markerset) -> set:
+    """The fingers whose DIP angle the marker set fixes by geometry: joint-centre markers at the PIP
+    and the DIP and a fingertip marker (a joint-centre export such as ART's). The DIP prior has
+    nothing to decide there and would only bend a measured angle (ART: residual 1.58 → 1.60 mm)."""
+    have = {(m.landmark.get("type"), m.landmark.get("joint")) for m in getattr(markerset, "markers", ())
+            if m.landmark}
+    return {f for f in ("index", "middle", "ring", "pinky")
+            if {("joint_centre", f"{f}2"), ("joint_centre", f"{f}3"), ("fingertip", f"{f}_tip")} <= have}
+
+
+def ip_coupling_pairs(hand, skip=()):
     """``(pip, dip)`` DoF indices of the four fingers (not the thumb, whose three bones carry markers
-    in every shipped set) for :func:`refine_with_coupling`."""
+    in every shipped set; nor the fingers in ``skip``, e.g. :func:`dip_fixed_fingers`) for
+    :func:`refine_with_coupling`."""
     names = list(hand.dof_names)
     return np.array([(names.index(f"{f}2_flex"), names.index(f"{f}3_flex"))
-                     for f in ("index", "middle", "ring", "pinky") if f"{f}3_flex" in names], np.int64)
+                     for f in ("index", "middle", "ring", "pinky") if f"{f}3_flex" in names and f not in skip],
+                    np.int64).reshape(-1, 2)
 
 
 def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_mm, sd_deg=IP_COUPLING_SD_DEG,
-                         ratio=IP_COUPLING, iterations=12):
+                         ratio=IP_COUPLING, iterations=12, skip=()):
     """Marker IK with a weak prior that each finger's DIP follows its PIP (``ratio``, SD ``sd_deg``).
 
     Starts from ``theta`` (an IK solution, ``(F, n)``) and from the same posture with each DIP set to
     ``ratio`` × PIP, runs a damped Gauss-Newton on markers (SD ``noise_mm`` per coordinate) plus the
     prior from both, and keeps the lower cost per frame; limits are the model's. Frames without a
-    finite ``theta`` are left alone. Returns ``theta`` refined.
+    finite ``theta`` are left alone; fingers in ``skip`` get no prior. Returns ``theta`` refined.
 
     >>> h = HandModel.load()
     >>> import numpy as np
@@ -184,7 +196,7 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     >>> bool(np.abs(out - th).max() < 1e-6)
     True
     """
-    pairs = ip_coupling_pairs(hand)
+    pairs = ip_coupling_pairs(hand, skip)
     th = np.array(theta, float)
     ok = np.isfinite(th).all(1)
     if not ok.any() or not len(pairs) or not sd_deg:
@@ -238,7 +250,7 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
 
 
 def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, rate, accel_sd_deg_s2=None,
-                      ip_sd_deg=IP_COUPLING_SD_DEG, ratio=IP_COUPLING, iterations=6):
+                      ip_sd_deg=IP_COUPLING_SD_DEG, ratio=IP_COUPLING, iterations=6, skip=()):
     """Marker IK of a whole trajectory at once, with a weak prior on each finger joint's angular
     acceleration (SD ``accel_sd_deg_s2``) beside the DIP prior of :func:`refine_with_coupling`.
 
@@ -247,8 +259,8 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
     noise moved the joint along the valley by several degrees from one frame to the next, and the
     prior lets the neighbouring frames decide (a low-pass at ~3 Hz along such directions only).
     Starts from ``theta`` (``(F, n)``, NaN rows for frames not solved; consecutive solved frames are
-    tied); Levenberg-Marquardt on the sparse banded system; limits are the model's. Returns ``theta``
-    refined.
+    tied); Levenberg-Marquardt on the sparse banded system; limits are the model's; fingers in
+    ``skip`` get no DIP prior. Returns ``theta`` refined.
 
     >>> h = HandModel.load()
     >>> th = np.zeros((5, 26)); th[:, 2] = 0.5; th[:, 9] = np.linspace(-0.5, -0.3, 5)
@@ -275,7 +287,7 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
                            (np.r_[rows, rows, rows], np.r_[cols0, cols0 + n, cols0 + 2 * n])),
                           shape=(len(rows), F * n))
     DtD = (D.T @ D).tocsr()
-    pairs = ip_coupling_pairs(hand) if ip_sd_deg else np.zeros((0, 2), np.int64)
+    pairs = ip_coupling_pairs(hand, skip) if ip_sd_deg else np.zeros((0, 2), np.int64)
     P = np.zeros((len(pairs), n))
     P[np.arange(len(pairs)), pairs[:, 1]] = 1.0
     P[np.arange(len(pairs)), pairs[:, 0]] = -ratio
@@ -438,10 +450,11 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         th_out = np.where(solved0[:, None], theta, np.nan)
         if ip_coupling_sd_deg:
             th_out = refine_with_coupling(hm, nodes, local, targets, th_out, weights, noise_mm=noise,
-                                          sd_deg=ip_coupling_sd_deg)
+                                          sd_deg=ip_coupling_sd_deg, skip=dip_fixed_fingers(ms))
         if accel_sd_deg_s2:
             th_out = refine_trajectory(hm, nodes, local, targets, th_out, weights, noise_mm=noise, rate=rate,
-                                       accel_sd_deg_s2=accel_sd_deg_s2, ip_sd_deg=ip_coupling_sd_deg)
+                                       accel_sd_deg_s2=accel_sd_deg_s2, ip_sd_deg=ip_coupling_sd_deg,
+                                       skip=dip_fixed_fingers(ms))
         theta = np.where(solved0[:, None], th_out, theta)
         if solved0.any():
             # the report as the solver would give it for the refined postures (weighted RMS, limits)

@@ -86,3 +86,26 @@ def test_trajectory_prior_steadies_a_joint_the_markers_leave_free():
     assert jump_out < 0.1 * jump_in, (jump_in, jump_out)
     # the PIPs the markers see stay
     np.testing.assert_allclose(np.delete(out, 20, axis=0)[:, PAIRS[:, 0]], -1.2, atol=1e-3)
+
+
+def test_joint_centre_exports_get_no_dip_prior():
+    """Joint centres at the PIP and DIP and a fingertip fix each DIP by geometry: the prior has
+    nothing to decide and must not bend a measured angle (it cost ART's real recording 1.58 →
+    1.60 mm); skin-marker sets keep it."""
+    from synergy.angles import dip_fixed_fingers, markers_to_angles
+    from synergy.markers import load_markerset
+    from synergy.simulate import motion, simulate_markers
+
+    assert dip_fixed_fingers(load_markerset("art-joint-centres")) == {"index", "middle", "ring", "pinky"}
+    assert dip_fixed_fingers(load_markerset("hand16")) == set() == dip_fixed_fingers(load_markerset("hand19"))
+    assert len(ip_coupling_pairs(HAND, {"index", "ring"})) == 2 and ip_coupling_pairs(HAND, set(PAIRS_FINGERS)).shape == (0, 2)
+    th, _ = motion("power_grasp", duration_s=0.4, seed=3)
+    for name, equal in (("art-joint-centres", True), ("hand16", False)):
+        tr = simulate_markers(th, name, noise_mm=0.5, seed=1)
+        on = markers_to_angles(tr, name, calibration=None, check_hand=None)
+        off = markers_to_angles(tr, name, calibration=None, check_hand=None, ip_coupling_sd_deg=None)
+        diff = np.abs(on[HAND.dof_names].to_numpy() - off[HAND.dof_names].to_numpy()).max()
+        assert (diff == 0.0) if equal else (diff > 1e-4), (name, diff)
+
+
+PAIRS_FINGERS = ("index", "middle", "ring", "pinky")
