@@ -35,24 +35,15 @@ from synergy.angles import (
 )
 from synergy.calibrate import Calibration, calibrate, scale_only
 from synergy.markers import load_markerset
-from synergy.simulate import motion, random_subject, simulate_markers
+from synergy.simulate import subject_protocol
 
 NOISE_MM = 0.5
 SMOOTH_HZ = 6.0
 
 
 def subject_trials(markers, seed):
-    """The test suite's protocol (tests/synergy/test_calibrate.py): ROM, static flat hand, power grasp."""
-    bones, shift = random_subject(markers, bone_range=0.2, marker_shift_mm=5.0, seed=seed)
-    kw = {"noise_mm": NOISE_MM, "bone_scales": bones, "marker_shift": shift}
-    th_rom, _ = motion("rom", duration_s=5.0, seed=seed)
-    rom = simulate_markers(th_rom, markers, seed=seed + 1, **kw)
-    th_st = np.zeros((50, 26))
-    th_st[:, :6] = th_rom[0, :6]
-    static = simulate_markers(th_st, markers, seed=seed + 2, **kw)
-    th, _ = motion("power_grasp", duration_s=3.0, seed=seed + 3)
-    trial = simulate_markers(th, markers, seed=seed + 4, **kw)
-    return rom, static, trial, th, bones, shift
+    """The test suite's protocol (:func:`synergy.simulate.subject_protocol`): ROM, static flat hand, power grasp."""
+    return subject_protocol(markers, seed, noise_mm=NOISE_MM)
 
 
 def oracle(ms, hand, bones, shift):

@@ -179,6 +179,17 @@ def ip_coupling_pairs(hand, skip=()):
                     np.int64).reshape(-1, 2)
 
 
+def dip_prior_rows(pairs, n, ratio, sd_deg):
+    """The DIP prior's residual rows over ``n`` DoF: ``(dip − ratio · pip) / sd`` per ``(pip, dip)``
+    pair (radians; none when there are no pairs)."""
+    P = np.zeros((len(pairs), n))
+    if len(pairs):
+        P[np.arange(len(pairs)), pairs[:, 1]] = 1.0
+        P[np.arange(len(pairs)), pairs[:, 0]] = -ratio
+        P /= np.radians(sd_deg)
+    return P
+
+
 def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_mm, sd_deg=IP_COUPLING_SD_DEG,
                          ratio=IP_COUPLING, iterations=12, skip=()):
     """Marker IK with a weak prior that each finger's DIP follows its PIP (``ratio``, SD ``sd_deg``).
@@ -208,10 +219,7 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
     ww = (w[None, :] * present) / float(noise_mm)
     n = hand.n_dofs
-    P = np.zeros((len(pairs), n))  # prior rows: (dip − ratio · pip) / sd
-    P[np.arange(len(pairs)), pairs[:, 1]] = 1.0
-    P[np.arange(len(pairs)), pairs[:, 0]] = -ratio
-    P /= np.radians(sd_deg)
+    P = dip_prior_rows(pairs, n, ratio, sd_deg)
 
     def cost_and_terms(t):
         p = 1000.0 * hand.points(t, nodes, local)
@@ -288,11 +296,7 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
                           shape=(len(rows), F * n))
     DtD = (D.T @ D).tocsr()
     pairs = ip_coupling_pairs(hand, skip) if ip_sd_deg else np.zeros((0, 2), np.int64)
-    P = np.zeros((len(pairs), n))
-    P[np.arange(len(pairs)), pairs[:, 1]] = 1.0
-    P[np.arange(len(pairs)), pairs[:, 0]] = -ratio
-    if len(pairs):
-        P /= np.radians(ip_sd_deg)
+    P = dip_prior_rows(pairs, n, ratio, ip_sd_deg)
     lim = np.asarray(hand.limits, float)
     tg = 1000.0 * np.asarray(targets, float)[at]
     present = np.isfinite(tg[..., 0])

@@ -177,6 +177,26 @@ def random_subject(markerset, *, bone_range=0.2, marker_shift_mm=5.0, seed=0):
     return bones, shift
 
 
+
+def subject_protocol(markerset, seed, *, noise_mm=0.5, bone_range=0.2, marker_shift_mm=5.0):
+    """The calibration protocol of our tests and ``benchmarks/bench_calibrate.py``: a subject unlike
+    the model (:func:`random_subject`: every bone ``1 ± bone_range``, every marker up to
+    ``marker_shift_mm`` per axis off its place), ``noise_mm`` marker noise, and three trials of it —
+    a 5 s range of motion, a static flat hand (50 frames) and a 3 s power grasp to convert.
+
+    Returns ``(rom, static, trial, theta, bones, shift)``: the three marker trials, the grasp's true
+    θ, and the subject (bone factors, marker shifts)."""
+    bones, shift = random_subject(markerset, bone_range=bone_range, marker_shift_mm=marker_shift_mm, seed=seed)
+    kw = {"noise_mm": noise_mm, "bone_scales": bones, "marker_shift": shift}
+    th_rom, _ = motion("rom", duration_s=5.0, seed=seed)
+    rom = simulate_markers(th_rom, markerset, seed=seed + 1, **kw)
+    th_st = np.zeros((50, th_rom.shape[1]))
+    th_st[:, :6] = th_rom[0, :6]
+    static = simulate_markers(th_st, markerset, seed=seed + 2, **kw)
+    th, _ = motion("power_grasp", duration_s=3.0, seed=seed + 3)
+    trial = simulate_markers(th, markerset, seed=seed + 4, **kw)
+    return rom, static, trial, th, bones, shift
+
 def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, gap_fraction=0.0, rate=100.0,
                      seed=0, motion_name="", task="", bone_scales=None, marker_shift=None):
     """Markers of ``markerset`` on the (scaled) default hand following ``theta``; noise and gaps.

@@ -12,7 +12,7 @@ from synergy.calibrate import calibrate, load_calibration, save_calibration, sca
 from synergy.cli import app
 from synergy.errors import SynergyError
 from synergy.markers import load_markerset
-from synergy.simulate import motion, random_subject, simulate_markers
+from synergy.simulate import motion, simulate_markers, subject_protocol
 
 HAND = HandModel.load()
 NOISE_MM = 0.5
@@ -27,16 +27,7 @@ ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 2.0}
 def subject_trials(markers, seed):
     """A subject with every bone ±20 % and every marker ±5 mm per axis off the model; 0.5 mm noise:
     a range-of-motion trial, a static flat-hand trial and a power grasp to convert."""
-    bones, shift = random_subject(markers, bone_range=0.2, marker_shift_mm=5.0, seed=seed)
-    kw = dict(noise_mm=NOISE_MM, bone_scales=bones, marker_shift=shift)
-    th_rom, _ = motion("rom", duration_s=5.0, seed=seed)
-    rom = simulate_markers(th_rom, markers, seed=seed + 1, **kw)
-    th_st = np.zeros((50, 26))
-    th_st[:, :6] = th_rom[0, :6]
-    static = simulate_markers(th_st, markers, seed=seed + 2, **kw)
-    th, _ = motion("power_grasp", duration_s=3.0, seed=seed + 3)
-    trial = simulate_markers(th, markers, seed=seed + 4, **kw)
-    return rom, static, trial, th
+    return subject_protocol(markers, seed, noise_mm=NOISE_MM)[:4]
 
 
 def false_limits(df, theta):
