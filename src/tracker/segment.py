@@ -436,8 +436,10 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     y0, x0 = max(ya - pad, 0), max(xa - pad, 0)
     y1, x1 = min(yb + pad + 1, m.shape[0]), min(xb + pad + 1, m.shape[1])
     sub = m[y0:y1, x0:x1]
-    # close one-pixel no-data cracks so they do not split the palm circle
-    solid = ndimage.binary_closing(sub, iterations=1) | sub
+    # close one-pixel no-data cracks and fill the holes the sensor leaves inside the hand (Kinect v1:
+    # dropouts and shadows inside a fist) so that neither splits nor shrinks the palm circle: a
+    # circle shrunk by a hole makes every finger reach "farther than a finger can" (an arm)
+    solid = ndimage.binary_fill_holes(ndimage.binary_closing(sub, iterations=1) | sub)
     dt = ndimage.distance_transform_edt(solid)
     # where the region goes on: the image border or the surface beyond it (the arm's side)
     go_on = np.zeros(sub.shape, bool)
