@@ -393,3 +393,15 @@ def test_hostile_inputs_through_the_cli_stay_small(tmp_path):
         assert time.monotonic() - t0 < 5 + 3   # + the interpreter's start-up on a busy machine
         assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
         assert rss < 500 << 20, (args[1], rss >> 20)
+
+
+@pytest.mark.parametrize("cls", [ToolkitError, BundleError, RecordingError])
+def test_errors_cross_process_boundaries_as_themselves(cls):
+    # a worker's error (Dask, the report's parallel steps) is pickled back to the caller; rebuilt from
+    # its formatted message alone it failed to unpickle and broke the whole process pool
+    import pickle
+
+    e = pickle.loads(pickle.dumps(cls("rec/frame_0001.png", "not a 16-bit PNG")))
+    assert type(e) is cls and e.where == "rec/frame_0001.png" and e.reason == "not a 16-bit PNG"
+    assert str(e) == "rec/frame_0001.png: not a 16-bit PNG"
+    assert pickle.loads(pickle.dumps(cls(None, "no file"))).where is None

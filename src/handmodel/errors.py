@@ -15,6 +15,11 @@ class ToolkitError(ValueError):
         self.reason = reason
         super().__init__(f"{self.where}: {reason}" if self.where else reason)
 
+    def __reduce__(self):
+        # rebuilt from (where, reason), not from the formatted message: an error raised in a worker
+        # process (Dask, the report's parallel steps) reaches the caller as itself
+        return type(self), (self.where, self.reason)
+
 
 class HandModelError(ToolkitError):
     """A hand-model file or a parameter vector is invalid."""
