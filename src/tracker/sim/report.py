@@ -182,7 +182,11 @@ def run_steps(names, quick, jobs=1, progress=None):
     with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
         futures = {pool.submit(run_step, name, quick): name for name in names}
         for fut in as_completed(futures):
-            out[futures[fut]] = fut.result()
+            try:
+                out[futures[fut]] = fut.result()
+            except Exception as e:  # a worker's failure, named by its step (the others are cancelled)
+                pool.shutdown(cancel_futures=True)
+                raise TrackerError("experiments", f"step {futures[fut]!r} failed: {e}") from e
             tick(futures[fut])
     return out
 
