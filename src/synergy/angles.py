@@ -179,6 +179,15 @@ def ip_coupling_pairs(hand, skip=()):
                     np.int64).reshape(-1, 2)
 
 
+def _weighted_targets(targets, rows, nodes, weights, noise_mm):
+    """The markers of frames ``rows`` in mm with missing ones zeroed, and each one's weight over the
+    noise (0 where missing): what the IK refinements fit."""
+    tg = 1000.0 * np.asarray(targets, float)[rows]
+    present = np.isfinite(tg[..., 0])
+    w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
+    return np.nan_to_num(tg), (w[None, :] * present) / float(noise_mm)
+
+
 def dip_prior_rows(pairs, n, ratio, sd_deg):
     """The DIP prior's residual rows over ``n`` DoF: ``(dip − ratio · pip) / sd`` per ``(pip, dip)``
     pair (radians; none when there are no pairs)."""
@@ -213,11 +222,7 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     if not ok.any() or not len(pairs) or not sd_deg:
         return th
     lim = np.asarray(hand.limits, float)
-    tg = 1000.0 * np.asarray(targets, float)[ok]
-    present = np.isfinite(tg[..., 0])
-    y = np.nan_to_num(tg)
-    w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
-    ww = (w[None, :] * present) / float(noise_mm)
+    y, ww = _weighted_targets(targets, ok, nodes, weights, noise_mm)
     n = hand.n_dofs
     P = dip_prior_rows(pairs, n, ratio, sd_deg)
 
@@ -298,11 +303,7 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
     pairs = ip_coupling_pairs(hand, skip) if ip_sd_deg else np.zeros((0, 2), np.int64)
     P = dip_prior_rows(pairs, n, ratio, ip_sd_deg)
     lim = np.asarray(hand.limits, float)
-    tg = 1000.0 * np.asarray(targets, float)[at]
-    present = np.isfinite(tg[..., 0])
-    y = np.nan_to_num(tg)
-    w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
-    ww = (w[None, :] * present) / float(noise_mm)
+    y, ww = _weighted_targets(targets, at, nodes, weights, noise_mm)
 
     def cost_of(t):
         r = ww[..., None] * (1000.0 * hand.points(t, nodes, local) - y)
