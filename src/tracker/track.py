@@ -39,7 +39,7 @@ from .scale import (
     resized_context,
     size_score,
 )
-from .wrist import wrist_cue
+from .wrist import arm_behind, wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
 
@@ -74,7 +74,7 @@ class TrackerSettings:
     the cloud only when that still scores above the threshold — and the best estimate by score is
     kept when it beats the tracked one by ``net_margin_mm`` (a search's estimate a hair better in score
     can be degrees worse in posture: the tracked one was consistent with the frames before it). The
-    wrist cue is used only with an arm's worth of surface behind it (:func:`arm_behind`).
+    wrist cue is used only with an arm's worth of surface behind it (:func:`tracker.wrist.arm_behind`).
     ``recentre``: when the segmented cloud's centre is farther than the rejection radius from the
     predicted hand's, the prediction is moved onto it first. The net
     does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
@@ -605,31 +605,6 @@ class HandTracker:
             self.prev = None
             return best[1], best[2], all_pts, all_nrm, "replaced"
         return theta, corr, pts, nrm, "kept"
-
-
-def arm_behind(cue, mask, frame_depth, camera, *, reach_m=0.06, step_m=0.05, min_share=0.15) -> bool:
-    """Whether an arm's worth of surface lies beyond the wrist ``cue``: the frame's pixels outside the
-    hand ``mask`` within ``reach_m`` of the cue's centre and within ``step_m`` of its depth cover at
-    least ``min_share`` of the area a forearm as wide as the wrist line would there (``width_m`` ×
-    ``reach_m``). A few stray hand pixels the segmentation left outside the mask make a line of
-    :func:`tracker.wrist.wrist_cue` too (measured on rendered hands without an arm: 15 pixels gave a
-    2.5 cm "wrist" that cost the true pose 20–40 mm of score and sent the safety net's search to
-    turned-over hands); an arm fills its area."""
-    z = float(cue.point[2])
-    r = reach_m * camera.fx / z
-    h, w = mask.shape
-    u, v = cue.pixel
-    y0, y1 = max(int(v - r), 0), min(int(np.ceil(v + r)) + 1, h)
-    x0, x1 = max(int(u - r), 0), min(int(np.ceil(u + r)) + 1, w)
-    if y0 >= y1 or x0 >= x1:
-        return False
-    yy, xx = np.mgrid[y0:y1, x0:x1]
-    d = frame_depth[y0:y1, x0:x1]
-    near = ((yy - v) ** 2 + (xx - u) ** 2 <= r * r) & ~mask[y0:y1, x0:x1]
-    with np.errstate(invalid="ignore"):
-        near &= np.abs(d - z) <= step_m
-    expected = (cue.width_m * camera.fx / z) * r
-    return bool(near.sum() >= min_share * expected)
 
 
 def _usable(points, normals, max_points):

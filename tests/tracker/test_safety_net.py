@@ -125,8 +125,7 @@ def test_wrist_cue_needs_an_arm_behind_it():
     pixels lie outside the mask; only the arm fills the area beyond the line (`arm_behind`)."""
     from types import SimpleNamespace
 
-    from tracker.track import arm_behind
-    from tracker.wrist import wrist_cue
+    from tracker.wrist import arm_behind, wrist_cue
 
     cam = SimpleNamespace(fx=250.0, fy=250.0, cx=50.0, cy=50.0)
     for rows, cols, has_arm in ((slice(60, 100), slice(40, 60), True), (slice(60, 62), slice(44, 56), False)):
