@@ -43,7 +43,11 @@ DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
+SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm even when it crosses the finger ring in pieces
 OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
+ARM_LENGTH_PALMS = 3.5  # an object longer than this many palm widths is a hand with its arm
+FINGER_MAX_M = 0.035  # parts narrower than this are finger-like (fingers of 0.8-1.5x hands: 14-27 mm; a forearm 30-70 mm)
+FINGER_MIN_AREA_M2 = 1.5e-4  # a finger-like part at least this big (a finger's last 1-2 cm); outline noise is smaller
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -354,6 +358,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             if inside:
                 break
     X = None
+    if not _touches_border(seed, border_px):
+        seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
     if _touches_border(seed, border_px):
         # every candidate's nearest part is cut off by the border, typically an arm reaching
         # towards the camera from outside the image: the hand is then the end of the surface
@@ -409,6 +415,62 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     with np.errstate(invalid="ignore"):
         around = surface & (np.sum((X - centre) ** 2, axis=-1) <= (reach or 0.22) ** 2)
     return seed, float(np.percentile(d[around], 1))
+
+
+def _hand_end(surface, d, front, band, seed, focal, border_px=None):
+    """``(seed, front)`` at the fingers' end of an arm whose whole length is in view.
+
+    An arm ends in view at both ends when the renderer (or a cropped depth range) gives it a free
+    far end; a real forearm goes on to the elbow and the body, past the border or into ``beyond``,
+    and then this changes nothing. When the seed's surface within ``band`` of the front does not
+    reach the border and is longer than :data:`ARM_LENGTH_PALMS` palm widths (a hand with its arm,
+    not a hand), the nearest part may be the arm's far end (an elbow held nearer the camera than
+    the wrist). The hand is the end with the fingers: the parts narrower than
+    :data:`FINGER_MAX_M` (a morphological opening removes them), clearly more of them on one
+    half along the object's long axis than on the other. That half's nearest part becomes the
+    seed; otherwise (a fist, a hand seen edge-on: no finger-like parts) the seed stays."""
+    with np.errstate(invalid="ignore"):
+        obj = surface & (d <= front + band) & (d >= front - band)
+    lab_o, _ = ndimage.label(obj)
+    hit = np.unique(lab_o[seed])
+    obj = np.isin(lab_o, hit[hit > 0])
+    if not obj.any() or _touches_border(obj, border_px):
+        return seed, front
+    (ya, yb), (xa, xb) = bounds(obj)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    o = ndimage.binary_fill_holes(ndimage.binary_closing(obj[win], iterations=1) | obj[win])
+    yy, xx = np.nonzero(o)
+    P = np.stack([yy, xx], 1).astype(float)
+    c = P.mean(axis=0)
+    w, V = np.linalg.eigh(np.cov((P - c).T))
+    t = (P - c) @ V[:, -1]
+    palm = 2.0 * float(ndimage.distance_transform_edt(o).max())
+    if t.max() - t.min() < ARM_LENGTH_PALMS * palm:
+        return seed, front
+    z = float(np.nanmedian(d[win][o]))
+    px_m = focal / z
+    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
+    thin = o & ~ndimage.binary_opening(o, structure=disk)
+    # finger-sized pieces only: noise at the outline leaves slivers a few pixels big
+    lab_t, n = ndimage.label(thin)
+    if n == 0:
+        return seed, front
+    size = np.bincount(lab_t[thin], minlength=n + 1)
+    tt = np.zeros(o.shape)
+    tt[yy, xx] = t
+    side = np.bincount(lab_t[thin], weights=tt[thin], minlength=n + 1) > 0  # mean t > 0: the + half
+    big = size >= FINGER_MIN_AREA_M2 * px_m ** 2
+    big[0] = False
+    plus, minus = size[big & side].sum(), size[big & ~side].sum()
+    if max(plus, minus) < FINGER_MIN_AREA_M2 * px_m ** 2 * 2 or max(plus, minus) < 3 * min(plus, minus):
+        return seed, front
+    half = np.zeros(d.shape, bool)
+    half[win] = o & ((tt > 0) if plus > minus else (tt < 0)) & obj[win]
+    zh = float(np.percentile(d[half], 1))
+    with np.errstate(invalid="ignore"):
+        new = _largest_in_window(half & (d <= zh + 0.015))
+    return (new, zh) if new.any() else (seed, front)
 
 
 def _points(depth, focal):
@@ -515,14 +577,20 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         fy, fx = np.sum(width[others] * cy_p[others]), np.sum(width[others] * cx_p[others])
         cosang = (cy_p[j] * fy + cx_p[j] * fx) / (np.hypot(cy_p[j], cx_p[j]) * np.hypot(fy, fx) + 1e-12)
         continues[j + 1] |= cosang < -0.5
-    # spread fingers stay fingers whichever rule called them an arm
-    continues[1:] &= pieces < 2
+    # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
+    # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
+    # crosses the ring in pieces too
+    continues[1:] &= (pieces < 2) | (reach_r > SURE_ARM_REACH_R * r)
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:
         return m
     arm = lab == j + 1
     ring = arm & (rho < 2.6 * r)
+    if pieces[j] >= 2:
+        # an arm with a finger touching it: its direction is that of its widest piece on the ring
+        mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
+        ring = ring & ndimage.binary_dilation(ring_lab == mine[np.argmax(piece_size[mine])], iterations=2)
     if not ring.any():
         ring = arm
     ay, ax = vy[ring].mean(), vx[ring].mean()
