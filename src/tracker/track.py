@@ -328,7 +328,9 @@ class HandTracker:
 
     def track(self, observation, camera, color=None) -> FrameResult:
         """Track one :class:`tracker.observe.Observation` (``color``: its registered colour frame)."""
-        return self.step(observation.points, normals=observation.normals, mask=observation.mask,
+        # the silhouette terms fit the mask with the sensor's dropout band (tracker.observe.dropout_band)
+        sil = observation.mask if observation.silhouette is None else observation.silhouette
+        return self.step(observation.points, normals=observation.normals, mask=sil,
                          depth=observation.depth, camera=camera, frame_depth=observation.frame_depth, color=color)
 
     def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:

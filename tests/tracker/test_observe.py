@@ -7,7 +7,15 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from tracker.cameras import Camera, preset
-from tracker.observe import ObserveSettings, backproject, gate, kept_fraction, observe, stride_for_density
+from tracker.observe import (
+    ObserveSettings,
+    backproject,
+    dropout_band,
+    gate,
+    kept_fraction,
+    observe,
+    stride_for_density,
+)
 from tracker.segment import Segmenter, in_box
 
 cameras = st.builds(
@@ -270,6 +278,80 @@ def test_compiled_observe_is_the_numpy_one(hand, settings):
         X, N, out_d, density, stride = _observe_numpy(d, cam, settings, ob.mask)
         np.testing.assert_array_equal(ob.points, X)
         np.testing.assert_array_equal(ob.normals, N)
-        np.testing.assert_array_equal(ob.depth, out_d)
+        # the dropout band's depth (tested on its own below) is the only depth outside the mask
+        np.testing.assert_array_equal(np.where(ob.mask, ob.depth, np.nan), out_d)
         assert (ob.density, ob.stride) == (density, stride)
         assert len(X) > 100 and 0 < np.isnan(N).any(1).mean() < 0.7
+
+
+def _band_reference(mask, depth, width):
+    """dropout_band by its definition, pixel by pixel: breadth-first from the mask through pixels
+    without depth (4-connected), each reached pixel taking the smallest depth among its neighbours
+    one step nearer the mask."""
+    from collections import deque
+
+    H, W = mask.shape
+    dist = np.where(mask, 0, -1)
+    val = np.where(mask & np.isfinite(depth), depth, np.nan)
+    q = deque(zip(*np.nonzero(mask)))
+    while q:
+        v, u = q.popleft()
+        if dist[v, u] == width:
+            continue
+        for dv, du in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            a, b = v + dv, u + du
+            if 0 <= a < H and 0 <= b < W and dist[a, b] < 0 and not np.isfinite(depth[a, b]):
+                dist[a, b] = dist[v, u] + 1
+                q.append((a, b))
+    band = dist > 0
+    fill = np.full((H, W), np.nan)
+    for k in range(1, width + 1):
+        for v, u in zip(*np.nonzero(dist == k)):
+            nb = [val[a, b] for a, b in ((v + 1, u), (v - 1, u), (v, u + 1), (v, u - 1))
+                  if 0 <= a < H and 0 <= b < W and dist[a, b] == k - 1]
+            val[v, u] = fill[v, u] = np.nan if np.all(np.isnan(nb)) else np.nanmin(nb)
+    return band, fill
+
+
+@pytest.mark.parametrize("width", [1, 2, 3])
+def test_dropout_band_is_its_definition(width):
+    """The band and its depths equal the breadth-first definition on random masks over depth with
+    holes: only pixels without depth join, never across a pixel with depth (background beside the
+    hand stays background), the image border does not wrap around."""
+    rng = np.random.default_rng(width)
+    for _ in range(20):
+        mask = np.zeros((14, 17), bool)
+        mask[rng.integers(0, 14, 3)[:, None], rng.integers(0, 17, 3)] = True
+        mask[3:9, 0:6] |= rng.random((6, 6)) < 0.7
+        depth = np.where(rng.random(mask.shape) < 0.5, np.nan, 0.5 + rng.random(mask.shape))
+        depth[mask & (rng.random(mask.shape) < 0.2)] = np.nan
+        band, fill = dropout_band(mask, depth, width)
+        ref_band, ref_fill = _band_reference(mask, depth, width)
+        np.testing.assert_array_equal(band, ref_band)
+        np.testing.assert_array_equal(fill, ref_fill)
+        assert not (band & mask).any() and not (band & np.isfinite(depth)).any()
+
+
+def test_observe_silhouette_adds_only_the_dropout_band(hand):
+    """Kinect v1 edge drop-outs and shadows: the observation's silhouette is the mask plus the
+    missing pixels next to it (depth filled), the mask itself is the segmentation's; edge_px=0
+    leaves the silhouette the mask."""
+    from tracker.sim.noise import NoiseModel
+    from tracker.sim.render import DepthRenderer
+
+    cam = preset("kinect1")
+    th = np.zeros(hand.n_dofs)
+    th[2] = 0.7
+    clean = DepthRenderer(hand, cam).render(th, labels=False).depth
+    depth = NoiseModel.preset("kinect1").apply(clean, cam, rng=np.random.default_rng(0))
+    ob = observe(depth, cam)
+    added = ob.silhouette & ~ob.mask
+    assert added.sum() > 50 and not np.isfinite(depth[added]).any()
+    assert np.isfinite(ob.depth[added]).mean() > 0.95
+    # nearly every hand pixel the sensor lost is in the silhouette again (none without the band)
+    lost = np.isfinite(clean) & ~np.isfinite(depth)
+    assert lost.sum() > 300 and (lost & ob.silhouette).mean() > 0.95 * lost.mean()
+    assert not (lost & ob.mask).any()
+    plain = observe(depth, cam, edge_px=0)
+    np.testing.assert_array_equal(plain.silhouette, ob.mask)
+    assert not np.isfinite(plain.depth[~plain.mask]).any()
