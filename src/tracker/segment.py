@@ -12,9 +12,13 @@ No wristband is needed. The steps, each a small function over arrays:
 4. that surface, cut to ``band`` metres behind its nearest part, plus the small surfaces in that
    depth band within ``margin_px`` of it (fingertips curled towards the camera that the sensor
    cuts off by a depth jump or a no-data gap);
+   When that surface is a whole arm in view (it does not reach the border and is much longer
+   than a palm is wide), the seed moves to its end with the fingers (:func:`_hand_end`): the
+   nearest part of a free-ended arm can be its far end;
 5. :func:`cut_forearm` (``forearm="cut"``): the palm is the largest inscribed circle of the
-   region, the forearm the wide part leaving it; the cut goes across the arm where the width
-   profile along the arm narrows most (the wrist);
+   region, the forearm the wide part leaving it that goes on (past the border, the band or the
+   reach, or into another object met at its own depth: a table, the body); the cut goes across
+   the arm where the width profile along the arm stops narrowing (the wrist);
 6. with a colour frame (``use_color``), only skin-coloured pixels (HSV range of htrack's
    detector) are kept, when enough of them are.
 
@@ -48,6 +52,10 @@ OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it
 ARM_LENGTH_PALMS = 3.5  # an object longer than this many palm widths is a hand with its arm
 FINGER_MAX_M = 0.035  # parts narrower than this are finger-like (fingers of 0.8-1.5x hands: 14-27 mm; a forearm 30-70 mm)
 FINGER_MIN_AREA_M2 = 1.5e-4  # a finger-like part at least this big (a finger's last 1-2 cm); outline noise is smaller
+TOUCH_PX = 3  # another surface this close in the image (sensor shadows between them are 1-3 px) …
+TOUCH_M = 0.02  # … and in depth joins the hand's region there …
+TOUCH_AREA_M2 = 0.0015  # … when it is this big near the hand (a table, the body; shading specks are smaller)
+TOUCH_WINDOW_M = 0.06  # how far around the hand that size is measured
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -139,6 +147,8 @@ class Segmenter:
         if not valid.any():
             return valid
         dv = np.where(valid, d, np.nan)
+        # the frame before the skin filter: where a table or the body meets the hand, the arm goes on
+        d_all = np.where(self._valid(d, None, points), d, np.nan) if color is not None and self.use_color else dv
         mask, beyond = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
@@ -147,7 +157,9 @@ class Segmenter:
         seed = beyond[1]
         beyond = beyond[0]
         if self.forearm == "cut" and mask.any():
-            mask = cut_forearm(mask, dv, f, beyond, seed=seed)
+            # where a table or the body meets the hand at its depth (seen before the skin filter)
+            joins = _joins(mask, dv, mask | beyond, d_all, f, jump=self.jump)
+            mask = cut_forearm(mask, dv, f, beyond, seed=seed, joins=joins)
         return mask
 
 
@@ -400,6 +412,42 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     return out
 
 
+def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None, jump=0.02):
+    """Pixels where another object meets ``region`` at its own depth: pixels of ``depth_all`` (the
+    frame before the skin filter; NaN = no data) off the hand's ``surface``, within ``px`` pixels of
+    the region and within ``dz`` metres of its nearest pixel's depth, whose surface (depth
+    continuity, in a window :data:`TOUCH_WINDOW_M` around the region) covers at least ``min_area``
+    m² — a table or the body, not the shading specks at the hand's outline that fail the skin test
+    or the hand's own fingertip blobs."""
+    px = TOUCH_PX if px is None else px
+    dz = TOUCH_M if dz is None else dz
+    min_area = TOUCH_AREA_M2 if min_area is None else min_area
+    out = np.zeros(region.shape, bool)
+    if not region.any():
+        return out
+    (ya, yb), (xa, xb) = bounds(region)
+    H, W = region.shape
+    z = float(np.nanmedian(d[region]))
+    m = px + int(np.ceil(TOUCH_WINDOW_M * focal / z))
+    win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
+    r = region[win]
+    dist, (iy, ix) = ndimage.distance_transform_edt(~r, return_indices=True)
+    da = np.asarray(depth_all, float)[win]
+    with np.errstate(invalid="ignore"):
+        close = (dist <= px) & (np.abs(da - d[win][iy, ix]) <= dz)
+    if not close.any():
+        return out
+    other = np.where(np.isfinite(da) & ~surface[win], da, np.nan)
+    lab, n = surfaces(other, jump)
+    if n == 0:
+        return out
+    on = lab > 0
+    big = np.bincount(lab[on], weights=pixel_area(other[on], focal), minlength=n + 1) >= min_area
+    big[0] = False
+    out[win] = close & big[lab]
+    return out
+
+
 def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     """``(seed, front)`` at the end of ``surface`` farthest (in the image) from its pixels at the
     image border: the pixels within 2 cm of that end, and the nearest depth (1st percentile) of
@@ -480,7 +528,8 @@ def _points(depth, focal):
     return np.stack([(u - (W - 1) / 2) * depth / focal, (v - (H - 1) / 2) * depth / focal, depth], -1)
 
 
-def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None):
+def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
+                joins=None):
     """The hand mask without the forearm beyond the wrist.
 
     The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
@@ -491,7 +540,10 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     wide as an arm). The widest such part is the forearm, its direction from c the arm axis a. The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
     smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
-    Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it."""
+    Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
+    ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
+    they touch goes on too (an arm entering a table the sensor's shadow separates from it), but
+    they do not move the palm (fingertips touch the body as well)."""
     m = np.asarray(mask, bool)
     (ya, yb), (xa, xb) = bounds(m)
     pad = 2
@@ -547,6 +599,11 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     width = np.bincount(lab[base], minlength=n + 1)[1:] / (0.3 * r) / 2.0
     continues = np.zeros(n + 1, bool)
     continues[np.unique(lab[go_on & (lab > 0)])] = True
+    if joins is not None:
+        # a part another object meets at its depth goes on into it (an arm into a table or the
+        # body); not used for the palm's place: fingertips touch the body too
+        touch = ndimage.binary_dilation(np.asarray(joins, bool)[y0:y1, x0:x1], iterations=2) & solid
+        continues[np.unique(lab[touch & (lab > 0)])] = True
     # a part reaching farther from the palm's centre than any finger can is an arm even where it
     # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
     reach_r = np.asarray(ndimage.maximum(rho, lab, index=idx), float)
