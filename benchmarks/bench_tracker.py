@@ -119,7 +119,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
     evaluations (:func:`tracker.icp.fit`'s ``stats``)."""
     base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
     tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
-    stats = np.zeros(3, np.int64)
+    stats = np.zeros(4, np.int64)
     for ob in obs[:10]:
         tr.track(ob, cam)
     with mock.patch("tracker.track.fit", partial(fit, stats=stats)):

@@ -11,7 +11,8 @@ Point-to-plane pairs do not reduce to moments; they go through the per-pair solv
 
 Stage arrays (one row per stage, padded to the widest): ``st_M (S, n, m)``, ``st_mu (S, n)``,
 ``st_m (S,)``, ``st_lo``/``st_hi``/``st_damp (S, m)``, ``st_eye (S,)`` (M is the identity),
-``st_entry (S,)`` (0 none, 1 clamp, 2 through); the projection after a stage: ``pr_on (S,)`` and
+``st_entry (S,)`` (0 none, 1 clamp, 2 through), ``st_reuse (S,)`` (no closest-point pass: the pairs of
+the pass before); the projection after a stage: ``pr_on (S,)`` and
 ``pr_M``/``pr_mu``/``pr_lo``/``pr_hi``/``pr_m`` like the stage's.
 """
 from __future__ import annotations
@@ -604,10 +605,35 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
 
 # ----------------------------------------------------------------------------- the fit
 @njit(cache=True)
+def _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo, hi, damp, eye,
+                 gn_iters, max_halvings, tol, limit_avoid, clamp, margin, point_to_plane, moments, pt_node, pt_local,
+                 tgt, w, plane, k, mmax, st_m1, stats):
+    """One stage's damped Gauss-Newton on fixed pairs: on their moments ``mom`` (reference frames
+    ``G0``) or, with ``point_to_plane`` or without ``moments``, pair by pair. Returns θ."""
+    n = dof_axes.shape[0]
+    if moments and not point_to_plane:
+        return solve_stage_moments(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0,
+                                   M[:, :m], mu, m, lo[:m], hi[:m], damp[:m], eye, gn_iters, max_halvings,
+                                   tol, limit_avoid, clamp, margin, stats)
+    ident = eye
+    for r in range(n):
+        if mu[r] != 0.0:
+            ident = False
+    tr = np.full(gn_iters + 1, np.nan)
+    th, _, _ = solve_stages(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
+                            pt_node, pt_local, tgt, w, plane[:k] if point_to_plane else plane,
+                            M.reshape((1, n, mmax)), mu.reshape((1, n)), st_m1,
+                            lo.reshape((1, mmax)), hi.reshape((1, mmax)), damp.reshape((1, mmax)),
+                            np.full(1, gn_iters, np.int64), np.full(1, ident), max_halvings, tol,
+                            limit_avoid, clamp, margin, tr)
+    return th
+
+
+@njit(cache=True)
 def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th,
                points, normals, cam, facing_only, reject, agreement, n_rigid,
-               st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, pose_mask,
+               st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_reuse, pose_mask,
                pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
                gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
                sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
@@ -615,9 +641,12 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
     correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
     silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result
-    (in the ``out_*`` arrays). ``moments``: Gauss-Newton on moment sums (point-to-point only), else
-    the per-pair solver; the moment path adds its steps taken and failed to ``stats`` (see
-    :func:`solve_stage_moments`). Returns θ."""
+    (in the ``out_*`` arrays). A stage with ``st_reuse`` skips its closest-point pass: it solves on
+    the pairs of the stage before it (their moments and reference frames kept), or, as the first
+    stage after rigid steps, on the last rigid step's pass (its pairs placed at the θ it matched at).
+    ``moments``: Gauss-Newton on moment sums (point-to-point only), else the per-pair solver; the
+    moment path adds its steps taken and failed to ``stats`` (see :func:`solve_stage_moments`), every
+    closest-point pass adds 1 to ``stats[3]``. Returns θ."""
     n = dof_axes.shape[0]
     N = parents.shape[0]
     P = points.shape[0]
@@ -635,18 +664,28 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     s_tgt = np.empty((n_s, 3))
     mom = np.empty((N, 23))
     theta = theta0.copy()
+    nv = 0
     for _ in range(n_rigid):
         fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
-        match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
-              agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+        nv = match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
+                   agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+        stats[3] += 1
         theta = rigid_update(theta, out_p, points, out_valid)
     mmax = st_M.shape[2]
+    # the reference frames of the pairs in use (a stage that reuses them solves relative to these)
+    G0 = np.empty((N, 4, 4))
+    k = -1
     for s in range(st_M.shape[0]):
-        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
-        nv = match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only,
-                   reject, agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
-        if nv < 3:
-            break
+        reuse = st_reuse[s] and k >= 0
+        # the first stage may take the last rigid step's pass (G still holds the frames it matched at)
+        from_rigid = st_reuse[s] and k < 0 and n_rigid > 0 and nv >= 3
+        if not (reuse or from_rigid):
+            fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+            nv = match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only,
+                       reject, agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+            stats[3] += 1
+            if nv < 3:
+                break
         m = st_m[s]
         M = st_M[s]
         mu = st_mu[s].copy()
@@ -663,7 +702,18 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                 hi[c] = max(hi[c] - a[c], 0.0)
         elif st_entry[s] == ENTRY_CLAMP:
             theta = clamp_into(theta, M, mu, lo, hi, m, st_eye[s])
-        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        eye = st_eye[s]
+        if reuse:
+            # the pairs (and their moments) of the stage before, θ-independent in their nodes' frames
+            theta = _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo,
+                                 hi, st_damp[s], eye, gn_iters, max_halvings, tol, limit_avoid, clamp, margin,
+                                 point_to_plane, moments, pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane, k, mmax,
+                                 st_m[s:s + 1], stats)
+            if pr_on[s]:
+                theta = clamp_into(theta, pr_M[s], pr_mu[s], pr_lo[s], pr_hi[s], pr_m[s], pr_eye[s])
+            continue
+        if not from_rigid:
+            fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
         k = 0
         for i in range(P):
             if not out_valid[i]:
@@ -699,29 +749,18 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                         plane[k, r] = 0.0
                 w[k] = ws
                 k += 1
-        eye = st_eye[s]
+        G0[:] = G
         if moments and not point_to_plane:
-            node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)
-            theta = solve_stage_moments(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G,
-                                        M[:, :m], mu, m, lo[:m], hi[:m], st_damp[s, :m], eye, gn_iters, max_halvings,
-                                        tol, limit_avoid, clamp, margin, stats)
-        else:
-            ident = eye
-            for r in range(n):
-                if mu[r] != 0.0:
-                    ident = False
-            tr = np.full(gn_iters + 1, np.nan)
-            theta, _, _ = solve_stages(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
-                                       pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane[:k] if point_to_plane else plane,
-                                       M.reshape((1, n, mmax)), mu.reshape((1, n)), st_m[s:s + 1],
-                                       lo.reshape((1, mmax)), hi.reshape((1, mmax)), st_damp[s:s + 1],
-                                       np.full(1, gn_iters, np.int64), np.full(1, ident), max_halvings, tol,
-                                       limit_avoid, clamp, margin, tr)
+            node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G0, N, mom)
+        theta = _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo, hi,
+                             st_damp[s], eye, gn_iters, max_halvings, tol, limit_avoid, clamp, margin, point_to_plane,
+                             moments, pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane, k, mmax, st_m[s:s + 1], stats)
         if pr_on[s]:
             theta = clamp_into(theta, pr_M[s], pr_mu[s], pr_lo[s], pr_hi[s], pr_m[s], pr_eye[s])
     fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
     match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
           agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+    stats[3] += 1
     return theta
 
 

@@ -127,7 +127,8 @@ class TrackerSettings:
         base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0),
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
-                                   pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0),
+                                   pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0,
+                                   stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
                    hand_scale=1.0)
         return base.replace(**changes)
@@ -314,7 +315,8 @@ class HandTracker:
         self.limits, self.full, self.reduced = self.context.limits, self.context.full, self.context.reduced
         st = self.settings.icp
         self.stages = tracking_schedule(self.settings.mode, st.icp_iterations, self.full, self.reduced,
-                                        projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations)
+                                        projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations,
+                                        stages_per_pass=st.stages_per_pass)
 
     def reset(self):
         self.last_good = None
