@@ -74,11 +74,20 @@ class TrackerSettings:
     the cloud only when that still scores above the threshold — and the best estimate by score is
     kept when it beats the tracked one by ``net_margin_mm`` (a search's estimate a hair better in score
     can be degrees worse in posture: the tracked one was consistent with the frames before it). The
-    wrist cue is used only with an arm's worth of surface behind it (:func:`tracker.wrist.arm_behind`).
+    wrist cue is used only with an arm's worth of surface behind it (:func:`tracker.wrist.arm_behind`),
+    and by the net only with ``net_wrist_cue``: a tracked hand has its own evidence of which way it
+    points, and a false cue (a hand seen edge-on, no arm in view) added 13–60 mm to the right pose's
+    score, so that the search's hand turned over won (rotate scenario: 7.4° with the cue, 5.1° without).
     ``recentre``: when the segmented cloud's centre is farther than the rejection radius from the
     predicted hand's, the prediction is moved onto it first. The net
     does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
     undoes what the mode is for (the demo's grasp seen from the back: 8.0° with the net, 5.0° without).
+    ``unseen_prior``: joints that move no data point (fewer than ``unseen_points`` valid pairs on the
+    parts they move: the middle and end phalanges of fingers curled away from the camera) are pulled
+    this share of the way per frame to their most likely values given the seen joints — the synergy
+    model's Gaussian conditional mean (:meth:`HandTracker._unseen_pulled`); nothing else holds them,
+    and they drifted to the joint limits (grasp seen from the back, full DoF: 7.6° → 3.3°). Full and
+    hierarchical modes with a synergy bundle; 0 = off.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
     fingers point up the arm never wins. ``rgb_seed``: frames given with their colour image start
@@ -110,6 +119,9 @@ class TrackerSettings:
     net_anchored: bool = True
     net_margin_mm: float = 0.2
     recentre: bool = True
+    net_wrist_cue: bool = False
+    unseen_prior: float = 0.5
+    unseen_points: int = 3
     wrist_cue: bool = True
     rgb_seed: bool = False
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -130,7 +142,7 @@ class TrackerSettings:
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0,
                                    stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
-                   hand_scale=1.0)
+                   hand_scale=1.0, unseen_prior=0.0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -265,6 +277,7 @@ class HandTracker:
         the time it took (ms, all runs together); net_anchored_, net_placed_ : how often it searched
         from the tracked pose and from placements
     recentred_ : how often the prediction was moved onto the cloud
+    unseen_frames_ : the frames on which joints without data were pulled (``unseen_prior``)
     rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
         instead of MediaPipe), else None; rgb_seeds_ : the searches it seeded; rgb_kept_ : how often
         the seed refined alone beat the search
@@ -292,6 +305,9 @@ class HandTracker:
         auto = settings.hand_scale == "auto"
         self._use_scale(1.0 if auto else float(settings.hand_scale))
         self.scale_ = None if auto else float(settings.hand_scale)
+        # the synergy model's joint covariance and which parts each posture DoF moves (unseen_prior)
+        self._unseen = _unseen_parts(hand, synergies)
+        self.unseen_frames_ = 0
         self.reset()
 
     def context_for(self, scale):
@@ -482,6 +498,8 @@ class HandTracker:
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
                     status = "reinit"
+        if status == "tracked" or net == "replaced":
+            theta = self._unseen_pulled(theta, corr)
         if st.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
@@ -499,6 +517,29 @@ class HandTracker:
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+
+    def _unseen_pulled(self, theta, corr) -> np.ndarray:
+        """θ with the posture DoF that no data point constrains moved ``unseen_prior`` of the way to
+        the synergy model's Gaussian conditional mean given the other posture DoF (``corr``: the fit's
+        correspondences; a DoF is unseen when fewer than ``unseen_points`` valid pairs lie on the parts
+        it moves). Unchanged when every DoF, or none, is seen (nothing to condition on)."""
+        st = self.settings
+        if not st.unseen_prior or self._unseen is None or st.mode == "reduced":
+            return theta
+        moves, mu, S = self._unseen
+        counts = np.bincount(corr.nodes[corr.valid], minlength=self.hand.n_nodes)
+        hid = moves @ counts < st.unseen_points
+        if not hid.any() or hid.all():
+            return theta
+        seen = ~hid
+        post = np.flatnonzero(~self.hand.pose_mask)
+        x = theta[post]
+        cond = mu[hid] + S[np.ix_(hid, seen)] @ np.linalg.solve(S[np.ix_(seen, seen)], x[seen] - mu[seen])
+        out = np.array(theta, float)
+        idx = post[hid]
+        out[idx] = np.clip(x[hid] + st.unseen_prior * (cond - x[hid]), self.limits[idx, 0], self.limits[idx, 1])
+        self.unseen_frames_ += 1
+        return out
 
     def _rgb_start(self, color, depth, camera) -> tuple:
         """``(θ,)`` fitted to the colour keypoints of this frame, or ``()`` (no ``rgb_seed``, no
@@ -583,7 +624,8 @@ class HandTracker:
             return theta, corr, pts, nrm, ""
         t0 = time.perf_counter()
         self.net_runs_ += 1
-        self._add_wrist(sil)
+        if self.settings.net_wrist_cue:
+            self._add_wrist(sil)
         # both on the same (whole) cloud, and with the wrist cue, so that their scores compare
         c_all = corr if all_pts is pts else ctx.matcher(theta, all_pts, all_nrm)
         s_track = score(ctx, theta, c_all, sil)
@@ -609,6 +651,30 @@ class HandTracker:
             self.prev = None
             return best[1], best[2], all_pts, all_nrm, "replaced"
         return theta, corr, pts, nrm, "kept"
+
+
+def _unseen_parts(hand, synergies):
+    """``(moves, mean, covariance)`` for :meth:`HandTracker._unseen_pulled`, or None without
+    synergies: ``moves (20, nodes)`` is 1 where a posture DoF moves a node (the node it drives and
+    every node below it); the covariance is the synergy model's over all its components, with a
+    small ridge (1e-4 rad²) so that the seen joints' block is always invertible."""
+    if synergies is None:
+        return None
+    n = hand.n_nodes
+    node_of = np.empty(hand.n_dofs, np.int64)
+    for k in range(n):
+        node_of[hand.dof_idx[hand.dof_ptr[k]:hand.dof_ptr[k + 1]]] = k
+    below = np.eye(n, dtype=bool)  # below[j, k]: node k is j or hangs from it
+    for k in range(n):
+        j = hand.parents[k]
+        while j >= 0:
+            below[j, k] = True
+            j = hand.parents[j]
+    moves = below[node_of[~hand.pose_mask]].astype(float)
+    m = synergies.model
+    C, lam = np.asarray(m.all_components_, float), np.asarray(m.all_explained_variance_, float)
+    S = C.T @ (lam[:, None] * C) + 1e-4 * np.eye(C.shape[1])
+    return moves, np.asarray(m.mean_, float), S
 
 
 def _usable(points, normals, max_points):

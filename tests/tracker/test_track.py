@@ -114,12 +114,14 @@ def test_coarse_step_through_theta_keeps_theta_feasible(bundle):
 
 
 def test_occluded_grasp_reduced_beats_full():
-    """A grasp seen from the back: the synergy subspace keeps the hidden fingers plausible. The safety
-    net's posture search from the tracked pose narrowed the gap (full 29.5° → 12.2°, reduced 6.0°, which
-    the net does not touch), so reduced must stay within two thirds of full, no longer a third."""
+    """A grasp seen from the back: the synergy subspace keeps the hidden fingers plausible (reduced
+    1.8°). Full DoF now nearly matches it: the joints no data point constrains are pulled to the
+    synergies' conditional mean (``unseen_prior``) and the silhouette term no longer pulls fingers
+    curled away from the camera forward to the surface (full 12.2° → 2.3°, measured). Reduced must
+    stay no worse than full, and full within 4°."""
     res = E.experiment_occlusion(HAND, CAM, frames=36)
     print(f"\noccluded grasp: full {res['full']:.2f} deg, reduced ({res['n_pcs']} PCs) {res['reduced']:.2f} deg")
-    assert res["reduced"] <= res["full"] / 1.5
+    assert res["reduced"] <= res["full"] + 0.2 and res["full"] <= 4.0
 
 
 @pytest.mark.slow
@@ -252,10 +254,35 @@ def test_bad_settings():
 
 
 # ----------------------------------------------------------------------------- silhouette pairs (numba kernel)
+def test_silhouette_term_keeps_fingers_curled_away_from_the_camera():
+    """A power grasp seen from the back, frames whose middle and end phalanges curl away from the
+    camera, fitted by a tracked frame's ICP from the truth: the silhouette term must not move what the
+    truth already explains. When it pulled samples outside the mask to the surface's depth, it
+    brought the hidden fingers forward and unbent them (measured 9.3°, 13.9°, 15.4° off); pulling
+    across the image only, they stay (measured 1.1°, 0.8°, 2.2°)."""
+    from tracker.correspond import Silhouette
+    from tracker.evaluate import posture_error_deg
+    from tracker.icp import fit
+    from tracker.observe import observe
+    from tracker.sim.motions import make_motion
+    from tracker.sim.render import DepthRenderer
+
+    truth = make_motion("grasp-back", hand=HAND).theta
+    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0))
+    ctx, ren = tr.context, DepthRenderer(HAND, CAM)
+    for f in (32, 45, 55):
+        ob = observe(ren.render(truth[f], labels=False).depth, CAM, tr.settings.observe)
+        th, _ = fit(HAND, ob.points, truth[f], tr.stages, ctx.matcher, tr.settings.icp, n_rigid=1,
+                    normals=ob.normals, samples=ctx.samples, silhouette=Silhouette(ob.mask, ob.depth, CAM))
+        assert posture_error_deg(th, truth[f], HAND.pose_mask) <= 4.0, f
+
+
 def _silhouette_pairs_reference(samples, theta, sil, tolerance_px=1.5):
     """The straightforward numpy version: pose all samples, keep the front-facing ones, project,
     look up the distance transform (plus the overshoot outside its window), fetch the nearest
-    silhouette pixel's depth. Also returns how many kept samples fell outside the window."""
+    silhouette pixel's depth, or the sample's own where it is farther (the pull is across the image:
+    a hidden part behind the surface keeps its depth). Also returns how many kept samples fell
+    outside the window."""
     cam = sil.camera
     G = HAND.node_frames(theta)[samples.nodes]
     P = np.einsum("pij,pj->pi", G[:, :3, :3], samples.local) + G[:, :3, 3]
@@ -270,7 +297,8 @@ def _silhouette_pairs_reference(samples, theta, sil, tolerance_px=1.5):
     far = d_px > tolerance_px
     idx = np.flatnonzero(ok)[far]
     tv, tu = sil.iv[vv[far], uu[far]] + sil.v0, sil.iu[vv[far], uu[far]] + sil.u0
-    d = sil.depth[tv, tu]
+    d = np.fmax(sil.depth[tv, tu], z[ok][far])
+    d[~np.isfinite(sil.depth[tv, tu])] = np.nan
     tgt = np.stack([(tu - cam.cx) / cam.fx * d, (tv - cam.cy) / cam.fy * d, d], 1)
     good = np.isfinite(d)
     n_outside = int(((u != uu) | (v != vv)).sum())
