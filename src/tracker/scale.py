@@ -19,11 +19,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from .correspond import Matcher, model_to_data_mm
+from .correspond import Matcher
+from .errors import TrackerError
+from .icp import model_to_data_mean
 from .init import (
+    FINGER_OVERLAP_WEIGHT,
     MODEL_TO_DATA_WEIGHT,
     InitSettings,
     _palm_side,
+    data_cost_mm,
+    finger_overlap_mm,
     fit_single_frame,
     score,
     thin,
@@ -86,24 +91,29 @@ def scale_score(context_for, s, theta_from, hand_from, points, *, silhouette=Non
     return size_score(ctx, th, corr, silhouette), th, corr
 
 
-#: pixels of silhouette edge a model sample may overshoot for free when sizes are compared (see :func:`size_score`)
-EDGE_PX = 3.0
+#: pixels of silhouette edge a model sample may overshoot for free when sizes are compared (:func:`size_score`)
+EDGE_PX = 1.0
 
 
 def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
-    """:func:`tracker.init.score` as sizes are compared: without the wrist cue (:func:`without_wrist`)
-    and with ``edge_px`` pixels of the silhouette's edge free (the sensors lose the hand's outline by
-    about a pixel, so a hand of the right size sticks out of the mask there)."""
-    edge_px = EDGE_PX if edge_px is None else edge_px
+    """:func:`tracker.init.score` as sizes are compared: without the wrist cue (:func:`without_wrist`),
+    with ``edge_px`` (default :data:`EDGE_PX`) pixels of the silhouette's edge free.
+
+    The start search's score measures both directions alike on either side of the right size: a
+    hand too small leaves data points up to the cap away, one too large puts surface outside the
+    silhouette (which includes the sensor's dropout band, :func:`tracker.observe.dropout_band`, so
+    the hand's lost outline costs nothing). An earlier size score — the fit's error plus 100 mm × the
+    share of rejected pairs, with 3 px of the silhouette's edge free — rose steeply below the right
+    size and barely above it: parabolas through its probes leaned large and 0.8× hands with their
+    forearm came out 4–6 % large (rendered realistic scenes; this score: 1–2 % small)."""
+    edge_px = EDGE_PX if edge_px is None else float(edge_px)
     sil = without_wrist(silhouette)
     if sil is None or sil.empty or edge_px == 1.0:
         return score(ctx, theta, corr, sil)
-    # the normal test stays: without it (points whose normals disagree counted by distance) the sizes
-    # came out 3-5 % small; with a truncated distance instead of the rejected share, too
-    s = corr.fit_error_mm() + 100.0 * (1.0 - corr.valid.mean())
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
-    return s + MODEL_TO_DATA_WEIGHT * float(np.mean(model_to_data_mm(samples, theta, sil, tolerance_px=edge_px)))
-
+    return (data_cost_mm(ctx, theta, corr)
+            + MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, sil, tolerance_px=edge_px)
+            + FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules))
 
 
 #: how far behind the fitted wrist points still count for the size (:func:`hand_side`)
@@ -271,3 +281,94 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     ctx = context_for(s1)
     th, corr = ctx.fit(th1, all_points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=all_normals)
     return s1, th, corr
+
+
+# ------------------------------------------------------------------------------ per-finger lengths
+#: The fingers whose lengths :func:`finger_scales` estimates, in :data:`tracker.sim.hands.FINGERS` order.
+FINGERS = ("thumb", "index", "middle", "ring", "pinky")
+
+
+def finger_bones(factors) -> dict:
+    """Node name → bone factor (:meth:`handmodel.HandModel.scaled`'s ``bone_scales``) of finger length
+    factors ``factors`` (finger name → factor; missing or 1: unchanged): the three bones of each
+    finger's ray past its base joint (thumb: metacarpal and both phalanges), as
+    :class:`tracker.sim.hands.HandShape` renders them.
+
+    >>> finger_bones({"index": 1.1, "ring": 1.0})
+    {'index2': 1.1, 'index3': 1.1, 'index_tip': 1.1}
+    """
+    out = {}
+    for f, a in factors.items():
+        if f not in FINGERS:
+            raise TrackerError("finger scale", f"unknown finger {f!r} ({', '.join(FINGERS)})")
+        if float(a) != 1.0:
+            out.update({f"{f}2": float(a), f"{f}3": float(a), f"{f}_tip": float(a)})
+    return out
+
+
+def shaped_hand(base, scale, factors):
+    """``base`` resized by the global ``scale`` and the finger length ``factors`` (:func:`finger_bones`)."""
+    return base.scaled(float(scale), finger_bones(factors) or None)
+
+
+def stretched_samples(samples, hand, bone_scales):
+    """:class:`tracker.correspond.ModelSamples` of ``hand``, the hand the samples were taken on with
+    the bones in ``bone_scales`` (node name → factor) lengthened: every capsule rides along its
+    joint's +y towards its one child, so a sample at height y on a capsule of length L whose bone is
+    × a moves to a·y on the capsule's side (0 ≤ y ≤ L) and by (a − 1)·L on its far cap; the base cap
+    stays. Exact for a cylinder; on the model's tapered capsules (radii 0.6 mm apart over 3 cm) the
+    side moves off the surface by a hundredth of a millimetre."""
+    if samples is None:
+        return None
+    old = samples.hand
+    local = samples.local.copy()
+    for name, a in bone_scales.items():
+        child = old.node_index(name)
+        joint = int(old.parents[child])
+        length = float(np.linalg.norm(old.rest[child, :3, 3]))
+        on = samples.nodes == joint
+        y = local[on, 1]
+        local[on, 1] = np.where(y <= 0.0, y, np.where(y <= length, y * a, y + (a - 1.0) * length))
+    out = copy.copy(samples)
+    out.hand = hand
+    out.local = local
+    return out
+
+
+def shaped_context(ctx, base, scale, factors):
+    """The :class:`tracker.init.FitContext` of ``base`` resized by ``scale`` with finger length
+    ``factors``, from ``ctx``, the context of ``base.scaled(scale)``: a new matcher, the surface
+    samples stretched along the resized fingers (:func:`stretched_samples`); the rest shared."""
+    bones = finger_bones(factors)
+    if not bones:
+        return ctx
+    hand = shaped_hand(base, scale, factors)
+    return replace(ctx, hand=hand, matcher=Matcher(hand, ctx.matcher.settings),
+                   samples=stretched_samples(ctx.samples, hand, bones),
+                   score_samples=stretched_samples(ctx.score_samples, hand, bones))
+
+
+def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15, probes=5, n_icp=4,
+                  limits=(0.8, 1.25)):
+    """Each finger's length factor on the hand ``base`` × ``scale`` (whose context is ``ctx``), from
+    tracked ``frames``: ``(points, normals, silhouette, θ)`` with θ fitted on that hand. Finger by
+    finger (the others at their factors found so far), ``probes`` factors evenly spread on log scale
+    within ``half_width`` either way are each scored by short all-DoF fits from every frame's θ
+    (:func:`size_score`, summed over the frames: one frame's noise and posture leave a finger's
+    length flat within a few percent), and a parabola through the sums gives the factor (kept within
+    the probes, then ``limits``). A finger's length trades against its flexion in one view (a longer
+    finger bent more covers the same pixels), so frames of several postures tell lengths apart
+    better than many of one. Returns finger name → factor."""
+    found = dict.fromkeys(FINGERS, 1.0)
+    x = np.linspace(-half_width, half_width, probes)
+    for f in fingers:
+        y = np.zeros(probes)
+        for k, v in enumerate(x):
+            c = shaped_context(ctx, base, scale, {**found, f: float(np.exp(v))})
+            for points, normals, sil, theta in frames:
+                th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
+                y[k] += size_score(c, th, corr, sil)
+        a, b, _ = np.polyfit(x, y, 2)
+        best = x[int(np.argmin(y))] if a <= 0 else float(np.clip(-b / (2 * a), x[0], x[-1]))
+        found[f] = float(np.clip(np.exp(best), *limits))
+    return found

@@ -173,9 +173,9 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sensor,scale,clutter", [
-    # the known miss: small hands with their forearm come out 2-5 % large (this one 0.976-1.032 over
-    # the versions measured; the realistic scenes' 0.8x forearm runs 1.03-1.05)
-    pytest.param("kinect1", 0.8, "forearm,table", marks=pytest.mark.xfail(reason="0.8x hand with forearm: 2-5 % large")),
+    # small hands with their forearm came out 3-8 % large with the earlier size score (size_score's
+    # docstring); these four failed with it, the first by 4.6 %
+    ("kinect1", 0.8, "forearm"), ("kinect1", 0.8, "forearm,table"), ("realsense", 0.8, "forearm,torso"),
     ("kinect1", 1.5, "forearm,box"), ("kinect1", 1.0, "forearm"),
     ("realsense", 0.8, "forearm"), ("realsense", 1.5, "forearm,torso"), ("realsense", 1.0, "forearm,table")])
 def test_size_within_3_percent_in_clutter_and_noise(bundle, sensor, scale, clutter):
