@@ -492,9 +492,14 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     seed; otherwise (a fist, a hand seen edge-on: no finger-like parts) the seed stays."""
     with np.errstate(invalid="ignore"):
         obj = surface & (d <= front + band) & (d >= front - band)
-    lab_o, _ = ndimage.label(obj)
-    hit = np.unique(lab_o[seed])
-    obj = np.isin(lab_o, hit[hit > 0])
+    if not obj.any():
+        return seed, front
+    (ya, yb), (xa, xb) = bounds(obj)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    lab_o, _ = ndimage.label(obj[win])
+    hit = np.unique(lab_o[seed[win]])
+    obj = np.zeros_like(obj)
+    obj[win] = np.isin(lab_o, hit[hit > 0])
     if not obj.any() or _touches_border(obj, border_px):
         return seed, front
     (ya, yb), (xa, xb) = bounds(obj)
