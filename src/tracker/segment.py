@@ -7,14 +7,16 @@ No wristband is needed. The steps, each a small function over arrays:
 2. :func:`surfaces`: pixels grouped into surfaces by depth continuity (neighbours closer than
    ``jump``), so the body and objects behind or beside the hand, and a table the hand rests on
    but stands out of, fall into other surfaces;
-3. :func:`pick_hand_surface`: among surfaces of at least ``min_area`` square metres (flying pixels
+3. :func:`hand_region`: among surfaces of at least ``min_area`` square metres (flying pixels
    and specks do not count), the one whose nearest part is nearest to the camera;
 4. that surface, cut to ``band`` metres behind its nearest part, plus the small surfaces in that
    depth band within ``margin_px`` of it (fingertips curled towards the camera that the sensor
-   cuts off by a depth jump or a no-data gap);
-   When that surface is a whole arm in view (it does not reach the border and is much longer
-   than a palm is wide), the seed moves to its end with the fingers (:func:`_hand_end`): the
-   nearest part of a free-ended arm can be its far end;
+   cuts off by a depth jump or a no-data gap). The hand is the end of an arm with fingers: an
+   arm reaching towards the camera from outside the image, nearer than that surface, is taken
+   instead when its far end has fingers and lies in front of it (a body a few centimetres
+   behind the hand); and when the surface is a whole arm in view (it does not reach the border
+   and is much longer than a palm is wide), the search starts from its end with the fingers
+   (:func:`_hand_end`), since a free-ended arm's nearest part can be its far end;
 5. :func:`cut_forearm` (``forearm="cut"``): the palm is the largest inscribed circle of the
    region, the forearm the wide part leaving it that goes on (past the border, the band or the
    reach, or into another object met at its own depth: a table, the body); the cut goes across
@@ -374,6 +376,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         empty = np.zeros(d.shape, bool)
         return (empty, (empty, empty)) if with_beyond else empty
     k, front, seed = 0, np.nan, None
+    cut_off = []
     for kk, ff in zip(ids, fronts):
         with np.errstate(invalid="ignore"):
             s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
@@ -382,7 +385,19 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             k, front, seed = int(kk), float(ff), s
             if inside:
                 break
+        cut_off.append(int(kk))
     X = None
+    if cut_off and not _touches_border(seed, border_px):
+        # an arm reaching towards the camera from outside the image, nearer than the first whole
+        # surface: when its far end has fingers and lies in front of that surface (a body a few
+        # centimetres behind the hand), the far end is the hand; the far edge of a table, or the
+        # head of a body cut off by the border, has no fingers or lies behind the hand
+        X = _points(d, focal) if points is None else np.asarray(points, float)
+        for kk in cut_off:
+            end, end_front = _far_end(lab == kk, d, X, focal, border_px, reach)
+            if end_front < front and _has_fingers(lab == kk, d, end, focal, reach):
+                k, front, seed = kk, end_front, end
+                break
     if not _touches_border(seed, border_px):
         seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
     if _touches_border(seed, border_px):
@@ -515,19 +530,13 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
         return seed, front
     z = float(np.nanmedian(d[win][o]))
     px_m = focal / z
-    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
-    disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
-    thin = o & ~ndimage.binary_opening(o, structure=disk)
-    # finger-sized pieces only: noise at the outline leaves slivers a few pixels big
-    lab_t, n = ndimage.label(thin)
-    if n == 0:
+    lab_t, size, big = _finger_pieces(o, px_m)
+    if not big.any():
         return seed, front
-    size = np.bincount(lab_t[thin], minlength=n + 1)
+    thin = lab_t > 0
     tt = np.zeros(o.shape)
     tt[yy, xx] = t
-    side = np.bincount(lab_t[thin], weights=tt[thin], minlength=n + 1) > 0  # mean t > 0: the + half
-    big = size >= FINGER_MIN_AREA_M2 * px_m ** 2
-    big[0] = False
+    side = np.bincount(lab_t[thin], weights=tt[thin], minlength=size.size) > 0  # mean t > 0: the + half
     plus, minus = size[big & side].sum(), size[big & ~side].sum()
     if max(plus, minus) < FINGER_MIN_AREA_M2 * px_m ** 2 * 2 or max(plus, minus) < 3 * min(plus, minus):
         return seed, front
@@ -537,6 +546,42 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     with np.errstate(invalid="ignore"):
         new = _largest_in_window(half & (d <= zh + 0.015))
     return (new, zh) if new.any() else (seed, front)
+
+
+def _finger_pieces(o, px_m):
+    """``(labels, sizes, big)``: the pieces of the solid mask ``o`` narrower than
+    :data:`FINGER_MAX_M` (a morphological opening with a disk that wide removes them; ``px_m``:
+    pixels per metre at the mask's depth), their sizes (pixels, index 0 = none) and which are
+    finger-sized (:data:`FINGER_MIN_AREA_M2`; noise at the outline leaves slivers a few pixels big)."""
+    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
+    thin = o & ~ndimage.binary_opening(o, structure=disk)
+    lab_t, n = ndimage.label(thin)
+    size = np.bincount(lab_t.ravel(), minlength=n + 1)
+    big = size >= FINGER_MIN_AREA_M2 * px_m ** 2
+    big[0] = False
+    return lab_t, size, big
+
+
+def _has_fingers(surface, d, seed, focal, reach=0.22):
+    """Whether the part of ``surface`` within ``reach`` metres (in the image, at the seed's depth)
+    of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
+    :data:`FINGER_MIN_AREA_M2` in all."""
+    if not seed.any():
+        return False
+    z = float(np.nanmedian(d[seed]))
+    px_m = focal / z
+    cy, cx = (float(v.mean()) for v in np.nonzero(seed))
+    r = int(np.ceil((reach or 0.22) * px_m))
+    H, W = surface.shape
+    y0, y1, x0, x1 = max(int(cy) - r, 0), min(int(cy) + r + 1, H), max(int(cx) - r, 0), min(int(cx) + r + 1, W)
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
+    if not part.any():
+        return False
+    o = ndimage.binary_fill_holes(ndimage.binary_closing(part, iterations=1) | part)
+    _, size, big = _finger_pieces(o, px_m)
+    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
 
 
 def _points(depth, focal):
