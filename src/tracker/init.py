@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 from handmodel.geometry import surface_samples
@@ -42,8 +43,10 @@ class InitSettings:
     ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; the finger-wise restarts
     rank all fingers' shapes at once and refit only the promising ones (at most ``finger_sweeps``
     sweeps); the winner is converged with all DoF (``icp_iterations`` on ``refine_points``, then
-    ``polish_icp`` on the full cloud). ``refit_pose``: a given ``theta0`` may be off (a previous
-    frame's), so it is also fitted longer and both go on. ``"exhaustive"``: the earlier search, every
+    ``polish_icp`` on the full cloud); ``finger_pairs``: the restarts also set two neighbouring
+    fingers at once while the fit scores poorly (:func:`finger_pair_variants`, ``PAIR_SCORE_MM``;
+    3× the restarts' starts). ``refit_pose``: a given ``theta0`` may be off (a previous frame's), so
+    it is also fitted longer and both go on. ``"exhaustive"``: the earlier search, every
     start refined with ``icp_iterations`` on the full cloud (2–3× the CPU time with the compiled ICP
     loop, ~14× with the Python one; kept as the reference the benchmark compares with).
     """
@@ -65,6 +68,7 @@ class InitSettings:
     polish_icp: int = 4
     finger_sweeps: int = 3
     refit_pose: bool = False
+    finger_pairs: bool = True
 
     @classmethod
     def cheap(cls, **changes) -> InitSettings:
@@ -102,6 +106,11 @@ class FitContext:
     samples: ModelSamples | None = None
     finger_shapes: list = field(default_factory=list)
     score_samples: ModelSamples | None = None   # the model→data part of :func:`score`
+    # derived from ``hand`` (recomputed by dataclasses.replace, as a resized context needs)
+    capsules: tuple = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.capsules = finger_capsules(self.hand)
 
     def fit(self, theta, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False):
         """One ICP fit without temporal prior (see :func:`tracker.icp.search_schedule`)."""
@@ -135,7 +144,11 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     them, or leaves a real finger uncovered (a hand turned over folds its thumb into the palm and
     leaves the real thumb's points up to the cap away). A silhouette that carries the frame's wrist
     cue (``silhouette.wrist``, :func:`tracker.wrist.wrist_cue`) adds :func:`tracker.wrist.wrist_cost_mm`:
-    a hand whose fingers point up the arm loses even where both directions fit."""
+    a hand whose fingers point up the arm loses even where both directions fit. Last,
+    ``FINGER_OVERLAP_WEIGHT`` × :func:`finger_overlap_mm`: two model fingers in one place cover the
+    data and stay inside the silhouette as well as two fingers side by side, but real fingers cannot
+    pass through each other (a curled finger's blob taken by its neighbour, which then leaves its own
+    finger's few points uncovered)."""
     s = data_cost_mm(ctx, theta, corr)
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     if silhouette is not None and samples is not None and not silhouette.empty:
@@ -143,7 +156,7 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     cue = getattr(silhouette, "wrist", None)
     if cue is not None:
         s += wrist_cost_mm(cue, ctx.hand, theta)
-    return s
+    return s + FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules)
 
 
 def data_cost_mm(ctx: FitContext, theta, corr) -> float:
@@ -172,6 +185,97 @@ MODEL_TO_DATA_WEIGHT = 1.0
 # real sensors' noisy normals let a hand turned over win (labelled SR305 frames: tips within 15 px
 # 85 of 95 with 5 mm, 77 with 10 mm, 64 with the earlier score)
 REJECTED_PAIR_MM = 5.0
+# what a mm of two fingers' overlap (:func:`finger_overlap_mm`) costs in the score, and the share of
+# two phalanges' summed radii they may come closer than without cost (touching fingers flatten, a
+# curled finger lies against its neighbour; the model's radii are a little generous). Measured on
+# the labelled SR305 frames with the pair restarts (fixed sizes 1.336 / 1.399): tips within 15 px
+# 81/95 without the term, 84/95 with 0.1 and 0.75 (80 with 0.1 and the full radii); 0.3 as 0.1
+FINGER_OVERLAP_WEIGHT = 0.1
+FINGER_OVERLAP_SHARE = 0.75
+
+
+def finger_capsules(hand):
+    """The capsules of the fingers' phalanges as index arrays: ``(base node, end node, base radius,
+    end radius, pairs a, pairs b)`` where the pairs are every two capsules of different fingers."""
+    parents = np.asarray(hand.parents)
+    rows = []
+    for seg in hand.segments:
+        kids = np.flatnonzero(parents == seg.joint)
+        if seg.shape == "capsule" and kids.size == 1:
+            rows.append((seg.joint, int(kids[0]), seg.radius[0], seg.radius[1],
+                         hand.node_names[seg.joint].rstrip("0123456789")))
+    a, b = np.triu_indices(len(rows), 1)
+    other = np.array([rows[i][4] != rows[j][4] for i, j in zip(a, b)], bool)
+    cols = list(zip(*rows)) if rows else [()] * 5
+    return (np.array(cols[0], np.int64), np.array(cols[1], np.int64), np.array(cols[2], float),
+            np.array(cols[3], float), a[other], b[other])
+
+
+def finger_overlap_mm(hand, theta, capsules=None) -> float:
+    """How far (mm, summed over every two phalanges of different fingers) the model's fingers pass
+    into each other at ``theta``: closer than ``FINGER_OVERLAP_SHARE`` × their radii summed at the
+    closest points of their axes. Zero for every synergy posture; a finger laid over its neighbour
+    (both on one real finger) or two fingers crossed costs 10–60 mm. ``capsules``: :func:`finger_capsules`
+    of ``hand`` (computed when not given)."""
+    j0, j1, r0, r1, a, b = finger_capsules(hand) if capsules is None else capsules
+    if not a.size:
+        return 0.0
+    kp = np.ascontiguousarray(hand.keypoints(theta), dtype=np.float64)
+    return 1000.0 * _overlap_kernel(kp, j0, j1, r0, r1, a, b, FINGER_OVERLAP_SHARE)
+
+
+@njit(cache=True)
+def _overlap_kernel(kp, j0, j1, r0, r1, a, b, share):
+    # a loop over ~90 capsule pairs in scalars: in numpy the per-call overhead of ~20 small array
+    # operations was a sixth of the start search's time (it scores every fit)
+    total = 0.0
+    for k in range(a.size):
+        i, j = a[k], b[k]
+        d, s, t = _segment_distance(kp[j0[i]], kp[j1[i]], kp[j0[j]], kp[j1[j]])
+        reach = share * (r0[i] + s * (r1[i] - r0[i]) + r0[j] + t * (r1[j] - r0[j]))
+        if reach > d:
+            total += reach - d
+    return total
+
+
+@njit(cache=True)
+def segment_distances(p0, p1, q0, q1):
+    """Closest distances between the segments ``p0[k]→p1[k]`` and ``q0[k]→q1[k]`` (rows ``(n, 3)``)
+    and the closest points' parameters ``s, t`` in [0, 1] along each, as three ``(n,)`` arrays."""
+    n = p0.shape[0]
+    d, s, t = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        d[k], s[k], t[k] = _segment_distance(p0[k], p1[k], q0[k], q1[k])
+    return d, s, t
+
+
+@njit(cache=True)
+def _segment_distance(p0, p1, q0, q1):
+    """Closest distance between segments ``p0→p1`` and ``q0→q1`` and the closest points' parameters
+    ``s, t`` in [0, 1] along each (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    a = b = c = e = f = 0.0
+    for m in range(3):
+        d1, d2, r = p1[m] - p0[m], q1[m] - q0[m], p0[m] - q0[m]
+        a += d1 * d1
+        e += d2 * d2
+        b += d1 * d2
+        c += d1 * r
+        f += d2 * r
+    a, e = max(a, 1e-12), max(e, 1e-12)
+    den = a * e - b * b
+    # parallel axes (den 0): any s does, take the base
+    s = min(max((b * f - c * e) / den, 0.0), 1.0) if den > 1e-12 else 0.0
+    t = (b * s + f) / e
+    # t outside the segment: clamp it and take the s closest to that end
+    if t < 0.0:
+        t, s = 0.0, min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t, s = 1.0, min(max((b - c) / a, 0.0), 1.0)
+    g = 0.0
+    for m in range(3):
+        x = p0[m] + s * (p1[m] - p0[m]) - q0[m] - t * (q1[m] - q0[m])
+        g += x * x
+    return np.sqrt(g), s, t
 
 
 def _palm_side(hand, posture):
@@ -252,6 +356,15 @@ def diverse(scored, k, min_deg=60.0) -> list[np.ndarray]:
 # alone, as in fingerfist), MCP-led bend, hook
 FINGER_SHAPES_DEG = ((5.0, 5.0, 5.0), (-25.0, -25.0, -25.0), (-55.0, -55.0, -55.0), (-85.0, -85.0, -85.0),
                      (-45.0, -100.0, -10.0), (-80.0, -20.0, -10.0), (0.0, -90.0, -60.0))
+
+
+# the shapes (rows of FINGER_SHAPES_DEG) the pair restarts combine: straight, evenly curled and
+# fully curled, MCP-led bend and hook (25 combinations a pair instead of 49; half the pairs' cost)
+PAIR_SHAPES = (0, 1, 3, 5, 6)
+# the pair restarts run only while θ scores above this (mm, on the ranking cloud): a fit that
+# explains its frame this well has no finger on its neighbour's place to undo (rendered frames score
+# 0.1–0.8 — the pairs there cost 60 % of the search's time for nothing —, the SR305 frames 1.5–5)
+PAIR_SCORE_MM = 1.5
 
 
 def finger_shapes(hand, limits) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -434,8 +547,10 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
     """The finger-wise restarts of :func:`finger_search` as successive halving: all fingers' shapes
     (from the current θ) fitted briefly in one batch on ``rank_points`` points; the best shape of each
     finger that comes within 2 mm of θ's own score there is fitted longer on ``refine_points`` beside θ
-    with the same fit, and the best one replaces θ when it scores better. Repeated while a sweep
-    improves something, at most ``finger_sweeps`` times. Returns θ."""
+    with the same fit, and the best one replaces θ when it scores better. With
+    ``settings.finger_pairs``, while θ scores above ``PAIR_SCORE_MM`` there, the pair restarts are
+    ranked too (:func:`finger_pair_variants`; the best of each pair goes on like a finger's best).
+    Repeated while a sweep improves something, at most ``finger_sweeps`` times. Returns θ."""
     st = settings
 
     def cloud(n):
@@ -444,6 +559,7 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
 
     pr, nr = cloud(st.rank_points)
     pf, nf = cloud(st.refine_points)
+    n = len(ctx.finger_shapes)
     for _ in range(st.finger_sweeps):
         starts, owner = [theta], [-1]
         for k, (fi, _) in enumerate(ctx.finger_shapes):
@@ -454,9 +570,16 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
         if len(starts) == 1:
             break
         T, S = ctx.fit_many(starts, pr, "full", 0, st.rank_icp + 2, silhouette=silhouette, normals=nr, gn=st.rank_gn)
+        if settings.finger_pairs and S[0] > PAIR_SCORE_MM:
+            pairs = finger_pair_variants(ctx, theta)
+            if pairs:
+                Tp, Sp = ctx.fit_many([th for _, th in pairs], pr, "full", 0, st.rank_icp + 2, silhouette=silhouette,
+                                      normals=nr, gn=st.rank_gn)
+                T, S = np.concatenate([T, Tp]), np.concatenate([S, Sp])
+                owner += [n + k for k, _ in pairs]
         owner = np.asarray(owner)
         finalists = [theta]
-        for k in range(len(ctx.finger_shapes)):
+        for k in range(2 * n):
             idx = np.flatnonzero(owner == k)
             if idx.size:
                 i = idx[np.argmin(S[idx])]
@@ -470,6 +593,37 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
             break
         theta = T[i]
     return theta
+
+
+def finger_pair_variants(ctx: FitContext, theta) -> list[tuple[int, np.ndarray]]:
+    """The pair restarts: for every two neighbouring fingers among index … pinky (``(k, k+1)`` in
+    ``ctx.finger_shapes``), copies of ``theta`` with both fingers set to every combination of their
+    ``PAIR_SHAPES`` and both abductions back to the synergy mean's (zero without synergies), as
+    ``(k, θ)``.
+    A curled finger whose blob its neighbour took (the pinky spread onto the curled ring finger's
+    place, the ring curled into the palm) comes back only when both move at once: either alone
+    leaves the two on one place."""
+    names = list(ctx.hand.dof_names)
+    post = np.flatnonzero(~ctx.hand.pose_mask)
+    rest = np.zeros(ctx.hand.n_dofs)
+    if ctx.synergies is not None:
+        rest[post] = ctx.synergies.mean_
+    fingers = [names[fi[0]].split("1_")[0].rstrip("0123456789") for fi, _ in ctx.finger_shapes]
+    order = ("index", "middle", "ring", "pinky")
+    out = []
+    for k in range(len(fingers) - 1):
+        f, g = fingers[k], fingers[k + 1]
+        if f not in order or g not in order or order.index(g) != order.index(f) + 1:
+            continue
+        (fa, va), (fb, vb) = ctx.finger_shapes[k], ctx.finger_shapes[k + 1]
+        abd = [names.index(x + "1_abd") for x in (f, g) if x + "1_abd" in names]
+        for u in va[list(PAIR_SHAPES)]:
+            for v in vb[list(PAIR_SHAPES)]:
+                th = np.array(theta, float)
+                th[fa], th[fb] = u, v
+                th[abd] = rest[abd]
+                out.append((k, th))
+    return out
 
 
 def _search_exhaustive(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals,
