@@ -53,11 +53,13 @@ SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm ev
 OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
 ARM_LENGTH_PALMS = 3.5  # an object longer than this many palm widths is a hand with its arm
 FINGER_MAX_M = 0.035  # parts narrower than this are finger-like (fingers of 0.8-1.5x hands: 14-27 mm; a forearm 30-70 mm)
-FINGER_MIN_AREA_M2 = 1.5e-4  # a finger-like part at least this big (a finger's last 1-2 cm); outline noise is smaller
+FINGER_MIN_AREA_M2 = 1.5e-4  # a finger-like part is at least this big (a finger's last 1-2 cm; outline noise is smaller) …
 TOUCH_PX = 3  # another surface this close in the image (sensor shadows between them are 1-3 px) …
 TOUCH_M = 0.02  # … and in depth joins the hand's region there …
 TOUCH_AREA_M2 = 0.0015  # … when it is this big near the hand (a table, the body; shading specks are smaller)
 TOUCH_WINDOW_M = 0.06  # how far around the hand that size is measured
+FINGER_ELONGATION = 2.5  # … at least this many times longer than wide (rendered and real fingers: 3.4-7) …
+FINGER_MIN_LENGTH_M = 0.025  # … and this long (4 standard deviations along it)
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -558,7 +560,18 @@ def _finger_pieces(o, px_m):
     thin = o & ~ndimage.binary_opening(o, structure=disk)
     lab_t, n = ndimage.label(thin)
     size = np.bincount(lab_t.ravel(), minlength=n + 1)
-    big = size >= FINGER_MIN_AREA_M2 * px_m ** 2
+    # a finger is long and thin; clothing that the skin filter leaves in patches is not
+    yy, xx = np.nonzero(thin)
+    L = lab_t[yy, xx]
+    cnt = np.maximum(size, 1).astype(float)
+    my, mx = np.bincount(L, yy, n + 1) / cnt, np.bincount(L, xx, n + 1) / cnt
+    syy = np.bincount(L, (yy - my[L]) ** 2, n + 1) / cnt
+    sxx = np.bincount(L, (xx - mx[L]) ** 2, n + 1) / cnt
+    sxy = np.bincount(L, (yy - my[L]) * (xx - mx[L]), n + 1) / cnt
+    half_gap = np.sqrt(((syy - sxx) / 2) ** 2 + sxy ** 2)
+    major, minor = (syy + sxx) / 2 + half_gap, np.maximum((syy + sxx) / 2 - half_gap, 1e-9)
+    big = ((size >= FINGER_MIN_AREA_M2 * px_m ** 2) & (major >= FINGER_ELONGATION ** 2 * minor)
+           & (4.0 * np.sqrt(major) >= FINGER_MIN_LENGTH_M * px_m))
     big[0] = False
     return lab_t, size, big
 
