@@ -26,6 +26,7 @@ from handmodel.rigid import euler_to_matrix
 from handmodel.subspace import Subspace, hierarchical_schedule
 
 from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
+from .coupling import restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
@@ -88,6 +89,10 @@ class TrackerSettings:
     model's Gaussian conditional mean (:meth:`HandTracker._unseen_pulled`); nothing else holds them,
     and they drifted to the joint limits (grasp seen from the back, full DoF: 7.6° → 3.3°). Full and
     hierarchical modes with a synergy bundle; 0 = off.
+    ``finger_restart_deg``: a tracked fit whose fingers bend their last joint more than this many
+    degrees off its coupling with the joint before it is fitted once more from the coupled angle, and
+    that fit is kept when it scores clearly better (:func:`tracker.coupling.restart_uncoupled`:
+    fingertips at their limits after a fast close, under sensor noise); 0 = off; not in reduced mode.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
     fingers point up the arm never wins. ``rgb_seed``: frames given with their colour image start
@@ -122,6 +127,7 @@ class TrackerSettings:
     net_wrist_cue: bool = False
     unseen_prior: float = 0.5
     unseen_points: int = 3
+    finger_restart_deg: float = 30.0
     wrist_cue: bool = True
     rgb_seed: bool = False
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -136,13 +142,13 @@ class TrackerSettings:
         iterations × 5 Gauss-Newton steps, λ = 1 on posture and 0 on pose, single-frame fits from the
         synergy mean without our coarse or finger-wise searches, the model's own size (``hand_scale``
         1.0; the default is ``"auto"``); ``changes`` as in :meth:`replace`."""
-        base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0),
+        base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0, edge_px=0),
                    correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
                    icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0,
                                    stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
-                   hand_scale=1.0, unseen_prior=0.0)
+                   hand_scale=1.0, unseen_prior=0.0, finger_restart_deg=0.0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -494,6 +500,12 @@ class HandTracker:
             theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
                               n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
             status = "tracked"
+            if st.finger_restart_deg and st.mode != "reduced":
+                theta, corr, _ = restart_uncoupled(
+                    self.hand, theta, corr,
+                    lambda t: fit(self.hand, pts, t, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
+                                  normals=nrm, samples=ctx.samples, silhouette=sil),
+                    lambda t, c: score(ctx, t, c, sil), self.limits, tolerance_deg=st.finger_restart_deg)
             if st.safety_net and st.mode != "reduced":
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
