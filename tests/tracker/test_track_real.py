@@ -3,7 +3,7 @@ fingertip pixels made by eye) tracked as a user would: the camera preset, the ri
 size calibrated on each recording's first labelled frame (``hand_scale="auto"``) and reused for its
 other frames, everything else default. The keypoint-in-mask floor is the issue's; the tip and wrist
 floors are what the tracker reaches today (the issue's: tips ≤ 15 px and wrist ≤ 20 px on every
-frame); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
+frame: 13 of the 19 frames meet them); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
 swapped, the thumb folded into the palm) or a lost wrist."""
 from __future__ import annotations
 
@@ -88,18 +88,26 @@ def test_no_open_hand_is_fitted_turned_over(fits):
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 8 of the 19 frames have every labelled tip within 15 px of its model tip
-    and the wrist within 20 px (the issue's floor for every frame), at least 75 of the 95 labelled
-    tips are within 15 px and the median tip error over all frames is ≤ 8 px. Measured with the
-    sizes calibrated as of bc67021 (1.331 and 1.390): 8 frames, 78 tips, median 7.1 px; with the
-    sizes of b1cd830 (1.293 and 1.230): 11, 85, 4.9; before the score measured each data point
-    against the whole model: 8, 64, 9.0. What is left: curled fingers seen as blobs in front of the
-    palm (recording 231615) fitted on a neighbour's blob, 20–60 px; a larger size makes it worse."""
-    ok, tip_errs = 0, []
+    """Fingertips: at least 11 of the 19 frames have every labelled tip within 15 px of its model tip
+    and the wrist within 20 px (the issue's floor for every frame), at least 86 of the 95 labelled
+    tips are within 15 px, the median tip error over all frames is ≤ 6 px, and no tip is more than
+    45 px off on any frame. Measured with the pair restarts and the finger-overlap term (f949129,
+    sizes calibrated 1.268 and 1.231): 13 frames, 91 tips, median 4.6 px, worst tip 37 px (231615_100,
+    the middle finger pointing at the camera); before them (sizes 1.336 and 1.399): 11, 83, 6.7, 70 px
+    — curled fingers seen as blobs in front of the palm fitted with a spread neighbour on their blob
+    (231615_160/_200/_220: 37–70 px). What is left: the wrist 18–28 px from the labelled crease on
+    230536_70 and _110 (the label lies towards the little finger and along the arm of the model's
+    wrist, by about the same at every hand size from 1.20 to 1.48), a finger pointing at the camera
+    (231615_100) and index tips 15–23 px long (231615_180)."""
+    ok, tip_errs, worst = 0, [], 0.0
     for name, (lab, _, uv, names, _) in fits.items():
         e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
         tip_errs += e
+        worst = max(worst, max(e))
+        assert max(e) <= 45, f"{name}: tips {np.round(e, 1)} px"
         ok += max(e) <= 15 and np.hypot(*(uv[0] - lab["wrist"])) <= 20
-    assert ok >= 8, ok
-    assert np.sum(np.asarray(tip_errs) <= 15) >= 75, np.sum(np.asarray(tip_errs) <= 15)
-    assert np.median(tip_errs) <= 8, np.median(tip_errs)
+    print(f"\nframes within every floor {ok}/19, tips within 15 px {np.sum(np.asarray(tip_errs) <= 15)}/95, "
+          f"median {np.median(tip_errs):.1f} px, worst {worst:.1f} px")
+    assert ok >= 11, ok
+    assert np.sum(np.asarray(tip_errs) <= 15) >= 86, np.sum(np.asarray(tip_errs) <= 15)
+    assert np.median(tip_errs) <= 6, np.median(tip_errs)
