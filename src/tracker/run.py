@@ -84,9 +84,12 @@ def _scale_text(tracker) -> str:
     if scale is None:
         return ""
     est = getattr(tracker, "scale_estimates_", [])
+    fingers = getattr(tracker, "finger_scales_", None)
+    # per-finger length factors (finger_lengths) follow the size, in the hand model's finger order
+    tail = f"; finger lengths {', '.join(f'{k} {v:.3f}' for k, v in fingers.items())}" if fingers else ""
     if tracker.settings.hand_scale != "auto":
-        return f"{scale:.4f} (given)"
-    return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)})"
+        return f"{scale:.4f} (given){tail}"
+    return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)}){tail}"
 
 
 def tracking_csv(df, meta) -> str:

@@ -34,10 +34,12 @@ from .observe import ObserveSettings, gate
 from .rgb import RgbSeed
 from .scale import (
     calibrate_scale,
+    finger_scales,
     hand_side,
     parabola_scale,
     rescaled,
     resized_context,
+    shaped_context,
     size_score,
 )
 from .wrist import arm_behind, wrist_cue
@@ -61,7 +63,9 @@ class TrackerSettings:
     while the calibrated frames' fits score above ``scale_trust_mm``, the next frame is calibrated
     again (at most ``scale_frames`` frames) and the best-scoring frame's size is used;
     ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own) or
-    ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`).
+    ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`). ``finger_lengths``: with
+    ``"auto"``, each finger's length factor is estimated too, from the frames that refined the size
+    (:func:`tracker.scale.finger_scales`), once the size is settled (off by default: see the README).
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
     whether it fits clearly better (the recording's handedness is likely wrong).
 
@@ -114,6 +118,7 @@ class TrackerSettings:
     scale_frames: int = 5
     scale_trust_mm: float = 6.0
     scale_refine: str = "search"
+    finger_lengths: bool = False
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
@@ -301,6 +306,8 @@ class HandTracker:
         self._calibrations = []  # (size score, size) of the frames calibrated so far
         self._scale_open = False  # an automatic size not settled yet: the next frame is calibrated again
         self.scale_estimates_ = []
+        self.finger_scales_ = None  # finger name → length factor (finger_lengths), None: the model's
+        self._size_frames = []  # (points, normals, silhouette, θ, hand) of the frames that refined the size
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
         self.net_anchored_, self.net_placed_ = 0, 0
@@ -333,6 +340,8 @@ class HandTracker:
     def _use_scale(self, scale):
         self.context_for(scale)
         self.context, self.n_pcs = self._contexts[round(float(scale), 5)]
+        if self.finger_scales_:
+            self.context = shaped_context(self.context, self.base_hand, scale, self.finger_scales_)
         self.hand = self.context.hand
         self.limits, self.full, self.reduced = self.context.limits, self.context.full, self.context.reduced
         st = self.settings.icp
@@ -415,6 +424,8 @@ class HandTracker:
         self._contexts = {k: v for k, v in self._contexts.items() if k in (keep_key, round(s, 5))}
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
+        if st.finger_lengths:
+            self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
         if round(new, 5) != round(s, 5):
             old = self.hand
             self.scale_ = new
@@ -422,6 +433,18 @@ class HandTracker:
             self.theta = rescaled(old, self.hand, self.theta)
             self.prev = None if self.prev is None else rescaled(old, self.hand, self.prev)
             self.last_good = self.theta
+        if st.finger_lengths and len(self.scale_estimates_) >= st.scale_frames:
+            self._find_finger_lengths()
+
+    def _find_finger_lengths(self):
+        """Each finger's length factor at the settled size, from the frames that refined it (their θ
+        moved onto the settled hand; :func:`tracker.scale.finger_scales`); θ keeps its meaning."""
+        s = self.scale_
+        ctx = self.context_for(s)
+        frames = [(p, n, sil, rescaled(h, ctx.hand, th)) for p, n, sil, th, h in self._size_frames]
+        self.finger_scales_ = finger_scales(ctx, self.base_hand, s, frames)
+        self._size_frames = []
+        self._use_scale(s)
 
     def predict(self) -> np.ndarray:
         """The start of the next frame: the last θ plus ``prediction`` × its last change, except the
