@@ -75,9 +75,10 @@ class InitSettings:
         """A search about 3× cheaper than the default, for a frame whose global pose is roughly known
         (e.g. from the last tracked frame: ``fit_single_frame(ctx, points, InitSettings.cheap(),
         theta0=last, extra=(last,))``): fewer starts go on after the ranking, shorter refinements on
-        fewer points, one sweep of finger-wise restarts."""
+        fewer points, one sweep of finger-wise restarts and no pair restarts (they would add half
+        again to the safety net's searches while tracking, for the few frames whose fingers swapped)."""
         return replace(cls(icp_iterations=10, rank_points=200, keep=(6, 2), refine_points=800, refine_icp=6,
-                           polish_icp=2, finger_sweeps=1), **changes)
+                           polish_icp=2, finger_sweeps=1, finger_pairs=False), **changes)
 
     def check(self):
         if self.strategy not in STRATEGIES:
