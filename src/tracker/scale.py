@@ -104,7 +104,7 @@ def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
     The start search's score measures both directions alike on either side of the right size: a
     hand too small leaves data points up to the cap away, one too large puts surface outside the
     silhouette (which includes the sensor's dropout band, :func:`tracker.observe.dropout_band`, so
-    the hand's lost outline costs nothing). An earlier size score — the fit's error plus 100 mm × the
+    most of the hand's lost outline costs nothing; ``edge_px`` frees the rest). An earlier size score — the fit's error plus 100 mm × the
     share of rejected pairs, with 3 px of the silhouette's edge free — rose steeply below the right
     size and barely above it: parabolas through its probes leaned large, and on the realistic scenes
     (0.8–1.5× hands, clutter, Kinect v1 and SR305 noise, same tree) 9 of 30 runs came out more than
