@@ -43,6 +43,7 @@ def track(
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
+    unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [auto; 1 with --paper]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
@@ -79,6 +80,10 @@ def track(
     settings.rgb_seed = rgb_seed
     if safety_net is not None:
         settings.safety_net = safety_net
+    if unseen_prior is not None:
+        if not 0.0 <= unseen_prior <= 1.0:
+            raise TrackerError("--unseen-prior", f"must be within 0..1, got {unseen_prior}")
+        settings.unseen_prior = unseen_prior
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob

@@ -256,3 +256,21 @@ def test_unseen_prior_moves_only_joints_without_data(hand):
     assert -1.5 < out[hand.dof_index("index2_flex")] < -0.5
     everything = SimpleNamespace(nodes=np.arange(hand.n_nodes).repeat(5), valid=np.ones(5 * hand.n_nodes, bool))
     np.testing.assert_array_equal(tr._unseen_pulled(theta, everything), theta)
+
+
+def test_track_unseen_prior_option(tmp_path):
+    """`--unseen-prior`: a share outside 0..1 is a one-line error naming the option (exit 2, nothing
+    written); 0 (off) tracks."""
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+    from tracker.sim.synthesize import synthesize
+
+    synthesize("open-close", "kinect1", None, tmp_path / "rec", frames=3)
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--unseen-prior", "1.5", "--no-check-hand",
+                                 "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 2 and "--unseen-prior" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "t.csv").exists()
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--unseen-prior", "0", "--no-check-hand",
+                                 "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0, r.output
