@@ -3,8 +3,11 @@ stride 3) for full, reduced and hierarchical modes, ours with the safety net on 
 the same frames: the same ICP loop with each non-rigid step solved by scipy.optimize.least_squares
 (analytic Jacobian, 5 evaluations), and our own ICP loop in Python around the compiled kernels
 (:func:`tracker.icp.fit_reference`, what :func:`tracker.icp.fit` was before the loop was compiled).
-Then the Gauss-Newton steps per frame (taken, failed, energy evaluations) and where a frame's time goes
-in :meth:`tracker.track.HandTracker.step`, per mode.
+Ours also with a closest-point pass per stage (``stages_per_pass=1``, as the paper's method): by default
+the synergy stages share passes (:func:`tracker.icp.tracking_schedule`). Then a line "at equal settings"
+(ours, the net on and off alike) saying which mode is faster, the closest-point passes and Gauss-Newton
+steps per frame (taken, failed, energy evaluations), and where a frame's time goes in
+:meth:`tracker.track.HandTracker.step`, per mode.
 
 Times are CPU seconds of this process (every library on one thread, so that is the time on one core):
 on a shared machine wall-clock medians measure the other jobs. Even CPU time grows when other jobs
@@ -115,11 +118,11 @@ def breakdown(hand, bundle, cam, obs, mode, ours=True):
 
 def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
     """Gauss-Newton steps per tracked frame (frames after the 10th) of the compiled ICP fits: taken,
-    failed (no energy drop after the halvings; each ends its stage) and the trial steps' energy
-    evaluations (:func:`tracker.icp.fit`'s ``stats``)."""
+    failed (no energy drop after the halvings; each ends its stage), the trial steps' energy
+    evaluations, the closest-point searches and the local passes (:func:`tracker.icp.fit`'s ``stats``)."""
     base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
     tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
-    stats = np.zeros(4, np.int64)
+    stats = np.zeros(5, np.int64)
     for ob in obs[:10]:
         tr.track(ob, cam)
     with mock.patch("tracker.track.fit", partial(fit, stats=stats)):
@@ -184,6 +187,10 @@ def main():
             rows.append((f"{label}, ours, safety net {'on' if net else 'off'}"
                          + (" (the default; not run in reduced)" if net and mode == "reduced" else ""),
                          lambda mode=mode, net=net: run(hand, bundle, cam, truth, obs, mode, True, safety_net=net)))
+    for mode, label in [("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
+        rows.append((f"{label}, ours, safety net off, a pass per stage",
+                     lambda mode=mode: run(hand, bundle, cam, truth, obs, mode, True, safety_net=False,
+                                           stages_per_pass=1)))
     rows += [(f"reduced ({k} PCs), ours, 2 steps projected",
               lambda: run(hand, bundle, cam, truth, obs, "reduced", True, projected_steps=2, safety_net=False)),
              ("peer: paper ICP, scipy least_squares (full)", lambda: peer(hand, bundle, cam, truth, obs) + (None,)),
@@ -199,15 +206,25 @@ def main():
         ms, e, tr = best[label]
         net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.safety_net and tr.net_runs_ else ""
         print(f"  {label:<74} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
-    print("  Gauss-Newton steps per tracked frame (taken / failed: no energy drop after the halvings / trial energy "
-          "evaluations):")
+    for net in ("on", "off"):
+        fps = {mode: 1000 / best[f"{label}, ours, safety net {net}" + (" (the default; not run in reduced)"
+                                                                        if net == "on" and mode == "reduced" else "")][0]
+               for mode, label in [("full", "full"), ("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]}
+        verdict = ", ".join(f"{mode} {abs(fps[mode] / fps['full'] - 1) * 100:.0f} % "
+                            f"{'faster' if fps[mode] > fps['full'] else 'slower'}" for mode in ("reduced", "hierarchical"))
+        print(f"  at equal settings (ours, safety net {net}): full {fps['full']:,.0f} fps, reduced {fps['reduced']:,.0f}, "
+              f"hierarchical {fps['hierarchical']:,.0f}: {verdict} than full")
+    print("  closest-point searches, local passes and Gauss-Newton steps per tracked frame (searches / local passes / "
+          "GN taken / failed: no energy drop after the halvings / trial energy evaluations):")
     for mode, ours, label, kw in [("full", False, "full, paper's method", {}),
                                   ("reduced", False, f"reduced ({k} PCs), paper's method", {}),
                                   ("full", True, "full, ours (net off)", {"safety_net": False}),
                                   ("reduced", True, f"reduced ({k} PCs), ours", {"safety_net": False}),
+                                  ("reduced", True, f"reduced ({k} PCs), ours, a pass per stage",
+                                   {"safety_net": False, "stages_per_pass": 1}),
                                   ("hierarchical", True, "hierarchical, ours (net off)", {"safety_net": False})]:
-        taken, failed, evals = steps(hand, bundle, cam, obs, mode, ours, **kw)
-        print(f"  {label:<40} {taken:6.2f} / {failed:5.2f} / {evals:6.1f}")
+        taken, failed, evals, passes, local = steps(hand, bundle, cam, obs, mode, ours, **kw)
+        print(f"  {label:<44} {passes:4.1f} / {local:4.1f} / {taken:6.2f} / {failed:5.2f} / {evals:6.1f}")
     print("  where a tracked frame's time goes (mean CPU ms; 'net test': the safety net's score and test, and its "
           "search when a frame is doubtful):")
     names = [label for label, _, _ in PARTS] + ["other"]

@@ -11,8 +11,8 @@ Point-to-plane pairs do not reduce to moments; they go through the per-pair solv
 
 Stage arrays (one row per stage, padded to the widest): ``st_M (S, n, m)``, ``st_mu (S, n)``,
 ``st_m (S,)``, ``st_lo``/``st_hi``/``st_damp (S, m)``, ``st_eye (S,)`` (M is the identity),
-``st_entry (S,)`` (0 none, 1 clamp, 2 through), ``st_reuse (S,)`` (no closest-point pass: the pairs of
-the pass before); the projection after a stage: ``pr_on (S,)`` and
+``st_entry (S,)`` (0 none, 1 clamp, 2 through), ``st_local (S,)`` (a local pass may replace the
+closest-point search); the projection after a stage: ``pr_on (S,)`` and
 ``pr_M``/``pr_mu``/``pr_lo``/``pr_hi``/``pr_m`` like the stage's.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from handmodel._geometry_kernels import closest_points_facing
+from handmodel._geometry_kernels import closest_local, closest_points_facing
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
@@ -52,6 +52,48 @@ def match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, norma
         s = out_seg[i]
         ok = s >= 0 and out_d[i] < reject
         out_node[i] = seg_node[s] if s >= 0 else 0
+        if ok and use_n:
+            c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
+            if c < agreement:  # NaN (unknown normal) keeps the pair
+                ok = False
+        out_valid[i] = ok
+        if ok:
+            nv += 1
+    return nv
+
+
+@njit(cache=True)
+def match_same(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only, reject,
+               agreement, out_p, out_n, out_seg, out_d, out_node, out_valid):
+    """:func:`match` with every point kept on the primitive it was matched to (``out_seg``): its
+    closest point there at the frames ``G``, no search over the others (a point whose primitive now
+    faces away, or that had none, is left unpaired). Returns the number of valid pairs."""
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
+    q = np.empty(3)
+    loc = np.empty(7)
+    nv = 0
+    for i in range(points.shape[0]):
+        s = out_seg[i]
+        out_valid[i] = False
+        if s < 0:
+            continue
+        j = seg_node[s]
+        d0 = points[i, 0] - G[j, 0, 3]
+        d1 = points[i, 1] - G[j, 1, 3]
+        d2 = points[i, 2] - G[j, 2, 3]
+        for r in range(3):
+            q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
+        closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
+        for r in range(3):
+            out_p[i, r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
+            out_n[i, r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+        out_d[i] = abs(loc[6])
+        if facing_only:
+            view = ((out_p[i, 0] - cam[0]) * out_n[i, 0] + (out_p[i, 1] - cam[1]) * out_n[i, 1]
+                    + (out_p[i, 2] - cam[2]) * out_n[i, 2])
+            if view > 0.0:
+                continue
+        ok = out_d[i] < reject
         if ok and use_n:
             c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
             if c < agreement:  # NaN (unknown normal) keeps the pair
@@ -605,6 +647,46 @@ def solve_stage_moments(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_
 
 # ----------------------------------------------------------------------------- the fit
 @njit(cache=True)
+def pairs_moved(G0, G, pt_node, pt_local, k):
+    """How far (m) the first ``k`` pairs' model points (``pt_local`` in their nodes' frames) lie at the
+    frames ``G`` from where they lay at ``G0``: the largest distance."""
+    big = 0.0
+    for i in range(k):
+        j = pt_node[i]
+        l0, l1, l2 = pt_local[i, 0], pt_local[i, 1], pt_local[i, 2]
+        d2 = 0.0
+        for r in range(3):
+            a = ((G[j, r, 0] - G0[j, r, 0]) * l0 + (G[j, r, 1] - G0[j, r, 1]) * l1 + (G[j, r, 2] - G0[j, r, 2]) * l2
+                 + G[j, r, 3] - G0[j, r, 3])
+            d2 += a * a
+        big = max(big, d2)
+    return np.sqrt(big)
+
+
+@njit(cache=True)
+def matches_moved(G0, G, model, node, valid):
+    """:func:`pairs_moved` for the valid matched model points ``model`` (camera frame, on ``node``'s
+    surface at the frames ``G0``)."""
+    big = 0.0
+    for i in range(model.shape[0]):
+        if not valid[i]:
+            continue
+        j = node[i]
+        d0 = model[i, 0] - G0[j, 0, 3]
+        d1 = model[i, 1] - G0[j, 1, 3]
+        d2 = model[i, 2] - G0[j, 2, 3]
+        l0 = G0[j, 0, 0] * d0 + G0[j, 1, 0] * d1 + G0[j, 2, 0] * d2
+        l1 = G0[j, 0, 1] * d0 + G0[j, 1, 1] * d1 + G0[j, 2, 1] * d2
+        l2 = G0[j, 0, 2] * d0 + G0[j, 1, 2] * d1 + G0[j, 2, 2] * d2
+        q = 0.0
+        for r in range(3):
+            a = G[j, r, 0] * l0 + G[j, r, 1] * l1 + G[j, r, 2] * l2 + G[j, r, 3] - model[i, r]
+            q += a * a
+        big = max(big, q)
+    return np.sqrt(big)
+
+
+@njit(cache=True)
 def _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo, hi, damp, eye,
                  gn_iters, max_halvings, tol, limit_avoid, clamp, margin, point_to_plane, moments, pt_node, pt_local,
                  tgt, w, plane, k, mmax, st_m1, stats):
@@ -632,8 +714,8 @@ def _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mo
 @njit(cache=True)
 def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th,
-               points, normals, cam, facing_only, reject, agreement, n_rigid,
-               st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_reuse, pose_mask,
+               points, normals, cam, facing_only, reject, agreement, n_rigid, local_m,
+               st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_local, pose_mask,
                pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
                gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
                sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
@@ -641,12 +723,13 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
     correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
     silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result
-    (in the ``out_*`` arrays). A stage with ``st_reuse`` skips its closest-point pass: it solves on
-    the pairs of the stage before it (their moments and reference frames kept), or, as the first
-    stage after rigid steps, on the last rigid step's pass (its pairs placed at the θ it matched at).
+    (in the ``out_*`` arrays). A stage with ``st_local`` takes a local pass (:func:`match_same`: each
+    point stays on the primitive it was matched to; the silhouette pairs of the stage before are
+    kept) instead of the search over every primitive while the model moved less than ``local_m`` (m;
+    :func:`pairs_moved`) since the pass before.
     ``moments``: Gauss-Newton on moment sums (point-to-point only), else the per-pair solver; the
     moment path adds its steps taken and failed to ``stats`` (see :func:`solve_stage_moments`), every
-    closest-point pass adds 1 to ``stats[3]``. Returns θ."""
+    closest-point pass adds 1 to ``stats[3]``, every local pass to ``stats[4]``. Returns θ."""
     n = dof_axes.shape[0]
     N = parents.shape[0]
     P = points.shape[0]
@@ -673,19 +756,31 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
         theta = rigid_update(theta, out_p, points, out_valid)
     mmax = st_M.shape[2]
     # the reference frames of the pairs in use (a stage that reuses them solves relative to these)
-    G0 = np.empty((N, 4, 4))
+    G1 = np.empty((N, 4, 4))
     k = -1
+    ns = 0
+    have_sil = False
     for s in range(st_M.shape[0]):
-        reuse = st_reuse[s] and k >= 0
-        # the first stage may take the last rigid step's pass (G still holds the frames it matched at)
-        from_rigid = st_reuse[s] and k < 0 and n_rigid > 0 and nv >= 3
-        if not (reuse or from_rigid):
-            fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G1, wa, wo)
+        # a local pass while the model moved less than local_m since the pass before (the stage
+        # before's pairs, or the last rigid step's matches at the frames G it matched at)
+        local = st_local[s] and local_m > 0.0 and (k >= 0 or (n_rigid > 0 and nv >= 3))
+        if local:
+            moved = pairs_moved(G, G1, pt_node, pt_local, k) if k >= 0 else matches_moved(G, G1, out_p, out_node,
+                                                                                          out_valid)
+            local = moved < local_m
+        for q in range(N):
+            G[q] = G1[q]
+        if local:
+            nv = match_same(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam,
+                            facing_only, reject, agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
+            stats[4] += 1
+        else:
             nv = match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, normals, cam, facing_only,
                        reject, agreement, out_p, out_n, out_seg, out_d, out_node, out_valid)
             stats[3] += 1
-            if nv < 3:
-                break
+        if nv < 3:
+            break
         m = st_m[s]
         M = st_M[s]
         mu = st_mu[s].copy()
@@ -703,17 +798,7 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
         elif st_entry[s] == ENTRY_CLAMP:
             theta = clamp_into(theta, M, mu, lo, hi, m, st_eye[s])
         eye = st_eye[s]
-        if reuse:
-            # the pairs (and their moments) of the stage before, θ-independent in their nodes' frames
-            theta = _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo,
-                                 hi, st_damp[s], eye, gn_iters, max_halvings, tol, limit_avoid, clamp, margin,
-                                 point_to_plane, moments, pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane, k, mmax,
-                                 st_m[s:s + 1], stats)
-            if pr_on[s]:
-                theta = clamp_into(theta, pr_M[s], pr_mu[s], pr_lo[s], pr_hi[s], pr_m[s], pr_eye[s])
-            continue
-        if not from_rigid:
-            fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+        fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
         k = 0
         for i in range(P):
             if not out_valid[i]:
@@ -736,8 +821,11 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                     plane[k, r] = out_n[i, r]
             k += 1
         if sil_on:
-            ns = silhouette_pairs_kernel(G, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth,
-                                         v0, u0, tol_px, s_nodes, s_local, s_tgt)
+            if not (local and have_sil):
+                # a local pass keeps the silhouette pairs of the pass before too
+                ns = silhouette_pairs_kernel(G, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth,
+                                             v0, u0, tol_px, s_nodes, s_local, s_tgt)
+                have_sil = True
             # weight per pair so the term counts like the data term per unit area
             ws = sil_weight * np.sqrt(max(nv, 1) / max(n_s, 1))
             for q in range(ns):
@@ -749,10 +837,9 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                         plane[k, r] = 0.0
                 w[k] = ws
                 k += 1
-        G0[:] = G
         if moments and not point_to_plane:
-            node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G0, N, mom)
-        theta = _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G0, M, mu, m, lo, hi,
+            node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)
+        theta = _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mom, G, M, mu, m, lo, hi,
                              st_damp[s], eye, gn_iters, max_halvings, tol, limit_avoid, clamp, margin, point_to_plane,
                              moments, pt_node[:k], pt_local[:k], tgt[:k], w[:k], plane, k, mmax, st_m[s:s + 1], stats)
         if pr_on[s]:

@@ -134,7 +134,7 @@ def test_reduced_steps_do_not_fail_at_the_pc_limits(bundle, frames, ours):
     than round-off, no step is wasted that way."""
     tr = _tracker(bundle, ours, mode="reduced")
     ctx = tr.context
-    stats = np.zeros(4, np.int64)
+    stats = np.zeros(5, np.int64)
     for start, pts, nrm, sil in frames:
         fit(HAND, pts, start, tr.stages, ctx.matcher, tr.settings.icp, n_rigid=1, normals=nrm, samples=ctx.samples,
             silhouette=sil, stats=stats)
