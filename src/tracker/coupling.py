@@ -48,7 +48,7 @@ def coupled_dip(hand, theta) -> np.ndarray:
     return COUPLING[:, 0] * np.asarray(theta, float)[pip] + np.radians(COUPLING[:, 1])
 
 
-def uncoupled(hand, theta, tolerance_deg=30.0) -> np.ndarray:
+def uncoupled(hand, theta, tolerance_deg=50.0) -> np.ndarray:
     """``(5,)`` bool: the fingers whose last joint is more than ``tolerance_deg`` from its coupled
     value (all False for a model without the default posture DoF)."""
     idx = _joints(hand)
@@ -68,19 +68,20 @@ def recoupled(hand, theta, fingers, limits) -> np.ndarray:
     return out
 
 
-def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg=30.0, gain_mm=0.05):
+def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg=50.0, gain_mm=0.05):
     """``(θ, corr, restarted)``: when fingers of the fit ``θ`` break the coupling by more than
     ``tolerance_deg`` (:func:`uncoupled`), ``refit(θ0) -> (θ, corr)`` from :func:`recoupled` θ; its
     result replaces the fit when ``scorer(θ, corr)`` (lower is better, mm; the tracker's is
     :func:`tracker.init.score`) is lower by more than ``gain_mm`` (a restart's fit that only ties
     has no evidence for it: the data may hold the uncoupled finger).
 
-    Measured with 30° tolerance and 0.05 mm gain (full DoF, Kinect v1 noise, hand at the model's
-    size, the tracker's defaults otherwise): count 3.3 → 2.8° and 6.1 → 4.8° (noise seeds 0 and 1),
-    open-close 2.8 → 2.75° and 2.7 → 2.6°; a refit on 40–50 % of the counting frames, kept on a third
-    of them. The cost: random postures 2.5 → 2.8° (their joints are drawn independently, so the
-    coupled start is often wrong and a few refits still score better). A tie-breaking prior instead
-    (the refit kept unless worse by 0.2 mm) made the random postures 4.4°."""
+    Measured with 50° tolerance and 0.05 mm gain (full DoF, Kinect v1 noise, hand at the model's
+    size, the tracker's defaults otherwise; noise seeds 0 and 1): count 3.3 → 2.85° and 6.1 → 5.1°,
+    open-close 2.8 → 2.65° and 2.7 → 2.6°, random postures 2.5 → 2.3°. 50° because the true
+    fingerfist postures break a 30° tolerance on 29 % of frames (7 % at 50°), each a refit that
+    costs time; at 30° count was 2.8° and 4.8°, but random postures (joints drawn independently)
+    got worse, 2.8°. A tie-breaking prior instead (the refit kept unless worse by 0.2 mm) made the
+    random postures 4.4°."""
     fingers = uncoupled(hand, theta, tolerance_deg)
     if not fingers.any():
         return theta, corr, False

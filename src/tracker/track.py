@@ -141,7 +141,7 @@ class TrackerSettings:
     net_wrist_cue: bool = False
     unseen_prior: float = 0.5
     unseen_points: int = 3
-    finger_restart_deg: float = 30.0
+    finger_restart_deg: float = 50.0
     wrist_cue: bool = True
     rgb_seed: bool = False
     observe: ObserveSettings = field(default_factory=ObserveSettings)
