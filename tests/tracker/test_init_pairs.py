@@ -24,6 +24,7 @@ from tracker.init import (
 from tracker.observe import observe
 from tracker.segment import Segmenter
 from tracker.sim import experiments as E
+from tracker.sim.motions import make_motion
 from tracker.sim.render import DepthRenderer
 from tracker.track import HandTracker, TrackerSettings
 
@@ -61,15 +62,18 @@ def test_segment_distances_match_dense_sampling():
 
 
 def test_finger_overlap_is_zero_for_real_postures_and_charges_fingers_in_one_place(bundle):
-    """Every posture of the synergy grid (open hand to fist) at the model size and 1.4× has no overlap
-    (the term must not tilt the search among real hands or the hand size), while a middle finger
-    swung onto the index finger, or ring and pinky crossed, costs at least 10 mm."""
+    """Every posture of the synergy grid (open hand to fist) at the model size and 1.4×, and every
+    frame of the rendered open-close motion (its fist's thumb pressed over the index and middle
+    fingers), has no overlap (the term must not tilt the search among real hands or the hand size),
+    while a middle finger swung onto the index finger, or ring and pinky crossed, costs at least 10 mm."""
     for size in (1.0, 1.4):
         hand = HAND.scaled(size)
         for p in posture_grid(bundle.model):
             th = np.zeros(hand.n_dofs)
             th[~hand.pose_mask] = p
             assert finger_overlap_mm(hand, th) == 0.0
+    for th in make_motion("open-close", hand=HAND, frames=30, seed=0).theta:
+        assert finger_overlap_mm(HAND, th) == 0.0
     th = np.zeros(HAND.n_dofs)
     th[~HAND.pose_mask] = bundle.model.mean_
     swung = [finger_overlap_mm(HAND, np.where(np.arange(HAND.n_dofs) == NAMES.index("middle1_abd"), a, th))
