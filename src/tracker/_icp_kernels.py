@@ -4,9 +4,11 @@ The Python loop of :func:`tracker.icp.fit_reference` paid its interpreter and ar
 once per ICP iteration (correspondences, local offsets, silhouette pairs, the solver's argument
 checks); here the loop runs inside one compiled call. The Gauss-Newton steps work on per-node moment
 sums of the pairs (:func:`node_moments`): with the pairs fixed during a step, every energy and every
-normal-equation evaluation costs O(nodes × DoF²) instead of O(pairs × DoF²), and the normal
-equations are formed directly in the stage's subspace, so a stage with fewer coordinates costs less.
-Point-to-plane pairs do not reduce to moments; they go through the per-pair solver of
+normal-equation evaluation costs O(nodes × DoF²) instead of O(pairs × DoF²); a subspace's normal
+equations are projected from all DoF's (a synergy subspace is not cheaper per step: its PCs touch every
+finger). What a stage in the synergy subspace can save is the closest-point search, the costly part
+of a stage: a local pass (:func:`match_same`) re-projects each point onto the primitive it was matched
+to. Point-to-plane pairs do not reduce to moments; they go through the per-pair solver of
 :mod:`handmodel._solver_kernels`.
 
 Stage arrays (one row per stage, padded to the widest): ``st_M (S, n, m)``, ``st_mu (S, n)``,
@@ -755,7 +757,7 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
         stats[3] += 1
         theta = rigid_update(theta, out_p, points, out_valid)
     mmax = st_M.shape[2]
-    # the reference frames of the pairs in use (a stage that reuses them solves relative to these)
+    # θ's frames at a stage's start (G keeps those of the pass before until the test below)
     G1 = np.empty((N, 4, 4))
     k = -1
     ns = 0
