@@ -145,11 +145,8 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     them, or leaves a real finger uncovered (a hand turned over folds its thumb into the palm and
     leaves the real thumb's points up to the cap away). A silhouette that carries the frame's wrist
     cue (``silhouette.wrist``, :func:`tracker.wrist.wrist_cue`) adds :func:`tracker.wrist.wrist_cost_mm`:
-    a hand whose fingers point up the arm loses even where both directions fit. Last,
-    ``FINGER_OVERLAP_WEIGHT`` × :func:`finger_overlap_mm`: two model fingers in one place cover the
-    data and stay inside the silhouette as well as two fingers side by side, but real fingers cannot
-    pass through each other (a curled finger's blob taken by its neighbour, which then leaves its own
-    finger's few points uncovered)."""
+    a hand whose fingers point up the arm loses even where both directions fit. (The finger-wise
+    restarts add :func:`finger_overlap_mm`, see :func:`finger_search_batched`.)"""
     s = data_cost_mm(ctx, theta, corr)
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     if silhouette is not None and samples is not None and not silhouette.empty:
@@ -157,7 +154,7 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     cue = getattr(silhouette, "wrist", None)
     if cue is not None:
         s += wrist_cost_mm(cue, ctx.hand, theta)
-    return s + FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules)
+    return s
 
 
 def data_cost_mm(ctx: FitContext, theta, corr) -> float:
@@ -186,7 +183,8 @@ MODEL_TO_DATA_WEIGHT = 1.0
 # real sensors' noisy normals let a hand turned over win (labelled SR305 frames: tips within 15 px
 # 85 of 95 with 5 mm, 77 with 10 mm, 64 with the earlier score)
 REJECTED_PAIR_MM = 5.0
-# what a mm of two fingers' overlap (:func:`finger_overlap_mm`) costs in the score, and the share of
+# what a mm of two fingers' overlap (:func:`finger_overlap_mm`) costs the finger-wise restarts'
+# scores (with the pairs, :func:`finger_search_batched`), and the share of
 # two phalanges' summed radii they may come closer than without cost (touching fingers flatten, a
 # curled finger lies against its neighbour; the model's radii are a little generous). Measured on
 # the labelled SR305 frames with the pair restarts (fixed sizes 1.336 / 1.399): tips within 15 px
@@ -555,7 +553,11 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
     with the same fit, and the best one replaces θ when it scores better. With
     ``settings.finger_pairs``, while θ scores above ``PAIR_SCORE_MM`` there, the pair restarts are
     ranked too (:func:`finger_pair_variants`; the best of each pair goes on like a finger's best).
-    Repeated while a sweep improves something, at most ``finger_sweeps`` times. Returns θ."""
+    With the pairs, every restart's score there also pays ``FINGER_OVERLAP_WEIGHT`` ×
+    :func:`finger_overlap_mm`: two model fingers in one place cover the data and stay inside the
+    silhouette as well as two fingers side by side, but real fingers cannot pass through each other
+    (a curled finger's blob taken by its neighbour, which then leaves its own finger's few points
+    uncovered). Repeated while a sweep improves something, at most ``finger_sweeps`` times. Returns θ."""
     st = settings
 
     def cloud(n):
@@ -565,6 +567,14 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
     pr, nr = cloud(st.rank_points)
     pf, nf = cloud(st.refine_points)
     n = len(ctx.finger_shapes)
+
+    def overlap(thetas):
+        # with the pair restarts the fingers' places are compared, so two fingers in one place pay
+        # (not in score itself: the safety net's searches compare orientations by it, and an
+        # edge-on hand's fingers pass into each other in the tracked pose — 8° turns on test_safety_net)
+        if not settings.finger_pairs:
+            return np.zeros(len(thetas))
+        return np.array([FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, th, ctx.capsules) for th in thetas])
     for _ in range(st.finger_sweeps):
         starts, owner = [theta], [-1]
         for k, (fi, _) in enumerate(ctx.finger_shapes):
@@ -575,12 +585,13 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
         if len(starts) == 1:
             break
         T, S = ctx.fit_many(starts, pr, "full", 0, st.rank_icp + 2, silhouette=silhouette, normals=nr, gn=st.rank_gn)
+        S = S + overlap(T)
         if settings.finger_pairs and S[0] > PAIR_SCORE_MM:
             pairs = finger_pair_variants(ctx, theta)
             if pairs:
                 Tp, Sp = ctx.fit_many([th for _, th in pairs], pr, "full", 0, st.rank_icp + 2, silhouette=silhouette,
                                       normals=nr, gn=st.rank_gn)
-                T, S = np.concatenate([T, Tp]), np.concatenate([S, Sp])
+                T, S = np.concatenate([T, Tp]), np.concatenate([S, Sp + overlap(Tp)])
                 owner += [n + k for k, _ in pairs]
         owner = np.asarray(owner)
         finalists = [theta]
@@ -593,6 +604,7 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
         if len(finalists) == 1:
             break
         T, S = ctx.fit_many(finalists, pf, "full", 0, st.refine_icp, silhouette=silhouette, normals=nf)
+        S = S + overlap(T)
         i = int(np.argmin(S))
         if i == 0 or not S[i] < S[0] - 1e-3:
             break
