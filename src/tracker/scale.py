@@ -99,7 +99,8 @@ EDGE_PX = 2.0
 
 def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
     """:func:`tracker.init.score` as sizes are compared: without the wrist cue (:func:`without_wrist`),
-    with ``edge_px`` (default :data:`EDGE_PX`) pixels of the silhouette's edge free.
+    with ``edge_px`` (default :data:`EDGE_PX`) pixels of the silhouette's edge free, plus the fingers'
+    overlap (:func:`tracker.init.finger_overlap_mm`, which the start search's ranking also adds).
 
     The start search's score measures both directions alike on either side of the right size: a
     hand too small leaves data points up to the cap away, one too large puts surface outside the
@@ -112,12 +113,13 @@ def size_score(ctx, theta, corr, silhouette=None, *, edge_px=None):
     mean keypoint error fell from 4.0 to 3.1 mm."""
     edge_px = EDGE_PX if edge_px is None else float(edge_px)
     sil = without_wrist(silhouette)
+    # fingers passing into each other let a too large hand fold into a small one's silhouette
+    overlap = FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules)
     if sil is None or sil.empty or edge_px == 1.0:
-        return score(ctx, theta, corr, sil)
+        return score(ctx, theta, corr, sil) + overlap
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     return (data_cost_mm(ctx, theta, corr)
-            + MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, sil, tolerance_px=edge_px)
-            + FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules))
+            + MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, sil, tolerance_px=edge_px) + overlap)
 
 
 #: how far behind the fitted wrist points still count for the size (:func:`hand_side`)

@@ -90,8 +90,9 @@ def realistic_lines(rows, frames) -> list:
          f"Motion open-close, {frames} frames per sequence, tracked from the first frame by today's default tracker "
          "with the hand size calibrated (`TrackerSettings(hand_scale=\"auto\")`: the first frame, refined over the "
          "next two), fingerfist bundle, default segmentation with the colour frame, gating by the predicted hand. "
-         "The rendered hand is the model × scale, its forearm sized with it (keypoints compared on the rendered "
-         "hand, mm); cameras and noise: kinect1 "
+         "The rendered hand is the model × scale with each finger's length × its own factor (drawn in 0.9–1.1, "
+         "listed below the table), its forearm sized with it (keypoints compared on the rendered "
+         "hand, mm; scale found / true: the tracker's size over the rendered global scale); cameras and noise: kinect1 "
          "(Kinect v1 preset), realsense (sr305 camera and noise). Scenes: " +
          "; ".join(f"{k}: `{v or 'none'}`" for k, v in REALISTIC_SCENES.items()) +
          f". First frame found: keypoint error ≤ {FIRST_FRAME_MM:g} mm. Acceptance target of the issue: "
@@ -105,8 +106,12 @@ def realistic_lines(rows, frames) -> list:
         L.append(f"| {r['scene']} | {r['sensor']} | {r['scale']:g} | {num(r['keypoint_mm'])} | {num(r['posture_deg'])} | "
                  f"{'yes' if r['first_ok'] else 'no'} | {num(r['first_frame_mm'])} | {100 * r['lost']:.0f} % | "
                  f"{num(r['fps'])} | {num(r['scale_found'], '.3f')} |")
-    L += ["", "— : no θ in any frame (nothing segmented) or no size estimate (fixed-size tracker).", "",
-          "By scene (all sensors and sizes; errors over the runs with a θ):", "",
+    L += ["", "— : no θ in any frame (nothing segmented) or no size estimate (fixed-size tracker).", ""]
+    shapes = {r["scale"]: r.get("fingers") for r in rows if r.get("fingers")}
+    if shapes:
+        L += ["Rendered finger length factors (thumb, index, middle, ring, pinky): " + "; ".join(
+            f"×{s:g}: " + " / ".join(f"{v:.2f}" for v in f.values()) for s, f in shapes.items()) + ".", ""]
+    L += ["By scene (all sensors and sizes; errors over the runs with a θ):", "",
           "| scene | keypoint error mm | posture error ° | first frame found | lost frames |", "|---|---|---|---|---|"]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         sel = [r for r in rows if r["scene"] == scene]
