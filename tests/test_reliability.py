@@ -211,7 +211,7 @@ def _run(args, timeout=60, **kw):
 
 
 def _run_measured(args, tmp_path, timeout=60):
-    """Run a command; ``(returncode, stderr, peak RSS in bytes of that process alone)``.
+    """Run a command; ``(returncode, stderr, peak RSS in bytes, CPU seconds)`` of that process alone.
 
     A child forked from pytest starts with pytest's own peak RSS (the kernel keeps the high-water mark
     across exec), so a small launcher process forks the command and reports its ``ru_maxrss``."""
@@ -220,12 +220,13 @@ def _run_measured(args, tmp_path, timeout=60):
                 "if pid == 0:\n"
                 "    os.execv(sys.argv[2], sys.argv[2:])\n"
                 "_, status, ru = os.wait4(pid, 0)\n"
-                "open(sys.argv[1], 'w').write(str(ru.ru_maxrss))\n"
+                "open(sys.argv[1], 'w').write(f'{ru.ru_maxrss} {ru.ru_utime + ru.ru_stime}')\n"
                 "sys.exit(os.waitstatus_to_exitcode(status))\n")
     rss_path = tmp_path / "maxrss.txt"
     r = subprocess.run([sys.executable, "-c", launcher, str(rss_path), *map(str, args)], capture_output=True,
                        text=True, timeout=timeout)
-    return r.returncode, r.stderr, int(rss_path.read_text()) << 10
+    rss, cpu = rss_path.read_text().split()
+    return r.returncode, r.stderr, int(rss) << 10, float(cpu)
 
 
 def test_cli_read_only_and_folder_outputs(tmp_path, ro_fs):
@@ -381,16 +382,16 @@ def test_misnamed_and_pickled_npz(tmp_path):
 
 def test_hostile_inputs_through_the_cli_stay_small(tmp_path):
     """tracker info on frames: 10⁹ and synergy angles with an alias-bomb marker set: a clean
-    error in under 5 s and under 500 MB."""
+    error in under 5 s of CPU and under 500 MB (CPU time, not wall-clock: a shared machine's load
+    must not fail it, a loop over the claimed frames still would)."""
     d = _recording(tmp_path, frames=1000000000)
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text(BOMB)
     for args in ([BIN / "tracker", "info", str(d)],
                  [BIN / "synergy", "angles", str(tmp_path / "none.c3d"), "--markers", str(bomb), "-o",
                   str(tmp_path / "out")]):
-        t0 = time.monotonic()
-        code, err, rss = _run_measured(args, tmp_path)
-        assert time.monotonic() - t0 < 5 + 3   # + the interpreter's start-up on a busy machine
+        code, err, rss, cpu = _run_measured(args, tmp_path)
+        assert cpu < 5, (args[1], cpu)
         assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
         assert rss < 500 << 20, (args[1], rss >> 20)
 
