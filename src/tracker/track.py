@@ -29,16 +29,7 @@ from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette
 from .coupling import restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
-from .init import (
-    FINGER_OVERLAP_WEIGHT,
-    FitContext,
-    InitSettings,
-    finger_overlap_mm,
-    finger_shapes,
-    fit_single_frame,
-    score,
-    thin,
-)
+from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
 from .observe import ObserveSettings, gate
 from .rgb import RgbSeed
 from .scale import (
@@ -660,11 +651,7 @@ class HandTracker:
         """``(θ, corr, points, normals, what)``: the tracked estimate, or the cheap start search's on the
         whole segmented cloud when the frame is doubtful and the search scores better."""
         ctx = self.context
-        # the test asks whether the data are explained: without the score's finger-overlap prior, which
-        # the true pose of a closing fist pays too (open/close: up to 1.5 mm, lifting it over the
-        # threshold, so that the net ran on an easy sequence and its searches, ranked with the prior,
-        # opened the fist: 2.5° → 11.8° on the last frame)
-        s = score(ctx, theta, corr, sil) - FINGER_OVERLAP_WEIGHT * finger_overlap_mm(ctx.hand, theta, ctx.capsules)
+        s = score(ctx, theta, corr, sil)
         if not self._doubtful(theta, pred, s):
             # the sequence's level that later frames are judged against: undoubted frames only (a
             # level learnt from doubtful ones rises with a fit going wrong and stops the net)
