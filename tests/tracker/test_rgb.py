@@ -132,20 +132,21 @@ def test_colour_seed_reaches_the_start_search(hand, scene):
 
 
 def test_colour_seed_decides_what_the_depth_cannot(hand):
-    """Realistic scene (Kinect noise, hand alone, open-close frame 24, the fingers half closed): the
-    depth-only start search lands a few mm off (measured 5.7 mm; since its score measures every point
-    against the whole model it no longer turns open hands over, the case this test first held); the
-    colour seed refined by ICP fits the depth better and is kept (measured 3.1 mm)."""
+    """Realistic scene (Kinect noise, hand alone, open-close frame 28, the fingers nearly closed): the
+    depth-only start search lands 8.5 mm off (measured; frame 24, this test's frame before the pair
+    restarts, is now found by depth alone, 1.9 mm); with the colour seed among its starts 2.9 mm.
+    Earlier frames were found by depth alone as the search improved: the test follows the frame
+    depth alone still gets wrong."""
     from synergy.bundle import load_bundle
     from tracker.sim.hands import HandShape
     from tracker.sim.noise import NoiseModel
 
     shown = HandShape(1.0).apply(hand)  # the realistic scenes' rendered hand (its own proportions)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[24]
+    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[28]
     nm = NoiseModel.preset("kinect1")
     r = render(shown, truth, CAM, labels=False, color=True, incidence=nm.needs_incidence,
                reflectance=nm.needs_reflectance)
-    depth = nm.apply(r.depth, CAM, np.random.default_rng([0, 24]), r.cos_incidence, r.reflectance)
+    depth = nm.apply(r.depth, CAM, np.random.default_rng([0, 28]), r.cos_incidence, r.reflectance)
     bundle = load_bundle("fingerfist")
     errs = {}
     for on in (False, True):
@@ -154,8 +155,8 @@ def test_colour_seed_decides_what_the_depth_cannot(hand):
         ob = observe(depth, CAM, tr.settings.observe, color=r.color)
         th = tr.track(ob, CAM, color=r.color).theta
         errs[on] = float(np.linalg.norm(hand.keypoints(th) - shown.keypoints(truth), axis=-1).mean() * 1000)
-        assert tr.rgb_kept_ == int(on)
-    assert errs[True] < 4.0 and errs[True] < errs[False] - 1.5
+        assert tr.rgb_seeds_ == int(on)
+    assert errs[True] < 4.0 and errs[True] < errs[False] - 3.0
 
 
 def test_colour_seed_without_colour_is_the_depth_only_start(hand, scene):
