@@ -52,16 +52,24 @@ def match(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, norma
     nv = 0
     for i in range(points.shape[0]):
         s = out_seg[i]
-        ok = s >= 0 and out_d[i] < reject
         out_node[i] = seg_node[s] if s >= 0 else 0
-        if ok and use_n:
-            c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
-            if c < agreement:  # NaN (unknown normal) keeps the pair
-                ok = False
+        ok = s >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
         out_valid[i] = ok
         if ok:
             nv += 1
     return nv
+
+
+@njit(cache=True, inline="always")
+def _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n):
+    """Pair ``i`` kept: nearer than ``reject`` and, with normals, agreeing by at least ``agreement``."""
+    if not out_d[i] < reject:  # as written, a NaN distance is rejected
+        return False
+    if use_n:
+        c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
+        if c < agreement:  # NaN (unknown normal) keeps the pair
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -95,11 +103,7 @@ def match_same(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, 
                     + (out_p[i, 2] - cam[2]) * out_n[i, 2])
             if view > 0.0:
                 continue
-        ok = out_d[i] < reject
-        if ok and use_n:
-            c = normals[i, 0] * out_n[i, 0] + normals[i, 1] * out_n[i, 1] + normals[i, 2] * out_n[i, 2]
-            if c < agreement:  # NaN (unknown normal) keeps the pair
-                ok = False
+        ok = _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
         out_valid[i] = ok
         if ok:
             nv += 1
