@@ -116,7 +116,7 @@ def model_silhouette(hand, theta, camera, shape, spacing=0.003):
     return sil
 
 
-def overlay_png(path, depth, camera, hand, theta, status="", mask=None):
+def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled=None):
     """The whole depth frame (grey where there is no depth) with the segmentation mask's outline
     (white), the fitted hand's silhouette (translucent red) and skeleton (thumb in orange, its
     tip ringed), so a wrong segmentation or a fit on the wrong object is seen at a glance.
@@ -129,6 +129,7 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None):
     hand, theta : the hand model and its fitted parameters (NaN: no fit drawn)
     status : text for the title (e.g. tracked / lost)
     mask : (H, W) bool segmentation mask, or None
+    labelled : (N, 2) pixels labelled by hand (e.g. fingertips), drawn as cyan crosses, or None
     """
     d = np.asarray(depth, float)
     H, W = d.shape
@@ -158,11 +159,16 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None):
         if "thumb_tip" in names:
             t = names.index("thumb_tip")
             ax.plot(u[t], v[t], "o", mfc="none", mec="orange", ms=10, mew=2)
+    if labelled is not None and len(labelled):
+        lu, lv = np.asarray(labelled, float).reshape(-1, 2).T
+        ax.plot(lu, lv, "+", color="c", ms=12, mew=2.5)
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
     ax.set_axis_off()
     legend = "white: segmentation mask · red: fitted hand · orange: thumb" if fitted else \
         "white: segmentation mask · no fit"
+    if labelled is not None and len(labelled):
+        legend += " · cyan: labelled"
     fig.text(0.01, 1 - 30 / (H + 60), f"{Path(path).stem}  {status}", fontsize=10, va="center")
     fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=8, va="center")
     _save(fig, path)

@@ -16,3 +16,27 @@ def test_parts_in_two_workers_equal_one_by_one():
         assert np.isclose(alone["occlusion"][k], both["occlusion"][k]), k
     # the density rows: (stride, share, error, ms) — errors equal, times are the machine's
     assert [(k, round(e, 9)) for k, _, e, _ in alone["density"]] == [(k, round(e, 9)) for k, _, e, _ in both["density"]]
+
+
+def test_real_part_needs_its_folder_and_reports_bad_labels(tmp_path):
+    """`tracker experiments --only real` without --real-data, or with a folder without labels: one line, exit 2."""
+    import subprocess
+    import sys
+
+    for extra, want in (([], "--real-data"), (["--real-data", str(tmp_path)], "labels.json")):
+        r = subprocess.run([sys.executable, "-m", "tracker.cli", "experiments", "--only", "real", "-o",
+                            str(tmp_path / "out"), *extra], capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+        assert want in r.stderr, r.stderr
+
+
+def test_real_lines_count_the_floors():
+    """The real frames' section counts a frame only when every floor holds (tips, wrist, mask)."""
+    from tracker.sim.report import real_lines
+
+    good = {"name": "a", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 14.9}, "wrist_px": 19.0, "in_mask": 0.95,
+            "ok": True}
+    bad = {"name": "b", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 15.1}, "wrist_px": 5.0, "in_mask": 1.0,
+           "ok": False}
+    text = "\n".join(real_lines([good, bad]))
+    assert "every floor: 1 of 2" in text and "tips within 15 px: 3 of 4" in text and "[png](real/b.png)" in text

@@ -3,50 +3,34 @@ fingertip pixels made by eye) tracked as a user would: the camera preset, the ri
 size calibrated on each recording's first labelled frame (``hand_scale="auto"``) and reused for its
 other frames, everything else default. The keypoint-in-mask floor is the issue's; the tip and wrist
 floors are what the tracker reaches today (the issue's: tips ≤ 15 px and wrist ≤ 20 px on every
-frame: 13 of the 19 frames meet them); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
+frame: 16 of the 19 frames meet them); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
 swapped, the thumb folded into the palm) or a lost wrist."""
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
 from PIL import Image
 from scipy import ndimage
 
-from handmodel import HandModel
 from tests.conftest import shared
-from tracker.cameras import preset
-from tracker.observe import observe
-from tracker.track import HandTracker, TrackerSettings
+from tracker.sim.experiments import experiment_real_frames
 
 TIPS = ("thumb", "index", "middle", "ring", "pinky")
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def fits():
-    from synergy.bundle import load_bundle
-
-    labels = json.loads(shared("realsense_sr305_lada", "labels", "labels.json").read_text())
-    cam = preset("sr305")
-    bundle = load_bundle("fingerfist")
-    out, sizes = {}, {}
+def fits(tmp_path_factory):
     # as a user tracks a recording: the size calibrated on its first frame (hand_scale="auto"), then
-    # reused for its other frames (--hand-scale from the output header)
-    for name in sorted(k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v):
-        units = np.asarray(Image.open(shared("realsense_sr305_lada", f"{name}.png")))
-        depth = np.where(units > 0, units * cam.depth_scale_m, np.nan)
-        truth = np.asarray(Image.open(shared("realsense_sr305_lada", "labels", f"{name}_hand.png"))) > 0
-        recording = name.split("_")[0]
-        size = sizes.get(recording, "auto")
-        tr = HandTracker(HandModel.load(right=True), TrackerSettings().replace(hand_scale=size), synergies=bundle)
-        r = tr.track(observe(depth, cam), cam)
-        sizes.setdefault(recording, tr.scale_)
-        uv = cam.project(tr.hand.keypoints(r.theta))
-        out[name] = (labels[name], truth, uv, tr.hand.keypoint_names, tr.scale_)
-    assert len(out) == 19
-    return out
+    # reused for its other frames (--hand-scale from the output header); the report's protocol
+    root = shared("realsense_sr305_lada")
+    overlays = tmp_path_factory.mktemp("overlays")
+    rows = experiment_real_frames(root, overlay_dir=overlays)
+    assert len(rows) == 19
+    for r in rows:  # every overlay written and readable, at the frame's size
+        assert np.asarray(Image.open(overlays / f"{r['name']}.png")).shape[1] == r["mask"].shape[1]
+    return {r["name"]: (r["labels"], r["mask"], r["uv"], r["names"], r["scale"]) for r in rows}
 
 
 def test_every_real_frame_fits_the_hand_not_the_body(fits):
@@ -88,10 +72,11 @@ def test_no_open_hand_is_fitted_turned_over(fits):
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 11 of the 19 frames have every labelled tip within 15 px of its model tip
-    and the wrist within 20 px (the issue's floor for every frame), at least 86 of the 95 labelled
+    """Fingertips: at least 14 of the 19 frames have every labelled tip within 15 px of its model tip
+    and the wrist within 20 px (the issue's floor for every frame), at least 90 of the 95 labelled
     tips are within 15 px, the median tip error over all frames is ≤ 6 px, and no tip is more than
-    45 px off on any frame. Measured with the pair restarts and the finger-overlap term (f949129,
+    30 px off on any frame. Measured at bf8db01 (the 1 px dropout band; sizes 1.27 and 1.23): 16 frames,
+    94 tips, median 4.8 px, worst 15 px; the report's "real labelled frames" section lists them. Measured with the pair restarts and the finger-overlap term (f949129,
     sizes calibrated 1.268 and 1.231): 13 frames, 91 tips, median 4.6 px, worst tip 37 px (231615_100,
     the middle finger pointing at the camera); before them (sizes 1.336 and 1.399): 11, 83, 6.7, 70 px
     — curled fingers seen as blobs in front of the palm fitted with a spread neighbour on their blob
@@ -104,10 +89,10 @@ def test_real_frames_fingertips(fits):
         e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
         tip_errs += e
         worst = max(worst, max(e))
-        assert max(e) <= 45, f"{name}: tips {np.round(e, 1)} px"
+        assert max(e) <= 30, f"{name}: tips {np.round(e, 1)} px"
         ok += max(e) <= 15 and np.hypot(*(uv[0] - lab["wrist"])) <= 20
     print(f"\nframes within every floor {ok}/19, tips within 15 px {np.sum(np.asarray(tip_errs) <= 15)}/95, "
           f"median {np.median(tip_errs):.1f} px, worst {worst:.1f} px")
-    assert ok >= 11, ok
-    assert np.sum(np.asarray(tip_errs) <= 15) >= 86, np.sum(np.asarray(tip_errs) <= 15)
+    assert ok >= 14, ok
+    assert np.sum(np.asarray(tip_errs) <= 15) >= 90, np.sum(np.asarray(tip_errs) <= 15)
     assert np.median(tip_errs) <= 6, np.median(tip_errs)

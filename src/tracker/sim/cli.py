@@ -136,15 +136,24 @@ def _listing():
 def experiments(
     output: Path = typer.Option(..., "-o", "--output", help="Report folder (report.md + PNGs)."),
     quick: bool = typer.Option(False, "--quick", help="Fewer sequences and settings (a few minutes)."),
-    only: Optional[str] = typer.Option(None, "--only", help="Run one part: paper (the paper's experiments) or "
-                                       "realistic (clutter x sensor noise x hand size)."),
+    only: Optional[str] = typer.Option(None, "--only", help="Run one part: paper (the paper's experiments), "
+                                       "realistic (clutter x sensor noise x hand size) or real (needs --real-data)."),
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes (the parts run side by side)."),
+    real_data: Optional[Path] = typer.Option(None, "--real-data", help="Folder of labelled real SR305 frames "
+                                             "(../shared/data/realsense_sr305_lada): their section and overlays."),
 ):
     """Reproduce the paper's experiments on our renderer, and realistic scenes (clutter, RealSense and
     Kinect v1 noise, hand sizes); writes report.md with tables and plots."""
     from handmodel.fileio import check_output
 
+    from ..errors import TrackerError
+
     check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
+    # before the progress bar: an error inside it would follow the bar's blank line
+    if only == "real" and real_data is None:
+        raise TrackerError("experiments", "the real part needs the labelled frames' folder (--real-data)")
+    if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
+        raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -153,8 +162,16 @@ def experiments(
 
     with Progress(console=Console(stderr=True), transient=True) as p:
         bar = p.add_task("experiments", total=None)
-        res = report(output, quick=quick, parts=None if only is None else [only], jobs=jobs,
+        res = report(output, quick=quick, parts=None if only is None else [only], jobs=jobs, real_data=real_data,
                      progress=lambda k, n, name: p.update(bar, completed=k, total=n, description=name))
+    if res.get("real") is not None:
+        t = Table(title=f"real labelled frames (details: {output / 'report.md'})")
+        for c in ("frame", "size", "worst tip px", "wrist px", "in mask", "all floors"):
+            t.add_column(c, justify="left" if c == "frame" else "right")
+        for r in res["real"]:
+            t.add_row(r["name"], f"{r['scale']:.2f}", f"{max(r['tips_px'].values()):.0f}", f"{r['wrist_px']:.0f}",
+                      f"{100 * r['in_mask']:.0f} %", "yes" if r["ok"] else "no")
+        Console().print(t)
     if res.get("realistic") is not None:
         t = Table(title=f"realistic scenes (details: {output / 'report.md'})")
         for c in ("scene", "sensor", "scale", "keypoints mm", "posture °", "first frame", "lost", "fps"):

@@ -424,3 +424,71 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
                 if progress is not None:
                     progress(len(rows), total, f"{sensor} ×{scale:g} {scene}")
     return rows
+
+
+# ------------------------------------------------------------------------------ real labelled frames
+#: The labelled real frames' fingertip names (labels.json keys) and the issue's floors.
+REAL_TIPS = ("thumb", "index", "middle", "ring", "pinky")
+REAL_TIP_PX, REAL_WRIST_PX, REAL_MASK_SHARE, REAL_MASK_DILATE_PX = 15.0, 20.0, 0.90, 8
+
+
+def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
+    """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
+    PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
+    tracked as a user would: the ``sr305`` preset, the right hand, defaults, the hand size calibrated on
+    each recording's first labelled frame (``hand_scale="auto"``) and reused for its other frames.
+
+    Returns one dict per frame: ``name``, ``scale``, ``uv`` (projected keypoints, px), ``names``
+    (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip),
+    ``wrist_px``, ``in_mask`` (share of keypoints inside the mask dilated by
+    :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
+    (:func:`tracker.plots.overlay_png`, the labelled tips drawn in)."""
+    import json
+
+    from PIL import Image
+    from scipy import ndimage
+
+    from synergy.bundle import load_bundle
+    from ..errors import TrackerError
+    from ..images import read_depth_units, units_to_metres
+
+    root = Path(data_dir)
+    try:
+        labels = json.loads((root / "labels" / "labels.json").read_text())
+    except (OSError, ValueError) as e:
+        raise TrackerError(str(root / "labels" / "labels.json"), f"cannot read the frame labels ({e})") from None
+    cam = preset("sr305")
+    bundle = load_bundle("fingerfist")
+    names = sorted(k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v)
+    rows, sizes = [], {}
+    for k, name in enumerate(names):
+        depth = units_to_metres(read_depth_units(root / f"{name}.png", cam), cam)
+        mask = np.asarray(Image.open(root / "labels" / f"{name}_hand.png")) > 0
+        recording = name.split("_")[0]
+        tr = HandTracker(HandModel.load(right=True), TrackerSettings().replace(hand_scale=sizes.get(recording, "auto")),
+                         synergies=bundle)
+        ob = observe(depth, cam)
+        res = tr.track(ob, cam)
+        sizes.setdefault(recording, tr.scale_)
+        uv = cam.project(tr.hand.keypoints(res.theta))
+        kn = list(tr.hand.keypoint_names)
+        lab = labels[name]
+        tips = {t: float(np.hypot(*(uv[kn.index(t + "_tip")] - lab[t]))) for t in REAL_TIPS if t in lab}
+        wrist = float(np.hypot(*(uv[0] - lab["wrist"])))
+        near = ndimage.binary_dilation(mask, iterations=REAL_MASK_DILATE_PX)
+        ui = np.clip(np.rint(uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
+        inside = float(near[ui[:, 1], ui[:, 0]].mean())
+        rows.append({"name": name, "scale": float(tr.scale_), "uv": uv, "names": kn, "labels": lab, "mask": mask,
+                     "tips_px": tips, "wrist_px": wrist, "in_mask": inside,
+                     "ok": bool(max(tips.values()) <= REAL_TIP_PX and wrist <= REAL_WRIST_PX
+                                and inside >= REAL_MASK_SHARE)})
+        if overlay_dir is not None:
+            from ..plots import overlay_png
+
+            Path(overlay_dir).mkdir(parents=True, exist_ok=True)
+            overlay_png(Path(overlay_dir) / f"{name}.png", depth, cam, tr.hand, res.theta,
+                        status=f"{res.status}, size {tr.scale_:.2f}, worst tip {max(tips.values()):.0f} px, "
+                               f"wrist {wrist:.0f} px", mask=ob.mask, labelled=[lab[t] for t in REAL_TIPS if t in lab])
+        if progress is not None:
+            progress(k + 1, len(names), name)
+    return rows

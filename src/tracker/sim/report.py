@@ -19,7 +19,9 @@ from synergy.bundle import load_bundle
 
 from .experiments import (
     FIRST_FRAME_MM, PAPER, REALISTIC_SCENES, REALISTIC_SENSORS, SCENARIO_NAMES, default_camera,
-    experiment_density, experiment_icp, experiment_modes, experiment_occlusion, experiment_realistic,
+    REAL_MASK_DILATE_PX, REAL_MASK_SHARE, REAL_TIP_PX, REAL_TIPS, REAL_WRIST_PX,
+    experiment_density, experiment_icp, experiment_modes, experiment_occlusion, experiment_real_frames,
+    experiment_realistic,
     experiment_reduced_pcs, experiment_scenarios, experiment_single_frame, segments,
 )
 from ..errors import TrackerError
@@ -128,6 +130,29 @@ def realistic_lines(rows, frames) -> list:
     return L
 
 
+def real_lines(rows, overlay_dir="real") -> list:
+    """The "real labelled frames" section of the report (markdown lines; overlays in ``overlay_dir``)."""
+    L = ["## Real labelled frames (Intel RealSense SR305, ../shared/data/realsense_sr305_lada)", "",
+         "Each labelled frame tracked as a user would: the `sr305` preset, the right hand, defaults, the hand size "
+         "calibrated on each recording's first labelled frame and reused for its other frames. Labels (wrist crease, "
+         "fingertips, hand mask) were made by eye: straight tips ~5 px, curled ~8 px. Floors of the issue: every "
+         f"labelled tip ≤ {REAL_TIP_PX:g} px from its model tip, wrist ≤ {REAL_WRIST_PX:g} px, ≥ "
+         f"{100 * REAL_MASK_SHARE:.0f} % of the keypoints inside the hand mask dilated by {REAL_MASK_DILATE_PX} px.", "",
+         "| frame | size | " + " | ".join(f"{t} px" for t in REAL_TIPS) + " | wrist px | keypoints in mask | all floors | overlay |",
+         "|---|---|" + "---|" * len(REAL_TIPS) + "---|---|---|---|"]
+    for r in rows:
+        tips = " | ".join(f"{r['tips_px'][t]:.0f}" if t in r["tips_px"] else "—" for t in REAL_TIPS)
+        L.append(f"| {r['name']} | {r['scale']:.2f} | {tips} | {r['wrist_px']:.0f} | {100 * r['in_mask']:.0f} % | "
+                 f"{'yes' if r['ok'] else 'no'} | [png]({overlay_dir}/{r['name']}.png) |")
+    tips = np.array([v for r in rows for v in r["tips_px"].values()])
+    L += ["", f"Frames meeting every floor: {sum(r['ok'] for r in rows)} of {len(rows)}; tips within "
+          f"{REAL_TIP_PX:g} px: {int(np.sum(tips <= REAL_TIP_PX))} of {tips.size} (median {np.median(tips):.1f} px, "
+          f"worst {tips.max():.0f} px); wrist within {REAL_WRIST_PX:g} px: "
+          f"{sum(r['wrist_px'] <= REAL_WRIST_PX for r in rows)} of {len(rows)}; keypoints in the mask ≥ "
+          f"{100 * REAL_MASK_SHARE:.0f} %: {sum(r['in_mask'] >= REAL_MASK_SHARE for r in rows)} of {len(rows)}.", ""]
+    return L
+
+
 def _context(quick):
     """What every part of the report shares: the hand, the bundle, the camera, the fingerfist segments."""
     return SimpleNamespace(hand=HandModel.load(), bundle=load_bundle("fingerfist"), cam=default_camera(),
@@ -196,22 +221,32 @@ def run_steps(names, quick, jobs=1, progress=None):
     return out
 
 
-def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1):
-    """Run every experiment (or only ``parts``: ``{"paper", "realistic"}``), in ``jobs`` processes, and
-    write ``report.md`` with tables and PNG plots next to the paper's numbers."""
-    parts = {"paper", "realistic"} if parts is None else set(parts)
-    bad = parts - {"paper", "realistic"}
+def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1, real_data=None):
+    """Run every experiment (or only ``parts``: ``{"paper", "realistic", "real"}``), in ``jobs`` processes, and
+    write ``report.md`` with tables and PNG plots next to the paper's numbers. ``real_data``: the labelled
+    real frames' folder (:func:`experiment_real_frames`; with it the report gets their section and overlays)."""
+    parts = ({"paper", "realistic"} | ({"real"} if real_data is not None else set())) if parts is None else set(parts)
+    bad = parts - {"paper", "realistic", "real"}
     if bad or not parts:
-        raise TrackerError("experiments", f"unknown part(s) {', '.join(sorted(bad))} (paper, realistic)")
+        raise TrackerError("experiments", f"unknown part(s) {', '.join(sorted(bad))} (paper, realistic, real)")
+    if "real" in parts and real_data is None:
+        raise TrackerError("experiments", "the real part needs the labelled frames' folder (--real-data)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    real = (experiment_real_frames(real_data, overlay_dir=out / "real") if "real" in parts else None)
+    if parts == {"real"}:
+        L = ["# Experiments: real labelled frames", "", *real_lines(real)]
+        atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
+        return {"real": real}
+    parts -= {"real"}
     names = [n for n in STEPS if ("realistic" if n.startswith("realistic") else "paper") in parts]
     res = run_steps(names, quick, jobs, progress)
     realistic = ([r for n in names if n.startswith("realistic") for r in res[n]] if "realistic" in parts else None)
     if parts == {"realistic"}:
-        L = ["# Experiments: realistic scenes", "", *realistic_lines(realistic, realistic_frames(quick))]
+        L = ["# Experiments: realistic scenes", "", *realistic_lines(realistic, realistic_frames(quick)),
+             *(real_lines(real) if real is not None else [])]
         atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
-        return {"realistic": realistic}
+        return {"realistic": realistic, "real": real}
     c = _shared(quick)
     hand, bundle, cam, segs, scen_names = c.hand, c.bundle, c.cam, c.segs, c.scen
     icp, dens, modes, pcs = res["icp"], res["density"], res["modes"], res["reduced PCs"]
@@ -295,6 +330,9 @@ def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1):
     L.append("")
     if realistic is not None:
         L += realistic_lines(realistic, realistic_frames(quick))
+    if real is not None:
+        L += real_lines(real)
     atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
     return {"icp": icp, "density": dens, "modes": modes, "reduced_pcs": pcs, "noise": noisy, "mesh": mesh, "occlusion": occ, "single": single,
-            "scenarios": {f"{nz}{'' if net else ', no net'}": v for (nz, net), v in scen.items()}, "realistic": realistic}
+            "scenarios": {f"{nz}{'' if net else ', no net'}": v for (nz, net), v in scen.items()}, "realistic": realistic,
+            "real": real}
