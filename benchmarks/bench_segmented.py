@@ -1,0 +1,87 @@
+"""Tracking with segmentation on realistic scenes: each frame's ``observe`` (the hand segmented from
+the depth and colour frame, points and normals) plus the tracker's step, CPU time of one core, next to
+the tracker's step alone on the same frames (the peer: what the per-frame loop costs without finding
+the hand). Scenes as the realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0×
+with fingers 0.9–1.1×, forearm + torso / table, Kinect v1 and SR305 noise), today's default tracker
+with the size calibrated; the first frames (the start search and the size) are left out, as the rate
+is the tracking rate.
+
+Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+# one core: numba, OpenMP and BLAS threads (before numpy and numba are imported)
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np
+
+from handmodel import HandModel
+from handmodel.rigid import euler_to_matrix
+from synergy.bundle import load_bundle
+from tracker.cameras import preset
+from tracker.observe import observe
+from tracker.sim import experiments as E
+from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
+from tracker.sim.motions import hand_centre, make_motion
+from tracker.sim.noise import NoiseModel
+from tracker.sim.render import Clutter, DepthRenderer
+from tracker.track import HandTracker, TrackerSettings
+
+SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
+          ("realsense", "forearm,box"))
+SKIP = 6  # the start and the size's refinement (scale_frames) are not the tracking rate
+
+
+def frames_of(hand, sensor, spec, n):
+    cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
+    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
+    shown = HandShape(1.0, E.realistic_fingers(1.0)).apply(hand)
+    truth = make_motion("open-close", hand=shown, frames=n, seed=0).theta
+    R = euler_to_matrix(truth[:, 3:6])
+    clutter = Clutter.parse(spec).sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
+        (truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+    ren = DepthRenderer(shown, cam)
+    out = []
+    for f in range(n):
+        r = ren.render(truth[f], labels=False, color=True, clutter=clutter, incidence=nm.needs_incidence,
+                       reflectance=nm.needs_reflectance)
+        out.append((nm.apply(r.depth, cam, np.random.default_rng([0, f]), r.cos_incidence, r.reflectance), r.color))
+    return cam, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=30)
+    a = ap.parse_args()
+    hand, bundle = HandModel.load(), load_bundle("fingerfist")
+    print(f"{'sensor':9s} {'scene':15s} {'observe ms':>10s} {'track ms':>9s} {'fps with segmentation':>22s} "
+          f"{'fps tracking alone (peer)':>26s}")
+    all_obs, all_trk = [], []
+    for sensor, spec in SCENES:
+        cam, frames = frames_of(hand, sensor, spec, a.frames)
+        tr = HandTracker(hand, TrackerSettings(), synergies=bundle)
+        obs_ms, trk_ms = [], []
+        for f, (depth, color) in enumerate(frames):
+            t0 = time.process_time()
+            ob = observe(depth, cam, tr.settings.observe, color=color)
+            t1 = time.process_time()
+            tr.track(ob, cam, color=color)
+            t2 = time.process_time()
+            if f >= SKIP:
+                obs_ms.append((t1 - t0) * 1e3)
+                trk_ms.append((t2 - t1) * 1e3)
+        o, t = float(np.mean(obs_ms)), float(np.mean(trk_ms))
+        all_obs += obs_ms
+        all_trk += trk_ms
+        print(f"{sensor:9s} {spec:15s} {o:10.2f} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / t:26.0f}")
+    o, t = float(np.mean(all_obs)), float(np.mean(all_trk))
+    print(f"{'all':25s} {o:10.2f} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / t:26.0f}  (mean CPU ms per frame, one core)")
+
+
+if __name__ == "__main__":
+    main()
