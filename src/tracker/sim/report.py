@@ -135,7 +135,8 @@ def real_lines(rows, overlay_dir="real") -> list:
     L = ["## Real labelled frames (Intel RealSense SR305, ../shared/data/realsense_sr305_lada)", "",
          "Each labelled frame tracked as a user would: the `sr305` preset, the right hand, defaults, the hand size "
          "calibrated on each recording's first labelled frame and reused for its other frames. Labels (wrist crease, "
-         "fingertips, hand mask) were made by eye: straight tips ~5 px, curled ~8 px. Floors of the issue: every "
+         "fingertips, hand mask) were made by eye: straight tips ~5 px, curled ~8 px; the depth frames are "
+         "LadaOndris/hand-recognition's (MIT licence; the overlays draw them under our fit). Floors of the issue: every "
          f"labelled tip ≤ {REAL_TIP_PX:g} px from its model tip, wrist ≤ {REAL_WRIST_PX:g} px, ≥ "
          f"{100 * REAL_MASK_SHARE:.0f} % of the keypoints inside the hand mask dilated by {REAL_MASK_DILATE_PX} px.", "",
          "| frame | size | " + " | ".join(f"{t} px" for t in REAL_TIPS) + " | wrist px | keypoints in mask | all floors | overlay |",
