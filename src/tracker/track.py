@@ -520,15 +520,16 @@ class HandTracker:
                 # find the clutter); the gate keeps every point when it does not trust the prediction
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
                 all_pts, all_nrm = pts, nrm
-            theta, corr = fit(self.hand, pts, pred, self.stages, ctx.matcher, st.icp,
-                              n_rigid=st.icp.rigid_iterations, normals=nrm, samples=ctx.samples, silhouette=sil)
+            def tracking_fit(start):
+                return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
+                           normals=nrm, samples=ctx.samples, silhouette=sil)
+
+            theta, corr = tracking_fit(pred)
             status = "tracked"
             if st.finger_restart_deg and st.mode != "reduced":
-                theta, corr, _ = restart_uncoupled(
-                    self.hand, theta, corr,
-                    lambda t: fit(self.hand, pts, t, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
-                                  normals=nrm, samples=ctx.samples, silhouette=sil),
-                    lambda t, c: score(ctx, t, c, sil), self.limits, tolerance_deg=st.finger_restart_deg)
+                theta, corr, _ = restart_uncoupled(self.hand, theta, corr, tracking_fit,
+                                                   lambda t, c: score(ctx, t, c, sil), self.limits,
+                                                   tolerance_deg=st.finger_restart_deg)
             if st.safety_net and st.mode != "reduced":
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
