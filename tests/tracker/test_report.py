@@ -34,9 +34,14 @@ def test_real_lines_count_the_floors():
     """The real frames' section counts a frame only when every floor holds (tips, wrist, mask)."""
     from tracker.sim.report import real_lines
 
+    # the labelled hand lies above its wrist (rows 0-9); model wrist "a" sits 4 px into it, "b" 5 px below
+    mask = np.zeros((20, 20), bool)
+    mask[:10, 5:15] = True
+    common = {"mask": mask, "labels": {"wrist": [10, 10]}}
     good = {"name": "a", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 14.9}, "wrist_px": 19.0, "in_mask": 0.95,
-            "ok": True}
+            "ok": True, "uv": np.array([[10.0, 6.0]]), **common}
     bad = {"name": "b", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 15.1}, "wrist_px": 5.0, "in_mask": 1.0,
-           "ok": False}
+           "ok": False, "uv": np.array([[10.0, 15.0]]), **common}
     text = "\n".join(real_lines([good, bad]))
     assert "every floor: 1 of 2" in text and "tips within 15 px: 3 of 4" in text and "[png](real/b.png)" in text
+    assert "palm side of the crease in 1 of 2 frames" in text

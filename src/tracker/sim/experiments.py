@@ -442,7 +442,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
     (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip),
     ``wrist_px``, ``in_mask`` (share of keypoints inside the mask dilated by
     :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
-    (:func:`tracker.plots.overlay_png`, the labelled tips drawn in)."""
+    (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in)."""
     import json
 
     from PIL import Image
@@ -488,7 +488,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
             Path(overlay_dir).mkdir(parents=True, exist_ok=True)
             overlay_png(Path(overlay_dir) / f"{name}.png", depth, cam, tr.hand, res.theta,
                         status=f"{res.status}, size {tr.scale_:.2f}, worst tip {max(tips.values()):.0f} px, "
-                               f"wrist {wrist:.0f} px", mask=ob.mask, labelled=[lab[t] for t in REAL_TIPS if t in lab])
+                               f"wrist {wrist:.0f} px", mask=ob.mask,
+                        labelled=[lab[t] for t in (*REAL_TIPS, "wrist") if t in lab])
         if progress is not None:
             progress(k + 1, len(names), name)
     return rows
