@@ -7,10 +7,12 @@ or changes a global backend, and each PNG is written atomically.
 from __future__ import annotations
 
 import io
+import textwrap
 from pathlib import Path
 
 import numpy as np
 from matplotlib import colormaps
+from matplotlib.colors import ListedColormap
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -45,29 +47,18 @@ def depth_scale_mm(depths_mm, near_mm=None, far_mm=None) -> tuple[float, float]:
     return lo, hi
 
 
-def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, overwrite=False,
-                  masks=None):
-    """Depth frames in a grid, colour-mapped (viridis) in mm; pixels without depth are light grey.
-
-    Parameters
-    ----------
-    path : PNG to write (refused if it exists, unless ``overwrite``)
-    depths_mm : list of (H, W) depth images in mm, NaN = no depth
-    panel_titles, title : one title per frame, and the figure's
-    near_mm, far_mm : colour-scale ends (default: :func:`depth_scale_mm`)
-    masks : optional list of (H, W) bool segmentation masks, outlined in white on their panels
-
-    Returns
-    -------
-    (lo, hi) : the colour scale used, mm
-    """
+def contact_sheet_figure(depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, masks=None):
+    """The figure of :func:`contact_sheet` (not saved), and its colour scale: ``(figure, (lo, hi))``."""
     lo, hi = depth_scale_mm(depths_mm, near_mm, far_mm)
     n = len(depths_mm)
     cols = int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))
     height, width = np.shape(depths_mm[0])
     aspect = height / width
-    fig = _figure(figsize=(2.6 * cols + 0.8, 2.6 * aspect * rows + 0.9), layout="constrained")
+    fig_w = 2.6 * cols + 0.8
+    # a sheet of one or two frames is narrower than its title: wrap it (~0.55 em per character at 9 pt)
+    lines = textwrap.wrap(title, max(20, int(fig_w * 72 / (0.55 * 9)))) or [""]
+    fig = _figure(figsize=(fig_w, 2.6 * aspect * rows + 0.9 + 0.16 * (len(lines) - 1)), layout="constrained")
     axes = fig.subplots(rows, cols, squeeze=False)
     cmap = colormaps["viridis"].with_extremes(bad="0.85")  # grey is not in viridis: no data stands out
     im = None
@@ -80,8 +71,29 @@ def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=
         ax.set_yticks([])
     for ax in axes.ravel()[n:]:
         ax.set_axis_off()
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle("\n".join(lines), fontsize=9)
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="depth (mm)")
+    return fig, (lo, hi)
+
+
+def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, overwrite=False,
+                  masks=None):
+    """Depth frames in a grid, colour-mapped (viridis) in mm; pixels without depth are light grey.
+
+    Parameters
+    ----------
+    path : PNG to write (refused if it exists, unless ``overwrite``)
+    depths_mm : list of (H, W) depth images in mm, NaN = no depth
+    panel_titles, title : one title per frame, and the figure's (wrapped to the sheet's width)
+    near_mm, far_mm : colour-scale ends (default: :func:`depth_scale_mm`)
+    masks : optional list of (H, W) bool segmentation masks, outlined in white on their panels
+
+    Returns
+    -------
+    (lo, hi) : the colour scale used, mm
+    """
+    fig, (lo, hi) = contact_sheet_figure(depths_mm, panel_titles, title, near_mm=near_mm, far_mm=far_mm,
+                                         masks=masks)
     _save(fig, path, dpi=90, overwrite=overwrite)
     return lo, hi
 
@@ -116,10 +128,32 @@ def model_silhouette(hand, theta, camera, shape, spacing=0.003):
     return sil
 
 
+#: Colours of the overlay's marks, chosen to stand out on its grey depth image and from each other.
+OVERLAY_COLOURS = {"mask": (0.1, 0.9, 0.1), "fit": (0.9, 0.1, 0.1), "bone": (0.05, 0.05, 0.05),
+                   "thumb": (1.0, 0.55, 0.0), "wrist": (0.0, 0.35, 1.0), "labelled": (0.0, 0.9, 0.9)}
+
+
+def overlay_legend(fitted: bool, mask_empty: bool, labelled: bool, depth_mm=None) -> str:
+    """The overlay's key line: what each colour marks, and what is missing (no fit, nothing segmented).
+
+    >>> overlay_legend(True, False, False, (488.0, 899.0))
+    'depth 488–899 mm, light = near · green: segmentation mask · red: fitted hand · blue square: wrist · orange: thumb'
+    >>> overlay_legend(False, True, False)
+    'green: segmentation mask (empty: no hand segmented) · no fit'
+    """
+    parts = [] if depth_mm is None else [f"depth {depth_mm[0]:.0f}–{depth_mm[1]:.0f} mm, light = near"]
+    parts.append("green: segmentation mask" + (" (empty: no hand segmented)" if mask_empty else ""))
+    parts += ["red: fitted hand", "blue square: wrist", "orange: thumb"] if fitted else ["no fit"]
+    if labelled:
+        parts.append("cyan: labelled")
+    return " · ".join(parts)
+
+
 def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled=None):
-    """The whole depth frame (grey where there is no depth) with the segmentation mask's outline
-    (white), the fitted hand's silhouette (translucent red) and skeleton (thumb in orange, its
-    tip ringed), so a wrong segmentation or a fit on the wrong object is seen at a glance.
+    """The whole depth frame in grey (light = near, white where there is no depth) with the
+    segmentation mask's outline (green), the fitted hand's silhouette (red, outlined) and skeleton
+    (black, the thumb orange, its tip ringed) and the wrist (a blue square), so a wrong segmentation,
+    a fit on the wrong object or a hand fitted upside down is seen at a glance.
 
     Parameters
     ----------
@@ -131,46 +165,56 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled
     mask : (H, W) bool segmentation mask, or None
     labelled : (N, 2) pixels labelled by hand (e.g. fingertips), drawn as cyan crosses, or None
     """
+    c = OVERLAY_COLOURS
     d = np.asarray(depth, float)
     H, W = d.shape
     fig = _figure(figsize=(W / 100, (H + 60) / 100))
     ax = fig.add_axes((0.0, 0.0, 1.0, H / (H + 60)))
-    cmap = colormaps["viridis"].with_extremes(bad="0.85")
     finite = d[np.isfinite(d)]
     lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
-    ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=max(hi, lo + 1e-3), interpolation="nearest")
-    if mask is not None and np.any(mask):
-        ax.contour(np.asarray(mask, float), [0.5], colors="w", linewidths=1.2)
+    hi = max(hi, lo + 1e-3)
+    # grey, not a colour map: the hand is the nearest surface, and a colour map's near end (viridis'
+    # dark purple) hid the red fit and black skeleton drawn over it
+    cmap = ListedColormap(colormaps["gray_r"](np.linspace(0.2, 0.75, 256))).with_extremes(bad="1.0")
+    ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
     theta = np.asarray(theta, float)
-    fitted = theta.size and np.all(np.isfinite(theta))
+    fitted = bool(theta.size and np.all(np.isfinite(theta)))
     if fitted:
         sil = model_silhouette(hand, theta, camera, (H, W))
         rgba = np.zeros((H, W, 4))
-        rgba[sil] = (1.0, 0.15, 0.15, 0.35)
+        rgba[sil] = (*c["fit"], 0.3)
         ax.imshow(rgba, interpolation="nearest")
+        if sil.any():
+            ax.contour(sil.astype(float), [0.5], colors=[c["fit"]], linewidths=1.0)
+    mask_empty = mask is None or not np.any(mask)
+    if not mask_empty:
+        # drawn over the fitted silhouette: where the two disagree both edges stay visible
+        ax.contour(np.asarray(mask, float), [0.5], colors=[c["mask"]], linewidths=1.5)
+    if fitted:
         kp = hand.keypoints(theta)
         u, v = project(kp, camera)
         names = hand.keypoint_names
         for i, p in enumerate(hand.parents):
             if p >= 0:
                 thumb = names[i].startswith("thumb")
-                ax.plot(u[[p, i]], v[[p, i]], "-", color="orange" if thumb else "k", lw=2.5 if thumb else 1.8)
-        ax.plot(u, v, "o", color="r", ms=3)
+                ax.plot(u[[p, i]], v[[p, i]], "-", color=c["thumb"] if thumb else c["bone"], lw=2.5 if thumb else 1.8)
+        ax.plot(u, v, "o", color=c["fit"], ms=3)
         if "thumb_tip" in names:
             t = names.index("thumb_tip")
-            ax.plot(u[t], v[t], "o", mfc="none", mec="orange", ms=10, mew=2)
+            ax.plot(u[t], v[t], "o", mfc="none", mec=c["thumb"], ms=10, mew=2)
+        # the wrist is what tells a hand fitted upside down (fingers along the arm) from a right one
+        w = names.index("wrist") if "wrist" in names else 0
+        ax.plot(u[w], v[w], "s", color=c["wrist"], mec="w", ms=9, mew=1)
     if labelled is not None and len(labelled):
         lu, lv = np.asarray(labelled, float).reshape(-1, 2).T
-        ax.plot(lu, lv, "+", color="c", ms=12, mew=2.5)
+        ax.plot(lu, lv, "+", color=c["labelled"], ms=12, mew=2.5)
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
     ax.set_axis_off()
-    legend = "white: segmentation mask · red: fitted hand · orange: thumb" if fitted else \
-        "white: segmentation mask · no fit"
-    if labelled is not None and len(labelled):
-        legend += " · cyan: labelled"
+    legend = overlay_legend(fitted, mask_empty, labelled is not None and len(labelled) > 0,
+                            (lo * 1000, hi * 1000) if finite.size else None)
     fig.text(0.01, 1 - 30 / (H + 60), f"{Path(path).stem}  {status}", fontsize=10, va="center")
-    fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=8, va="center")
+    fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=7 if W < 700 else 8, va="center")
     _save(fig, path)
 
 
