@@ -457,7 +457,9 @@ class RecordingWriter:
     Each PNG is written atomically (temporary file + rename); ``truth.csv`` and then
     ``recording.yaml`` are written at :meth:`close`, so a folder without ``recording.yaml`` is an
     unfinished recording. An existing non-empty folder is refused unless ``overwrite=True``, which
-    replaces a previous recording (and refuses a folder holding anything else).
+    replaces a previous recording (and refuses a folder holding anything else). An error inside the
+    ``with`` block (a damaged input frame) removes what was written (:meth:`abort`): a failed import
+    leaves no half recording that the next attempt would have to ``--overwrite``.
 
     Parameters
     ----------
@@ -489,6 +491,8 @@ class RecordingWriter:
         self.truth: list[np.ndarray] = []
         self.color: bool | None = None
         self._closed = False
+        self._created = not self.path.exists()
+        self._written: list[Path] = []
         self._prepare(overwrite)
 
     def _prepare(self, overwrite: bool):
@@ -514,6 +518,22 @@ class RecordingWriter:
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
             self.close()
+        else:
+            self.abort()
+
+    def abort(self) -> None:
+        """Remove the frames written so far (and the folder, when this writer made it); the writer is
+        closed. Nothing else in the folder is touched."""
+        if self._closed:
+            return
+        self._closed = True
+        for f in self._written:
+            f.unlink(missing_ok=True)
+        for d in (self.path / "depth", self.path / "color", *((self.path,) if self._created else ())):
+            try:
+                d.rmdir()  # only when empty
+            except OSError:
+                pass
 
     def __len__(self) -> int:
         return self.n
@@ -554,9 +574,9 @@ class RecordingWriter:
             if t.shape != (len(list(DOF_NAMES)),):
                 raise RecordingError(self.path / "truth.csv", f"frame {self.n}: truth must have shape "
                                                               f"({len(list(DOF_NAMES))},), got {t.shape}")
-        atomic_write_bytes(self.path / "depth" / name, png_bytes(encode_units(units, self.camera)))
+        self._written.append(atomic_write_bytes(self.path / "depth" / name, png_bytes(encode_units(units, self.camera))))
         if has_color:
-            atomic_write_bytes(self.path / "color" / name, png_bytes(c))
+            self._written.append(atomic_write_bytes(self.path / "color" / name, png_bytes(c)))
         if truth is not None:
             self.truth.append(t.copy())
         self.color = has_color

@@ -303,13 +303,17 @@ def test_writer_refuses_and_checks(tmp_path):
 
 
 def test_unfinished_recording_has_no_metadata(tmp_path):
+    d = tmp_path / "killed"
+    w = RecordingWriter(d, SMALL, 30, "left")  # a process killed before close: the frames stay
+    w.write(np.full(SMALL.shape, 0.5))
+    with pytest.raises(RecordingError, match=r"recording\.yaml: missing"):
+        Recording.open(d)
     d = tmp_path / "crash"
     with pytest.raises(RuntimeError):
         with RecordingWriter(d, SMALL, 30, "left") as w:
             w.write(np.full(SMALL.shape, 0.5))
             raise RuntimeError("crash")
-    with pytest.raises(RecordingError, match=r"recording\.yaml: missing"):
-        Recording.open(d)
+    assert not d.exists()  # an error inside the writer's block removes what it wrote
 
 
 def test_presets_and_bad_camera():
@@ -351,6 +355,23 @@ def test_import_errors_name_the_source_file(tmp_path):
         import_pngs(src, tmp_path / "r1", SMALL)
     with pytest.raises(RecordingError, match=r"src/a1\.png: image is 32×24, the camera says 640×480"):
         import_pngs(src, tmp_path / "r2", preset("sr305"))
+
+
+def test_a_failed_import_leaves_nothing_to_overwrite(tmp_path):
+    """A folder with a stray file (a mask, a colour frame) stops the import at that file; the frames
+    before it used to stay behind as a half recording that the corrected import refused to replace."""
+    src = _png_folder(tmp_path / "src", ["a1.png", "a2.png"])
+    iio.imwrite(src / "a3.png", np.zeros((24, 32), np.uint8))
+    with pytest.raises(RecordingError, match=r"a3\.png: wrong bit depth"):
+        import_pngs(src, tmp_path / "rec", SMALL)
+    assert not (tmp_path / "rec").exists()
+    # a folder the user made beforehand stays, empty, and so does anything else in it
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(RecordingError, match=r"a3\.png"):
+        import_pngs(src, tmp_path / "mine", SMALL)
+    assert (tmp_path / "mine").is_dir() and not any((tmp_path / "mine").iterdir())
+    (src / "a3.png").unlink()
+    assert len(import_pngs(src, tmp_path / "rec", SMALL)) == 2  # no --overwrite needed
 
 
 # ----------------------------------------------------------------------------- the real SR305 frames
