@@ -1,7 +1,8 @@
 """Tracking with segmentation on realistic scenes: each frame's ``observe`` (the hand segmented from
-the depth and colour frame, points and normals) plus the tracker's step, CPU time of one core, next to
-the tracker's step alone on the same frames (the peer: what the per-frame loop costs without finding
-the hand). Scenes as the realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0×
+the depth and colour frame in the predicted hand's window, :meth:`HandTracker.segment_window`, points
+and normals) plus the tracker's step, CPU time of one core, next to the tracker's step alone on the
+same frames (the peer: what the per-frame loop costs without finding the hand) and to the same loop
+with the whole-frame segmenter (``observe`` without a window, timed on the same frames). Scenes as the realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0×
 with fingers 0.9–1.1×, forearm + torso / table, Kinect v1 and SR305 noise), today's default tracker
 with the size calibrated; the first frames (the start search and the size) are left out, as the rate
 is the tracking rate.
@@ -59,28 +60,39 @@ def main():
     ap.add_argument("--frames", type=int, default=30)
     a = ap.parse_args()
     hand, bundle = HandModel.load(), load_bundle("fingerfist")
-    print(f"{'sensor':9s} {'scene':15s} {'observe ms':>10s} {'track ms':>9s} {'fps with segmentation':>22s} "
+    print(f"{'sensor':9s} {'scene':15s} {'observe ms':>10s} {'windowed':>8s} {'track ms':>9s} "
+          f"{'fps with segmentation':>22s} {'whole-frame observe ms':>22s} {'fps whole-frame':>15s} "
           f"{'fps tracking alone (peer)':>26s}")
-    all_obs, all_trk = [], []
+    cols = {"obs": [], "trk": [], "whole": [], "win": []}
+
+    def row(label, c):
+        o, t, w = (float(np.mean(c[k])) for k in ("obs", "trk", "whole"))
+        print(f"{label:25s} {o:10.2f} {np.mean(c['win']):8.0%} {t:9.2f} {1e3 / (o + t):22.0f} {w:22.2f} "
+              f"{1e3 / (w + t):15.0f} {1e3 / t:26.0f}")
+
     for sensor, spec in SCENES:
         cam, frames = frames_of(hand, sensor, spec, a.frames)
         tr = HandTracker(hand, TrackerSettings(), synergies=bundle)
-        obs_ms, trk_ms = [], []
+        c = {k: [] for k in cols}
         for f, (depth, color) in enumerate(frames):
             t0 = time.process_time()
-            ob = observe(depth, cam, tr.settings.observe, color=color)
+            ob = observe(depth, cam, tr.settings.observe, color=color, window=tr.segment_window(cam))
             t1 = time.process_time()
             tr.track(ob, cam, color=color)
             t2 = time.process_time()
+            # the whole-frame segmenter on the same frame (not tracked: the loop above is the one measured)
+            observe(depth, cam, tr.settings.observe, color=color)
+            t3 = time.process_time()
             if f >= SKIP:
-                obs_ms.append((t1 - t0) * 1e3)
-                trk_ms.append((t2 - t1) * 1e3)
-        o, t = float(np.mean(obs_ms)), float(np.mean(trk_ms))
-        all_obs += obs_ms
-        all_trk += trk_ms
-        print(f"{sensor:9s} {spec:15s} {o:10.2f} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / t:26.0f}")
-    o, t = float(np.mean(all_obs)), float(np.mean(all_trk))
-    print(f"{'all':25s} {o:10.2f} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / t:26.0f}  (mean CPU ms per frame, one core)")
+                c["obs"].append((t1 - t0) * 1e3)
+                c["trk"].append((t2 - t1) * 1e3)
+                c["whole"].append((t3 - t2) * 1e3)
+                c["win"].append(ob.window is not None)
+        for k in cols:
+            cols[k] += c[k]
+        row(f"{sensor:9s} {spec:15s}", c)
+    row("all", cols)
+    print("(mean CPU ms per frame, one core; windowed: share of frames segmented in the predicted hand's window)")
 
 
 if __name__ == "__main__":

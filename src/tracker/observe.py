@@ -39,7 +39,9 @@ class ObserveSettings:
     steps) count as hand in the silhouette the model→data terms see (:func:`dropout_band`; 0 = the
     segmented mask alone; 1 by measurement: 2 widened a noise-free render's mask all round, where the
     whole background has no depth, and cost fast sweeps 10.3 -> 8.9 deg and a grasp seen from the back
-    4.7 -> 3.4, while the Kinect-noise count and open/close stay 2.7 deg)."""
+    4.7 -> 3.4, while the Kinect-noise count and open/close stay 2.7 deg). ``window_m``: while
+    tracking, the frame is segmented only in the predicted hand's image box grown by this many metres
+    (at the hand's nearest depth) on every side (:func:`hand_window`; 0 = always the whole frame)."""
 
     stride: int = 3
     target_points: int | None = 600
@@ -48,6 +50,7 @@ class ObserveSettings:
     gate_mm: float = 30.0
     gate_min_share: float = 0.5
     edge_px: int = 1
+    window_m: float = 0.06
 
 
 def backproject(depth, camera):
@@ -193,15 +196,53 @@ class Observation:
     frame_depth: np.ndarray | None = None   # the whole frame it came from (the wrist cue looks past the mask)
     silhouette: np.ndarray | None = None    # (H, W) mask and its dropout band (:func:`dropout_band`): what
     #                                         the silhouette terms fit; None = the mask
+    window: tuple | None = None             # the (rows, cols) slices segmented; None = the whole frame
+
+
+def hand_window(points, camera, margin_m=0.06):
+    """``(window, predicted)``: slice pairs ``(rows, cols)`` of the image box of the hand's points
+    ``(N, 3)`` (camera frame; the hand predicted for the next frame), grown by ``margin_m`` metres at
+    the points' nearest depth on every side (``window``, clipped to ``camera.height × camera.width``),
+    and the box itself (``predicted``); None when no point lies in front of the camera.
+
+    The margin is for two things: motion the prediction (constant velocity) misses, and the wrist
+    cut, which reads the arm's width up to 2.6 palm radii from the palm's centre — about 5 cm past
+    the wrist for a hand of the model's size — so the window must show that much of the arm.
+
+    >>> from types import SimpleNamespace
+    >>> cam = SimpleNamespace(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    >>> hand_window(np.array([[0.0, 0.0, 0.5], [0.05, 0.1, 0.5]]), cam, 0.02)[0]
+    (slice(220, 361, None), slice(300, 391, None))
+    """
+    P = np.asarray(points, float).reshape(-1, 3)
+    P = P[np.isfinite(P).all(axis=1) & (P[:, 2] > 0)]
+    if not len(P):
+        return None
+    u = P[:, 0] / P[:, 2] * camera.fx + camera.cx
+    v = P[:, 1] / P[:, 2] * camera.fy + camera.cy
+    z = float(P[:, 2].min())
+    my, mx = int(np.ceil(margin_m * camera.fy / z)), int(np.ceil(margin_m * camera.fx / z))
+    H, W = int(camera.height), int(camera.width)
+    ya, yb = int(np.floor(v.min())), int(np.ceil(v.max())) + 1
+    xa, xb = int(np.floor(u.min())), int(np.ceil(u.max())) + 1
+    if yb + my <= 0 or xb + mx <= 0 or ya - my >= H or xa - mx >= W:
+        return None
+    window = (slice(max(ya - my, 0), min(yb + my, H)), slice(max(xa - mx, 0), min(xb + mx, W)))
+    return window, (slice(ya, yb), slice(xa, xb))
 
 
 def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter=None, color=None,
-            **changes) -> Observation:
+            window=None, **changes) -> Observation:
     """Segment the hand and sample its points.
 
     ``settings`` (:class:`ObserveSettings`) with any of its fields replaced by ``changes`` (e.g.
     ``observe(depth, camera, stride=1)``); ``segmenter``: a :class:`tracker.segment.Segmenter` (its
-    defaults when None); ``color``: the registered colour frame, for skin segmentation."""
+    defaults when None); ``color``: the registered colour frame, for skin segmentation. ``window``:
+    ``(window, predicted)`` from :func:`hand_window` while tracking
+    (:meth:`tracker.track.HandTracker.segment_window`): the hand is segmented in ``window`` alone
+    (:meth:`tracker.segment.Segmenter.in_window`), and in the whole frame when that result looks
+    wrong (the hand runs out of the window, or is not where it was predicted);
+    ``Observation.window`` says which was used."""
     st = dataclasses.replace(settings or ObserveSettings(), **changes)
     d = np.asarray(depth, np.float64)
     seg = segmenter or Segmenter()
@@ -209,7 +250,12 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     # the segmenter needs the points only for a box; otherwise the back-projection, smoothing and
     # normals are computed in the hand's window alone (a tenth of the frame or less)
     boxed = seg.box_min is not None or seg.box_max is not None
-    mask = seg(d, color, backproject(d, camera) if boxed else None, focal=0.5 * (camera.fx + camera.fy))
+    P = backproject(d, camera) if boxed else None
+    focal = 0.5 * (camera.fx + camera.fy)
+    mask = None if window is None else seg.in_window(d, window[0], color, P, focal=focal, expected=window[1])
+    used = None if mask is None else window[0]
+    if mask is None:
+        mask = seg(d, color, P, focal=focal)
     if not mask.any():
         return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride), d)
     (ya, yb), (xa, xb) = bounds(mask)
@@ -240,7 +286,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
             sil = mask.copy()
             sil[y0:y1, x0:x1] |= band
             out_d[y0:y1, x0:x1] = np.where(band, fill, out_d[y0:y1, x0:x1])
-    return Observation(pts[:k], nrm[:k], mask, out_d, float(k) / max(n_mask, 1), stride, d, sil)
+    return Observation(pts[:k], nrm[:k], mask, out_d, float(k) / max(n_mask, 1), stride, d, sil, used)
 
 
 def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30) -> np.ndarray:

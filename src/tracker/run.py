@@ -54,7 +54,8 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
         depth = frame.depth
         ob = None
         if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
-            ob = observe(depth, cam, tracker.settings.observe, segmenter=segmenter, color=frame.color)
+            ob = observe(depth, cam, tracker.settings.observe, segmenter=segmenter, color=frame.color,
+                         window=tracker.segment_window(cam))
             r = tracker.track(ob, cam, color=frame.color)
         else:
             r = tracker.step(np.zeros((0, 3)))

@@ -118,15 +118,68 @@ class Segmenter:
         if (self.box_min is not None or self.box_max is not None) and points is None:
             raise ValueError("a segmentation box needs the back-projected points")
         f = float(focal) if focal else focal_from_points(points)
+        return self._run(d, color, points, f)
+
+    def in_window(self, depth, window, color=None, points=None, *, focal=None, expected=None):
+        """The hand mask ``(H, W)`` found in ``window`` alone (a ``(rows, cols)`` slice pair, e.g.
+        :func:`window_around` of the hand predicted while tracking), or None when that result
+        cannot be trusted and the whole frame must be segmented (:meth:`__call__`).
+
+        Inside the window every rule runs as on the whole frame, on the same (coarse) pixels, and the
+        window's edges count as image borders: an object the window cuts off is cut off, and the
+        forearm goes on past them. That changes nothing for a hand well inside the window; so the
+        result is refused when the mask is empty, when it comes within :data:`BORDER_PX` of a window
+        edge that is not an image edge (the hand, or an uncut arm, runs out of the window), or when
+        its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
+        tested) — something else than the hand was found there."""
+        d = np.asarray(depth, float)
+        if (self.box_min is not None or self.box_max is not None) and points is None:
+            raise ValueError("a segmentation box needs the back-projected points")
+        f = float(focal) if focal else focal_from_points(points)
+        H, W = d.shape
+        # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
+        # so is refine's rounding of pixel / step to the nearest coarse pixel (halves go to even)
+        g = 2 * max(int(self.coarse), 1)
+        (y0, y1), (x0, x1) = ((max(int(s.start or 0), 0) // g * g, min(int(n if s.stop is None else s.stop), n))
+                              for s, n in zip(window, (H, W)))
+        if y1 - y0 < 2 or x1 - x0 < 2:
+            return None
+        win = (slice(y0, y1), slice(x0, x1))
+        sub = self._run(d[win], None if color is None else np.asarray(color)[win],
+                        None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W))
+        if not sub.any():
+            return None
+        (ya, yb), (xa, xb) = bounds(sub)
+        h, w = sub.shape
+        if ((y0 > 0 and ya < BORDER_PX) or (y1 < H and yb >= h - BORDER_PX)
+                or (x0 > 0 and xa < BORDER_PX) or (x1 < W and xb >= w - BORDER_PX)):
+            return None
+        if expected is not None:
+            cy, cx = (float(v.mean()) + o for v, o in zip(np.nonzero(sub), (y0, x0)))
+            (ey, ex) = expected
+            if not ((ey.start or 0) <= cy < (H if ey.stop is None else ey.stop)
+                    and (ex.start or 0) <= cx < (W if ex.stop is None else ex.stop)):
+                return None
+        out = np.zeros((H, W), bool)
+        out[win] = sub
+        return out
+
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None):
+        """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
+        first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
+        principal point)."""
         c = int(self.coarse)
-        if c <= 1 or min(d.shape) < 40 * c:
-            return self._segment(d, color, points, f)
+        H, W = whole_shape or d.shape
+        (y0, x0) = origin
+        if c <= 1 or min(H, W) < 40 * c:
+            return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0))
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
         dc = d[sub]
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
-                           None if points is None else np.asarray(points)[sub], f / c, c)
+                           None if points is None else np.asarray(points)[sub], f / c, c,
+                           centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c))
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
@@ -145,8 +198,9 @@ class Segmenter:
                 valid = skin
         return valid
 
-    def _segment(self, d, color, points, f, step=1):
-        """The search on an image subsampled by ``step`` (pixel counts and distances scale)."""
+    def _segment(self, d, color, points, f, step=1, centre=None):
+        """The search on an image subsampled by ``step`` (pixel counts and distances scale);
+        ``centre``: the principal point in its pixel coordinates (None: the image's centre)."""
         valid = self._valid(d, color, points)
         if not valid.any():
             return valid
@@ -157,7 +211,7 @@ class Segmenter:
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
-                           with_beyond=True)
+                           with_beyond=True, centre=centre)
         seed = beyond[1]
         beyond = beyond[0]
         if self.forearm == "cut" and mask.any():
@@ -352,7 +406,7 @@ def _touches_border(mask, px=None):
 
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False):
+                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -396,7 +450,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         # surface: when its far end has fingers and lies in front of that surface (a body a few
         # centimetres behind the hand), the far end is the hand; the far edge of a table, or the
         # head of a body cut off by the border, has no fingers or lies behind the hand
-        X = _points(d, focal) if points is None else np.asarray(points, float)
+        X = _points(d, focal, centre) if points is None else np.asarray(points, float)
         for kk in cut_off:
             end, end_front = _far_end(lab == kk, d, X, focal, border_px, reach)
             if end_front < front and _has_fingers(lab == kk, d, end, focal, reach):
@@ -408,13 +462,13 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         # every candidate's nearest part is cut off by the border, typically an arm reaching
         # towards the camera from outside the image: the hand is then the end of the surface
         # farthest from where it enters the image
-        X = _points(d, focal) if points is None else np.asarray(points, float)
+        X = _points(d, focal, centre) if points is None else np.asarray(points, float)
         seed, front = _far_end(lab == k, d, X, focal, border_px, reach)
     with np.errstate(invalid="ignore"):
         near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
         if reach is not None:
             if X is None:
-                X = _points(d, focal) if points is None else np.asarray(points, float)
+                X = _points(d, focal, centre) if points is None else np.asarray(points, float)
             centre = X[seed].mean(axis=0)
             near &= _sq_dist(X, centre) <= reach ** 2
     near |= seed
@@ -605,11 +659,13 @@ def _sq_dist(X, c):
     return (X[..., 0] - c[0]) ** 2 + (X[..., 1] - c[1]) ** 2 + (X[..., 2] - c[2]) ** 2
 
 
-def _points(depth, focal):
-    """Back-projection with the principal point at the image centre (when no points are given)."""
+def _points(depth, focal, centre=None):
+    """Back-projection with the principal point ``centre`` (row, col; None: the image centre) when
+    no points are given."""
     H, W = depth.shape
+    cy, cx = ((H - 1) / 2, (W - 1) / 2) if centre is None else centre
     v, u = np.mgrid[0:H, 0:W]
-    return np.stack([(u - (W - 1) / 2) * depth / focal, (v - (H - 1) / 2) * depth / focal, depth], -1)
+    return np.stack([(u - cx) * depth / focal, (v - cy) * depth / focal, depth], -1)
 
 
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,

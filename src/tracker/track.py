@@ -30,7 +30,7 @@ from .coupling import restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
-from .observe import ObserveSettings, gate
+from .observe import ObserveSettings, gate, hand_window
 from .rgb import RgbSeed
 from .scale import (
     calibrate_scale,
@@ -553,6 +553,17 @@ class HandTracker:
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         return FrameResult(theta, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+
+    def segment_window(self, camera):
+        """Where to segment the next frame (``observe(..., window=...)``): :func:`tracker.observe.hand_window`
+        of the hand predicted for it, grown by ``observe.window_m``; None — the whole frame — when no
+        hand is tracked (not started, lost, its size still being calibrated) or windows are off."""
+        st = self.settings
+        if (not st.observe.window_m or self.lost or self.theta is None
+                or (st.hand_scale == "auto" and (self.scale_ is None or self._scale_open))):
+            return None
+        P, _ = posed_samples(self.hand, self.context.score_samples, self.predict())
+        return hand_window(P, camera, st.observe.window_m)
 
     def _unseen_pulled(self, theta, corr) -> np.ndarray:
         """θ with the posture DoF that no data point constrains moved ``unseen_prior`` of the way to

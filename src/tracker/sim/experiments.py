@@ -350,7 +350,8 @@ def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, 
         depth = r.depth
         if noise is not None:
             depth = noise.apply(depth, cam, np.random.default_rng([seed, f]), r.cos_incidence, r.reflectance)
-        ob = observe(depth, cam, tracker.settings.observe, color=r.color, segmenter=segmenter)
+        ob = observe(depth, cam, tracker.settings.observe, color=r.color, segmenter=segmenter,
+                     window=tracker.segment_window(cam))
         t0 = time.perf_counter()
         res = tracker.track(ob, cam, color=r.color)
         out["ms"][f] = (time.perf_counter() - t0) * 1000.0
