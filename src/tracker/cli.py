@@ -99,6 +99,44 @@ def _depth_stats(rec, every: int = 1, label: str = "reading"):
     return len(idx), float(np.mean(valid)) if valid else float("nan"), v
 
 
+#: Depth units (metres per stored unit) of common cameras: 1 mm (Kinect, D4xx, Azure Kinect, ROS 16UC1),
+#: 0.125 mm (SR300/SR305), 0.1 mm and 0.25 mm (other RealSense settings).
+COMMON_UNITS_M = (0.001, 0.000125, 0.0001, 0.00025)
+
+
+def depth_unit_warning(depths_m, scale_m: float, near: float = 0.2, far: float = 1.5):
+    """A warning when almost none of the depth (metres, finite samples) lies within ``near``–``far``,
+    where the tracker looks for a hand — a wrong camera preset or depth unit puts the scene metres away
+    or centimetres close and every frame is then lost — naming the common units that would put it
+    there; None when the depth looks right.
+
+    >>> import numpy as np
+    >>> print(depth_unit_warning(np.array([4.8, 5.6, 7.0]), 0.001))  # SR305 frames read as millimetres
+    warning: no depth lies within 0.2–1.5 m, where the tracker looks for the hand (median 5600 mm at 1 mm per unit): a wrong --camera or --depth-scale? At 0.125 mm per unit the median would be 700 mm
+    >>> depth_unit_warning(np.array([0.5, 0.9, 2.0]), 0.001) is None
+    True
+    """
+    import numpy as np
+
+    v = np.asarray(depths_m, float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if not v.size:
+        return None
+    share = lambda x: float(np.mean((x >= near) & (x <= far)))  # noqa: E731
+    # 1 % of the pixels is already a hand at arm's length in a 640×480 frame
+    if share(v) >= 0.01:
+        return None
+    median = float(np.median(v))
+    fits = [u for u in COMMON_UNITS_M if not np.isclose(u, scale_m) and share(v * u / scale_m) >= 0.05]
+    # the unit that puts most of the scene in range; among equals, a median nearest arm's length
+    best = min(fits, key=lambda u: (-share(v * u / scale_m), abs(median * u / scale_m - 0.7)), default=None)
+    hint = "" if best is None else \
+        f" At {best * 1000:g} mm per unit the median would be {median * best / scale_m * 1000:.0f} mm"
+    return (f"warning: {'no' if share(v) == 0 else 'hardly any'} depth lies within {near:g}–{far:g} m, where the "
+            f"tracker looks for the hand (median {median * 1000:.0f} mm at {scale_m * 1000:g} mm per unit): a wrong "
+            f"--camera or --depth-scale?{hint}")
+
+
 @app.command("import")
 @_errors
 def import_(
@@ -155,7 +193,7 @@ def import_(
             rec = import_recording_file(src, output, topic=topic, color_topic=color_topic, start_s=start, end_s=end,
                                         every=every, handedness=hand, overwrite=overwrite,
                                         progress=lambda k, n: p.update(bar, completed=k, total=n))
-        _table(f"imported {src} → {output} ({time.perf_counter() - t0:.1f} s)", _recording_rows(rec))
+        _imported(src, output, rec, time.perf_counter() - t0)
         return
     given = [o for o, v in (("--topic", topic), ("--color-topic", color_topic), ("--start", start), ("--end", end),
                             ("--every", None if every == 1 else every)) if v is not None]
@@ -167,7 +205,36 @@ def import_(
         bar = p.add_task("import", total=None)
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
                           progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
-    _table(f"imported {src} → {output} ({time.perf_counter() - t0:.1f} s)", _recording_rows(rec))
+    _imported(src, output, rec, time.perf_counter() - t0)
+
+
+def _imported(src, output, rec, seconds):
+    """The import's summary: the recording, its depth over up to 30 frames spread through it, and a
+    warning when the depth unit looks wrong (checked now, not after a run that loses every frame)."""
+    rows = _recording_rows(rec)
+    warning = None
+    if len(rec):
+        n, _, v = _depth_stats(rec, max(1, len(rec) // 30), "checking depth")
+        rows += _depth_rows(v, f"over {n} of {len(rec)} frames" if n < len(rec) else "")
+        warning = depth_unit_warning(v, rec.camera.depth_scale_m)
+    _table(f"imported {src} → {output} ({seconds:.1f} s)", rows)
+    if warning:
+        _print(warning)
+
+
+def _depth_rows(v, note=""):
+    import numpy as np
+
+    if not v.size:
+        return [("depth", "no pixel has depth")]
+    q = np.percentile(v, [1, 50, 99]) * 1000
+    return [("depth 1 / 50 / 99 %", f"{q[0]:.0f} / {q[1]:.0f} / {q[2]:.0f} mm" + (f" ({note})" if note else ""))]
+
+
+def _print(line: str) -> None:
+    from rich.console import Console
+
+    Console(markup=False, soft_wrap=True).print(line)  # one line, as typed, never read as markup
 
 
 @app.command()
@@ -180,8 +247,6 @@ def info(
     color_topic: Optional[str] = typer.Option(None, "--color-topic", help="ROS bag: colour image topic."),
 ):
     """Summary of a recording (reads and checks every frame unless --quick)."""
-    import numpy as np
-
     from .recording import Recording
 
     rec = Recording.open(recording, topic=topic, color_topic=color_topic)
@@ -191,9 +256,12 @@ def info(
         rows.append(("frames read", f"{n} (all readable)"))
         rows.append(("pixels with depth", f"{100 * valid:.1f} % (mean per frame)"))
         if v.size:
-            q = np.percentile(v, [1, 50, 99]) * 1000
-            rows.append(("depth 1 / 50 / 99 %", f"{q[0]:.0f} / {q[1]:.0f} / {q[2]:.0f} mm"))
+            rows += _depth_rows(v)
     _table(str(rec.path), rows)
+    if not quick and len(rec):
+        warning = depth_unit_warning(v, rec.camera.depth_scale_m)
+        if warning:
+            _print(warning)
 
 
 @app.command()
@@ -261,6 +329,9 @@ def show(
         ("frames shown", f"{len(shown)} of {n}"
          + (f" (the first {max_frames} of {len(idx)} selected)" if len(idx) > len(shown) else "")),
         ("colour scale", f"{lo:.0f}–{hi:.0f} mm"), ("pixels with depth", f"{100 * valid:.1f} %")])
+    warning = depth_unit_warning(np.concatenate([np.ravel(d) for d in depths]) / 1000.0, rec.camera.depth_scale_m)
+    if warning:
+        _print(warning)
 
 
 # the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer

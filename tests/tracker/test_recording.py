@@ -483,6 +483,26 @@ def test_cli_import_info_show(tmp_path):
     assert Recording.open(tmp_path / "rec2").camera.depth_scale_m == 0.000125
 
 
+def test_cli_import_warns_of_a_wrong_depth_unit(tmp_path):
+    """SR305 frames (0.125 mm units) imported with the Kinect preset (1 mm) put the hand at ~5 m: the
+    tracker then loses every frame. import, info and show say so and name the unit that fits."""
+    src = tmp_path / "pngs"
+    src.mkdir()
+    for name in ("20210326-230536_30.png", "20210326-231615_0.png"):
+        (src / name).write_bytes((_sr305_dir() / name).read_bytes())
+    r = _cli("import", src, "-o", tmp_path / "k1", "--camera", "kinect1", "--hand", "right")
+    assert r.exit_code == 0, r.output  # a warning, not a refusal: the scene may really be far
+    warn = [ln for ln in r.stdout.splitlines() if ln.startswith("warning:")]
+    assert len(warn) == 1 and "no depth lies within 0.2–1.5 m" in warn[0], r.stdout
+    assert "at 1 mm per unit" in warn[0] and "At 0.125 mm per unit the median would be" in warn[0]
+    for cmd in (("info", tmp_path / "k1"), ("show", tmp_path / "k1", "-o", tmp_path / "s.png")):
+        r = _cli(*cmd)
+        assert r.exit_code == 0 and "At 0.125 mm per unit" in r.stdout, r.output
+    r = _cli("import", src, "-o", tmp_path / "sr", "--camera", "sr305", "--hand", "right")
+    assert r.exit_code == 0 and "warning" not in r.stdout, r.output
+    assert "depth 1 / 50 / 99 %" in r.stdout
+
+
 def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     src = tmp_path / "pngs"
     src.mkdir()
