@@ -278,10 +278,14 @@ def show(
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m) for the mask, as in tracker track."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m) for the mask, as in tracker track."),
     forearm: str = typer.Option("cut", "--forearm", help="cut or keep, for the mask, as in tracker track."),
+    frame: Optional[int] = typer.Option(None, "--frame", help="Only this frame (a Rerun .rrd: the logged frame "
+                                                              "to draw; default its last frame with a hand)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey; the
-    segmented hand outlined in white."""
+    segmented hand outlined in white. Given a Rerun recording of a tracking (tracker track --rerun
+    out.rrd), a picture of one logged frame instead: the depth with the mask and the fitted skeleton,
+    and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
     from handmodel.fileio import check_output
 
     from .errors import TrackerError
@@ -289,6 +293,17 @@ def show(
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)  # before the frames are read
+    if recording.suffix.lower() == ".rrd":
+        given = [o for o, v in (("--topic", topic), ("--every", every or None), ("--near", near), ("--far", far),
+                                ("--depth-range", depth_range), ("--box", box)) if v is not None]
+        if given:
+            raise TrackerError(recording, f"{', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to a "
+                                          "Rerun recording (it holds the tracking's own depth and mask)")
+        from .viewer import snapshot_png  # an optional extra ([viz]): loaded only for a .rrd
+
+        snapshot_png(recording, output, frame, overwrite=overwrite)
+        _print(f"wrote {output}")
+        return
 
     import numpy as np
 
@@ -304,7 +319,10 @@ def show(
     n = len(rec)
     if n == 0:
         raise TrackerError(recording, "has no frames")
-    idx = list(range(0, n, every)) if every > 0 else sorted(set(np.linspace(0, n - 1, min(n, 16)).round().astype(int)))
+    if frame is not None and not 0 <= frame < n:
+        raise TrackerError(recording, f"has frames 0–{n - 1}, not {frame}")
+    idx = [frame] if frame is not None else list(range(0, n, every)) if every > 0 else \
+        sorted(set(np.linspace(0, n - 1, min(n, 16)).round().astype(int)))
     shown = idx[:max_frames]
     depths, masks, times = [], [], []
     with _progress("reading") as p:

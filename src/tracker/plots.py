@@ -133,6 +133,14 @@ OVERLAY_COLOURS = {"mask": (0.1, 0.9, 0.1), "fit": (0.9, 0.1, 0.1), "bone": (0.0
                    "thumb": (1.0, 0.55, 0.0), "wrist": (0.0, 0.35, 1.0), "labelled": (0.0, 0.9, 0.9)}
 
 
+def depth_greys():
+    """The colour map of depth under drawn marks: light grey near, dark grey far, white = no depth.
+
+    Grey, not a colour map: the hand is the nearest surface, and a colour map's near end (viridis'
+    dark purple, turbo's blue) hid the marks drawn over it; each colour then means one mark."""
+    return ListedColormap(colormaps["gray_r"](np.linspace(0.2, 0.75, 256))).with_extremes(bad="1.0")
+
+
 def overlay_legend(fitted: bool, mask_empty: bool, labelled: bool, depth_mm=None) -> str:
     """The overlay's key line: what each colour marks, and what is missing (no fit, nothing segmented).
 
@@ -173,10 +181,7 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled
     finite = d[np.isfinite(d)]
     lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
     hi = max(hi, lo + 1e-3)
-    # grey, not a colour map: the hand is the nearest surface, and a colour map's near end (viridis'
-    # dark purple) hid the red fit and black skeleton drawn over it
-    cmap = ListedColormap(colormaps["gray_r"](np.linspace(0.2, 0.75, 256))).with_extremes(bad="1.0")
-    ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+    ax.imshow(np.ma.masked_invalid(d), cmap=depth_greys(), vmin=lo, vmax=hi, interpolation="nearest")
     theta = np.asarray(theta, float)
     fitted = bool(theta.size and np.all(np.isfinite(theta)))
     if fitted:

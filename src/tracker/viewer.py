@@ -41,6 +41,7 @@ from handmodel.fileio import atomic_path
 from handmodel.plots import FINGER_COLOURS
 
 from .errors import TrackerError
+from .plots import OVERLAY_COLOURS, depth_greys
 
 try:  # an optional extra: the functions below name what to install when it is missing
     import rerun as rr
@@ -303,8 +304,11 @@ def snapshot_png(path, png, frame: int | None = None, *, overwrite=False) -> Pat
     frames = read_frames(path)
     if not frames.get("world/camera/depth"):
         raise TrackerError(path, "holds no tracked frames")
+    logged = frames["world/camera/depth"]
     if frame is None:
-        frame = (frames.get("world/hand/mesh") or frames["world/camera/depth"])[-1]
+        frame = (frames.get("world/hand/mesh") or logged)[-1]
+    elif frame not in logged:
+        raise TrackerError(path, f"holds no frame {frame} (frames {logged[0]}–{logged[-1]})")
     data = read_frame(path, frame)
 
     def comp(ent, name):
@@ -315,14 +319,33 @@ def snapshot_png(path, png, frame: int | None = None, *, overwrite=False) -> Pat
     ax = fig.add_subplot(1, 2, 1)
     img = comp("world/camera/depth", "DepthImage:buffer")
     fmt = comp("world/camera/depth", "DepthImage:format")
+    col = OVERLAY_COLOURS
     if img is not None and fmt is not None:
         shape = (fmt[0]["height"], fmt[0]["width"])
         d = np.frombuffer(np.asarray(img[0], np.uint8).tobytes(), np.uint16).reshape(shape).astype(float)
-        ax.imshow(np.where(d > 0, d, np.nan), cmap="turbo")
+        d = np.where(d > 0, d, np.nan)
+        lo, hi = np.nanpercentile(d, [1, 99]) if np.isfinite(d).any() else (0.0, 1.0)
+        im = ax.imshow(d, cmap=depth_greys(), vmin=lo, vmax=max(hi, lo + 1), interpolation="nearest")
+        fig.colorbar(im, ax=ax, shrink=0.7, label="depth (mm)")
         m = comp("world/camera/mask", "SegmentationImage:buffer")
-        if m is not None:
-            ax.contour(np.asarray(m[0], np.uint8).reshape(shape), [0.5], colors="w", linewidths=1)
-    ax.set_title(f"depth (mm) and segmentation, frame {frame}", fontsize=9)
+        if m is not None and np.any(m[0]):
+            ax.contour(np.asarray(m[0], np.uint8).reshape(shape), [0.5], colors=[col["mask"]], linewidths=1.2)
+        K = comp("world/camera", "Pinhole:image_from_camera")
+        kp = comp("world/hand/keypoints", "Points3D:positions")
+        strips = comp("world/hand/skeleton", "LineStrips3D:strips")
+        if K is not None and kp is not None:
+            # the fitted skeleton seen by the camera: Rerun keeps K column-major, pixel centres at +0.5
+            K = np.asarray(K[0], float).reshape(3, 3).T
+            to_px = lambda p: (K[0, 0] * p[..., 0] / p[..., 2] + K[0, 2] - 0.5,  # noqa: E731
+                               K[1, 1] * p[..., 1] / p[..., 2] + K[1, 2] - 0.5)
+            for s in strips or ():
+                u, v = to_px(np.asarray(s, float))
+                ax.plot(u, v, "-", color=col["bone"], lw=1.5)
+            u, v = to_px(np.asarray(kp, float).reshape(-1, 3))
+            ax.plot(u[0], v[0], "s", color=col["wrist"], mec="w", ms=8, mew=1)  # the first keypoint is the wrist
+        ax.set_xlim(-0.5, shape[1] - 0.5)
+        ax.set_ylim(shape[0] - 0.5, -0.5)
+    ax.set_title(f"frame {frame}: depth, mask (green), fitted skeleton, wrist (blue)", fontsize=9)
     ax.set_xticks([])
     ax.set_yticks([])
     ax3 = fig.add_subplot(1, 2, 2, projection="3d", proj_type="persp")
@@ -342,6 +365,10 @@ def snapshot_png(path, png, frame: int | None = None, *, overwrite=False) -> Pat
             s = np.asarray(s, float) * 1000
             colour = [(int(c) >> k & 255) / 255 for k in (24, 16, 8)]  # Rerun packs colours as RGBA u32
             ax3.plot(s[:, 0], s[:, 1], s[:, 2], "-", color=colour, lw=2)
+    kp3 = comp("world/hand/keypoints", "Points3D:positions")
+    if kp3 is not None:
+        w = np.asarray(kp3, float).reshape(-1, 3)[0] * 1000
+        ax3.plot([w[0]], [w[1]], [w[2]], "s", color=col["wrist"], mec="w", ms=8)
     if len(pts):
         ax3.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=1, c="tab:blue", depthshade=False)
         every.append(pts)

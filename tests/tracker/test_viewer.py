@@ -91,9 +91,33 @@ def test_a_frame_without_fit_clears_the_hand(tmp_path, hand):
 
 
 def test_snapshot_png(tracked, tmp_path):
+    """The picture of a logged frame shows the mask and where the fitted wrist is (its first panel):
+    the mask's outline was white on a white no-depth background, and an upside-down fit looked right."""
+    from PIL import Image
+
+    from tracker.plots import OVERLAY_COLOURS
+
     png = snapshot_png(tracked / "t.rrd", tmp_path / "view.png", frame=2)
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+    img = np.asarray(Image.open(png).convert("RGB"), float) / 255
+    left = img[:, : img.shape[1] // 2]
+
+    def share(colour, tol):
+        return np.all(np.abs(left - np.asarray(colour)) < tol, axis=-1).sum()
+
+    assert share(OVERLAY_COLOURS["mask"], 0.25) > 50 and share(OVERLAY_COLOURS["wrist"], 0.12) > 10
+
+
+def test_show_draws_a_rerun_recording(tracked, tmp_path):
+    """tracker show takes the .rrd too: a picture of a logged frame where no viewer can run."""
+    r = _ok(["show", tracked / "t.rrd", "-o", tmp_path / "v.png", "--frame", "1"])
+    assert f"wrote {tmp_path / 'v.png'}" in r.stdout and (tmp_path / "v.png").stat().st_size > 20_000
+    for args, reason in [(["--frame", "7"], "t.rrd: holds no frame 7 (frames 0–3)"),
+                         (["--every", "2"], "t.rrd: --every does not apply to a Rerun recording")]:
+        r = CliRunner().invoke(app, ["show", str(tracked / "t.rrd"), "-o", str(tmp_path / "w.png"), *args])
+        assert r.exit_code == 2 and reason in r.stderr and r.stderr.count("\n") == 1, r.output
+    assert not (tmp_path / "w.png").exists()
 
 
 def test_rerun_output_refused_like_the_others(tracked):
