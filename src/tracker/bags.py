@@ -109,6 +109,41 @@ def check_sqlite_complete(path: Path) -> None:
         raise RecordingError(path, f"truncated: the SQLite header says {pages * page} bytes, the file has {size}")
 
 
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+
+
+def check_ros1_complete(path: Path) -> None:
+    """Refuse a ROS1 bag whose index is missing, naming why: its file header says where the index
+    starts (``index_pos``), 0 while the recorder has not closed the file, past the end when the file
+    was cut short (a copy or download that stopped). The reader's own error ("Bag index looks
+    damaged: Header could not be read") does not tell a user either."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+            size = fh.seek(0, 2)
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+    if not head.startswith(ROS1_MAGIC) or len(head) < len(ROS1_MAGIC) + 4:
+        return  # not a ROS1 bag, or too short to tell: the reader says so
+    k = len(ROS1_MAGIC)
+    hlen = struct.unpack("<I", head[k:k + 4])[0]
+    header, pos, fields = head[k + 4:k + 4 + hlen], 0, {}
+    while pos + 4 <= len(header):
+        flen = struct.unpack("<I", header[pos:pos + 4])[0]
+        name, _, value = header[pos + 4:pos + 4 + flen].partition(b"=")
+        fields[name] = value
+        pos += 4 + flen
+    if fields.get(b"op") != b"\x03" or len(fields.get(b"index_pos", b"")) != 8:
+        return  # a damaged header: the reader says so
+    index_pos = struct.unpack("<Q", fields[b"index_pos"])[0]
+    if index_pos == 0:
+        raise RecordingError(path, "unfinished: the recorder never wrote the bag's index (it stopped before "
+                                   "closing the file); rebuild it with `rosbag reindex` (ROS1)")
+    if index_pos >= size:
+        raise RecordingError(path, f"cut short: the bag's index starts at byte {index_pos}, the file ends at "
+                                   f"{size} (copy it again, or rebuild the index with `rosbag reindex`)")
+
+
 class _Bag:
     """An open bag: the reader and its connections; reopened after unpickling."""
 
@@ -116,6 +151,8 @@ class _Bag:
         self.path = path
         for db in ([path] if path.suffix.lower() == ".db3" else sorted(path.glob("*.db3")) if path.is_dir() else []):
             check_sqlite_complete(db)
+        if path.is_file() and path.suffix.lower() == ".bag":
+            check_ros1_complete(path)
         try:
             # bags without embedded message definitions (older ROS2 sqlite) use the Humble types
             self.reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))

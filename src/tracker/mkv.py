@@ -72,6 +72,49 @@ def depth_intrinsics(calibration: dict, mode: str, where) -> tuple[int, int, flo
     return w, h, fx_n * bw, fy_n * bh, cx_n * bw - ox - 0.5, cy_n * bh - oy - 0.5
 
 
+def _vint(data: bytes, i: int, keep_marker: bool = False):
+    """An EBML variable-length integer at ``data[i]``: ``(value, length)``, or None past the end."""
+    if i >= len(data) or not data[i]:
+        return None
+    n = 8 - data[i].bit_length() + 1
+    if i + n > len(data):
+        return None
+    v = data[i] if keep_marker else data[i] & ((1 << (8 - n)) - 1)
+    for b in data[i + 1:i + n]:
+        v = (v << 8) | b
+    return v, n
+
+
+def cut_short(path: Path):
+    """``(declared, size)`` when the file's Matroska segment declares more bytes than the file holds
+    (a recording copied or downloaded only in part), else None (complete, a segment of unknown size as
+    a live recorder writes it, or not Matroska: the reader says so)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(256)
+            size = fh.seek(0, 2)
+    except OSError:
+        return None
+    ebml = _vint(head, 0, keep_marker=True)
+    if ebml is None or ebml[0] != 0x1A45DFA3:
+        return None
+    hs = _vint(head, ebml[1])
+    i = ebml[1] + hs[1] + hs[0] if hs else len(head)
+    seg = _vint(head, i, keep_marker=True)
+    if seg is None or seg[0] != 0x18538067:
+        return None
+    ss = _vint(head, i + seg[1])
+    if ss is None or ss[0] == (1 << (7 * ss[1])) - 1:  # all ones: size unknown
+        return None
+    declared = i + seg[1] + ss[1] + ss[0]
+    return (declared, size) if declared > size else None
+
+
+def _cut_note(path: Path) -> str:
+    cut = cut_short(path)
+    return "" if cut is None else f"; cut short: the file has {cut[1]} of its {cut[0]} bytes"
+
+
 def _open_container(path: Path):
     try:
         return av.open(str(path), "r")
@@ -182,9 +225,10 @@ def open_mkv(path, *, handedness: str = "left") -> MkvRecording:
                 if pkt.pts is not None and pkt.size:
                     pts.append(int(pkt.pts))
         except Exception as exc:  # PyAV raises many types for damaged files
-            raise RecordingError(path, f"damaged file after {len(pts)} depth frames ({type(exc).__name__}: {exc})") from None
+            raise RecordingError(path, f"damaged file after {len(pts)} depth frames ({type(exc).__name__}: {exc})"
+                                       + _cut_note(path)) from None
         if not pts:
-            raise RecordingError(path, "the depth track holds no frames")
+            raise RecordingError(path, "the depth track holds no frames" + _cut_note(path))
         pts = np.sort(np.array(pts, np.int64))
         tb = s.time_base
         stamps = np.rint(pts * (1e9 * float(tb))).astype(np.int64)
@@ -199,7 +243,8 @@ def open_mkv(path, *, handedness: str = "left") -> MkvRecording:
             cam = Camera(w, h, fx, fy, cx, cy, 0.001, "uint16", f"azure_kinect_{mode.lower()}")
         except TrackerError as exc:
             raise RecordingError(path, exc.reason) from None
+        # a file cut short still reads up to its cut; tracker info shows that frames may be missing
         return MkvRecording(path, cam, stamps, pts, fps, handedness,
-                            f"Azure Kinect recording {path.name}, depth mode {mode}", s.index)
+                            f"Azure Kinect recording {path.name}, depth mode {mode}{_cut_note(path)}", s.index)
     finally:
         c.close()

@@ -447,6 +447,10 @@ def _bad_bags(tmp_path):
     out = {}
     out["truncated"] = tmp_path / "truncated.bag"
     out["truncated"].write_bytes(data[: len(data) // 2])
+    # a recorder killed before it closed the bag: the header's index_pos is still 0
+    k = data.index(b"index_pos=") + len(b"index_pos=")
+    out["unfinished"] = tmp_path / "unfinished.bag"
+    out["unfinished"].write_bytes(data[:k] + bytes(8) + data[k + 8:])
     out["garbage"] = tmp_path / "garbage.bag"
     out["garbage"].write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
     out["garbage_db3"] = tmp_path / "garbage.db3"
@@ -479,7 +483,8 @@ def _bad_bags(tmp_path):
 
 def test_damaged_bags_are_one_line_errors(tmp_path):
     good, bad = _bad_bags(tmp_path)
-    expect = {"truncated": "", "garbage": "not a readable ROS bag", "garbage_db3": "not a readable ROS bag",
+    expect = {"truncated": "cut short: the bag's index starts at byte", "unfinished": "unfinished: the recorder "
+              "never wrote the bag's index", "garbage": "not a readable ROS bag", "garbage_db3": "not a readable ROS bag",
               "garbage_mcap": "not a readable ROS bag", "empty": "not a readable ROS bag",
               "no_camera_info": "missing camera_info", "wrong_size": "camera info says 41×30",
               "huge": "larger than the supported", "no_depth_topic": "no depth image topic found"}

@@ -124,6 +124,24 @@ def test_damaged_mkv_is_a_one_line_error_or_reads(tmp_path):
     assert r.exit_code == 2 and "apply to ROS bags, not to .mkv files" in r.stderr
 
 
+def test_a_cut_mkv_says_it_is_cut(tmp_path):
+    """A recording copied only in part: the error (or, when its frames survive, the source line)
+    says the file is cut short, not only that the depth track holds no frames."""
+    from tracker.mkv import cut_short
+
+    data = _mkv().read_bytes()
+    assert cut_short(MKV) is None
+    bad = tmp_path / "cut.mkv"
+    bad.write_bytes(data[:800_000])  # before the depth packet
+    assert cut_short(bad) == (len(data), 800_000)
+    r = _cli("info", bad)
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1, r.output
+    assert f"cut short: the file has 800000 of its {len(data)} bytes" in r.stderr
+    bad.write_bytes(data[:1_500_000])  # after it: the frame reads, and the recording says what is lost
+    rec = Recording.open(bad)
+    assert len(rec) == 1 and "cut short" in rec.source
+
+
 def test_mutated_mkv_never_crashes(tmp_path):
     data = _mkv().read_bytes()
     bad = tmp_path / "mut.mkv"
