@@ -34,14 +34,18 @@ from .init import (
     thin,
 )
 
-_MODEL_SPREAD = {}  # (hand sha256, posture) → the palm-side surface's variances along its principal axes
+# (hand sha256, handedness, posture) → the palm-side surface's variances along its principal axes. The
+# handedness is in the key because a mirrored hand keeps its file's sha256 but not its palm-side samples:
+# keyed by the hash alone, a left hand calibrated earlier in the process gave the right hand its
+# spread, and the SR305 frames' sizes and fits then depended on what had run before
+_MODEL_SPREAD = {}
 
 
 def extent_scale(hand, points, posture) -> float:
     """A first guess of the hand's global scale: the spread of the cloud over that of the model's
     palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
     this only brackets the scale; :func:`fit_scale` finds it."""
-    key = (hand.sha256, np.asarray(posture, float).tobytes())
+    key = (hand.sha256, hand.handedness, np.asarray(posture, float).tobytes())
     if key not in _MODEL_SPREAD:
         # sampling the model's surface costs ~0.1 s, a tenth of the calibration's budget: once per hand
         ms = _palm_side(hand, posture)[3]
