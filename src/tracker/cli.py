@@ -68,7 +68,8 @@ def _recording_rows(rec) -> list:
     times = getattr(rec, "times_s", None)  # a recording file keeps its own frame times
     span = (f"{times[-1] - times[0]:.2f} s of file time, {rec.fps:g} fps nominal" if times is not None and n
             else f"{n / rec.fps:.2f} s at {rec.fps:g} fps")
-    rows = [("source", rec.source)] if times is not None else []
+    source = rec.source if times is not None else rec.meta.get("source", "")
+    rows = [("source", source)] if source else []
     return rows + [("frames", f"{n} ({span})"),
             ("camera", f"{c.name}, {c.width}×{c.height}"),
             ("fx, fy / cx, cy (px)", f"{c.fx:.3f}, {c.fy:.3f} / {c.cx:.3f}, {c.cy:.3f}"),

@@ -205,6 +205,11 @@ class Recording:
         if not path.is_dir():
             raise RecordingError(path, "no such recording folder")
         if not y.is_file():
+            pngs = [] if (path / "depth").is_dir() else list_pngs(path)
+            if pngs:  # the commonest first step: tracking the camera's own folder of frames
+                raise RecordingError(y, f"missing: {path} holds {len(pngs)} PNG files, not a recording; import "
+                                        f"them first: tracker import {path} --camera PRESET --hand left|right "
+                                        f"-o RECORDING")
             raise RecordingError(y, "missing (not a recording folder)")
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
@@ -682,7 +687,10 @@ def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *
                                 and not p.name.startswith(".") and p.is_file())
         if len(colors) != len(files):
             raise RecordingError(cdir, f"{len(colors)} colour frames for {len(files)} depth frames in {src}")
-    with RecordingWriter(dst, camera, fps, handedness, overwrite=overwrite, source=f"import of {src}") as w:
+    # the frames are renumbered: the source line keeps which files, in which order, they came from
+    names = files[0].name if len(files) == 1 else f"{files[0].name} … {files[-1].name}"
+    source = f"import of {src} ({len(files)} PNG{'s' if len(files) > 1 else ''}, {names}, in natural name order)"
+    with RecordingWriter(dst, camera, fps, handedness, overwrite=overwrite, source=source) as w:
         for k, f in enumerate(files):
             w.write_units(read_depth_units(f, camera), None if colors is None else import_color(colors[k], camera))
             if progress is not None:

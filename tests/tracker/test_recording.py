@@ -153,6 +153,19 @@ def test_missing_recording_yaml(tmp_path):
         Recording.open(tmp_path / "nope")
 
 
+def test_a_folder_of_pngs_is_told_to_import_first(tmp_path):
+    """A new user's first try is tracking the camera's folder of frames: the error says what to run."""
+    src = _png_folder(tmp_path / "pngs", ["a1.png", "a2.png"])
+    with pytest.raises(RecordingError, match=r"recording\.yaml: missing: .*pngs holds 2 PNG files, not a "
+                                             r"recording; import them first: tracker import .*pngs --camera PRESET"):
+        Recording.open(src)
+    line = _one_error_line(_cli("track", src, "-o", tmp_path / "t.csv"))
+    assert "import them first" in line and not (tmp_path / "t.csv").exists()
+    # the import renumbers the frames; its source line keeps which files they were, in which order
+    rec = import_pngs(src, tmp_path / "rec", SMALL)
+    assert rec.meta["source"] == f"import of {src} (2 PNGs, a1.png … a2.png, in natural name order)"
+
+
 def test_invalid_yaml(tmp_path):
     d = _write(tmp_path)
     (d / "recording.yaml").write_text("camera: [unclosed\n")
