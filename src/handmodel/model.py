@@ -28,7 +28,7 @@ import numpy as np
 
 from . import kinematics
 from .errors import HandModelError
-from .fileio import load_yaml, resolve_model_file, schema_errors, sha256_file
+from .fileio import atomic_path, load_yaml, resolve_model_file, schema_errors, sha256_file
 from .geometry import Capsules, build_mesh
 
 ROTATION, TRANSLATION = 0, 1
@@ -86,21 +86,24 @@ class HandModel:
     segments: tuple
     mesh_settings: dict = field(default_factory=dict)
     description: str = ""
+    provenance: dict = field(default_factory=dict)
 
     # ------------------------------------------------------------------ loading
     @classmethod
-    def load(cls, name_or_path: str | Path = "default", *, right: bool = False) -> "HandModel":
-        """Load a model by name (``models/hands/<name>.yaml``) or path; ``right=True`` mirrors it.
+    def load(cls, name_or_path: str | Path = "default", *, right: bool | None = None) -> "HandModel":
+        """Load a model by name (``models/hands/<name>.yaml``) or path, as the hand ``right``
+        (True: right, False: left, None: the file's own handedness — the shipped models are left).
 
         A right hand is the mirror image of the left one for the same θ (x → −x in the hand frame);
-        the global pose is not mirrored.
+        the global pose is not mirrored. A hand file is mirrored when the other hand is asked for:
+        one calibrated on a user's right hand serves their left hand as its mirror image.
         """
         p = resolve_model_file("hands", name_or_path, HandModelError, "hand model")
         doc = load_yaml(p, HandModelError)
         model = cls.from_dict(doc, where=p)
         # the model's identity is the hash of its file (what bundles and outputs record)
         model = dataclasses.replace(model, sha256=sha256_file(p))
-        if right != (model.handedness == "right"):
+        if right is not None and right != (model.handedness == "right"):
             model = model.mirrored()
         return model
 
@@ -108,6 +111,57 @@ class HandModel:
     def from_dict(cls, doc, *, where: str | Path = "<dict>") -> "HandModel":
         """Build and validate a model from its parsed YAML document."""
         return _from_doc(doc, where)
+
+    def to_dict(self, *, name: str | None = None, description: str | None = None,
+                provenance: dict | None = None) -> dict:
+        """The model as a hand-model document (``hand-model.schema.json``) that :meth:`from_dict`
+        turns back into the same model: every rest transform, DoF axis and limit, segment and the
+        handedness as they are in memory (a scaled or mirrored model is written out, not referred
+        to). ``name``, ``description`` and ``provenance`` replace the model's own.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> hand = HandModel.load().scaled(1.2).mirrored()
+        >>> back = HandModel.from_dict(hand.to_dict())
+        >>> back.handedness, bool(np.array_equal(back.keypoints(np.zeros(26)), hand.keypoints(np.zeros(26))))
+        ('right', True)
+        """
+        return _to_doc(self, name, description, provenance)
+
+    def save(self, path: str | Path, *, overwrite: bool = False, name: str | None = None,
+             description: str | None = None, provenance: dict | None = None) -> Path:
+        """Write the model as a YAML hand-model file (:meth:`to_dict`) that :meth:`load` reads back.
+
+        The file is written under a temporary name, read back and rebuilt, and only a model identical
+        to this one (same kinematics, geometry, limits and handedness) is renamed into place; an
+        existing ``path`` is refused (``FileExistsError``) unless ``overwrite``. ``provenance`` (a
+        mapping of plain values) says where the model came from: :func:`tracker.scale.calibrated_hand`
+        puts the calibration's record and the base model's name and SHA-256 there. Returns ``path``.
+        """
+        import yaml
+
+        path = Path(path)
+        doc = self.to_dict(name=name, description=description, provenance=provenance)
+        text = "# Hand model written by handmodel.HandModel.save; see provenance.\n" + yaml.safe_dump(
+            doc, sort_keys=False, default_flow_style=None, allow_unicode=True, width=120)
+
+        def same(tmp: Path) -> None:
+            back = _from_doc(load_yaml(tmp, HandModelError), path)
+            problem = _difference(self, back)
+            if problem:
+                raise HandModelError(path, f"the written model differs from the one in memory ({problem})")
+
+        with atomic_path(path, overwrite=overwrite, suffix=".yaml", verify=same) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+        return path
+
+    @property
+    def calibration(self) -> dict | None:
+        """The calibration record of a hand file written from a calibrated hand (its provenance's
+        ``calibration``: the recording, frames, size and finger factors, their spread), else None."""
+        cal = self.provenance.get("calibration") if isinstance(self.provenance, dict) else None
+        return cal if isinstance(cal, dict) else None
 
     def mirrored(self) -> "HandModel":
         """The mirror-image hand (left ↔ right) for the same parameter vector.
@@ -288,6 +342,10 @@ def _from_doc(doc, where) -> HandModel:
     where = Path(where) if not isinstance(where, Path) else where
     if not isinstance(doc, dict):
         raise HandModelError(where, "top level must be a mapping")
+    if not {"joints", "dofs", "segments"} & set(doc):
+        # another of our YAML files (a recording, a subject calibration, truth_hand.yaml) given as a hand
+        raise HandModelError(where, "not a hand-model file (no joints, dofs or segments; a hand file is written "
+                                    "by tracker calibrate or HandModel.save)")
     _validate_schema(doc, where)
     joints = doc["joints"]
     names = [j["name"] for j in joints]
@@ -387,7 +445,77 @@ def _from_doc(doc, where) -> HandModel:
         dof_names=dof_names, dof_types=_ro(types), dof_axes=_ro(axes), limits=_ro(limits),
         dof_ptr=_ro(np.asarray(ptr, np.int64)), dof_idx=_ro(np.asarray(idx, np.int64)),
         segments=tuple(segs), mesh_settings=dict(doc.get("mesh") or {}), description=doc.get("description", ""),
+        provenance=dict(doc.get("provenance") or {}),
     )
+
+
+def _to_doc(hand: HandModel, name, description, provenance) -> dict:
+    """See :meth:`HandModel.to_dict`. Floats go out as Python floats, which YAML writes with their
+    shortest exact repr, so the file reads back bit for bit."""
+    named = {v: k for k, v in _AXES.items()}
+    joints = []
+    for k, n in enumerate(hand.node_names):
+        dofs = [hand.dof_names[d] for d in hand.dof_idx[hand.dof_ptr[k]:hand.dof_ptr[k + 1]]]
+        joints.append({"name": n, "parent": None if hand.parents[k] < 0 else hand.node_names[hand.parents[k]],
+                       "rest": {"translation": hand.rest[k, :3, 3].tolist(), "rotation": hand.rest[k, :3, :3].tolist()},
+                       "dofs": dofs})
+    dofs = []
+    for d, n in enumerate(hand.dof_names):
+        axis = tuple(float(v) + 0.0 for v in hand.dof_axes[d])  # + 0.0: a mirrored -0.0 names its axis too
+        dofs.append({"name": n, "type": "rotation" if hand.dof_types[d] == ROTATION else "translation",
+                     "axis": named.get(axis, list(axis)), "limits": hand.limits[d].tolist()})
+    segments = []
+    for sg in hand.segments:
+        seg = {"joint": hand.node_names[sg.joint], "shape": sg.shape, "length": float(sg.length)}
+        if sg.shape == "capsule":
+            seg["radius"] = [float(r) for r in sg.radius]
+        else:
+            seg.update(half_width=[float(r) for r in sg.radius], half_thickness=float(sg.half_thickness))
+        segments.append(seg)
+    doc = {"schema_version": 1, "name": name or hand.name,
+           "description": hand.description if description is None else description,
+           "provenance": _plain(hand.provenance if provenance is None else provenance),
+           "units": "m", "handedness": hand.handedness, "n_dofs": hand.n_dofs, "joints": joints, "dofs": dofs,
+           "segments": segments}
+    if hand.mesh_settings:
+        doc["mesh"] = _plain(hand.mesh_settings)
+    return doc
+
+
+def _plain(value):
+    """``value`` with numpy scalars and arrays, tuples and paths turned into YAML's plain types."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def _difference(a: HandModel, b: HandModel) -> str | None:
+    """What differs between two models' kinematics, geometry, limits and handedness, or None."""
+    if a.handedness != b.handedness:
+        return f"handedness {a.handedness} vs {b.handedness}"
+    if a.node_names != b.node_names or a.dof_names != b.dof_names:
+        return "joint or DoF names"
+    for f in ("parents", "rest", "dof_types", "dof_axes", "limits", "dof_ptr", "dof_idx"):
+        x, y = getattr(a, f), getattr(b, f)
+        # an axis given as numbers is normalised again when read, which may move its last bit
+        same = (np.allclose(x, y, rtol=0.0, atol=1e-15) if f == "dof_axes" and x.shape == y.shape
+                else x.shape == y.shape and np.array_equal(x, y))
+        if not same:
+            return f"{f}"
+    seg = [(s.joint, s.shape, s.length, s.radius, s.half_thickness) for s in a.segments]
+    if seg != [(s.joint, s.shape, s.length, s.radius, s.half_thickness) for s in b.segments]:
+        return "segments"
+    if a.mesh_settings != b.mesh_settings:
+        return "mesh settings"
+    return None
 
 
 def _mirrored(hand: HandModel) -> HandModel:
@@ -408,6 +536,7 @@ def _mirrored(hand: HandModel) -> HandModel:
         parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names, dof_types=hand.dof_types,
         dof_axes=_ro(axes), limits=hand.limits, dof_ptr=hand.dof_ptr, dof_idx=hand.dof_idx,
         segments=hand.segments, mesh_settings=hand.mesh_settings, description=hand.description,
+        provenance=hand.provenance,
     )
 
 
@@ -436,6 +565,7 @@ def _scaled(hand: HandModel, scale: float, bone_scales: dict | None) -> HandMode
         node_names=hand.node_names, parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names,
         dof_types=hand.dof_types, dof_axes=hand.dof_axes, limits=hand.limits, dof_ptr=hand.dof_ptr,
         dof_idx=hand.dof_idx, segments=tuple(segs), mesh_settings=hand.mesh_settings, description=hand.description,
+        provenance=hand.provenance,
     )
 
 

@@ -34,6 +34,7 @@ from .errors import TrackerError
 from .observe import observe
 from .plots import overlay_png
 from .recording import Recording
+from .scale import calibrated_hand
 from .track import HandTracker, TrackerSettings
 
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
@@ -74,8 +75,22 @@ def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
             "pcs": "" if tracker.n_pcs is None else str(tracker.n_pcs), "stride": str(st.observe.stride),
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
             "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,
+            "hand_model_file": str(hand.path), "hand_calibration": _calibration_text(hand),
             "hand_scale": _scale_text(tracker),
             "hand_check": str(getattr(tracker, "hand_check_", None) or ""), "units": "metres, radians"}
+
+
+def _calibration_text(hand) -> str:
+    """For a calibrated hand file (:meth:`handmodel.HandModel.save` of :func:`tracker.scale.calibrated_hand`):
+    where its hand came from, so the header says the size is in the file, not in ``hand_scale``."""
+    cal = getattr(hand, "calibration", None)
+    if not cal:
+        return ""
+    base = hand.provenance.get("base_model") or {}
+    fingers = cal.get("finger_lengths")
+    tail = f", finger lengths {', '.join(f'{k} {v:.3f}' for k, v in fingers.items())}" if fingers else ""
+    return (f"this file's hand: size {cal.get('hand_scale')} × {base.get('name')} {base.get('sha256')}{tail}, "
+            f"calibrated on {cal.get('recording')}")
 
 
 def _scale_text(tracker) -> str:
@@ -89,7 +104,8 @@ def _scale_text(tracker) -> str:
     # per-finger length factors (finger_lengths) follow the size, in the hand model's finger order
     tail = f"; finger lengths {', '.join(f'{k} {v:.3f}' for k, v in fingers.items())}" if fingers else ""
     if tracker.settings.hand_scale != "auto":
-        return f"{scale:.4f} (given){tail}"
+        given = "the hand file's calibrated hand as it is" if getattr(tracker.base_hand, "calibration", None) else "given"
+        return f"{scale:.4f} ({given}){tail}"
     return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)}){tail}"
 
 
@@ -176,6 +192,11 @@ class TrackJob:
     topic, color_topic : depth and colour topics of a ROS bag (None: found in the file)
     start_s, end_s, every : a recording file's frames from ``start_s`` to ``end_s`` (s of file time),
         every ``every``-th
+    save_hand : write the hand calibrated in this run to this YAML file (:func:`tracker.scale.calibrated_hand`)
+    hand_scale_asked : ``settings.hand_scale`` was asked for (``--hand-scale``). A calibrated hand file
+        (``hand_model``) is tracked as it is (size 1) unless ``"auto"`` was asked, which estimates the
+        size again on it; a number other than 1 with such a file is refused (it would scale the
+        calibrated hand a second time)
     """
 
     recording: str
@@ -198,6 +219,8 @@ class TrackJob:
     start_s: float | None = None
     end_s: float | None = None
     every: int = 1
+    save_hand: str | None = None
+    hand_scale_asked: bool = False
 
 
 def open_job_recording(job: TrackJob):
@@ -239,7 +262,12 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None
     handedness = getattr(rec, "handedness", None) or job.handedness
     hand = HandModel.load(job.hand_model, right=handedness == "right")
-    tracker = HandTracker(hand, job.settings, synergies=bundle)
+    settings = settings_for_hand(hand, job.settings, job.hand_scale_asked)
+    if job.save_hand is not None and settings.hand_scale != "auto":
+        raise TrackerError(job.save_hand, "nothing to save: this run does not calibrate the hand (its size is "
+                                          f"{'in the hand file' if hand.calibration else 'given'}; "
+                                          "--hand-scale auto estimates it)")
+    tracker = HandTracker(hand, settings, synergies=bundle)
     cam = rec.camera
     overlay = None if job.overlay is None else Path(job.overlay)
     viewer = None
@@ -249,8 +277,13 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         viewer = RerunLog(cam, job.rerun, spawn=job.rerun_spawn, overwrite=job.overwrite,
                           name=f"tracker {Path(str(job.recording)).name}")
     written = []
+    calibration_frames, settled = [], [False]
 
     def each(frame, r, ob):
+        if job.save_hand is not None and not settled[0]:
+            # the frames tracked until the size was settled, this one included
+            calibration_frames.append(frame.index)
+            settled[0] = calibration_done(tracker)
         if overlay is not None and ob is not None and frame.index % max(job.overlay_every, 1) == 0:
             overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status,
                         mask=ob.mask)
@@ -272,6 +305,9 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     try:
         # without overwrite a file that appeared while tracking is not replaced either
         write_tracking(job.output, df, meta, overwrite=job.overwrite)
+        if job.save_hand is not None:
+            calibrated_hand(tracker, recording=job.recording, frames=calibration_frames).save(
+                job.save_hand, overwrite=job.overwrite)
         if job.keypoints is not None:
             atomic_write_text(job.keypoints, keypoints_table(tracker.hand, df).to_csv(index=False, float_format="%.4f"),
                               overwrite=job.overwrite)
@@ -282,6 +318,70 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     rrd = viewer.close() if viewer is not None else None
     warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
     return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings)
+
+
+def settings_for_hand(hand, settings, hand_scale_asked=False):
+    """The settings to track ``hand`` with: a calibrated hand file (``hand.calibration``) is tracked
+    at size 1 — its size and finger lengths are in the file — unless ``hand_scale_asked`` and
+    ``"auto"`` (estimate again on the file's hand). A size other than 1 asked for with such a file is
+    refused: it would scale the calibrated hand a second time (the number a calibrating run printed is
+    already in the file)."""
+    cal = getattr(hand, "calibration", None)
+    if not cal:
+        return settings
+    if hand_scale_asked and settings.hand_scale != "auto":
+        if float(settings.hand_scale) != 1.0:
+            raise TrackerError(hand.path, f"is a calibrated hand (size {cal.get('hand_scale')} already in it): "
+                                          f"--hand-scale {settings.hand_scale:g} would scale it again; leave "
+                                          "--hand-scale out to track on it as it is, or give --hand-scale auto "
+                                          "to estimate the size again on it")
+        return settings
+    if hand_scale_asked:
+        return settings
+    return settings.replace(hand_scale=1.0)
+
+
+def calibration_done(tracker) -> bool:
+    """Whether ``tracker``'s automatic size (and, with ``finger_lengths``, the finger lengths) is
+    settled: the estimates of ``scale_frames`` frames are in."""
+    st = tracker.settings
+    if st.hand_scale != "auto" or tracker.scale_ is None:
+        return st.hand_scale != "auto"
+    done = len(tracker.scale_estimates_) >= st.scale_frames
+    return done and (not st.finger_lengths or tracker.finger_scales_ is not None)
+
+
+def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None):
+    """``tracker calibrate``: track ``job.recording``'s first frames only until the hand's size (and
+    finger lengths) is settled (:func:`calibration_done`, at most ``max_frames`` frames), then write
+    the calibrated hand to ``output`` (:func:`tracker.scale.calibrated_hand`, never over an existing
+    file unless ``job.overwrite``). Returns ``(hand, tracker, frames)``: the hand written, the tracker
+    and the frame indices tracked. A recording that ends first, or in which no frame could be
+    calibrated, is refused when there is no size at all; fewer estimates than ``scale_frames`` are
+    written as they are (the record lists them)."""
+    rec = open_job_recording(job)
+    bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None
+    hand = HandModel.load(job.hand_model, right=(getattr(rec, "handedness", None) or job.handedness) == "right")
+    tracker = HandTracker(hand, job.settings.replace(hand_scale="auto"), synergies=bundle)
+    cam, frames = rec.camera, []
+    for frame in rec:
+        depth = frame.depth
+        if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
+            ob = observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter, color=frame.color)
+            r = tracker.track(ob, cam, color=frame.color)
+        else:
+            ob, r = None, tracker.step(np.zeros((0, 3)))
+        frames.append(frame.index)
+        if on_frame is not None:
+            on_frame(frame, r, ob)
+        if calibration_done(tracker) or len(frames) >= max_frames:
+            break
+    if tracker.scale_ is None:
+        raise TrackerError(job.recording, f"no hand found to calibrate in its first {len(frames)} frames "
+                                          "(--depth-range, --box or --forearm steer the segmentation)")
+    out = calibrated_hand(tracker, recording=job.recording, frames=frames)
+    out.save(output, overwrite=job.overwrite)
+    return out, tracker, frames
 
 
 #: Columns of the summary table of many recordings (:func:`summary_row`).

@@ -382,3 +382,54 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
         best = x[int(np.argmin(y))] if a <= 0 else float(np.clip(-b / (2 * a), x[0], x[-1]))
         found[f] = float(np.clip(np.exp(best), *limits))
     return found
+
+
+# ------------------------------------------------------------------------------ the calibrated hand as a file
+def calibration_record(tracker, *, recording=None, frames=None) -> dict:
+    """What a calibrated hand file's provenance says about its calibration (plain values, see
+    :func:`calibrated_hand`): the size and its per-frame estimates with their spread (half the range
+    over the median), the finger length factors (None: the base model's proportions), the recording
+    and the ``frames`` (indices) tracked until the size was settled, the settings that shaped the
+    estimate, the tool and its version, and the time (UTC)."""
+    import datetime
+    from importlib import metadata
+
+    try:
+        version = metadata.version("synergistic-hand-tracking")
+    except metadata.PackageNotFoundError:  # a source tree run without installing
+        version = "unknown"
+    est = [float(e) for e in tracker.scale_estimates_]
+    med = float(np.median(est)) if est else float(tracker.scale_)
+    st = tracker.settings
+    fingers = getattr(tracker, "finger_scales_", None)
+    return {
+        "hand_scale": round(float(tracker.scale_), 6),
+        "scale_estimates": [round(e, 6) for e in est],
+        "scale_spread": round((max(est) - min(est)) / (2.0 * med), 6) if len(est) > 1 else None,
+        "finger_lengths": None if not fingers else {k: round(float(v), 6) for k, v in fingers.items()},
+        "recording": None if recording is None else str(recording),
+        "frames": None if frames is None else [int(f) for f in frames],
+        "settings": {"scale_frames": int(st.scale_frames), "scale_refine": st.scale_refine,
+                     "finger_lengths": bool(st.finger_lengths), "scale_range": [float(v) for v in st.scale_range]},
+        "tool": f"synergistic-hand-tracking {version} (tracker.scale.calibrated_hand)",
+        "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    }
+
+
+def calibrated_hand(tracker, *, recording=None, frames=None):
+    """The hand a :class:`tracker.track.HandTracker` calibrated (``base_hand`` × ``scale_`` with
+    ``finger_scales_``), with its record in ``provenance`` (:func:`calibration_record`, and the base
+    model's name, SHA-256, handedness and own provenance), ready for :meth:`handmodel.HandModel.save`.
+    Tracking with the saved file at ``hand_scale=1`` is tracking on this hand; the handedness is the
+    tracked hand's, and loading it for the other hand mirrors it as the shipped model is mirrored
+    (a person's two hands taken as mirror images)."""
+    if tracker.scale_ is None:
+        raise TrackerError("calibration", "no hand size yet: no frame has been calibrated")
+    base = tracker.base_hand
+    hand = shaped_hand(base, tracker.scale_, getattr(tracker, "finger_scales_", None) or {})
+    provenance = {"calibration": calibration_record(tracker, recording=recording, frames=frames),
+                  "base_model": {"name": base.name, "sha256": base.sha256, "path": str(base.path),
+                                 "handedness": base.handedness, "provenance": base.provenance}}
+    return replace(hand, name=f"{base.name}-calibrated", provenance=provenance,
+                   description=f"{base.name} calibrated from depth: size {tracker.scale_:.4f}"
+                               + ("" if recording is None else f", recording {recording}"))

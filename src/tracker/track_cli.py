@@ -1,5 +1,6 @@
-"""``tracker track``, ``tracker live`` and ``tracker eval``: track one recording, many (one by one or
-on Dask) or a live RealSense camera, and score a tracking against a recording's truth.
+"""``tracker track``, ``tracker live``, ``tracker calibrate`` and ``tracker eval``: track one recording,
+many (one by one or on Dask) or a live RealSense camera, write the user's calibrated hand as a hand
+file, and score a tracking against a recording's truth.
 
 ``register(app, errors_exit_2)`` adds the commands to the ``tracker`` typer app. The commands only
 parse, call :mod:`tracker.run`, print and draw progress; heavy modules are imported inside them so
@@ -40,11 +41,12 @@ def track(
     robust: Optional[float] = typer.Option(None, "--robust", help="Cauchy scale (mm) weighting the data term [8; 0 = plain least squares, the paper's]."),
     finger_search: Optional[bool] = typer.Option(None, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising [on; paper off]."),
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
-    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path; a hand file written by tracker calibrate or --save-hand is tracked as it is (its size is in it; --hand-scale auto estimates again)."),
+    save_hand: Optional[Path] = typer.Option(None, "--save-hand", help="Also write the hand calibrated on the first frames (size, and finger lengths when estimated) as a YAML hand file for --hand-model."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
     unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
-    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it) [auto; 1 with --paper]."),
+    hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it, or keep the hand with --save-hand) [auto; 1 with --paper or a calibrated --hand-model file]."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
     forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
@@ -67,13 +69,13 @@ def track(
 
     if len(recordings) > 1 or dask is not None:
         per_file = [n for n, v in (("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
-                                   ("--rerun-spawn", rerun_spawn)) if v]
+                                   ("--rerun-spawn", rerun_spawn), ("--save-hand", save_hand)) if v]
         if per_file:
             raise TrackerError(per_file[0], "is for one recording; with several, -o is a folder of NAME.csv "
                                             "and summary.csv (track a recording alone for its other outputs)")
         _check_outputs(output, None, None, None, overwrite, folder=True)
     else:
-        _check_outputs(output, keypoints, overlay, rerun, overwrite)
+        _check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     segmenter = _segmenter(depth_range, box, forearm)
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
@@ -93,7 +95,8 @@ def track(
                    keypoints=None if keypoints is None else str(keypoints),
                    overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
                    rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
-                   hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start, end_s=end, every=every)
+                   hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start, end_s=end, every=every,
+                   save_hand=None if save_hand is None else str(save_hand), hand_scale_asked=hand_scale is not None)
     if len(recordings) > 1 or dask is not None:
         _track_many(recordings, output, job, dask, overwrite)
         return
@@ -108,7 +111,7 @@ def _hand_side(hand):
     return hand
 
 
-def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False):
+def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
     """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
     where a file goes, fails now and not after minutes of tracking."""
     from handmodel.fileio import check_output
@@ -118,7 +121,9 @@ def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False):
     if folder:
         check_output(output, folder=True)
         return
-    for p in (output, keypoints, rerun):
+    if save_hand is not None:
+        _check_hand_file(save_hand)
+    for p in (output, keypoints, rerun, save_hand):
         if p is not None and p.exists() and not overwrite and not p.is_dir():
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         if p is not None:
@@ -129,9 +134,17 @@ def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False):
         check_output(overlay, folder=True)
         if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
             raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
-    outs = [p for p in (output, keypoints, overlay, rerun) if p is not None]
+    outs = [p for p in (output, keypoints, overlay, rerun, save_hand) if p is not None]
     if len(set(outs)) < len(outs):
-        raise TrackerError("track", "-o, --keypoints, --overlay and --rerun need different paths")
+        raise TrackerError("track", "-o, --keypoints, --overlay, --rerun and --save-hand need different paths")
+
+
+def _check_hand_file(path):
+    """A hand file must end in .yaml or .yml: --hand-model reads any other name as a shipped model's."""
+    from .errors import TrackerError
+
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        raise TrackerError(path, "a hand file must end in .yaml or .yml (--hand-model takes it back by that)")
 
 
 def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette, prediction,
@@ -177,9 +190,13 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
                   f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
-    if tracker.scale_ is not None:
+    if tracker.base_hand.calibration and tracker.settings.hand_scale != "auto":
+        console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
+                      " in the file), not estimated again")
+    elif tracker.scale_ is not None:
         # the size a later run takes back with --hand-scale (it is in the output header too)
-        console.print(f"hand size: {run.meta['hand_scale']}; reuse it with --hand-scale {tracker.scale_:.4f}")
+        reuse = f"--hand-model {job.save_hand}" if job.save_hand else f"--hand-scale {tracker.scale_:.4f} or --save-hand FILE"
+        console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")
     if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
@@ -198,6 +215,8 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
     if run.rerun is not None:
         console.print(f"wrote {run.rerun}")
+    if job.save_hand is not None:
+        console.print(f"wrote {job.save_hand} (the calibrated hand; track on it with --hand-model {job.save_hand})")
     for w in run.warnings:
         console.print(f"warning: {w}")
 
@@ -429,7 +448,7 @@ def live(
                    keypoints=None if keypoints is None else str(keypoints),
                    overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
                    rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
-                   handedness=hand)
+                   handedness=hand, hand_scale_asked=hand_scale is not None)
 
     def interrupted(signum, stack):
         # the first Ctrl-C ends the stream after this frame and the outputs are written; a second aborts
@@ -474,7 +493,76 @@ def live(
         console.print(f"warning: {w}")
 
 
+def calibrate(
+    recording: Path = typer.Argument(..., help="Recording folder or file whose first frames show the user's hand (open, fingers apart, is best)."),
+    output: Path = typer.Option(..., "-o", "--output", help="The hand file to write (.yaml): tracker track --hand-model takes it back."),
+    synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path (the start search's postures, as tracker track)."),
+    registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
+    hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
+    finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [the tracker's default]."),
+    frames: int = typer.Option(60, "--frames", help="Read at most this many frames."),
+    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
+    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
+    forearm: str = typer.Option("cut", "--forearm", help="cut or keep (as tracker track) [cut]."),
+    hand: Optional[str] = typer.Option(None, "--hand", help="left or right, overriding the recording's (a recording file does not say; then left)."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file]."),
+    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file]."),
+    start: Optional[float] = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing hand file."),
+):
+    """Estimate the user's hand (size, and finger lengths) on a recording's first frames and write it
+    as a hand file: track later recordings on it with tracker track --hand-model FILE (no
+    re-estimation, so every recording of that user gets the same hand)."""
+    from .errors import TrackerError
+
+    if frames < 1:
+        raise TrackerError("--frames", f"must be positive, got {frames}")
+    _check_hand_file(output)
+    if output.exists() and not overwrite and not output.is_dir():
+        raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
+    from handmodel.fileio import check_output
+
+    check_output(output, overwrite=overwrite)
+    segmenter = _segmenter(depth_range, box, forearm)
+    settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
+                         None, None, "auto", False)
+    if finger_lengths is not None:
+        settings.finger_lengths = finger_lengths
+
+    # heavy modules load here, not at import time, so `tracker --help` answers at once
+    from rich.console import Console
+    from rich.table import Table
+
+    from .cli import _progress
+    from .run import TrackJob, calibrate_job
+
+    job = TrackJob(recording=str(recording), output="", settings=settings, synergies=synergies,
+                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                   overwrite=overwrite, hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start)
+    with _progress("calibrating") as progress:
+        bar = progress.add_task("calibrate", total=None)
+        out, tracker, used = calibrate_job(job, output, max_frames=frames,
+                                           on_frame=lambda frame, r, ob: progress.advance(bar))
+    cal = out.calibration
+    table = Table(title=f"hand calibrated on {recording} ({len(used)} frames: {used[0]}–{used[-1]})")
+    table.add_column("")
+    table.add_column("factor", justify="right")
+    table.add_column("estimates / spread", justify="right")
+    spread = f"± {100 * cal['scale_spread']:.1f} %" if cal["scale_spread"] is not None else "one estimate"
+    table.add_row(f"size (× {tracker.base_hand.name})", f"{cal['hand_scale']:.4f}",
+                  f"{', '.join(f'{e:.4f}' for e in cal['scale_estimates'])} ({spread})")
+    for name, f in (cal["finger_lengths"] or {}).items():
+        table.add_row(f"{name} length", f"{f:.3f}", "")
+    console = Console(markup=False)  # paths are printed as typed, never read as markup
+    console.print(table)
+    if len(cal["scale_estimates"]) < tracker.settings.scale_frames:
+        console.print(f"warning: {len(cal['scale_estimates'])} size estimates of {tracker.settings.scale_frames} "
+                      "(the hand was lost or the frames ran out); a longer recording settles it better")
+    console.print(f"wrote {output} ({out.handedness} hand; track on it with --hand-model {output})")
+
+
 def register(app, errors_exit_2) -> None:
     app.command()(errors_exit_2(track))
+    app.command()(errors_exit_2(calibrate))
     app.command()(errors_exit_2(live))
     app.command("eval")(errors_exit_2(evaluate))
