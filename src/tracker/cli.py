@@ -179,6 +179,8 @@ def import_(
     from .errors import TrackerError
     from .recording import import_pngs, import_recording_file, is_recording_file
 
+    if not src.exists():
+        raise TrackerError(src, "no such folder or file")
     check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
     t0 = time.perf_counter()
     if is_recording_file(src):
@@ -291,6 +293,8 @@ def show(
 
     from .errors import TrackerError
 
+    if output.suffix.lower() != ".png":
+        raise TrackerError(output, "the picture is written as PNG: name it .png")
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)  # before the frames are read

@@ -202,6 +202,10 @@ class Recording:
         if topic is not None or color_topic is not None:
             raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to recording folders")
         y = path / "recording.yaml"
+        if path.is_file():
+            hint = (": a Rerun recording of a tracking, drawn by tracker show" if path.suffix.lower() == ".rrd"
+                    else f" (a recording folder, or a {', '.join(RECORDING_FILE_SUFFIXES)} file)")
+            raise RecordingError(path, f"is not a recording{hint}")
         if not path.is_dir():
             raise RecordingError(path, "no such recording folder")
         if not y.is_file():
@@ -377,9 +381,9 @@ class FileRecording(Recording):
         view = copy.copy(self)
         view._sel = self._sel[keep][::int(every)]
         if not len(view._sel) and len(self._sel):
-            raise RecordingError(self.path, f"no frames between {start_s if start_s is not None else 0:g} s and "
-                                            f"{end_s if end_s is not None else t[-1]:g} s (the file spans "
-                                            f"{t[0]:g}–{t[-1]:g} s)")
+            span = (f"from {start_s:g} s" if end_s is None else f"up to {end_s:g} s" if start_s is None
+                    else f"between {start_s:g} s and {end_s:g} s")
+            raise RecordingError(self.path, f"no frames {span} (the file's frames span {t[0]:g}–{t[-1]:g} s)")
         return view
 
     def _read_raw(self, k: int):

@@ -142,6 +142,14 @@ def test_a_cut_mkv_says_it_is_cut(tmp_path):
     assert len(rec) == 1 and "cut short" in rec.source
 
 
+def test_a_time_range_past_the_end_says_which(tmp_path):
+    """--start alone was reported as "between 5 s and 0 s"."""
+    r = _cli("import", _mkv(), "-o", tmp_path / "r", "--start", "5")
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1, r.output
+    assert "no frames from 5 s (the file's frames span 0–0 s)" in r.stderr
+    assert not (tmp_path / "r").exists()
+
+
 def test_mutated_mkv_never_crashes(tmp_path):
     data = _mkv().read_bytes()
     bad = tmp_path / "mut.mkv"

@@ -537,6 +537,18 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     (tmp_path / "sheet.png").write_bytes(b"x")
     line = _one_error_line(_cli("show", d, "-o", tmp_path / "sheet.png"))
     assert "never overwritten" in line
+    # a user's slips: a missing source before the camera is asked for, a sheet named .jpg (written as
+    # PNG before), a tracking output or a Rerun file where a recording goes (was "no such recording folder")
+    line = _one_error_line(_cli("import", tmp_path / "nothing", "-o", tmp_path / "r"))
+    assert "nothing: no such folder or file" in line
+    line = _one_error_line(_cli("show", d, "-o", tmp_path / "sheet.jpg"))
+    assert "sheet.jpg: the picture is written as PNG" in line and not (tmp_path / "sheet.jpg").exists()
+    (tmp_path / "out.csv").write_text("frame\n")
+    line = _one_error_line(_cli("show", tmp_path / "out.csv", "-o", tmp_path / "s2.png"))
+    assert "out.csv: is not a recording (a recording folder, or a .bag, .db3, .mcap, .mkv file)" in line
+    (tmp_path / "t.rrd").write_bytes(b"x")
+    line = _one_error_line(_cli("info", tmp_path / "t.rrd"))
+    assert "t.rrd: is not a recording: a Rerun recording of a tracking, drawn by tracker show" in line
 
 
 def test_cli_help_is_fast_and_light():

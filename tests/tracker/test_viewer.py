@@ -118,6 +118,20 @@ def test_show_draws_a_rerun_recording(tracked, tmp_path):
         r = CliRunner().invoke(app, ["show", str(tracked / "t.rrd"), "-o", str(tmp_path / "w.png"), *args])
         assert r.exit_code == 2 and reason in r.stderr and r.stderr.count("\n") == 1, r.output
     assert not (tmp_path / "w.png").exists()
+    # a cut file: one line (rerun's own "no footer" warning was printed before it)
+    import warnings
+
+    from tracker.errors import TrackerError
+
+    (tmp_path / "cut.rrd").write_bytes((tracked / "t.rrd").read_bytes()[:60_000])
+    r = CliRunner().invoke(app, ["show", str(tmp_path / "cut.rrd"), "-o", str(tmp_path / "w.png")])
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and "cut.rrd: not a readable Rerun recording" in r.stderr, \
+        r.output
+    with warnings.catch_warnings(record=True) as caught:  # pytest hides warnings from the CLI run above
+        warnings.simplefilter("always")
+        with pytest.raises(TrackerError, match="not a readable Rerun recording"):
+            read_frames(tmp_path / "cut.rrd")
+    assert not caught, [str(w.message) for w in caught]
 
 
 def test_rerun_output_refused_like_the_others(tracked):
