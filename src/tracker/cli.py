@@ -283,12 +283,15 @@ def show(
     forearm: str = typer.Option("cut", "--forearm", help="cut or keep, for the mask, as in tracker track."),
     frame: Optional[int] = typer.Option(None, "--frame", help="Only this frame (a Rerun .rrd: the logged frame "
                                                               "to draw; default its last frame with a hand)."),
+    keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Keypoints CSV of tracker track "
+                                             "(--keypoints kp.csv) of this recording: draw each shown frame's fitted "
+                                             "skeleton, thumb orange, wrist a blue square."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey; the
-    segmented hand outlined in white. Given a Rerun recording of a tracking (tracker track --rerun
-    out.rrd), a picture of one logged frame instead: the depth with the mask and the fitted skeleton,
-    and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
+    segmented hand outlined in white; with --keypoints the fitted skeletons. Given a Rerun recording of
+    a tracking (tracker track --rerun out.rrd), a picture of one logged frame instead: the depth with the
+    mask and the fitted skeleton, and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
     from handmodel.fileio import check_output
 
     from .errors import TrackerError
@@ -300,7 +303,8 @@ def show(
     check_output(output, overwrite=overwrite)  # before the frames are read
     if recording.suffix.lower() == ".rrd":
         given = [o for o, v in (("--topic", topic), ("--every", every or None), ("--near", near), ("--far", far),
-                                ("--depth-range", depth_range), ("--box", box)) if v is not None]
+                                ("--depth-range", depth_range), ("--box", box), ("--keypoints", keypoints))
+                 if v is not None]
         if given:
             raise TrackerError(recording, f"{', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to a "
                                           "Rerun recording (it holds the tracking's own depth and mask)")
@@ -329,6 +333,14 @@ def show(
     idx = [frame] if frame is not None else list(range(0, n, every)) if every > 0 else \
         sorted(set(np.linspace(0, n - 1, min(n, 16)).round().astype(int)))
     shown = idx[:max_frames]
+    hand = fitted = None
+    if keypoints is not None:
+        from handmodel import HandModel
+
+        from .plots import project
+
+        hand = HandModel.load()  # its bones only: the keypoints are the fitted hand's own
+        fitted = _keypoints_by_frame(keypoints, hand.keypoint_names, n)
     depths, masks, times = [], [], []
     with _progress("reading") as p:
         bar = p.add_task("read", total=len(shown))
@@ -341,20 +353,52 @@ def show(
 
                 masks.append(observe(frame.depth, rec.camera, segmenter=segmenter, color=frame.color).mask)
             p.advance(bar)
+    key = ["grey = no depth", "white = segmented hand"] if fitted is None else \
+        ["white = no depth", "green = segmented hand", "fitted skeletons: thumb orange, wrist blue"]
+    if segmenter is None:
+        key.remove(key[1])
+    skeletons = None if fitted is None else \
+        [None if fitted.get(i) is None else np.stack(project(fitted[i], rec.camera), 1) for i in shown]
     lo, hi = contact_sheet(
         output, depths, [f"#{i}  {t:.2f} s" for i, t in zip(shown, times)],
-        f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; grey = no depth"
-        + ("; white = segmented hand" if segmenter is not None else ""),
+        f"{rec.path.name}: {n} frames, {rec.camera.name} {rec.camera.width}×{rec.camera.height}; " + "; ".join(key),
         near_mm=None if near is None else near * 1000, far_mm=None if far is None else far * 1000,
-        overwrite=overwrite, masks=masks if segmenter is not None else None)
+        overwrite=overwrite, masks=masks if segmenter is not None else None, skeletons=skeletons, hand=hand)
     valid = np.mean([np.isfinite(d).mean() for d in depths])
-    _table(f"wrote {output}", [
+    drawn = [] if fitted is None else [("fitted skeletons", f"{sum(fitted.get(i) is not None for i in shown)} of "
+                                                           f"{len(shown)} frames shown ({keypoints})")]
+    _table(f"wrote {output}", drawn + [
         ("frames shown", f"{len(shown)} of {n}"
          + (f" (the first {max_frames} of {len(idx)} selected)" if len(idx) > len(shown) else "")),
         ("colour scale", f"{lo:.0f}–{hi:.0f} mm"), ("pixels with depth", f"{100 * valid:.1f} %")])
     warning = depth_unit_warning(np.concatenate([np.ravel(d) for d in depths]) / 1000.0, rec.camera.depth_scale_m)
     if warning:
         _print(warning)
+
+
+def _keypoints_by_frame(path, names, n_frames) -> dict:
+    """Frame index → (K, 3) keypoints in metres of a keypoints CSV (``tracker track --keypoints``),
+    frames without a fit (NaN) left out; refused when its columns or frames do not fit the recording."""
+    import numpy as np
+    import pandas as pd
+
+    from .errors import TrackerError
+
+    try:
+        df = pd.read_csv(path)
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise TrackerError(path, f"cannot read a keypoints CSV ({type(exc).__name__}: {exc})") from None
+    cols = [f"{k}_{a}_mm" for k in names for a in "xyz"]
+    missing = [c for c in ["frame", *cols] if c not in df.columns]
+    if missing:
+        raise TrackerError(path, f"not a keypoints CSV of tracker track (missing {', '.join(missing[:3])}"
+                                 f"{' …' if len(missing) > 3 else ''})")
+    frames = pd.to_numeric(df["frame"], errors="coerce").to_numpy(float)
+    if len(frames) and (not np.isfinite(frames).all() or frames.min() < 0 or frames.max() >= n_frames):
+        raise TrackerError(path, f"has frames up to {np.nanmax(frames):g}, the recording {n_frames} "
+                                 "(keypoints of another recording?)")
+    xyz = df[cols].apply(pd.to_numeric, errors="coerce").to_numpy(float).reshape(len(df), len(names), 3) / 1000.0
+    return {int(f): k for f, k in zip(frames, xyz) if np.isfinite(k).all() and (k[:, 2] > 0).all()}
 
 
 # the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer

@@ -31,6 +31,19 @@ def _save(fig, path, dpi=100, overwrite=True):
     atomic_write_bytes(Path(path), buf.getvalue(), overwrite=overwrite)
 
 
+#: Colours of the overlay's marks, chosen to stand out on its grey depth image and from each other.
+OVERLAY_COLOURS = {"mask": (0.1, 0.9, 0.1), "fit": (0.9, 0.1, 0.1), "bone": (0.05, 0.05, 0.05),
+                   "thumb": (1.0, 0.55, 0.0), "wrist": (0.0, 0.35, 1.0), "labelled": (0.0, 0.9, 0.9)}
+
+
+def depth_greys():
+    """The colour map of depth under drawn marks: light grey near, dark grey far, white = no depth.
+
+    Grey, not a colour map: the hand is the nearest surface, and a colour map's near end (viridis'
+    dark purple, turbo's blue) hid the marks drawn over it; each colour then means one mark."""
+    return ListedColormap(colormaps["gray_r"](np.linspace(0.2, 0.75, 256))).with_extremes(bad="1.0")
+
+
 def depth_scale_mm(depths_mm, near_mm=None, far_mm=None) -> tuple[float, float]:
     """Colour-scale ends for depth images in mm: the 1st and 99th percentile of all valid pixels
     unless given; the far end is kept above the near one.
@@ -47,7 +60,8 @@ def depth_scale_mm(depths_mm, near_mm=None, far_mm=None) -> tuple[float, float]:
     return lo, hi
 
 
-def contact_sheet_figure(depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, masks=None):
+def contact_sheet_figure(depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, masks=None,
+                         skeletons=None, hand=None):
     """The figure of :func:`contact_sheet` (not saved), and its colour scale: ``(figure, (lo, hi))``."""
     lo, hi = depth_scale_mm(depths_mm, near_mm, far_mm)
     n = len(depths_mm)
@@ -60,12 +74,18 @@ def contact_sheet_figure(depths_mm, panel_titles, title, *, near_mm=None, far_mm
     lines = textwrap.wrap(title, max(20, int(fig_w * 72 / (0.55 * 9)))) or [""]
     fig = _figure(figsize=(fig_w, 2.6 * aspect * rows + 0.9 + 0.16 * (len(lines) - 1)), layout="constrained")
     axes = fig.subplots(rows, cols, squeeze=False)
-    cmap = colormaps["viridis"].with_extremes(bad="0.85")  # grey is not in viridis: no data stands out
+    # grey is not in viridis: no data stands out; under fitted skeletons the overlay's greys and colours
+    cmap = colormaps["viridis"].with_extremes(bad="0.85") if skeletons is None else depth_greys()
+    outline = "w" if skeletons is None else OVERLAY_COLOURS["mask"]
     im = None
     for k, (ax, label, d) in enumerate(zip(axes.ravel(), panel_titles, depths_mm)):
         im = ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
         if masks is not None and np.any(masks[k]):
-            ax.contour(np.asarray(masks[k], float), [0.5], colors="w", linewidths=0.8)
+            ax.contour(np.asarray(masks[k], float), [0.5], colors=[outline], linewidths=0.8)
+        if skeletons is not None and skeletons[k] is not None:
+            draw_skeleton(ax, *np.asarray(skeletons[k], float).T, hand.parents, hand.keypoint_names, size=0.45)
+            ax.set_xlim(-0.5, width - 0.5)
+            ax.set_ylim(height - 0.5, -0.5)
         ax.set_title(label, fontsize=8)
         ax.set_xticks([])
         ax.set_yticks([])
@@ -77,7 +97,7 @@ def contact_sheet_figure(depths_mm, panel_titles, title, *, near_mm=None, far_mm
 
 
 def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=None, overwrite=False,
-                  masks=None):
+                  masks=None, skeletons=None, hand=None):
     """Depth frames in a grid, colour-mapped (viridis) in mm; pixels without depth are light grey.
 
     Parameters
@@ -86,14 +106,18 @@ def contact_sheet(path, depths_mm, panel_titles, title, *, near_mm=None, far_mm=
     depths_mm : list of (H, W) depth images in mm, NaN = no depth
     panel_titles, title : one title per frame, and the figure's (wrapped to the sheet's width)
     near_mm, far_mm : colour-scale ends (default: :func:`depth_scale_mm`)
-    masks : optional list of (H, W) bool segmentation masks, outlined in white on their panels
+    masks : optional list of (H, W) bool segmentation masks, outlined in white on their panels (in
+        green over the overlay's greys when skeletons are drawn)
+    skeletons, hand : optional list of (K, 2) keypoint pixels (None: no fit on that panel) drawn as
+        :func:`draw_skeleton` does, with the bones of ``hand`` (anything with ``parents`` and
+        ``keypoint_names``)
 
     Returns
     -------
     (lo, hi) : the colour scale used, mm
     """
     fig, (lo, hi) = contact_sheet_figure(depths_mm, panel_titles, title, near_mm=near_mm, far_mm=far_mm,
-                                         masks=masks)
+                                         masks=masks, skeletons=skeletons, hand=hand)
     _save(fig, path, dpi=90, overwrite=overwrite)
     return lo, hi
 
@@ -128,17 +152,24 @@ def model_silhouette(hand, theta, camera, shape, spacing=0.003):
     return sil
 
 
-#: Colours of the overlay's marks, chosen to stand out on its grey depth image and from each other.
-OVERLAY_COLOURS = {"mask": (0.1, 0.9, 0.1), "fit": (0.9, 0.1, 0.1), "bone": (0.05, 0.05, 0.05),
-                   "thumb": (1.0, 0.55, 0.0), "wrist": (0.0, 0.35, 1.0), "labelled": (0.0, 0.9, 0.9)}
 
-
-def depth_greys():
-    """The colour map of depth under drawn marks: light grey near, dark grey far, white = no depth.
-
-    Grey, not a colour map: the hand is the nearest surface, and a colour map's near end (viridis'
-    dark purple, turbo's blue) hid the marks drawn over it; each colour then means one mark."""
-    return ListedColormap(colormaps["gray_r"](np.linspace(0.2, 0.75, 256))).with_extremes(bad="1.0")
+def draw_skeleton(ax, u, v, parents, names, size: float = 1.0) -> None:
+    """The fitted hand's skeleton at pixels ``(u, v)`` (one per keypoint): bones black, the thumb's
+    orange with its tip ringed, keypoints red, the wrist a blue square — the wrist is what tells a hand
+    fitted upside down (fingers along the arm) from a right one. ``size`` scales lines and markers."""
+    c = OVERLAY_COLOURS
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    for i, p in enumerate(parents):
+        if p >= 0:
+            thumb = names[i].startswith("thumb")
+            ax.plot(u[[p, i]], v[[p, i]], "-", color=c["thumb"] if thumb else c["bone"],
+                    lw=(2.5 if thumb else 1.8) * size)
+    ax.plot(u, v, "o", color=c["fit"], ms=3 * size)
+    if "thumb_tip" in names:
+        t = names.index("thumb_tip")
+        ax.plot(u[t], v[t], "o", mfc="none", mec=c["thumb"], ms=10 * size, mew=2 * size)
+    w = names.index("wrist") if "wrist" in names else 0
+    ax.plot(u[w], v[w], "s", color=c["wrist"], mec="w", ms=9 * size, mew=size)
 
 
 def overlay_legend(fitted: bool, mask_empty: bool, labelled: bool, depth_mm=None) -> str:
@@ -196,20 +227,8 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled
         # drawn over the fitted silhouette: where the two disagree both edges stay visible
         ax.contour(np.asarray(mask, float), [0.5], colors=[c["mask"]], linewidths=1.5)
     if fitted:
-        kp = hand.keypoints(theta)
-        u, v = project(kp, camera)
-        names = hand.keypoint_names
-        for i, p in enumerate(hand.parents):
-            if p >= 0:
-                thumb = names[i].startswith("thumb")
-                ax.plot(u[[p, i]], v[[p, i]], "-", color=c["thumb"] if thumb else c["bone"], lw=2.5 if thumb else 1.8)
-        ax.plot(u, v, "o", color=c["fit"], ms=3)
-        if "thumb_tip" in names:
-            t = names.index("thumb_tip")
-            ax.plot(u[t], v[t], "o", mfc="none", mec=c["thumb"], ms=10, mew=2)
-        # the wrist is what tells a hand fitted upside down (fingers along the arm) from a right one
-        w = names.index("wrist") if "wrist" in names else 0
-        ax.plot(u[w], v[w], "s", color=c["wrist"], mec="w", ms=9, mew=1)
+        u, v = project(hand.keypoints(theta), camera)
+        draw_skeleton(ax, u, v, hand.parents, hand.keypoint_names)
     if labelled is not None and len(labelled):
         lu, lv = np.asarray(labelled, float).reshape(-1, 2).T
         ax.plot(lu, lv, "+", color=c["labelled"], ms=12, mew=2.5)

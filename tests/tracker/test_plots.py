@@ -95,3 +95,42 @@ def test_contact_sheet_title_fits_one_panel(tmp_path):
     assert box.x0 >= 0 and box.x1 <= width, (box, width)
     lo, hi = contact_sheet(tmp_path / "s.png", depths, ["#0  0.00 s"], title)
     assert (tmp_path / "s.png").stat().st_size > 0 and hi > lo
+
+
+def test_show_draws_the_fitted_skeletons_of_a_keypoints_csv(scene, tmp_path):
+    """tracker show --keypoints: every shown frame's fit on one sheet (the wrist a blue square), so a
+    run fitted upside down is seen at a glance; a frame without a fit has none; keypoints of another
+    recording are refused."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+    from tracker.recording import RecordingWriter
+    from tracker.run import keypoints_table
+
+    hand, cam, theta, sil, depth = scene
+    with RecordingWriter(tmp_path / "rec", cam, 30, "left") as w:
+        for _ in range(3):
+            w.write(depth)
+    thetas = np.stack([theta, np.full(26, np.nan), theta])
+    df = pd.DataFrame(thetas, columns=hand.dof_names)
+    df.insert(0, "frame", [0, 1, 2])
+    keypoints_table(hand, df).to_csv(tmp_path / "kp.csv", index=False)
+
+    def run(*args):
+        return CliRunner().invoke(app, ["show", str(tmp_path / "rec"), *map(str, args)])
+
+    r = run("-o", tmp_path / "s.png", "--keypoints", tmp_path / "kp.csv")
+    assert r.exit_code == 0, r.output
+    assert "2 of 3 frames shown" in r.stdout
+    img = _rgb(tmp_path / "s.png")
+    assert _near(img, OVERLAY_COLOURS["wrist"]).sum() >= 6  # two small squares
+    r = run("-o", tmp_path / "plain.png")
+    assert r.exit_code == 0 and not _near(_rgb(tmp_path / "plain.png"), OVERLAY_COLOURS["wrist"]).any()
+    kp = pd.read_csv(tmp_path / "kp.csv")
+    kp.assign(frame=kp["frame"] + 5).to_csv(tmp_path / "other.csv", index=False)
+    r = run("-o", tmp_path / "o.png", "--keypoints", tmp_path / "other.csv")
+    assert r.exit_code == 2 and "other.csv: has frames up to 7, the recording 3" in r.stderr, r.output
+    r = run("-o", tmp_path / "o.png", "--keypoints", tmp_path / "rec" / "recording.yaml")
+    assert r.exit_code == 2 and "not a keypoints CSV of tracker track" in r.stderr, r.output
+    assert not (tmp_path / "o.png").exists()
