@@ -4,7 +4,15 @@ size calibrated on each recording's first labelled frame (``hand_scale="auto"``)
 other frames, everything else default. The keypoint-in-mask floor is the issue's; the tip and wrist
 floors are what the tracker reaches today (the issue's: tips ≤ 15 px and wrist ≤ 20 px on every
 frame: 16 of the 19 frames meet them); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back
-swapped, the thumb folded into the palm) or a lost wrist."""
+swapped, the thumb folded into the palm) or a lost wrist.
+
+The fits are the same whatever ran before them in the process (:mod:`tests.tracker.test_init_reproducible`;
+until ca57160 a left hand calibrated earlier in the suite changed the sizes, and 231615_100's middle
+tip ended 37.7 px off in the whole suite, 10 px alone), so the floors need no margin for the suite.
+Their margin is for small changes of the fit: with both sizes × 0.997 or × 1.003 the frames still
+give 16 within every floor, 94 tips within 15 px and median 4.8 px, but the worst tip is 19.8 px
+(231615_140's thumb) or 38.1 px (231615_100's middle finger, pointing at the camera: the wrong fit
+scores better there, 3.03 against 3.36 mm, the search finds one or the other)."""
 from __future__ import annotations
 
 
@@ -46,7 +54,8 @@ def test_every_real_frame_fits_the_hand_not_the_body(fits):
 
 
 def test_no_real_frame_is_fitted_upside_down(fits):
-    """The wrist within 30 px of the labelled wrist on every frame (measured ≤ 25.7 px, median 9–11;
+    """The wrist within 30 px of the labelled wrist on every frame (measured ≤ 27.0 px on 230536_70, whose
+    segmentation cuts the forearm obliquely; median 10.6, 10.9 and 10.8 at sizes × 1, 0.997, 1.003;
     before the wrist cue one frame had it 125 px away, in the palm, the hand upside down), and the
     hand's axis (wrist → middle base) within 60° of the labelled wrist → middle tip."""
     errs = []
@@ -56,36 +65,43 @@ def test_no_real_frame_is_fitted_upside_down(fits):
         want = np.asarray(lab["middle"], float) - lab["wrist"]
         cos = axis @ want / (np.linalg.norm(axis) * np.linalg.norm(want))
         assert cos >= np.cos(np.radians(60)), f"{name}: hand axis {np.degrees(np.arccos(cos)):.0f}° off"
-    assert max(errs) <= 30 and np.median(errs) <= 13, np.round(errs, 1)
+    assert max(errs) <= 30 and np.median(errs) <= 12, np.round(errs, 1)
 
 
 def test_no_open_hand_is_fitted_turned_over(fits):
     """The open and spread hands of recording 230536 (palm or back to the camera, every finger seen
-    in the image): every tip within 20 px (measured ≤ 15.7). Before the score measured each data
+    in the image): every tip within 17 px (measured ≤ 15.3, and ≤ 14.7 at sizes × 0.997 and 1.003).
+    Before the score measured each data
     point against the whole model (:func:`tracker.init.data_cost_mm`), five of its eight frames were
     fitted with the palm turned over — thumb folded into the palm, the model's index on the real
     thumb, 70–120 px at the thumb and pinky."""
     for name, (lab, _, uv, names, _) in fits.items():
         if name.startswith("20210326-230536"):
             e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
-            assert max(e) <= 20, f"{name}: tips {np.round(e, 1)} px"
+            assert max(e) <= 17, f"{name}: tips {np.round(e, 1)} px"
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 13 of the 19 frames have every labelled tip within 15 px of its model tip
-    and the wrist within 20 px (the issue's floor for every frame), at least 88 of the 95 labelled
-    tips are within 15 px, the median tip error over all frames is ≤ 6 px, and no tip is more than
-    45 px off on any frame. Measured at bf8db01 (the 1 px dropout band; sizes 1.27 and 1.23): 16 frames,
-    94 tips, median 4.8 px, worst 15 px run alone; in the whole suite 231615_100's middle finger (pointing
-    at the camera) ended 37.7 px off — these frames swing with the last bits of a sum (the margins are for
-    that); the report's "real labelled frames" section lists them. Measured with the pair restarts and the finger-overlap term (f949129,
-    sizes calibrated 1.268 and 1.231): 13 frames, 91 tips, median 4.6 px, worst tip 37 px (231615_100,
-    the middle finger pointing at the camera); before them (sizes 1.336 and 1.399): 11, 83, 6.7, 70 px
-    — curled fingers seen as blobs in front of the palm fitted with a spread neighbour on their blob
-    (231615_160/_200/_220: 37–70 px). What is left: the wrist 18–28 px from the labelled crease on
-    230536_70 and _110 (the label lies towards the little finger and along the arm of the model's
-    wrist, by about the same at every hand size from 1.20 to 1.48), a finger pointing at the camera
-    (231615_100) and index tips 15–23 px long (231615_180)."""
+    """Fingertips: at least 15 of the 19 frames have every labelled tip within 15 px of its model tip
+    and the wrist within 20 px (the issue's floor for every frame), at least 92 of the 95 labelled
+    tips are within 15 px, the median tip error over all frames is ≤ 5.5 px, and no tip is more than
+    45 px off on any frame. Measured at ca57160 (sizes 1.274 and 1.230): 16 frames, 94 tips, median
+    4.8 px, worst 15.3 px, the same in the whole suite; with both sizes × 0.997 or × 1.003: 16, 94,
+    4.8 and a worst tip of 19.8 or 38.1 px (see the module's note: the 45 px bound is for
+    231615_100's middle finger, pointing at the camera). Measured with the pair restarts and the
+    finger-overlap term (f949129, sizes 1.268 and 1.231): 13 frames, 91 tips, median 4.6 px; before
+    them (sizes 1.336 and 1.399): 11, 83, 6.7, 70 px — curled fingers seen as blobs in front of the
+    palm fitted with a spread neighbour on their blob (231615_160/_200/_220: 37–70 px).
+
+    What is left is the model's shape against this hand's, not the search: 230536_130's index tip
+    (15.3 px short) — the model's index is too long for this hand at its global size, the fit folds
+    the finger's last joint to its limit (−132° with the middle joint straight) to hide the excess;
+    with the index and little finger 0.9× their model length the tip is 3.9 px off (per-finger
+    lengths, ``finger_lengths``, need tracked frames); 230536_110's wrist (20.3 px, towards the little
+    finger) — the fit turns the palm 10–15° in the image with every finger's abduction (−11 to −14°)
+    making up for it; started with the palm turned back, the wrist comes to 8–12 px but the thumb
+    12–16 px off, and the finger-wise restarts return to the first fit (score 1.93 against
+    1.96–1.98 mm); 230536_70's wrist (27 px): the segmentation's oblique forearm cut."""
     ok, tip_errs, worst = 0, [], 0.0
     for name, (lab, _, uv, names, _) in fits.items():
         e = [float(np.hypot(*(uv[names.index(t + "_tip")] - lab[t]))) for t in TIPS]
@@ -95,6 +111,6 @@ def test_real_frames_fingertips(fits):
         ok += max(e) <= 15 and np.hypot(*(uv[0] - lab["wrist"])) <= 20
     print(f"\nframes within every floor {ok}/19, tips within 15 px {np.sum(np.asarray(tip_errs) <= 15)}/95, "
           f"median {np.median(tip_errs):.1f} px, worst {worst:.1f} px")
-    assert ok >= 13, ok
-    assert np.sum(np.asarray(tip_errs) <= 15) >= 88, np.sum(np.asarray(tip_errs) <= 15)
-    assert np.median(tip_errs) <= 6, np.median(tip_errs)
+    assert ok >= 15, ok
+    assert np.sum(np.asarray(tip_errs) <= 15) >= 92, np.sum(np.asarray(tip_errs) <= 15)
+    assert np.median(tip_errs) <= 5.5, np.median(tip_errs)
