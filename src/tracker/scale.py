@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -358,37 +359,83 @@ def shaped_context(ctx, base, scale, factors):
                    score_samples=stretched_samples(ctx.score_samples, hand, bones))
 
 
+#: Prior spread (sd of the log factor) of a finger's length about the model's proportions: adult fingers
+#: differ from the model's by some ±10 % (the realistic scenes draw them uniform within ±10 %: sd 0.058).
+FINGER_PRIOR_SD = 0.06
+
+
 def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15, probes=5, n_icp=4,
-                  limits=(0.8, 1.25)):
+                  limits=(0.8, 1.25), prior_sd=FINGER_PRIOR_SD, spread=None):
     """Each finger's length factor on the hand ``base`` × ``scale`` (whose context is ``ctx``), from
     tracked ``frames``: ``(points, normals, silhouette, θ)`` with θ fitted on that hand. Finger by
     finger (the others at their factors found so far), ``probes`` factors evenly spread on log scale
     within ``half_width`` either way are each scored by short all-DoF fits from every frame's θ
-    (:func:`size_score`, summed over the frames: one frame's noise and posture leave a finger's
-    length flat within a few percent), and a parabola through the sums gives the factor (kept within
-    the probes, then ``limits``). A finger's length trades against its flexion in one view (a longer
-    finger bent more covers the same pixels), so frames of several postures tell lengths apart
-    better than many of one. Returns finger name → factor."""
+    (:func:`size_score`), and a parabola through the scores summed over the frames gives the
+    estimate (kept within the probes). A finger's length trades against its flexion in one view (a
+    longer finger bent more covers the same pixels), so frames of several postures tell lengths
+    apart better than many of one — and one frame's fit can prefer a wrong length by 10 %.
+
+    The estimate is trusted by how well the frames agree: each frame's own parabola gives a vertex,
+    their standard error ``se`` (spread / √frames) is the estimate's uncertainty, and the log factor is
+    shrunk towards 1 by ``prior_sd² / (prior_sd² + se²)`` (a normal prior of ``prior_sd`` on the
+    log factor; ``prior_sd=None``: no shrinking); a summed parabola that opens downwards says nothing
+    and leaves the finger at 1. The factor is then kept within ``limits``. ``spread``: a dict that
+    receives finger name → ``(raw factor, se)``. Returns finger name → factor."""
     found = dict.fromkeys(FINGERS, 1.0)
     x = np.linspace(-half_width, half_width, probes)
     for f in fingers:
-        y = np.zeros(probes)
+        y = np.zeros((len(frames), probes))
         for k, v in enumerate(x):
             c = shaped_context(ctx, base, scale, {**found, f: float(np.exp(v))})
-            for points, normals, sil, theta in frames:
+            for i, (points, normals, sil, theta) in enumerate(frames):
                 th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
-                y[k] += size_score(c, th, corr, sil)
-        a, b, _ = np.polyfit(x, y, 2)
-        best = x[int(np.argmin(y))] if a <= 0 else float(np.clip(-b / (2 * a), x[0], x[-1]))
-        found[f] = float(np.clip(np.exp(best), *limits))
+                y[i, k] = size_score(c, th, corr, sil)
+        best = _vertex(x, y.sum(0), none_if_flat=True)
+        per = [_vertex(x, row) for row in y]
+        shrunk, se = trusted_log_factor(best, per, prior_sd)
+        if spread is not None:
+            spread[f] = (float(np.exp(best)) if best is not None else float("nan"), se)
+        found[f] = float(np.clip(np.exp(shrunk), *limits))
     return found
+
+
+def trusted_log_factor(best, per_frame, prior_sd=FINGER_PRIOR_SD):
+    """``(log factor, se)``: the log length factor ``best`` (None: no estimate) shrunk towards 0 by
+    its standard error ``se`` over the frames' own estimates ``per_frame`` — the posterior mean under
+    a normal prior of ``prior_sd`` (None: not shrunk). One frame has no spread to judge it by: its
+    factor stays at 1.
+
+    >>> [round(v, 6) for v in trusted_log_factor(0.1, [0.1, 0.1, 0.1])]
+    [0.1, 0.0]
+    >>> round(trusted_log_factor(0.1, [-0.1, 0.3, 0.1, 0.0, 0.2])[0], 3)  # frames 0.16 apart: se 0.07
+    0.042
+    >>> trusted_log_factor(None, [0.1, 0.1]), trusted_log_factor(0.1, [0.1])
+    ((0.0, 0.0), (0.0, inf))
+    """
+    per = np.asarray(per_frame, float)
+    se = float(np.std(per, ddof=1) / np.sqrt(len(per))) if len(per) > 1 else float("inf")
+    if best is None:
+        return 0.0, se
+    if prior_sd is None:
+        return float(best), se
+    return float(best * prior_sd**2 / (prior_sd**2 + se**2)), se
+
+
+def _vertex(x, y, *, none_if_flat=False):
+    """The vertex of the parabola through ``(x, y)``, kept within ``x``'s range; for a parabola that
+    opens downwards, the best probe (or None with ``none_if_flat``)."""
+    a, b, _ = np.polyfit(x, y, 2)
+    if a <= 0:
+        return None if none_if_flat else float(x[int(np.argmin(y))])
+    return float(np.clip(-b / (2 * a), x[0], x[-1]))
 
 
 # ------------------------------------------------------------------------------ the calibrated hand as a file
 def calibration_record(tracker, *, recording=None, frames=None) -> dict:
     """What a calibrated hand file's provenance says about its calibration (plain values, see
     :func:`calibrated_hand`): the size and its per-frame estimates with their spread (half the range
-    over the median), the finger length factors (None: the base model's proportions), the recording
+    over the median), the finger length factors (None: the base model's proportions) with each one's
+    estimate before shrinking and its standard error (log) over the frames, the recording
     and the ``frames`` (indices) tracked until the size was settled, the settings that shaped the
     estimate, the tool and its version, and the time (UTC)."""
     import datetime
@@ -402,18 +449,34 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
     med = float(np.median(est)) if est else float(tracker.scale_)
     st = tracker.settings
     fingers = getattr(tracker, "finger_scales_", None)
+    spread = getattr(tracker, "finger_spread_", None) if fingers else None
     return {
         "hand_scale": round(float(tracker.scale_), 6),
         "scale_estimates": [round(e, 6) for e in est],
         "scale_spread": round((max(est) - min(est)) / (2.0 * med), 6) if len(est) > 1 else None,
         "finger_lengths": None if not fingers else {k: round(float(v), 6) for k, v in fingers.items()},
-        "recording": None if recording is None else str(recording),
+        # each finger's estimate before it was shrunk by its standard error over the frames (finger_scales)
+        "finger_estimates": None if not spread else {
+            k: {"unshrunk": _finite_or_none(a, 6), "se_log": _finite_or_none(se, 6)} for k, (a, se) in spread.items()},
+        "recording": None if recording is None else _where(recording),
         "frames": None if frames is None else [int(f) for f in frames],
         "settings": {"scale_frames": int(st.scale_frames), "scale_refine": st.scale_refine,
                      "finger_lengths": bool(st.finger_lengths), "scale_range": [float(v) for v in st.scale_range]},
         "tool": f"synergistic-hand-tracking {version} (tracker.scale.calibrated_hand)",
         "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
+
+
+def _where(recording) -> str:
+    """A recording's absolute path when it is one on disk (a hand file outlives the working folder),
+    else its name as given (a live camera)."""
+    p = Path(str(recording))
+    return str(p.resolve()) if p.exists() else str(recording)
+
+
+def _finite_or_none(v, digits):
+    """``v`` rounded, or None where it is NaN or infinite (YAML's ``.nan`` reads back unequal to itself)."""
+    return round(float(v), digits) if np.isfinite(v) else None
 
 
 def calibrated_hand(tracker, *, recording=None, frames=None):

@@ -442,7 +442,9 @@ class HandTracker:
         s = self.scale_
         ctx = self.context_for(s)
         frames = [(p, n, sil, rescaled(h, ctx.hand, th)) for p, n, sil, th, h in self._size_frames]
-        self.finger_scales_ = finger_scales(ctx, self.base_hand, s, frames)
+        # finger → (unshrunk factor, its standard error over the frames): the calibration record's spread
+        self.finger_spread_ = {}
+        self.finger_scales_ = finger_scales(ctx, self.base_hand, s, frames, spread=self.finger_spread_)
         self._size_frames = []
         self._use_scale(s)
 

@@ -551,8 +551,13 @@ def calibrate(
     spread = f"± {100 * cal['scale_spread']:.1f} %" if cal["scale_spread"] is not None else "one estimate"
     table.add_row(f"size (× {tracker.base_hand.name})", f"{cal['hand_scale']:.4f}",
                   f"{', '.join(f'{e:.4f}' for e in cal['scale_estimates'])} ({spread})")
+    est = cal.get("finger_estimates") or {}
     for name, f in (cal["finger_lengths"] or {}).items():
-        table.add_row(f"{name} length", f"{f:.3f}", "")
+        e = est.get(name) or {}
+        # the frames' agreement: a finger they disagree on is shrunk towards the model's proportions
+        seen = (f"{e['unshrunk']:.3f} ± {100 * e['se_log']:.1f} %" if e.get("unshrunk") is not None
+                and e.get("se_log") is not None else "")
+        table.add_row(f"{name} length", f"{f:.3f}", seen)
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
     if len(cal["scale_estimates"]) < tracker.settings.scale_frames:
