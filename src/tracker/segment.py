@@ -51,6 +51,7 @@ NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre whe
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
 SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm even when it crosses the finger ring in pieces
 OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
+ARM_BEND_DEG = 10.0  # the arm's own direction sets the cut when it is this far off the palm centre's (see cut_forearm)
 ARM_LENGTH_PALMS = 3.5  # an object longer than this many palm widths is a hand with its arm
 FINGER_MAX_M = 0.035  # parts narrower than this are finger-like (fingers of 0.8-1.5x hands: 14-27 mm; a forearm 30-70 mm)
 FINGER_MIN_AREA_M2 = 1.5e-4  # a finger-like part is at least this big (a finger's last 1-2 cm; outline noise is smaller) …
@@ -677,7 +678,9 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
     and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
     surface left out of the region), where fingers end in an edge (fingers held together are as
-    wide as an arm). The widest such part is the forearm, its direction from c the arm axis a. The
+    wide as an arm). The widest such part is the forearm, its direction from c the arm axis a — or
+    its own direction, from where it leaves the circle to its far end, when that is more than
+    :data:`ARM_BEND_DEG` off (a wrist bent sideways puts c off the arm's axis). The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
     smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
@@ -795,6 +798,20 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if norm == 0:
         return m
     ay, ax = ay / norm, ax / norm
+    # the cut goes across the arm: its direction is the arm's own, from where it leaves the palm circle to
+    # its far end in the region, when that is long enough to tell (half a palm radius) and more than
+    # ARM_BEND_DEG off the direction from the palm's centre (a wrist bent sideways puts the centre off
+    # the arm's axis: real frame 230536_70, 22°, where a cut across the centre's direction took a 648 px
+    # triangle of the palm's heel); closer than that the two agree within their noise and the centre's,
+    # the steadier one, is kept; beyond 60° the far end is no straight arm's
+    leave = ring & (rho <= 2.4 * r) if pieces[j] >= 2 else arm & (rho <= 1.9 * r)
+    far = arm & (rho >= float(rho[arm].max()) - 0.5 * r)
+    if leave.any() and far.any():
+        dy, dx = vy[far].mean() - vy[leave].mean(), vx[far].mean() - vx[leave].mean()
+        n_arm = np.hypot(dy, dx)
+        cos = (dy * ay + dx * ax) / max(n_arm, 1e-12)
+        if n_arm >= 0.5 * r and 0.5 <= cos < np.cos(np.radians(ARM_BEND_DEG)):
+            ay, ax = dy / n_arm, dx / n_arm
     t = vy * ay + vx * ax
     s = -vy * ax + vx * ay
     strip = solid & (np.abs(s) <= 2.5 * r)
