@@ -168,10 +168,14 @@ def import_(
     fps: float = typer.Option(30.0, "--fps", help="Frame rate (Hz)."),
     hand: str = typer.Option("left", "--hand", "--handedness", help="Handedness of the recorded hand: left or right."),
     color: Optional[Path] = typer.Option(None, "--color", "--colour", help="Folder of colour frames registered to the depth (PNG or JPEG, one per depth PNG, same name order): used for skin segmentation."),
+    each: bool = typer.Option(False, "--each", help="Still frames, not a video: one recording per PNG, "
+                                                  "OUTPUT/<name>/, so that tracker track OUTPUT/* fits each from "
+                                                  "its own first frame."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing recording in the output folder."),
 ):
     """Turn a plain folder of depth PNGs (and optionally their colour frames), or a recording file,
-    into a recording folder. (tracker info, show and track also read recording files in place.)"""
+    into a recording folder (with --each, one per PNG). (tracker info, show and track also read
+    recording files in place.)"""
     import time
 
     from handmodel.fileio import check_output
@@ -187,7 +191,7 @@ def import_(
         given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
                                 ("--width", width), ("--height", height), ("--depth-scale", depth_scale),
                                 ("--depth-encoding", depth_encoding), ("--color", color),
-                                ("--fps", None if fps == 30.0 else fps)) if v is not None]
+                                ("--fps", None if fps == 30.0 else fps), ("--each", each or None)) if v is not None]
         if given:
             raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera, "
                                     "frame rate and colour")
@@ -204,6 +208,15 @@ def import_(
         raise TrackerError(src, f"{', '.join(given)} apply to recording files (.bag, .db3, .mcap, .mkv), "
                                 "not to a folder of PNGs")
     cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
+    if each:
+        from .recording import import_stills
+
+        with _progress("importing") as p:
+            bar = p.add_task("import", total=None)
+            recs = import_stills(src, output, cam, fps, hand, overwrite=overwrite,
+                                 progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
+        _imported_each(src, output, recs, time.perf_counter() - t0)
+        return
     with _progress("importing") as p:
         bar = p.add_task("import", total=None)
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
@@ -223,6 +236,25 @@ def _imported(src, output, rec, seconds):
     _table(f"imported {src} → {output} ({seconds:.1f} s)", rows)
     if warning:
         _print(warning)
+
+
+def _imported_each(src, output, recs, seconds):
+    """The summary of ``import --each``: the recordings made, their depth, and how to track them."""
+    import numpy as np
+
+    first = recs[0]
+    rows = [("recordings", f"{len(recs)}, one frame each: {recs[0].path.name} … {recs[-1].path.name}"
+                           if len(recs) > 1 else f"1: {first.path.name}")]
+    rows += [r for r in _recording_rows(first) if r[0] not in ("source", "frames")]
+    checked = recs[::max(1, len(recs) // 30)]  # up to 30 frames spread through them, as for one recording
+    rng = np.random.default_rng(0)
+    v = np.concatenate([rng.permutation(d[np.isfinite(d)])[:20000] for d in (r[0].depth for r in checked)])
+    rows += _depth_rows(v, f"over {len(checked)} of {len(recs)} frames" if len(checked) < len(recs) else "")
+    _table(f"imported {src} → {output}/<name>/ ({seconds:.1f} s)", rows)
+    warning = depth_unit_warning(v, first.camera.depth_scale_m)
+    if warning:
+        _print(warning)
+    _print(f"track each from its own first frame: tracker track {Path(output) / '*'} -o RESULTS/")
 
 
 def _depth_rows(v, note=""):

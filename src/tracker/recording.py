@@ -653,6 +653,76 @@ def import_color(path, camera: Camera) -> np.ndarray:
     return np.ascontiguousarray(a[..., :3])
 
 
+def _png_sources(src: Path, dst, color):
+    """The depth PNGs of ``src`` and their colour frames (or None), in natural name order."""
+    files = list_pngs(src)
+    if not files:
+        raise RecordingError(src, "no PNG files to import")
+    if Path(dst).resolve() == src.resolve():
+        raise RecordingError(dst, "the recording folder must differ from the source folder")
+    colors = None
+    if color is not None:
+        cdir = Path(color)
+        if not cdir.is_dir():
+            raise RecordingError(cdir, "no such folder")
+        colors = natural_sorted(p for p in cdir.iterdir() if p.suffix.lower() in COLOR_SUFFIXES
+                                and not p.name.startswith(".") and p.is_file())
+        if len(colors) != len(files):
+            raise RecordingError(cdir, f"{len(colors)} colour frames for {len(files)} depth frames in {src}")
+    return files, colors
+
+
+def import_stills(src, dst, camera, fps: float = 30.0, handedness: str = "left", *, overwrite: bool = False,
+                  progress=None, color=None) -> list[Recording]:
+    """Turn a folder of still depth PNGs — single frames, not a video — into one recording per PNG,
+    ``dst/<file stem>/``, so that ``tracker track dst/*`` fits each from its own first frame
+    (tracked as one recording, each frame would start from the fit of the one before).
+
+    Parameters and checks as :func:`import_pngs`; ``dst`` must be empty or new, or with ``overwrite``
+    hold only recordings (they are replaced). A failure removes every recording this call wrote.
+
+    Returns
+    -------
+    list of Recording
+        The new recordings, opened, in natural name order.
+    """
+    src, dst = Path(src), Path(dst)
+    files, colors = _png_sources(src, dst, color)
+    camera = as_camera(camera)
+    stems = [f.stem for f in files]
+    twins = sorted({s for s in stems if stems.count(s) > 1})
+    if twins:
+        raise RecordingError(src, f"two PNGs are named {twins[0]} (e.g. .png and .PNG): one recording each needs "
+                                  "distinct names")
+    if dst.exists() and not dst.is_dir():
+        raise RecordingError(dst, "exists and is not a folder")
+    old = sorted(dst.iterdir()) if dst.exists() else []
+    if old and not overwrite:
+        raise RecordingError(dst, "exists and is not empty (never overwritten; use another folder, or --overwrite)")
+    alien = [e.name for e in old if not (e.is_dir() and (e / "recording.yaml").is_file())]
+    if alien:
+        raise RecordingError(dst, f"holds {', '.join(alien[:3])}, not recordings; refusing to overwrite")
+    for e in old:
+        RecordingWriter(e, camera, fps, handedness, overwrite=True).abort()  # clears a recording, nothing else
+        shutil.rmtree(e, ignore_errors=True)
+    created = not dst.exists()
+    done = []
+    try:
+        for k, f in enumerate(files):
+            with RecordingWriter(dst / f.stem, camera, fps, handedness, source=f"import of {f} (a still frame)") as w:
+                w.write_units(read_depth_units(f, camera), None if colors is None else import_color(colors[k], camera))
+            done.append(dst / f.stem)
+            if progress is not None:
+                progress(k + 1, len(files))
+    except BaseException:
+        for d in done:
+            shutil.rmtree(d, ignore_errors=True)
+        if created:
+            shutil.rmtree(dst, ignore_errors=True)
+        raise
+    return [Recording.open(d) for d in done]
+
+
 def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *, overwrite: bool = False,
                 progress=None, color=None) -> Recording:
     """Turn a plain folder of depth PNGs (natural name order) into a recording.
@@ -676,21 +746,8 @@ def import_pngs(src, dst, camera, fps: float = 30.0, handedness: str = "left", *
         The new recording, opened.
     """
     src = Path(src)
-    files = list_pngs(src)
-    if not files:
-        raise RecordingError(src, "no PNG files to import")
+    files, colors = _png_sources(src, dst, color)
     camera = as_camera(camera)
-    if Path(dst).resolve() == src.resolve():
-        raise RecordingError(dst, "the recording folder must differ from the source folder")
-    colors = None
-    if color is not None:
-        cdir = Path(color)
-        if not cdir.is_dir():
-            raise RecordingError(cdir, "no such folder")
-        colors = natural_sorted(p for p in cdir.iterdir() if p.suffix.lower() in COLOR_SUFFIXES
-                                and not p.name.startswith(".") and p.is_file())
-        if len(colors) != len(files):
-            raise RecordingError(cdir, f"{len(colors)} colour frames for {len(files)} depth frames in {src}")
     # the frames are renumbered: the source line keeps which files, in which order, they came from
     names = files[0].name if len(files) == 1 else f"{files[0].name} … {files[-1].name}"
     source = f"import of {src} ({len(files)} PNG{'s' if len(files) > 1 else ''}, {names}, in natural name order)"

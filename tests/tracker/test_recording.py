@@ -496,6 +496,33 @@ def test_cli_import_info_show(tmp_path):
     assert Recording.open(tmp_path / "rec2").camera.depth_scale_m == 0.000125
 
 
+def test_import_each_still_is_its_own_recording(tmp_path):
+    """Still frames (the 19 SR305 frames are 0.7 s apart, from two takes) tracked as one recording start
+    each frame from the fit of the one before; --each makes one recording per PNG to track as many."""
+    src = _png_folder(tmp_path / "src", ["f10.png", "f2.png", "f1.png"])
+    r = _cli("import", src, "-o", tmp_path / "stills", "--each", "--fx", 30, "--fy", 30, "--cx", 15.5, "--cy", 11.5,
+             "--width", 32, "--height", 24, "--hand", "right")
+    assert r.exit_code == 0, r.output
+    assert f"tracker track {tmp_path / 'stills' / '*'}" in r.stdout
+    recs = [Recording.open(tmp_path / "stills" / n) for n in ("f1", "f2", "f10")]
+    assert [len(x) for x in recs] == [1, 1, 1] and {x.handedness for x in recs} == {"right"}
+    assert [int(x.depth_units(0)[0, 0]) for x in recs] == [502, 501, 500]  # each its own file's units
+    assert sorted(p.name for p in (tmp_path / "stills").iterdir()) == ["f1", "f10", "f2"]
+    # never over anything but recordings; a failure removes what it wrote
+    from tracker.recording import import_stills
+
+    with pytest.raises(RecordingError, match="exists and is not empty"):
+        import_stills(src, tmp_path / "stills", SMALL)
+    assert len(import_stills(src, tmp_path / "stills", SMALL, overwrite=True)) == 3
+    (tmp_path / "stills" / "notes.txt").write_text("mine")
+    with pytest.raises(RecordingError, match="holds notes.txt, not recordings"):
+        import_stills(src, tmp_path / "stills", SMALL, overwrite=True)
+    iio.imwrite(src / "f3.png", np.zeros((24, 32), np.uint8))
+    with pytest.raises(RecordingError, match=r"f3\.png: wrong bit depth"):
+        import_stills(src, tmp_path / "new", SMALL)
+    assert not (tmp_path / "new").exists()
+
+
 def test_cli_import_warns_of_a_wrong_depth_unit(tmp_path):
     """SR305 frames (0.125 mm units) imported with the Kinect preset (1 mm) put the hand at ~5 m: the
     tracker then loses every frame. import, info and show say so and name the unit that fits."""
