@@ -214,6 +214,10 @@ class Recording:
                 raise RecordingError(y, f"missing: {path} holds {len(pngs)} PNG files, not a recording; import "
                                         f"them first: tracker import {path} --camera PRESET --hand left|right "
                                         f"-o RECORDING")
+            inner = [d for d in path.iterdir() if (d / "recording.yaml").is_file()]
+            if inner:  # a folder of recordings (tracker import --each): a command takes them one by one
+                raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give them all "
+                                        f"(tracker track {path / '*'} -o RESULTS/) or one of them")
             raise RecordingError(y, "missing (not a recording folder)")
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")

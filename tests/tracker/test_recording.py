@@ -508,6 +508,8 @@ def test_import_each_still_is_its_own_recording(tmp_path):
     assert [len(x) for x in recs] == [1, 1, 1] and {x.handedness for x in recs} == {"right"}
     assert [int(x.depth_units(0)[0, 0]) for x in recs] == [502, 501, 500]  # each its own file's units
     assert sorted(p.name for p in (tmp_path / "stills").iterdir()) == ["f1", "f10", "f2"]
+    with pytest.raises(RecordingError, match=r"stills holds 3 recordings, not one; give them all \(tracker track "):
+        Recording.open(tmp_path / "stills")
     # never over anything but recordings; a failure removes what it wrote
     from tracker.recording import import_stills
 
