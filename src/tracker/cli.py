@@ -74,7 +74,9 @@ def _recording_rows(rec) -> list:
             ("camera", f"{c.name}, {c.width}×{c.height}"),
             ("fx, fy / cx, cy (px)", f"{c.fx:.3f}, {c.fy:.3f} / {c.cx:.3f}, {c.cy:.3f}"),
             ("depth", f"{c.depth_encoding}, {c.depth_scale_m * 1000:g} mm per unit (max {c.max_depth_m:.2f} m)"),
-            ("handedness", rec.handedness), ("colour", "yes" if rec.has_color else "no"),
+            ("handedness", rec.handedness if times is None else
+             f"{rec.handedness} (a recording file does not say: --hand right to import or track a right hand)"),
+            ("colour", "yes" if rec.has_color else "no"),
             ("truth", "yes (truth.csv)" if rec.has_truth else "no")]
 
 

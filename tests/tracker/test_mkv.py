@@ -142,6 +142,15 @@ def test_a_cut_mkv_says_it_is_cut(tmp_path):
     assert len(rec) == 1 and "cut short" in rec.source
 
 
+def test_info_says_a_file_does_not_name_its_hand():
+    """A recording file read in place counts as a left hand: info says so, and how to change it (a
+    right hand tracked as left is fitted mirrored, and the handedness check misses it on many frames)."""
+    r = _cli("info", _mkv(), "--quick")
+    assert r.exit_code == 0, r.output
+    assert "left (a recording file does not say: --hand right to import or track a right hand)" in \
+        " ".join(r.stdout.replace("│", " ").split())
+
+
 def test_a_time_range_past_the_end_says_which(tmp_path):
     """--start alone was reported as "between 5 s and 0 s"."""
     r = _cli("import", _mkv(), "-o", tmp_path / "r", "--start", "5")
