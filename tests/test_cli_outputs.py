@@ -352,3 +352,15 @@ def test_bundle_manifest_with_non_finite_numbers_is_refused(tmp_path, value):
     with pytest.raises(BundleError, match="not a finite number"):
         save_bundle(model, "grip", registry=tmp_path, heldout={"method": "x", "rms_rad": [0.2, float("nan")]})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["grip-1.0.0.npz"]
+
+
+def test_track_summary_when_no_frame_has_a_hand(inp, tmp_path):
+    """A run that segments nothing (a depth range beyond the hand) says so, and shows no tracking rate: a
+    lost frame costs nothing, so a median over all frames showed tens of thousands of fps for a run that
+    tracked nothing."""
+    r = _ok([BIN / "tracker", "track", inp.rec, "-o", tmp_path / "t.csv", "--depth-range", "3,4", "--hand-scale", "1"])
+    out = " ".join(r.stdout.split())
+    assert "warning: no hand found in any frame" in out, r.stdout
+    row = next(line for line in r.stdout.splitlines() if re.match(r"^\W*3\W", line))
+    cells = [c.strip() for c in re.split(r"[│┃|]", row) if c.strip()]
+    assert cells[:3] == ["3", "0", "3"] and cells[5:7] == ["-", "-"], cells

@@ -179,17 +179,23 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     df, tracker, rec, wall_s = run.df, run.tracker, run.recording, run.wall_s
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
-    for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps", "fps all"):
+    for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps median", "fps run"):
         table.add_column(c, justify="right")
     st = df["status"]
-    ms = float(df["ms"].median())
-    # fps from the median tracking time, and from the wall time of the whole run (reading, segmenting,
-    # overlays); one decimal so a slow run never shows as 0
-    table.add_row(str(len(df)), str(int((st == "tracked").sum())), str(int((st == "lost").sum())),
-                  str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}", f"{ms:.1f}",
-                  f"{1000 / ms:.1f}" if ms > 0 else "-", f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
+    found = st != "lost"
+    # the median frame's rate counts frames with a hand only (a lost frame costs nothing and would show a
+    # rate no tracking reached); the run's rate is the wall time of everything (reading, segmenting, the
+    # start search, overlays); one decimal so a slow run never shows as 0
+    ms = float(df["ms"][found].median()) if found.any() else float("nan")
+    table.add_row(str(len(df)), str(int((st == "tracked").sum())), str(int((~found).sum())),
+                  str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}" if found.any() else "-",
+                  f"{ms:.1f}" if found.any() else "-", f"{1000 / ms:.1f}" if ms > 0 else "-",
+                  f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
+    if len(df) and not found.any():
+        console.print(f"warning: no hand found in any frame of {recording}: nothing segmented where a hand can be "
+                      "(check the camera preset and depth unit with tracker info, or give --depth-range / --box)")
     if tracker.base_hand.calibration and tracker.settings.hand_scale != "auto":
         console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
                       " in the file), not estimated again")
