@@ -285,8 +285,10 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
             calibration_frames.append(frame.index)
             settled[0] = calibration_done(tracker)
         if overlay is not None and ob is not None and frame.index % max(job.overlay_every, 1) == 0:
-            overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta, r.status,
-                        mask=ob.mask)
+            # the title says which frame and how well it fits, so an overlay is judged on its own
+            fit = f", fit {r.fit_mm:.1f} mm" if np.isfinite(r.fit_mm) else ""
+            overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta,
+                        f"frame {frame.index} ({frame.time_s:.2f} s): {r.status}{fit}", mask=ob.mask)
             written.append(frame.index)
         if viewer is not None:
             viewer.log_frame(frame, r, ob, tracker.hand)
