@@ -65,7 +65,9 @@ class TrackerSettings:
     ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own) or
     ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`). ``finger_lengths``: with
     ``"auto"``, each finger's length factor is estimated too, from the frames that refined the size
-    (:func:`tracker.scale.finger_scales`), once the size is settled (off by default: see the README).
+    (:func:`tracker.scale.finger_scales`, each shrunk towards 1 by how much the frames disagree on it),
+    once the size is settled (on by default; the realistic scenes' 30 runs: mean keypoint error
+    3.39 → 2.97 mm, worst run 6.3 → 6.0; off in ``paper()``).
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
     whether it fits clearly better (the recording's handedness is likely wrong).
 
@@ -118,7 +120,7 @@ class TrackerSettings:
     scale_frames: int = 5
     scale_trust_mm: float = 6.0
     scale_refine: str = "search"
-    finger_lengths: bool = False
+    finger_lengths: bool = True
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
@@ -153,7 +155,7 @@ class TrackerSettings:
                                    pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0,
                                    stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
-                   hand_scale=1.0, unseen_prior=0.0, finger_restart_deg=0.0)
+                   hand_scale=1.0, finger_lengths=False, unseen_prior=0.0, finger_restart_deg=0.0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":

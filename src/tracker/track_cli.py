@@ -43,6 +43,7 @@ def track(
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path; a hand file written by tracker calibrate or --save-hand is tracked as it is (its size is in it; --hand-scale auto estimates again)."),
     save_hand: Optional[Path] = typer.Option(None, "--save-hand", help="Also write the hand calibrated on the first frames (size, and finger lengths when estimated) as a YAML hand file for --hand-model."),
+    finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="With --hand-scale auto, also estimate each finger's length once the size is settled [on; paper off]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
     unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
@@ -80,6 +81,8 @@ def track(
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
     settings.rgb_seed = rgb_seed
+    if finger_lengths is not None:
+        settings.finger_lengths = finger_lengths
     if safety_net is not None:
         settings.safety_net = safety_net
     if unseen_prior is not None:
@@ -505,7 +508,7 @@ def calibrate(
     synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path (the start search's postures, as tracker track)."),
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
     hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
-    finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [the tracker's default]."),
+    finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [on]."),
     frames: int = typer.Option(60, "--frames", help="Read at most this many frames."),
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
