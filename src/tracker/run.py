@@ -388,7 +388,7 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None):
 
 #: Columns of the summary table of many recordings (:func:`summary_row`).
 SUMMARY_COLUMNS = ("recording", "output", "frames", "tracked", "lost", "reinit", "median_fit_mm", "median_ms",
-                   "wall_s", "hand_scale", "error")
+                   "wall_s", "hand_scale", "hand_check", "other_hand_better", "error")
 
 
 def summary_row(job: TrackJob, run: TrackRun | None = None, error: str = "") -> dict:
@@ -401,6 +401,9 @@ def summary_row(job: TrackJob, run: TrackRun | None = None, error: str = "") -> 
         row.update(frames=len(run.df), tracked=int((st == "tracked").sum()), lost=int((st == "lost").sum()),
                    reinit=int((st == "reinit").sum()), median_fit_mm=float(run.df["fit_mm"].median()),
                    median_ms=float(run.df["ms"].median()), wall_s=float(run.wall_s), hand_scale=run.meta["hand_scale"])
+        check = run.tracker.hand_check_
+        if check is not None:
+            row.update(hand_check=str(check), other_hand_better=bool(check.other_fits_better))
     return row
 
 

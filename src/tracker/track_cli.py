@@ -262,17 +262,19 @@ def _track_many(recordings, outdir, template, dask, overwrite):
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
     atomic_write_text(summary, table.to_csv(index=False, float_format="%.4f"), overwrite=overwrite)
     t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
-    for c in ("recording", "frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "result"):
-        t.add_column(c, justify="left" if c in ("recording", "result") else "right", overflow="fold",
-                     min_width=12 if c == "recording" else None)
+    for c in ("name", "frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "result"):
+        t.add_column(c, justify="left" if c in ("name", "result") else "right", overflow="fold")
     for row in table.to_dict("records"):
         ok = not row["error"]
         t.add_row(Path(row["recording"]).name, *(str(row[k]) if ok else "-" for k in ("frames", "tracked", "lost", "reinit")),
                   f"{row['median_fit_mm']:.2f}" if ok else "-", f"{row['median_ms']:.1f}" if ok else "-",
-                  Path(row["output"]).name if ok else "failed")
+                  "failed" if not ok else "other hand?" if row["other_hand_better"] in (True, "True") else "ok")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(t)
-    console.print(f"wrote {summary}")
+    for row in table.to_dict("records"):
+        if row["other_hand_better"] in (True, "True"):
+            console.print(f"warning: {Path(row['recording']).name}: {row['hand_check']}")
+    console.print(f"wrote {summary} (the outputs beside it: NAME.csv)")
     failed = table[table["error"] != ""]
     for err in failed["error"]:  # after the table, one line each, nothing printed after them
         print_error(err)

@@ -70,3 +70,22 @@ def test_batch_refusals(recs, tmp_path):
     r = _run(["track", recs / "a", recs / "b", "-o", tmp_path / "o3"])
     assert r.exit_code == 2 and "b.csv: exists and is never overwritten" in r.stderr, r.output
     assert not (tmp_path / "o3" / "a.csv").exists() and (tmp_path / "o3" / "b.csv").read_text() == "earlier\n"
+
+
+@pytest.mark.slow
+def test_batch_reports_the_other_hand(recs, tmp_path):
+    """A recording tracked as the wrong hand is flagged in the table, warned about after it and recorded in
+    the summary (the single-recording warning was lost in batch runs); the summary table fits 80 columns."""
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["track", str(recs / "a"), str(recs / "b"), "-o", str(out), "--hand", "right"],
+                           env={"SYNERGY_PATH": "", "COLUMNS": "80"})
+    assert r.exit_code == 0, r.output
+    summary = pd.read_csv(out / "summary.csv", keep_default_na=False)
+    # b (palm, fingers spread) tells the hands apart clearly; each row's flag agrees with its check's text
+    assert summary["other_hand_better"].tolist()[1] == True, summary  # noqa: E712 (a numpy bool)
+    assert "left hand fits clearly better" in summary["hand_check"][1]
+    for flag, text in zip(summary["other_hand_better"], summary["hand_check"]):
+        assert bool(flag) == ("clearly better" in text), (flag, text)
+    assert r.output.count("warning: ") == int(summary["other_hand_better"].sum()), r.output
+    assert "other" in r.output and "warning: b: score" in " ".join(r.output.split())
+    assert max(len(line) for line in r.output.splitlines()) <= 80, r.output
