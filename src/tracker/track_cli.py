@@ -566,8 +566,12 @@ def calibrate(
     for name, f in (cal["finger_lengths"] or {}).items():
         e = est.get(name) or {}
         # the frames' agreement: a finger they disagree on is shrunk towards the model's proportions
-        seen = (f"{e['unshrunk']:.3f} ± {100 * e['se_log']:.1f} %" if e.get("unshrunk") is not None
-                and e.get("se_log") is not None else "")
+        if e.get("unshrunk") is None:
+            seen = "no minimum: kept at 1" if e else ""
+        elif e.get("se_log") is None:
+            seen = f"{e['unshrunk']:.3f} (one frame: kept at 1)"
+        else:
+            seen = f"{e['unshrunk']:.3f} ± {100 * e['se_log']:.1f} %"
         table.add_row(f"{name} length", f"{f:.3f}", seen)
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
