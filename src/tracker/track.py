@@ -42,7 +42,7 @@ from .scale import (
     shaped_context,
     size_score,
 )
-from .wrist import arm_behind, wrist_cue
+from .wrist import arm_behind, arm_length_m, wrist_cost_mm, wrist_cue
 
 LIMITS = ("anatomical", "data", "model")
 
@@ -85,6 +85,15 @@ class TrackerSettings:
     and by the net only with ``net_wrist_cue``: a tracked hand has its own evidence of which way it
     points, and a false cue (a hand seen edge-on, no arm in view) added 13–60 mm to the right pose's
     score, so that the search's hand turned over won (rotate scenario: 7.4° with the cue, 5.1° without).
+    ``net_wrist_mm``: a tracked frame is doubtful too when the hand points the wrong way for the
+    scene — the cue costs it more than this (:func:`tracker.wrist.wrist_cost_mm`) and the surface
+    beyond the cue goes on for ``net_arm_m`` (:func:`tracker.wrist.arm_length_m`: an arm, not the
+    rotate scenario's false cues, pieces of the hand 4–6 cm long; real arms 17–60 cm); 0 = off. A
+    hand turned round fits a flat palm as well as the right one and need not jump: the 19 labelled
+    SR305 stills tracked as one recording were fitted upside down from frame 2 on (1 frame within
+    the labels' floors); with the test every wrist is within 34 px and 5–6 frames meet them. Such a
+    frame's comparison scores with the cue: without it the search's hand turned round wins again
+    (the stills: 1 frame, wrists up to 131 px; a rendered jump: 156–168° off on every frame).
     ``recentre``: when the segmented cloud's centre is farther than the rejection radius from the
     predicted hand's, the prediction is moved onto it first. The net
     does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
@@ -132,6 +141,8 @@ class TrackerSettings:
     net_margin_mm: float = 0.2
     recentre: bool = True
     net_wrist_cue: bool = False
+    net_wrist_mm: float = 20.0
+    net_arm_m: float = 0.12
     unseen_prior: float = 0.5
     unseen_points: int = 3
     finger_restart_deg: float = 50.0
@@ -312,7 +323,7 @@ class HandTracker:
         self._size_frames = []  # (points, normals, silhouette, θ, hand) of the frames that refined the size
         self.hand_check_ = None
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
-        self.net_anchored_, self.net_placed_ = 0, 0
+        self.net_anchored_, self.net_placed_, self.net_wrong_way_ = 0, 0, 0
         self.rgb_ = RgbSeed(keypoint_detector) if settings.rgb_seed else None
         self.rgb_seeds_, self.rgb_kept_ = 0, 0
         self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
@@ -620,12 +631,22 @@ class HandTracker:
         return theta, corr
 
     def _add_wrist(self, sil):
-        """The frame's wrist cue on its silhouette, where :func:`tracker.init.score` finds it (found only
-        when a search is about to run: tracking does not need it)."""
+        """The frame's wrist cue on its silhouette, where :func:`tracker.init.score` finds it (added only
+        when a search is about to run: tracking does not score by it)."""
         if sil is not None and self.settings.wrist_cue and not hasattr(sil, "wrist"):
+            sil.wrist = self._frame_cue(sil)
+
+    def _frame_cue(self, sil):
+        """The frame's wrist cue (:func:`tracker.wrist.wrist_cue`) when an arm's worth of surface lies
+        behind it (:func:`tracker.wrist.arm_behind`), else None; found once per frame (kept on the
+        silhouette as ``arm_cue``, which :func:`tracker.init.score` does not read)."""
+        if sil is None or not self.settings.wrist_cue:
+            return None
+        if not hasattr(sil, "arm_cue"):
             frame = getattr(sil, "frame_depth", None)
-            cue = None if frame is None else wrist_cue(sil.mask, frame, sil.camera)
-            sil.wrist = cue if cue is None or arm_behind(cue, sil.mask, frame, sil.camera) else None
+            cue = None if frame is None or sil.empty else wrist_cue(sil.mask, frame, sil.camera)
+            sil.arm_cue = cue if cue is None or arm_behind(cue, sil.mask, frame, sil.camera) else None
+        return sil.arm_cue
 
     def _gate(self, pred, pts):
         """:func:`tracker.observe.gate` of the points by the hand predicted at ``pred`` (all True when
@@ -654,28 +675,55 @@ class HandTracker:
         level = max(np.median(self._scores) if self._scores else 0.0, self._search_level)
         return max(st.net_score_mm, st.net_score_ratio * level)
 
-    def _doubtful(self, theta, pred, s) -> bool:
-        """The safety net's test of a tracked frame: a poor score for this sequence, or a jump."""
+    def _doubtful(self, theta, pred, s, sil=None) -> str:
+        """The safety net's test of a tracked frame: why it is doubtful — ``"wrist"`` (the hand points
+        the wrong way: :meth:`_wrong_way`), ``"score"`` (a poor score for this sequence) or ``"jump"``
+        (far from the prediction) — or ``""``."""
         st = self.settings
+        if self._wrong_way(theta, sil):
+            return "wrist"
         if s > self._net_threshold():
-            return True
+            return "score"
         R = euler_to_matrix(theta[3:6]) @ euler_to_matrix(pred[3:6]).T
         turn = np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
-        return turn > st.net_jump_deg or np.linalg.norm(theta[:3] - pred[:3]) * 1000.0 > st.net_jump_mm
+        if turn > st.net_jump_deg or np.linalg.norm(theta[:3] - pred[:3]) * 1000.0 > st.net_jump_mm:
+            return "jump"
+        return ""
+
+    def _wrong_way(self, theta, sil) -> bool:
+        """Whether the scene contradicts the hand's orientation: the frame's wrist cue
+        (:meth:`_frame_cue`) costs the hand at ``theta`` more than ``net_wrist_mm``
+        (:func:`tracker.wrist.wrist_cost_mm`: its wrist far from where the arm enters, or its fingers
+        pointing up the arm), and the surface beyond the cue goes on for at least ``net_arm_m`` — an
+        arm, not a piece of the hand the segmentation cut off (:func:`tracker.wrist.arm_length_m`;
+        only measured when the cost is high, ~1–3 ms). A hand turned over fits a flat palm about as
+        well as the right one and need not jump, so neither the score nor the jump test sees it."""
+        st = self.settings
+        if not st.net_wrist_mm:
+            return False
+        cue = self._frame_cue(sil)
+        if cue is None or wrist_cost_mm(cue, self.hand, theta) <= st.net_wrist_mm:
+            return False
+        return arm_length_m(cue, sil.mask, sil.frame_depth, sil.camera) >= st.net_arm_m
 
     def _safety_net(self, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil):
         """``(θ, corr, points, normals, what)``: the tracked estimate, or the cheap start search's on the
         whole segmented cloud when the frame is doubtful and the search scores better."""
         ctx = self.context
         s = score(ctx, theta, corr, sil)
-        if not self._doubtful(theta, pred, s):
+        why = self._doubtful(theta, pred, s, sil)
+        if not why:
             # the sequence's level that later frames are judged against: undoubted frames only (a
             # level learnt from doubtful ones rises with a fit going wrong and stops the net)
             self._scores.append(s)
             return theta, corr, pts, nrm, ""
         t0 = time.perf_counter()
         self.net_runs_ += 1
-        if self.settings.net_wrist_cue:
+        if why == "wrist":
+            self.net_wrong_way_ += 1
+        if self.settings.net_wrist_cue or why == "wrist":
+            # the cue made the frame doubtful: without it the comparison would keep the hand turned
+            # over, which fits the depth as well as the right one
             self._add_wrist(sil)
         # both on the same (whole) cloud, and with the wrist cue, so that their scores compare
         c_all = corr if all_pts is pts else ctx.matcher(theta, all_pts, all_nrm)
