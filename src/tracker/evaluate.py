@@ -13,20 +13,24 @@ def posture_error_deg(theta, truth, pose_mask):
     return np.degrees(np.abs(th[..., post] - tr[..., post])).mean(-1)
 
 
-def keypoint_error_mm(hand, theta, truth):
-    """Per frame: mean Euclidean distance of the 21 keypoints (mm)."""
+def keypoint_error_mm(hand, theta, truth, truth_hand=None):
+    """Per frame: mean Euclidean distance of the 21 keypoints (mm), θ's on ``hand`` (the hand tracked) and
+    the truth's on ``truth_hand`` (the hand rendered; default ``hand``): a hand of another size or shape
+    than the model is judged where its joints really are."""
     th = np.asarray(theta, float)
     ok = np.isfinite(th).all(-1)
     out = np.full(th.shape[:-1], np.nan)
+    shown = hand if truth_hand is None else truth_hand
     if ok.any():
-        out[ok] = np.linalg.norm(hand.keypoints(th[ok]) - hand.keypoints(np.asarray(truth)[ok]), axis=-1).mean(-1) * 1000
+        out[ok] = np.linalg.norm(hand.keypoints(th[ok]) - shown.keypoints(np.asarray(truth)[ok]), axis=-1).mean(-1) * 1000
     return out
 
 
-def summarise(hand, theta, truth, status=None, ms=None, thresholds_deg=(2, 5, 10), thresholds_mm=(5, 10, 20)):
-    """A dict of the headline figures of one tracked sequence."""
+def summarise(hand, theta, truth, status=None, ms=None, thresholds_deg=(2, 5, 10), thresholds_mm=(5, 10, 20),
+              truth_hand=None):
+    """A dict of the headline figures of one tracked sequence (``truth_hand``: :func:`keypoint_error_mm`)."""
     pe = posture_error_deg(theta, truth, hand.pose_mask)
-    ke = keypoint_error_mm(hand, theta, truth)
+    ke = keypoint_error_mm(hand, theta, truth, truth_hand)
     n = len(pe)
     out = {
         "frames": n,

@@ -16,6 +16,7 @@ reader (``tracker track`` writes it; ``tracker eval``, the experiments and users
 from __future__ import annotations
 
 import io
+import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -34,7 +35,7 @@ from .errors import TrackerError
 from .observe import observe
 from .plots import overlay_png
 from .recording import Recording
-from .scale import calibrated_hand
+from .scale import calibrated_hand, shaped_hand
 from .track import HandTracker, TrackerSettings
 
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
@@ -76,7 +77,7 @@ def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
             "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,
             "hand_model_file": str(hand.path), "hand_calibration": _calibration_text(hand),
-            "hand_scale": _scale_text(tracker),
+            "hand_scale": _scale_text(tracker), "hand_shape": _shape_text(tracker),
             "hand_check": str(getattr(tracker, "hand_check_", None) or ""), "units": "metres, radians"}
 
 
@@ -107,6 +108,45 @@ def _scale_text(tracker) -> str:
         given = "the hand file's calibrated hand as it is" if getattr(tracker.base_hand, "calibration", None) else "given"
         return f"{scale:.4f} ({given}){tail}"
     return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)}){tail}"
+
+
+def _shape_text(tracker) -> str:
+    """The tracked hand's shape on the header's model as JSON (``{"scale": s, "fingers": {name: factor}}``),
+    for :func:`tracked_hand` to rebuild it; empty when the model was tracked as it is."""
+    scale = getattr(tracker, "scale_", None)
+    if scale is None:
+        return ""
+    fingers = getattr(tracker, "finger_scales_", None) or {}
+    return json.dumps({"scale": float(scale), "fingers": {k: float(v) for k, v in fingers.items()}})
+
+
+def tracked_hand(meta, where="tracking output") -> HandModel:
+    """The hand a tracking output was tracked with, rebuilt from its header (``meta``): the model file
+    it names (its SHA-256 checked), in the handedness tracked, resized by ``hand_shape`` — so its
+    keypoints are the ones the tracker fitted (the default model for an output without these keys).
+
+    Raises
+    ------
+    TrackerError
+        Naming ``where``: the model file is gone or changed, or ``hand_shape`` is not readable.
+    """
+    name, _, sha = str(meta.get("hand_model", "default")).partition(" ")
+    source = meta.get("hand_model_file") or name or "default"
+    try:
+        hand = HandModel.load(source, right=meta.get("handedness") == "right")
+    except ToolkitError as exc:
+        raise TrackerError(where, f"its hand model {source} cannot be loaded ({error_line(exc).removeprefix('error: ')})") from None
+    if sha and hand.sha256 != sha:
+        raise TrackerError(where, f"was tracked with hand model {name} {sha[:12]}…, but {source} is now "
+                                  f"{hand.sha256[:12]}… (changed since)")
+    text = meta.get("hand_shape") or ""
+    if not text:
+        return hand
+    try:
+        shape = json.loads(text)
+        return shaped_hand(hand, float(shape["scale"]), {str(k): float(v) for k, v in shape.get("fingers", {}).items()})
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise TrackerError(where, f"hand_shape in its header is not readable ({exc})") from None
 
 
 def tracking_csv(df, meta) -> str:

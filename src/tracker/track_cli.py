@@ -364,19 +364,23 @@ def evaluate(
     from .evaluate import summarise
     from .plots import error_plot
     from .recording import Recording
-    from .run import read_tracking
+    from .run import read_tracking, tracked_hand
+    from .sim.hands import truth_hand
 
     rec = Recording.open(recording)
     truth = rec.truth
     if truth is None:
         raise TrackerError(recording, "has no truth.csv to evaluate against")
-    df, _ = read_tracking(result)
-    hand = HandModel.load(right=rec.handedness == "right")
+    df, meta = read_tracking(result)
+    # θ on the hand tracked (its file, size and finger lengths), the truth on the hand rendered
+    hand = tracked_hand(meta, result)
+    shown = truth_hand(recording) or HandModel.load(right=rec.handedness == "right")
     th = df[hand.dof_names].to_numpy(float)
     tr = np.asarray(truth[hand.dof_names] if hasattr(truth, "columns") else truth, float)
     if len(tr) != len(th):
         raise TrackerError(result, f"{len(th)} frames but the recording's truth has {len(tr)}")
-    summ, pe, ke = summarise(hand, th[skip:], tr[skip:], df["status"].to_numpy()[skip:], df["ms"].to_numpy()[skip:])
+    summ, pe, ke = summarise(hand, th[skip:], tr[skip:], df["status"].to_numpy()[skip:], df["ms"].to_numpy()[skip:],
+                             truth_hand=shown)
     table = Table(title=f"evaluation of {result.name} against {recording}")
     table.add_column("measure")
     table.add_column("value", justify="right")
