@@ -61,6 +61,10 @@ TOUCH_AREA_M2 = 0.0015  # … when it is this big near the hand (a table, the bo
 TOUCH_WINDOW_M = 0.06  # how far around the hand that size is measured
 FINGER_ELONGATION = 2.5  # … at least this many times longer than wide (rendered and real fingers: 3.4-7) …
 FINGER_MIN_LENGTH_M = 0.025  # … and this long (4 standard deviations along it)
+FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this close (> half a 1.5x hand's palm width)
+FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
+FRONT_OUTLINE_SHARE = 0.3  # … the region lies behind it across that step over this share of its outline (hand and arm alone, or the table scenes: ≤ 0.22 with colour; a torso 3-5 cm behind: 0.27-0.95)
+FRONT_BEHIND_AREA_M2 = 0.035  # … and the region behind it is bigger than any hand (1.5x: 0.027 m²; a torso within reach: 0.04-0.1)
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -213,11 +217,10 @@ class Segmenter:
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
                            with_beyond=True, centre=centre)
-        seed = beyond[1]
-        beyond = beyond[0]
+        beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
-            joins = _joins(mask, dv, mask | beyond, d_all, f, jump=self.jump)
+            joins = _joins(mask, dv, mask | beyond | behind, d_all, f, jump=self.jump)
             mask = cut_forearm(mask, dv, f, beyond, seed=seed, joins=joins)
         return mask
 
@@ -453,7 +456,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             ids, fronts = ids[j:j + 1], fronts[j:j + 1]
     if ids.size == 0:
         empty = np.zeros(d.shape, bool)
-        return (empty, (empty, empty)) if with_beyond else empty
+        return (empty, (empty, empty, empty)) if with_beyond else empty
     k, front, seed = 0, np.nan, None
     cut_off = []
     for kk, ff in zip(ids, fronts):
@@ -497,6 +500,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     lab_c, _ = ndimage.label(core)
     hit = np.unique(lab_c[seed])
     core = np.isin(lab_c, hit[hit > 0])
+    # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
+    core, behind, seed = _in_front(core, d, seed, focal, jump)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -515,8 +520,65 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             out[win] |= np.isin(lab[win], small) & near[win]
     if with_beyond:
         # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
-        return out, ((lab == k) & ~out, seed)
+        return out, ((lab == k) & ~out & ~behind, seed, behind)
     return out
+
+
+def _in_front(region, d, seed, focal, jump=0.02):
+    """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
+
+    Each pixel's local background is the grey closing of the region's depth (the farthest depth
+    within :data:`FRONT_WINDOW_M`, then the nearest of those; no data ignored): a tilted body keeps
+    its own depth, a hand or an arm narrower than the window takes the depth of the body around it.
+    The pixels nearer than their background by more than :data:`FRONT_STEP_M` fall into pieces
+    (neighbours closer than ``jump``); the largest is the layer in front (the seed may lie on flying
+    pixels at the body's edge, which curves away). It replaces the region when the region's pixels
+    next to it lie behind it by that step over at least :data:`FRONT_OUTLINE_SHARE` of its outline and
+    the region behind it covers at least :data:`FRONT_BEHIND_AREA_M2` — a hand held in front of the
+    body, which the arm joins to the hand's surface. A hand alone, with its arm or on its own, has no
+    such layer (its outline borders no data, another surface or its own pixels at its own depth) and
+    keeps its region, ``behind`` empty and ``seed`` unchanged. ``behind``: the region's pixels across
+    the step, within 3 px of the layer (where the hand's surface does not go on: an arm, which does,
+    meets the body without a step); ``seed``: the layer's part of the seed, or its nearest 15 mm."""
+    none = np.zeros(region.shape, bool)
+    if not (region & seed).any():
+        return region, none, seed
+    (ya, yb), (xa, xb) = bounds(region)
+    z = float(np.nanmedian(d[seed]))
+    size = 2 * max(int(round(FRONT_WINDOW_M * focal / z)), 1) + 1
+    H, W = d.shape
+    win = (slice(max(ya - 3, 0), min(yb + 4, H)), slice(max(xa - 3, 0), min(xb + 4, W)))
+    dw = d[win]
+    rw = region[win]
+    with np.errstate(invalid="ignore"):
+        far = ndimage.maximum_filter(np.where(rw, dw, -np.inf), size=size, mode="constant", cval=-np.inf)
+        far = ndimage.minimum_filter(np.where(np.isfinite(far), far, np.inf), size=size, mode="constant",
+                                     cval=np.inf)
+        front = rw & (dw < far - FRONT_STEP_M)
+    if not front.any():
+        return region, none, seed
+    lab, n = surfaces(np.where(front, dw, np.nan), jump)
+    if n == 0:
+        return region, none, seed
+    area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
+    area[0] = 0.0
+    layer = lab == int(np.argmax(area))
+    # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
+    layer_far = ndimage.maximum_filter(np.where(layer, dw, -np.inf), size=7)
+    ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
+    with np.errstate(invalid="ignore"):
+        step = rw & ring & (dw - layer_far > FRONT_STEP_M)
+    if (step.sum() < FRONT_OUTLINE_SHARE * ring.sum()
+            or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2):
+        return region, none, seed
+    out, behind = none.copy(), none.copy()
+    out[win] = layer
+    behind[win] = step
+    new_seed = seed & out
+    if not new_seed.any():
+        with np.errstate(invalid="ignore"):
+            new_seed = out & (d <= float(np.percentile(d[out], 1)) + 0.015)
+    return out, behind, new_seed
 
 
 def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None, jump=0.02):
