@@ -69,7 +69,10 @@ class TrackerSettings:
     once the size is settled (on by default; the realistic scenes' 30 runs: mean keypoint error
     3.39 → 2.97 mm, worst run 6.3 → 6.0; off in ``paper()``).
     ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
-    whether it fits clearly better (the recording's handedness is likely wrong).
+    whether it fits clearly better (the recording's handedness is likely wrong), or alike (the depth
+    cannot tell: :attr:`HandCheck.alike`). More frames did not decide better: their tracked fits
+    score worse than the mirror's fresh searches (the labelled SR305 stills, right hands tracked as
+    right, the mean of five frames said the left hand fits clearly better, 4.8 against 3.0 mm).
 
     ``safety_net``: every tracked frame is tested (its start-search score, :func:`tracker.init.score`,
     above ``net_score_mm`` and above ``net_score_ratio`` × the scene's level — the median of the last
@@ -224,7 +227,15 @@ _STAGE_OF = _stage_fields()
 @dataclass
 class HandCheck:
     """The first frame fitted with the hand tracked and with its mirror image: their start-search
-    scores (mm, lower is better; :func:`tracker.init.score`) and the other hand's side."""
+    scores (mm, lower is better; :func:`tracker.init.score`) and the other hand's side.
+
+    >>> str(HandCheck(2.57, 2.58, "right"))
+    'score 2.57, right hand 2.58: the two hands fit alike, the depth cannot tell them apart'
+    >>> str(HandCheck(5.24, 2.82, "right"))
+    "score 5.24, right hand 2.82: the right hand fits clearly better: is the recording's handedness wrong?"
+    >>> str(HandCheck(2.82, 5.24, "left"))
+    'score 2.82, left hand 5.24: ok'
+    """
 
     score: float
     other_score: float
@@ -236,9 +247,20 @@ class HandCheck:
         can be nearly as good; a clearly worse one is the wrong hand, not noise)."""
         return self.other_score < self.score - 0.5 and self.other_score < 0.67 * self.score
 
+    @property
+    def alike(self) -> bool:
+        """Neither hand clearly better: the scores within 15 % of the lower one. A flat open hand's
+        depth is the same mirrored and turned over (the 8 open hands of the labelled SR305 frames:
+        the left hand scored within 0.4–9 % of the right one, 0.2–3.5 % on 7 of them)."""
+        return not self.other_fits_better and abs(self.score - self.other_score) < 0.15 * min(self.score, self.other_score)
+
     def __str__(self) -> str:
-        verdict = (f"the {self.other_side} hand fits clearly better: is the recording's handedness wrong?"
-                   if self.other_fits_better else "ok")
+        if self.other_fits_better:
+            verdict = f"the {self.other_side} hand fits clearly better: is the recording's handedness wrong?"
+        elif self.alike:
+            verdict = "the two hands fit alike, the depth cannot tell them apart"
+        else:
+            verdict = "ok"
         return f"score {self.score:.2f}, {self.other_side} hand {self.other_score:.2f}: {verdict}"
 
 
@@ -644,7 +666,15 @@ class HandTracker:
             return None
         if not hasattr(sil, "arm_cue"):
             frame = getattr(sil, "frame_depth", None)
-            cue = None if frame is None or sil.empty else wrist_cue(sil.mask, frame, sil.camera)
+            cue = None
+            if frame is not None and not sil.empty:
+                # the net tests every tracked frame: a hand with no surface right past its outline (a
+                # hand alone) has no wrist line, which the silhouette's distance transform tells for
+                # ~0.03 ms where wrist_cue takes ~0.2 (bench_tracker's frames)
+                h, w = sil.dist.shape
+                ring = (sil.dist > 0) & (sil.dist <= 2.0)
+                if np.isfinite(frame[sil.v0:sil.v0 + h, sil.u0:sil.u0 + w][ring]).any():
+                    cue = wrist_cue(sil.mask, frame, sil.camera)
             sil.arm_cue = cue if cue is None or arm_behind(cue, sil.mask, frame, sil.camera) else None
         return sil.arm_cue
 
