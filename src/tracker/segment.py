@@ -16,7 +16,9 @@ No wristband is needed. The steps, each a small function over arrays:
    instead when its far end has fingers and lies in front of it (a body a few centimetres
    behind the hand); and when the surface is a whole arm in view (it does not reach the border
    and is much longer than a palm is wide), the search starts from its end with the fingers
-   (:func:`_hand_end`), since a free-ended arm's nearest part can be its far end;
+   (:func:`_hand_end`), since a free-ended arm's nearest part can be its far end. A body a few
+   centimetres behind the hand, which the arm joins to the hand's surface, is left out: the region
+   is then the layer in front of its local background (:func:`_in_front`);
 5. :func:`cut_forearm` (``forearm="cut"``): the palm is the largest inscribed circle of the
    region, the forearm the wide part leaving it that goes on (past the border, the band or the
    reach, or into another object met at its own depth: a table, the body); the cut goes across
@@ -440,9 +442,10 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     the seed's centre — the arm leads to the body, so the body is reached along it only beyond
     the reach of a hand — connected to the seed (when every candidate is cut off by the border,
     the seed is the end of the nearest one farthest from the border, see :func:`_far_end`), plus the small surfaces (fingertip blobs) in
-    that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed))``:
+    that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed, behind))``:
     also the pixels of the hand's surface left out by the band or the reach (where an arm leaves
-    the region) and the seed's pixels."""
+    the region), the seed's pixels, and the pixels of a body close behind the hand along its
+    outline (:func:`_in_front`; empty when there is none)."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -501,7 +504,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     hit = np.unique(lab_c[seed])
     core = np.isin(lab_c, hit[hit > 0])
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
-    core, behind, seed = _in_front(core, d, seed, focal, jump)
+    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -524,15 +527,15 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     return out
 
 
-def _in_front(region, d, seed, focal, jump=0.02):
+def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None):
     """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
 
     Each pixel's local background is the grey closing of the region's depth (the farthest depth
     within :data:`FRONT_WINDOW_M`, then the nearest of those; no data ignored): a tilted body keeps
     its own depth, a hand or an arm narrower than the window takes the depth of the body around it.
     The pixels nearer than their background by more than :data:`FRONT_STEP_M` fall into pieces
-    (neighbours closer than ``jump``); the largest is the layer in front (the seed may lie on flying
-    pixels at the body's edge, which curves away). It replaces the region when the region's pixels
+    (neighbours closer than ``jump``); the largest, when it covers ``min_area`` (m²), is the layer in
+    front (the seed may lie on flying pixels at the body's edge, which curves away). It replaces the region when the region's pixels
     next to it lie behind it by that step over at least :data:`FRONT_OUTLINE_SHARE` of its outline and
     the region behind it covers at least :data:`FRONT_BEHIND_AREA_M2` — a hand held in front of the
     body, which the arm joins to the hand's surface. A hand alone, with its arm or on its own, has no
@@ -545,15 +548,22 @@ def _in_front(region, d, seed, focal, jump=0.02):
         return region, none, seed
     (ya, yb), (xa, xb) = bounds(region)
     z = float(np.nanmedian(d[seed]))
-    size = 2 * max(int(round(FRONT_WINDOW_M * focal / z)), 1) + 1
+    half = max(int(round(FRONT_WINDOW_M * focal / z)), 1)
+    size = 2 * half + 1
     H, W = d.shape
+    # the background is read from the whole surface around the region (the reach cuts the body off
+    # beside a big hand's palm), the layer sought in the region only
+    big = (slice(max(ya - half, 0), min(yb + half + 1, H)), slice(max(xa - half, 0), min(xb + half + 1, W)))
+    back = region[big] if surface is None else (surface | region)[big]
+    with np.errstate(invalid="ignore"):
+        far = ndimage.maximum_filter(np.where(back, d[big], -np.inf), size=size, mode="constant", cval=-np.inf)
+        far = ndimage.minimum_filter(np.where(np.isfinite(far), far, np.inf), size=size, mode="constant",
+                                     cval=np.inf)
     win = (slice(max(ya - 3, 0), min(yb + 4, H)), slice(max(xa - 3, 0), min(xb + 4, W)))
+    far = far[win[0].start - big[0].start:win[0].stop - big[0].start, win[1].start - big[1].start:win[1].stop - big[1].start]
     dw = d[win]
     rw = region[win]
     with np.errstate(invalid="ignore"):
-        far = ndimage.maximum_filter(np.where(rw, dw, -np.inf), size=size, mode="constant", cval=-np.inf)
-        far = ndimage.minimum_filter(np.where(np.isfinite(far), far, np.inf), size=size, mode="constant",
-                                     cval=np.inf)
         front = rw & (dw < far - FRONT_STEP_M)
     if not front.any():
         return region, none, seed
@@ -562,7 +572,11 @@ def _in_front(region, d, seed, focal, jump=0.02):
         return region, none, seed
     area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
     area[0] = 0.0
-    layer = lab == int(np.argmax(area))
+    best = int(np.argmax(area))
+    if area[best] < min_area:
+        # no hand-sized layer: a thumb or knuckles nearer than the rest of the hand are no hand
+        return region, none, seed
+    layer = lab == best
     # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
     layer_far = ndimage.maximum_filter(np.where(layer, dw, -np.inf), size=7)
     ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
