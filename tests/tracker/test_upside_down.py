@@ -68,12 +68,14 @@ def _track(hand, obs, **kw):
 
 def test_a_jump_to_a_hand_turned_round_is_caught_on_its_frame(hand, jump_scene):
     """At the jump the tracking fit converges to the old orientation, fingers up the new arm
-    (measured 176–180° off, score 8.9 mm under the threshold's 12.3). Without the wrist test
-    (``net_wrist_mm=0``) the net never runs and every later frame is "tracked" 164–180° off; with it
-    the jump frame is doubtful ("wrist"), the net's search scored with the cue replaces the fit
-    (status "reinit") and every frame from there is within 10° (measured ≤ 6°)."""
+    (measured 176–180° off, score 8.9 mm under the threshold's 12.3). Without the wrist and far-points
+    tests (``net_wrist_mm=0``, ``net_far_share=0``, the code before) the net never runs and every later
+    frame is "tracked" 168–180° off (the far-points test alone runs the net once, on frame 14, and its
+    search keeps the hand turned round); with them the jump frame is doubtful ("wrist"), the net's
+    search scored with the cue replaces the fit (status "reinit") and every frame from there is
+    within 10° (measured ≤ 3°)."""
     truth, obs = jump_scene
-    off, tr_off = _track(hand, obs, net_wrist_mm=0.0)
+    off, tr_off = _track(hand, obs, net_wrist_mm=0.0, net_far_share=0.0)
     on, tr = _track(hand, obs)
     assert tr_off.net_runs_ == 0
     assert all(r.status == "tracked" for r in off[JUMP:])
@@ -106,14 +108,38 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
     assert cues >= 3, cues  # the false cues are there: the arm's length is what rules them out
 
 
+def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
+    """A finger-counting frame tracked with another moment's posture (frame 80's on frame 40): in a
+    scene whose fits all score high (the scene's level raised to 10 mm) the score test cannot see it,
+    but 15 % of the points lie over 15 mm from the hand's surface (measured; the right posture 0 %,
+    and no tracked frame of the realistic scenes or the Kinect scenarios exceeded 9 %): doubtful,
+    "far". The right posture is not."""
+    from tracker.init import score
+
+    cam = preset("kinect1")
+    truth = make_motion("count", hand=hand).theta
+    ob = observe(DepthRenderer(hand, cam).render(truth[40], labels=False).depth, cam, TrackerSettings().observe)
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0))
+    tr._search_level = 10.0
+    wrong = truth[40].copy()
+    wrong[~hand.pose_mask] = truth[80][~hand.pose_mask]
+    why = {}
+    for name, th in (("right", truth[40]), ("wrong", wrong)):
+        s = score(tr.context, th, tr.context.matcher(th, ob.points, ob.normals))
+        why[name] = tr._doubtful(th, th, s, None, ob.points)
+    assert why == {"right": "", "wrong": "far"}, why
+    tr.settings = tr.settings.replace(net_far_share=0.0)
+    assert tr._doubtful(wrong, wrong, 0.0, None, ob.points) == ""
+
+
 def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
     """The 19 labelled SR305 stills (two recordings) imported and tracked as one recording with
     defaults and the fingerfist synergies, as the README's user did
-    (``tracker track rec -s fingerfist``): no frame has its wrist more than 40 px from the labelled
+    (``tracker track rec -s fingerfist``): no frame has its wrist more than 45 px from the labelled
     wrist (before: 60–106 px on 15 frames, the hand upside down from frame 2 to the end; measured now
-    ≤ 34 px) and at least 4 frames meet the labels' floors (every tip ≤ 15 px, wrist ≤ 20 px; before
-    1, measured now 5–6): the frames left out are postures, not orientations — the stills are 0.7 s
-    apart, and a fit of the wrong posture scores under the net's threshold."""
+    ≤ 40 px) and at least 6 frames meet the labels' floors (every tip ≤ 15 px, wrist ≤ 20 px; before
+    1; 5–6 with the wrist test alone, 7–8 with the far-points test too): the frames left out are
+    postures, not orientations — the stills are 0.7 s apart."""
     import json
 
     from handmodel import HandModel
@@ -140,5 +166,5 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
         ok += max(tips) <= 15 and w <= 20
     assert len(wrists) == 19
     print(f"\nwrists {np.round(wrists).astype(int).tolist()} px, frames within the floors {ok}/19")
-    assert max(wrists) <= 40, np.round(wrists)
-    assert ok >= 4, ok
+    assert max(wrists) <= 45, np.round(wrists)
+    assert ok >= 6, ok
