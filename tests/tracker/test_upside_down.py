@@ -101,7 +101,7 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
     cues = 0
     for f in (34, 41, 124, 125):
         ob = observe(ren.render(truth[f], labels=False).depth, preset("kinect1"), tr.settings.observe)
-        sil = Silhouette(ob.silhouette, ob.depth, preset("kinect1"))
+        sil = Silhouette(ob.mask if ob.silhouette is None else ob.silhouette, ob.depth, preset("kinect1"))
         sil.frame_depth = ob.frame_depth
         cues += tr._frame_cue(sil) is not None
         assert not tr._wrong_way(truth[f], sil), f
