@@ -308,7 +308,9 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
 #: Scene label → clutter spec (:meth:`tracker.sim.render.Clutter.parse`); every cluttered scene has the forearm,
 #: as a real hand does.
 REALISTIC_SCENES = {"hand alone": None, "+forearm": "forearm", "+forearm+torso": "forearm,torso",
-                    "+table": "forearm,table", "+object": "forearm,box"}
+                    "+table": "forearm,table", "+object": "forearm,box",
+                    # the near end of "a torso 3-30 cm behind the hand" (the scene above: 15 cm)
+                    "+torso 4 cm": "forearm,torso=0.04"}
 #: Sensor label → (camera preset, noise preset).
 REALISTIC_SENSORS = {"kinect1": ("kinect1", "kinect1"), "realsense": ("sr305", "sr305")}
 REALISTIC_SCALES = (0.8, 1.0, 1.5)
