@@ -90,16 +90,20 @@ def _wrap(path, what: str, exc: Exception) -> RecordingError:
     return RecordingError(path, f"{what} ({type(exc).__name__}{': ' + msg if msg else ''})")
 
 
+def _head_and_size(path: Path, n: int) -> tuple[bytes, int]:
+    """The first ``n`` bytes of a file and its size (what the completeness checks compare)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n), fh.seek(0, 2)
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+
+
 def check_sqlite_complete(path: Path) -> None:
     """Refuse a cut SQLite file: its header gives the database size in pages, and SQLite reads the
     pages missing past the end of a truncated file as zeros (depth frames would silently end in
     zeros)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(100)
-            size = fh.seek(0, 2)
-    except OSError as exc:
-        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+    head, size = _head_and_size(path, 100)
     if len(head) < 100 or not head.startswith(b"SQLite format 3\0"):
         return  # not SQLite at all: the reader says so
     page = struct.unpack(">H", head[16:18])[0]
@@ -117,12 +121,7 @@ def check_ros1_complete(path: Path) -> None:
     starts (``index_pos``), 0 while the recorder has not closed the file, past the end when the file
     was cut short (a copy or download that stopped). The reader's own error ("Bag index looks
     damaged: Header could not be read") does not tell a user either."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
-            size = fh.seek(0, 2)
-    except OSError as exc:
-        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+    head, size = _head_and_size(path, 4096)
     if not head.startswith(ROS1_MAGIC) or len(head) < len(ROS1_MAGIC) + 4:
         return  # not a ROS1 bag, or too short to tell: the reader says so
     k = len(ROS1_MAGIC)

@@ -13,6 +13,15 @@ from typing import List, Optional
 
 import typer
 
+# options that several commands take, written once (the same flag, default and help everywhere)
+DEPTH_RANGE = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5].")
+BOX = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box.")
+FOREARM = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut].")
+HAND = typer.Option(None, "--hand", help="left or right: the hand tracked, overriding the recording's (a recording file does not say; then left).")
+TOPIC = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file].")
+COLOR_TOPIC = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file].")
+START = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame).")
+
 
 def track(
     recordings: List[Path] = typer.Argument(..., help="Recording folder(s) (recording.yaml, depth/…) or recording files; with several, -o is a folder."),
@@ -48,13 +57,13 @@ def track(
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
     unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it, or keep the hand with --save-hand) [auto; 1 with --paper or a calibrated --hand-model file]."),
-    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
-    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box."),
-    forearm: str = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut]."),
-    hand: Optional[str] = typer.Option(None, "--hand", help="left or right: the hand tracked, overriding the recording's (a recording file does not say; then left)."),
-    topic: Optional[str] = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file]."),
-    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file]."),
-    start: Optional[float] = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame)."),
+    depth_range: Optional[str] = DEPTH_RANGE,
+    box: Optional[str] = BOX,
+    forearm: str = FOREARM,
+    hand: Optional[str] = HAND,
+    topic: Optional[str] = TOPIC,
+    color_topic: Optional[str] = COLOR_TOPIC,
+    start: Optional[float] = START,
     end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
@@ -420,9 +429,9 @@ def live(
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
-    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
-    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
-    forearm: str = typer.Option("cut", "--forearm", help="cut or keep (as tracker track) [cut]."),
+    depth_range: Optional[str] = DEPTH_RANGE,
+    box: Optional[str] = BOX,
+    forearm: str = FOREARM,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand live from a RealSense camera (extra [realsense]) with the pipeline of tracker
@@ -516,13 +525,13 @@ def calibrate(
     hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [on]."),
     frames: int = typer.Option(60, "--frames", help="Read at most this many frames."),
-    depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5]."),
-    box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m): look for the hand only in this box."),
-    forearm: str = typer.Option("cut", "--forearm", help="cut or keep (as tracker track) [cut]."),
-    hand: Optional[str] = typer.Option(None, "--hand", help="left or right, overriding the recording's (a recording file does not say; then left)."),
-    topic: Optional[str] = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file]."),
-    color_topic: Optional[str] = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file]."),
-    start: Optional[float] = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame)."),
+    depth_range: Optional[str] = DEPTH_RANGE,
+    box: Optional[str] = BOX,
+    forearm: str = FOREARM,
+    hand: Optional[str] = HAND,
+    topic: Optional[str] = TOPIC,
+    color_topic: Optional[str] = COLOR_TOPIC,
+    start: Optional[float] = START,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing hand file."),
 ):
     """Estimate the user's hand (size, and finger lengths) on a recording's first frames and write it
