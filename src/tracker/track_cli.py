@@ -218,7 +218,8 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
-        console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}), replaced "
+        wrong = f" (on {tracker.net_wrong_way_} the hand pointed against the arm)" if tracker.net_wrong_way_ else ""
+        console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}){wrong}, replaced "
                       f"{tracker.net_replaced_}{cost}; re-centred {tracker.recentred_}")
     if tracker.settings.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
