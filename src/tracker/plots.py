@@ -238,7 +238,10 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled
     legend = overlay_legend(fitted, mask_empty, labelled is not None and len(labelled) > 0,
                             (lo * 1000, hi * 1000) if finite.size else None)
     fig.text(0.01, 1 - 30 / (H + 60), f"{Path(path).stem}  {status}", fontsize=10, va="center")
-    fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=7 if W < 700 else 8, va="center")
+    # the key stays on one line across the frame: a longer one (the labelled marks) gets a smaller font
+    size = 7 if W < 700 else 8
+    fig.text(0.01, 1 - 50 / (H + 60), legend, fontsize=min(size, size * W / 640 * 118 / max(len(legend), 1)),
+             va="center")
     _save(fig, path)
 
 
