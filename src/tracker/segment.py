@@ -121,15 +121,18 @@ class Segmenter:
         ``points``: the back-projected ``(H, W, 3)`` image (needed for ``box``); ``focal``: the
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
         :data:`DEFAULT_FOCAL_PX`)."""
-        d = np.asarray(depth, float)
+        d, f = self._inputs(depth, points, focal)
+        return self._run(d, color, points, f)
+
+    def _inputs(self, depth, points, focal):
+        """``(depth as float, focal length)``, refusing a box without the points it is tested on."""
         if (self.box_min is not None or self.box_max is not None) and points is None:
             raise ValueError("a segmentation box needs the back-projected points")
-        f = float(focal) if focal else focal_from_points(points)
-        return self._run(d, color, points, f)
+        return np.asarray(depth, float), (float(focal) if focal else focal_from_points(points))
 
     def in_window(self, depth, window, color=None, points=None, *, focal=None, expected=None):
         """The hand mask ``(H, W)`` found in ``window`` alone (a ``(rows, cols)`` slice pair, e.g.
-        :func:`window_around` of the hand predicted while tracking), or None when that result
+        :func:`tracker.observe.hand_window` of the hand predicted while tracking), or None when that result
         cannot be trusted and the whole frame must be segmented (:meth:`__call__`).
 
         Inside the window every rule runs as on the whole frame, on the same (coarse) pixels, and the
@@ -139,10 +142,7 @@ class Segmenter:
         edge that is not an image edge (the hand, or an uncut arm, runs out of the window), or when
         its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
         tested) — something else than the hand was found there."""
-        d = np.asarray(depth, float)
-        if (self.box_min is not None or self.box_max is not None) and points is None:
-            raise ValueError("a segmentation box needs the back-projected points")
-        f = float(focal) if focal else focal_from_points(points)
+        d, f = self._inputs(depth, points, focal)
         H, W = d.shape
         # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
         # so is refine's rounding of pixel / step to the nearest coarse pixel (halves go to even)
