@@ -165,7 +165,8 @@ def hand_model_ref(name: str = "default", sha256: str | None = None) -> dict:
     return {"name": name, "sha256": sha256}
 
 
-def _generator_version() -> str:
+def generator_version() -> str:
+    """The installed toolchain's version (``unknown`` in a source tree run without installing)."""
     try:
         return _dist_version(GENERATOR)
     except PackageNotFoundError:
@@ -293,7 +294,7 @@ def save_bundle(
         "name": name,
         "version": None,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z"),
-        "generator": {"name": GENERATOR, "version": _generator_version()},
+        "generator": {"name": GENERATOR, "version": generator_version()},
         "hand_model": hand_model_ref(hand_model, hand_model_sha256),
         "units": "rad",
         "tasks": list(dict.fromkeys(tasks)),

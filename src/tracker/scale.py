@@ -15,10 +15,13 @@ same factor, so the surface samples in their nodes' frames are the same points t
 from __future__ import annotations
 
 import copy
+import datetime
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from synergy.bundle import GENERATOR, generator_version
 
 from .correspond import Matcher
 from .errors import TrackerError
@@ -438,13 +441,6 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
     estimate before shrinking and its standard error (log) over the frames, the recording
     and the ``frames`` (indices) tracked until the size was settled, the settings that shaped the
     estimate, the tool and its version, and the time (UTC)."""
-    import datetime
-    from importlib import metadata
-
-    try:
-        version = metadata.version("synergistic-hand-tracking")
-    except metadata.PackageNotFoundError:  # a source tree run without installing
-        version = "unknown"
     est = [float(e) for e in tracker.scale_estimates_]
     med = float(np.median(est)) if est else float(tracker.scale_)
     st = tracker.settings
@@ -462,7 +458,7 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
         "frames": None if frames is None else [int(f) for f in frames],
         "settings": {"scale_frames": int(st.scale_frames), "scale_refine": st.scale_refine,
                      "finger_lengths": bool(st.finger_lengths), "scale_range": [float(v) for v in st.scale_range]},
-        "tool": f"synergistic-hand-tracking {version} (tracker.scale.calibrated_hand)",
+        "tool": f"{GENERATOR} {generator_version()} (tracker.scale.calibrated_hand)",
         "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
 
