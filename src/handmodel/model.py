@@ -25,6 +25,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from . import kinematics
 from .errors import HandModelError
@@ -139,8 +140,6 @@ class HandModel:
         mapping of plain values) says where the model came from: :func:`tracker.scale.calibrated_hand`
         puts the calibration's record and the base model's name and SHA-256 there. Returns ``path``.
         """
-        import yaml
-
         path = Path(path)
         doc = self.to_dict(name=name, description=description, provenance=provenance)
         text = "# Hand model written by handmodel.HandModel.save; see provenance.\n" + yaml.safe_dump(
