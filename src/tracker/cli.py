@@ -323,7 +323,8 @@ def show(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey; the
-    segmented hand outlined in white; with --keypoints the fitted skeletons. Given a Rerun recording of
+    segmented hand outlined in white. With --keypoints the depth in greys (white = no depth), the mask
+    outlined in green and the fitted skeletons. Given a Rerun recording of
     a tracking (tracker track --rerun out.rrd), a picture of one logged frame instead: the depth with the
     mask and the fitted skeleton, and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
     from handmodel.fileio import check_output
