@@ -437,6 +437,16 @@ REAL_TIPS = ("thumb", "index", "middle", "ring", "pinky")
 REAL_TIP_PX, REAL_WRIST_PX, REAL_MASK_SHARE, REAL_MASK_DILATE_PX = 15.0, 20.0, 0.90, 8
 
 
+def _frame_order(name):
+    """Sort key of a labelled frame ``<recording>_<index>``: the recording, then the index as a number.
+
+    >>> sorted(["r_110", "r_30", "q_5"], key=_frame_order)
+    ['q_5', 'r_30', 'r_110']
+    """
+    rec, _, idx = name.rpartition("_")
+    return (rec, int(idx)) if idx.isdigit() else (name, -1)
+
+
 def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
     """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
     PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
@@ -464,7 +474,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
         raise TrackerError(str(root / "labels" / "labels.json"), f"cannot read the frame labels ({e})") from None
     cam = preset("sr305")
     bundle = load_bundle("fingerfist")
-    names = sorted(k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v)
+    # in recording order: "first labelled frame" is the earliest (230536_30, not 230536_110 as text sorts)
+    names = sorted((k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v), key=_frame_order)
     rows, sizes = [], {}
     for k, name in enumerate(names):
         depth = units_to_metres(read_depth_units(root / f"{name}.png", cam), cam)
