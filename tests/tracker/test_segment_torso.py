@@ -17,13 +17,13 @@ from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
 
 
-def _torso_frame(hand, sensor, scale, gap, frame):
-    """``(camera, depth, labels)``: frame ``frame`` of an open-close motion (30 frames, seed 0) with a
-    forearm and a torso ``gap`` metres behind the hand centre, placed from the motion's mean hand centre."""
+def _torso_frame(hand, sensor, scale, gap, frame, motion="open-close"):
+    """``(camera, depth, labels)``: frame ``frame`` of ``motion`` (30 frames, seed 0) with a forearm and
+    a torso ``gap`` metres behind the hand centre, placed from the motion's mean hand centre."""
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale).apply(hand)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
+    truth = make_motion(motion, hand=shown, frames=30, seed=0).theta
     R = euler_to_matrix(truth[:, 3:6])
     clutter = Clutter.parse(f"forearm,torso={gap}").sized(scale).fixed(
         (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
@@ -46,6 +46,24 @@ def test_torso_a_few_cm_behind_the_hand_is_left_out(hand, sensor, scale, gap, fr
     both = (mask & seen).sum()
     recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
+
+
+@pytest.mark.xfail(strict=True, reason="known limit (README): a hand turning in front of the body loses "
+                   "fingers that lean back to within 1 cm of it, and the wrist cut then takes the wrong end")
+@pytest.mark.parametrize("sensor, scale, frame", [("realsense", 1.0, 20), ("kinect1", 1.5, 25)])
+def test_a_turning_hand_a_few_cm_in_front_of_the_body_keeps_its_fingers(hand, sensor, scale, frame):
+    """Rotation with the torso 3 cm behind, depth only. realsense x1 frame 20: the layer in front is the
+    hand with its whole free-ended forearm (recall 0.93) and the wrist cut keeps the forearm's end (mask
+    recall 0.00); kinect1 x1.5 frame 25: a finger leaning back is left behind with the body (layer recall
+    0.76) and, through it, the thumb counts as an arm going on, whose cut takes three fingertips (0.63).
+    Without the layer rule the torso filled the mask (precision 0.05 and 0.23). A hand's mask is recall
+    ≥ 0.85 and precision ≥ 0.8 (the open-close frames above: 0.94-0.98, 0.88-0.97)."""
+    cam, depth, labels = _torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate")
+    mask = observe(depth, cam).mask
+    seen = (labels >= 0) & np.isfinite(depth)
+    both = (mask & seen).sum()
+    recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
+    assert recall >= 0.85 and precision >= 0.8, (recall, precision)
 
 
 def _hand_and_arm(body):
