@@ -136,7 +136,7 @@ class FitContext:
         return out_t, out_s
 
 
-def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
+def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> float:
     """Lower is better (mm): the mean data→model cost (:func:`data_cost_mm`: each data point's distance
     to the nearest model surface, capped), plus, with a silhouette, the mean model→data cost
     (:func:`tracker.correspond.model_to_data_mm`: model parts outside the silhouette or in front of
@@ -146,8 +146,9 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     leaves the real thumb's points up to the cap away). A silhouette that carries the frame's wrist
     cue (``silhouette.wrist``, :func:`tracker.wrist.wrist_cue`) adds :func:`tracker.wrist.wrist_cost_mm`:
     a hand whose fingers point up the arm loses even where both directions fit. (The finger-wise
-    restarts add :func:`finger_overlap_mm`, see :func:`finger_search_batched`.)"""
-    s = data_cost_mm(ctx, theta, corr)
+    restarts add :func:`finger_overlap_mm`, see :func:`finger_search_batched`.) ``data_mm``: the
+    points' :func:`tracker.correspond.data_to_model_mm` at ``theta`` when the caller has them already."""
+    s = data_cost_mm(ctx, theta, corr, data_mm=data_mm)
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     if silhouette is not None and samples is not None and not silhouette.empty:
         s += MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, silhouette)
@@ -157,13 +158,16 @@ def score(ctx: FitContext, theta, corr, silhouette=None) -> float:
     return s
 
 
-def data_cost_mm(ctx: FitContext, theta, corr) -> float:
+def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None) -> float:
     """The data→model half of :func:`score` (mm): the mean over the fit's data points
     (``corr.points``) of their distance to the nearest model surface on any side
     (:func:`tracker.correspond.data_to_model_mm`), plus ``REJECTED_PAIR_MM`` where ICP rejected the
     point's pair, capped at ``DATA_CAP_MM``. Correspondences without their points fall back to the
-    pairs' own distances (front-facing model surface only)."""
-    if corr.points is not None:
+    pairs' own distances (front-facing model surface only). ``data_mm``: those distances of
+    ``corr.points`` at ``theta`` when already measured (the safety net's far-points test needs them too)."""
+    if data_mm is not None:
+        d = np.asarray(data_mm, float)
+    elif corr.points is not None:
         d = data_to_model_mm(ctx.matcher, theta, corr.points)
     else:
         d = np.where(np.isfinite(corr.distance), corr.distance * 1000.0, DATA_CAP_MM)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ._icp_kernels import feature_transform
+from ._wrist_kernels import longest_line, near_line, outline_and_ring, seeded_surfaces
 from .segment import surfaces
 
 
@@ -61,8 +63,8 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     x0, x1 = max(cols[0] - 4, 0), min(cols[-1] + 5, full_m.shape[1])
     m, d = full_m[y0:y1, x0:x1], full_d[y0:y1, x0:x1]
     cam = _Shifted(camera.fx, camera.fy, camera.cx - x0, camera.cy - y0)
-    inner = m & ~ndimage.binary_erosion(m)
-    ring = ndimage.binary_dilation(m, iterations=2) & ~m & np.isfinite(d)
+    # the window's morphology compiled (scipy's calls cost mostly their overhead here)
+    inner, ring = outline_and_ring(m, d)
     if not ring.any():
         return None
     # each outside ring pixel's nearest mask depth: the surface goes on when they agree
@@ -76,15 +78,11 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     if not goes_on.any():
         return None
     # pieces of one line a few pixels apart (no-data specks along the wrist) are one line
-    labels, n = ndimage.label(ndimage.binary_dilation(goes_on, iterations=3), structure=np.ones((3, 3)))
-    labels = np.where(goes_on, labels, 0)
-    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
-    k = int(np.argmax(sizes)) + 1
-    if sizes[k - 1] < min_arm_share * sizes.sum():
+    line, most = longest_line(goes_on, min_arm_share)
+    if not most:
         return None
-    line = labels == k
     # the inside outline pixels that face the line: the wrist line on the hand
-    face = inner & ndimage.binary_dilation(line, iterations=2)
+    face = near_line(inner, line)
     fy, fx = np.nonzero(face)
     if len(fy) < 3:
         return None
@@ -106,10 +104,12 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     seed = np.zeros((a1 - a0, b1 - b0), bool)
     seed[ly - a0, lx - b0] = True
     # the surfaces outside the hand (the hand itself blanked, so the arm cannot reach round through it)
+    # that hold the line, within reach of it (compiled: tracker.segment.surfaces' surfaces, the exact
+    # distance to the line)
     dw = np.where(full_m[a0:a1, b0:b1], np.nan, full_d[a0:a1, b0:b1])
-    lab, _ = surfaces(dw, jump=step_m)
-    ids = np.unique(lab[seed])
-    arm = np.isin(lab, ids[ids > 0]) & (ndimage.distance_transform_edt(~seed) <= reach)
+    dist = np.empty(seed.shape)
+    feature_transform(seed, dist, np.empty(seed.shape, np.int32), np.empty(seed.shape, np.int32))
+    arm = seeded_surfaces(dw, seed, step_m, float(reach), dist)
     ay, ax = np.nonzero(arm)
     A = _points(camera, ax + b0, ay + a0, dw[ay, ax])
     A = A[np.linalg.norm(A - centre, axis=1) <= arm_reach_m]

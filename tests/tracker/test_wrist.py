@@ -6,14 +6,21 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from PIL import Image
+from scipy import ndimage
 
 from tests.conftest import shared
+from tracker._icp_kernels import feature_transform
+from tracker._wrist_kernels import longest_line, near_line, outline_and_ring, seeded_surfaces, surface_past_outline
 from tracker.cameras import preset
 from tracker.observe import observe
+from tracker.segment import surfaces
 from tracker.sim.motions import make_motion
 from tracker.sim.render import render
-from tracker.wrist import wrist_cue
+from tracker.wrist import WristCue, wrist_cue
 
 TIPS = ("thumb", "index", "middle", "ring", "pinky")
 
@@ -69,3 +76,168 @@ def test_no_arm_no_cue(hand):
     r = render(hand, th, cam)
     assert wrist_cue(observe(r.depth, cam).mask, r.depth, cam) is None
     assert wrist_cue(np.zeros(cam.shape, bool), r.depth, cam) is None
+
+
+# The wrist test's compiled pieces (tracker._wrist_kernels) against the scipy / numpy expressions they
+# replace, on small random windows: depths from a few levels 5-100 mm apart (steps over and under the
+# 15 mm jump, equal depths for the reattachment's ties) and holes.
+_LEVELS = np.array([0.5, 0.505, 0.51, 0.53, 0.6, np.nan])
+
+
+@st.composite
+def _window(draw, max_side=14):
+    h, w = draw(st.integers(1, max_side)), draw(st.integers(1, max_side))
+    m = draw(arrays(bool, (h, w)))
+    d = _LEVELS[draw(arrays(np.int8, (h, w), elements=st.integers(0, len(_LEVELS) - 1)))]
+    return m, d
+
+
+@given(_window())
+@settings(max_examples=300, deadline=None)
+def test_outline_and_ring_are_scipys_morphology(win):
+    m, d = win
+    inner, ring = outline_and_ring(m, d)
+    np.testing.assert_array_equal(inner, m & ~ndimage.binary_erosion(m))
+    np.testing.assert_array_equal(ring, ndimage.binary_dilation(m, iterations=2) & ~m & np.isfinite(d))
+
+
+@given(_window(), st.sampled_from([0.0, 0.3, 0.5, 0.9]))
+@settings(max_examples=300, deadline=None)
+def test_longest_line_is_scipys_largest_label(win, share):
+    goes_on = win[0]
+    line, most = longest_line(goes_on, share)
+    labels, n = ndimage.label(ndimage.binary_dilation(goes_on, iterations=3), structure=np.ones((3, 3)))
+    if n == 0:
+        assert not line.any() and not most
+        return
+    labels = np.where(goes_on, labels, 0)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    k = int(np.argmax(sizes)) + 1
+    np.testing.assert_array_equal(line, labels == k)
+    assert most == (not sizes[k - 1] < share * sizes.sum())
+
+
+@given(_window(), _window())
+@settings(max_examples=200, deadline=None)
+def test_near_line_is_scipys_dilation(a, b):
+    h, w = min(a[0].shape[0], b[0].shape[0]), min(a[0].shape[1], b[0].shape[1])
+    inner, line = a[0][:h, :w], b[0][:h, :w]
+    np.testing.assert_array_equal(near_line(inner, line), inner & ndimage.binary_dilation(line, iterations=2))
+
+
+@given(_window(), st.integers(0, 6))
+@settings(max_examples=400, deadline=None)
+def test_seeded_surfaces_are_segment_surfaces_within_reach(win, reach):
+    seed, d = win
+    assume(seed.any())
+    dist = np.empty(seed.shape)
+    feature_transform(seed, dist, np.empty(seed.shape, np.int32), np.empty(seed.shape, np.int32))
+    lab, _ = surfaces(d, jump=0.015)
+    ids = np.unique(lab[seed])
+    want = np.isin(lab, ids[ids > 0]) & (ndimage.distance_transform_edt(~seed) <= reach)
+    np.testing.assert_array_equal(seeded_surfaces(d, seed, 0.015, float(reach), dist), want)
+
+
+@given(_window(), st.integers(0, 3), st.integers(0, 3))
+@settings(max_examples=200, deadline=None)
+def test_surface_past_outline_is_the_ring_test(win, v0, u0):
+    m, frame = win
+    h, w = max(m.shape[0] - v0, 1), max(m.shape[1] - u0, 1)
+    dist = np.empty((h, w))
+    sub = m[v0:v0 + h, u0:u0 + w]
+    if not sub.any():
+        return
+    feature_transform(np.ascontiguousarray(sub), dist, np.empty((h, w), np.int32), np.empty((h, w), np.int32))
+    ring = (dist > 0) & (dist <= 2.0)
+    assert surface_past_outline(dist, frame, v0, u0, 2.0) == bool(np.isfinite(frame[v0:v0 + h, u0:u0 + w][ring]).any())
+
+
+def test_rendered_arm_cue_is_the_scipy_formula(hand):
+    """On rendered forearm-and-torso frames under Kinect v1 and SR305 noise, the wrist cue with the
+    compiled pieces equals the earlier scipy formula's, bit for bit (the window work is where the
+    safety net's wrist test spent its ~1.5 ms a frame)."""
+    from tracker.sim.noise import NoiseModel
+    from tracker.sim.render import Clutter, DepthRenderer
+
+    found = 0
+    for sensor in ("kinect1", "sr305"):
+        cam, noise = preset(sensor), NoiseModel.preset(sensor)
+        truth = make_motion("open-close", hand=hand, frames=30).theta
+        ren = DepthRenderer(hand, cam)
+        clutter = Clutter.parse("forearm,torso").fixed(truth[:, :3].mean(axis=0))
+        for f in range(0, 30, 6):
+            r = ren.render(truth[f], labels=False, clutter=clutter, incidence=noise.needs_incidence,
+                           reflectance=noise.needs_reflectance)
+            depth = noise.apply(r.depth, cam, np.random.default_rng([0, f]), r.cos_incidence, r.reflectance)
+            ob = observe(depth, cam)
+            got, want = wrist_cue(ob.mask, ob.frame_depth, cam), _scipy_wrist_cue(ob.mask, ob.frame_depth, cam)
+            assert (got is None) == (want is None), (sensor, f)
+            if got is not None:
+                found += 1
+                for a, b in zip((got.point, got.pixel, got.direction, got.width_m),
+                                (want.point, want.pixel, want.direction, want.width_m)):
+                    np.testing.assert_array_equal(a, b)
+    assert found >= 8, found
+
+
+def _scipy_wrist_cue(full_m, full_d, camera, step_m=0.015, arm_reach_m=0.06, width_range_m=(0.015, 0.12),
+                     min_arm_share=0.5):
+    """:func:`tracker.wrist.wrist_cue` as it was before its window work was compiled (scipy's
+    morphology, labels and distance transforms, :func:`tracker.segment.surfaces`)."""
+    rows, cols = np.flatnonzero(full_m.any(1)), np.flatnonzero(full_m.any(0))
+    if rows.size == 0:
+        return None
+    y0, y1 = max(rows[0] - 4, 0), min(rows[-1] + 5, full_m.shape[0])
+    x0, x1 = max(cols[0] - 4, 0), min(cols[-1] + 5, full_m.shape[1])
+    m, d = full_m[y0:y1, x0:x1], full_d[y0:y1, x0:x1]
+    inner = m & ~ndimage.binary_erosion(m)
+    ring = ndimage.binary_dilation(m, iterations=2) & ~m & np.isfinite(d)
+    if not ring.any():
+        return None
+    near_inside = ndimage.distance_transform_edt(~inner, return_distances=False, return_indices=True)
+    ry, rx = np.nonzero(ring)
+    ok = np.abs(d[ry, rx] - d[near_inside[0][ring], near_inside[1][ring]]) < step_m
+    goes_on = np.zeros_like(m)
+    goes_on[ry[ok], rx[ok]] = True
+    if not goes_on.any():
+        return None
+    labels, n = ndimage.label(ndimage.binary_dilation(goes_on, iterations=3), structure=np.ones((3, 3)))
+    labels = np.where(goes_on, labels, 0)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    k = int(np.argmax(sizes)) + 1
+    if sizes[k - 1] < min_arm_share * sizes.sum():
+        return None
+    line = labels == k
+    fy, fx = np.nonzero(inner & ndimage.binary_dilation(line, iterations=2))
+    if len(fy) < 3:
+        return None
+    z = d[fy, fx]
+    P = np.stack([(fx + x0 - camera.cx) / camera.fx * z, (fy + y0 - camera.cy) / camera.fy * z, z], axis=1)
+    P = P[np.isfinite(P).all(1)]
+    if len(P) < 3:
+        return None
+    width = float(np.linalg.norm(P.max(0) - P.min(0)))
+    if not width_range_m[0] <= width <= width_range_m[1]:
+        return None
+    centre = np.median(P, axis=0)
+    reach = int(np.ceil(arm_reach_m * camera.fx / centre[2]))
+    ly, lx = np.nonzero(line)
+    ly, lx = ly + y0, lx + x0
+    a0, a1 = max(ly.min() - reach, 0), min(ly.max() + reach + 1, full_m.shape[0])
+    b0, b1 = max(lx.min() - reach, 0), min(lx.max() + reach + 1, full_m.shape[1])
+    seed = np.zeros((a1 - a0, b1 - b0), bool)
+    seed[ly - a0, lx - b0] = True
+    dw = np.where(full_m[a0:a1, b0:b1], np.nan, full_d[a0:a1, b0:b1])
+    lab, _ = surfaces(dw, jump=step_m)
+    ids = np.unique(lab[seed])
+    ay, ax = np.nonzero(np.isin(lab, ids[ids > 0]) & (ndimage.distance_transform_edt(~seed) <= reach))
+    z = dw[ay, ax]
+    A = np.stack([(ax + b0 - camera.cx) / camera.fx * z, (ay + a0 - camera.cy) / camera.fy * z, z], axis=1)
+    A = A[np.linalg.norm(A - centre, axis=1) <= arm_reach_m]
+    if len(A) < 3:
+        return None
+    v = A.mean(0) - centre
+    if np.linalg.norm(v) < 1e-3:
+        return None
+    uv = np.array([camera.fx * centre[0] / centre[2] + camera.cx, camera.fy * centre[1] / centre[2] + camera.cy])
+    return WristCue(centre, uv, v / np.linalg.norm(v), width)

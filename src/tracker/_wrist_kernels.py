@@ -1,0 +1,216 @@
+"""Numba kernels of the safety net's wrist test (:mod:`tracker.wrist`,
+:meth:`tracker.track.HandTracker._frame_cue`): the per-frame image work that scipy's calls paid mostly
+in call overhead on a hand's window of a few thousand pixels. Each computes exactly what the numpy /
+scipy expression in its docstring does (tests/tracker/test_wrist.py compares them)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def surface_past_outline(dist, frame, v0, u0, reach_px):
+    """Whether any ``frame`` pixel (depth, NaN = none) within ``reach_px`` of a silhouette's mask,
+    outside it, has depth: ``np.isfinite(frame[v0:v0 + h, u0:u0 + w][(dist > 0) & (dist <= reach_px)]).any()``
+    for the silhouette window's distance transform ``dist (h, w)`` at ``(v0, u0)`` in the frame."""
+    h, w = dist.shape
+    H, W = frame.shape
+    for v in range(min(h, H - v0)):
+        for u in range(min(w, W - u0)):
+            d = dist[v, u]
+            if d > 0.0 and d <= reach_px and np.isfinite(frame[v0 + v, u0 + u]):
+                return True
+    return False
+
+
+@njit(cache=True)
+def outline_and_ring(m, d):
+    """``(inner, ring)`` of a mask window ``m`` over its depth ``d``: ``inner = m & ~binary_erosion(m)``
+    (a mask pixel with a 4-neighbour off the mask or off the window) and
+    ``ring = binary_dilation(m, iterations=2) & ~m & isfinite(d)`` (pixels within 2 steps of the
+    mask, 4-connected, off it, with depth)."""
+    H, W = m.shape
+    inner = np.zeros((H, W), np.bool_)
+    ring = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if m[v, u]:
+                if (v == 0 or u == 0 or v == H - 1 or u == W - 1 or not m[v - 1, u] or not m[v + 1, u]
+                        or not m[v, u - 1] or not m[v, u + 1]):
+                    inner[v, u] = True
+                continue
+            if not np.isfinite(d[v, u]):
+                continue
+            # a mask pixel within city-block distance 2 (what two 4-connected dilations reach)
+            hit = False
+            for dv in range(-2, 3):
+                vv = v + dv
+                if vv < 0 or vv >= H:
+                    continue
+                r = 2 - abs(dv)
+                for du in range(-r, r + 1):
+                    uu = u + du
+                    if 0 <= uu < W and m[vv, uu]:
+                        hit = True
+                        break
+                if hit:
+                    break
+            ring[v, u] = hit
+    return inner, ring
+
+
+@njit(cache=True)
+def longest_line(goes_on, min_share):
+    """The pixels of ``goes_on`` in its largest group — groups: the 8-connected components of
+    ``binary_dilation(goes_on, iterations=3)``, ranked by their ``goes_on`` pixels, ties to the
+    component met first in row order (as ``np.argmax`` over ``scipy.ndimage.label``'s numbering) —
+    and whether that group holds at least ``min_share`` of all ``goes_on`` pixels."""
+    H, W = goes_on.shape
+    grown = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if goes_on[v, u]:
+                for dv in range(-3, 4):
+                    vv = v + dv
+                    if vv < 0 or vv >= H:
+                        continue
+                    r = 3 - abs(dv)
+                    for du in range(-r, r + 1):
+                        uu = u + du
+                        if 0 <= uu < W:
+                            grown[vv, uu] = True
+    lab = np.zeros((H, W), np.int32)
+    stack = np.empty(H * W, np.int64)
+    sizes = np.zeros(H * W + 1, np.int64)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if not grown[v, u] or lab[v, u]:
+                continue
+            # a new component, numbered in the order the row scan meets it
+            n += 1
+            lab[v, u] = n
+            top = 0
+            stack[0] = v * W + u
+            top = 1
+            while top:
+                top -= 1
+                p = stack[top]
+                pv, pu = p // W, p % W
+                if goes_on[pv, pu]:
+                    sizes[n] += 1
+                for dv in range(-1, 2):
+                    qv = pv + dv
+                    if qv < 0 or qv >= H:
+                        continue
+                    for du in range(-1, 2):
+                        qu = pu + du
+                        if 0 <= qu < W and grown[qv, qu] and not lab[qv, qu]:
+                            lab[qv, qu] = n
+                            stack[top] = qv * W + qu
+                            top += 1
+    line = np.zeros((H, W), np.bool_)
+    if n == 0:
+        return line, False
+    k, total = 1, 0
+    for j in range(1, n + 1):
+        total += sizes[j]
+        if sizes[j] > sizes[k]:
+            k = j
+    for v in range(H):
+        for u in range(W):
+            line[v, u] = goes_on[v, u] and lab[v, u] == k
+    return line, sizes[k] >= min_share * total
+
+
+@njit(cache=True)
+def near_line(inner, line):
+    """``inner & binary_dilation(line, iterations=2)``: the outline pixels within 2 steps (4-connected)
+    of the wrist line."""
+    H, W = inner.shape
+    out = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if not inner[v, u]:
+                continue
+            for dv in range(-2, 3):
+                vv = v + dv
+                if vv < 0 or vv >= H:
+                    continue
+                r = 2 - abs(dv)
+                for du in range(-r, r + 1):
+                    uu = u + du
+                    if 0 <= uu < W and line[vv, uu]:
+                        out[v, u] = True
+                        break
+                if out[v, u]:
+                    break
+    return out
+
+
+@njit(cache=True)
+def seeded_surfaces(d, seed, jump, within, dist):
+    """The pixels of the surfaces of ``d`` (:func:`tracker.segment.surfaces` with ``jump``: 4-connected,
+    split at depth steps, a step's far-side pixel given to its nearest-in-depth neighbour's surface)
+    that hold a ``seed`` pixel, and that lie within ``within`` of one (``dist``: the exact distance to
+    the nearest seed pixel, as ``distance_transform_edt(~seed)``)."""
+    H, W = d.shape
+    core = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            z = d[v, u]
+            if not np.isfinite(z):
+                continue
+            # the far side of a step to any 4-neighbour is not core (surfaces' far_right / far_down)
+            far = ((u > 0 and z - d[v, u - 1] > jump) or (u < W - 1 and z - d[v, u + 1] > jump)
+                   or (v > 0 and z - d[v - 1, u] > jump) or (v < H - 1 and z - d[v + 1, u] > jump))
+            core[v, u] = not far
+    lab = np.zeros((H, W), np.int32)
+    stack = np.empty(H * W, np.int64)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if not core[v, u] or lab[v, u]:
+                continue
+            n += 1
+            lab[v, u] = n
+            stack[0] = v * W + u
+            top = 1
+            while top:
+                top -= 1
+                p = stack[top]
+                pv, pu = p // W, p % W
+                for k in range(4):
+                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+                    if 0 <= qv < H and 0 <= qu < W and core[qv, qu] and not lab[qv, qu]:
+                        lab[qv, qu] = n
+                        stack[top] = qv * W + qu
+                        top += 1
+    # step pixels join a neighbour's surface (segment._reattach: right, left, down, up; the nearest in
+    # depth within the jump, the first on ties)
+    out = lab.copy()
+    for v in range(H):
+        for u in range(W):
+            z = d[v, u]
+            if core[v, u] or not np.isfinite(z):
+                continue
+            best, got = np.inf, 0
+            for k in range(4):
+                qv = v + (1 if k == 2 else -1 if k == 3 else 0)
+                qu = u + (1 if k == 0 else -1 if k == 1 else 0)
+                if 0 <= qv < H and 0 <= qu < W and lab[qv, qu] > 0:
+                    diff = abs(d[qv, qu] - z)
+                    if diff <= jump and diff < best:
+                        got, best = lab[qv, qu], diff
+            out[v, u] = got
+    keep = np.zeros(n + 1, np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if seed[v, u] and out[v, u] > 0:
+                keep[out[v, u]] = True
+    arm = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            arm[v, u] = keep[out[v, u]] and out[v, u] > 0 and dist[v, u] <= within
+    return arm
