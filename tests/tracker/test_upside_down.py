@@ -8,6 +8,8 @@ palm fits a flat palm) and which had not jumped far from the prediction, so ever
 "tracked" upside down (1 of 19 frames within the labels' floors)."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -168,3 +170,34 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
     print(f"\nwrists {np.round(wrists).astype(int).tolist()} px, frames within the floors {ok}/19")
     assert max(wrists) <= 45, np.round(wrists)
     assert ok >= 6, ok
+
+
+def test_the_nets_shared_distances_decide_as_the_full_test(hand):
+    """The net measures the tracked fit's points against the model once (:meth:`HandTracker._safety_net`
+    passes them to both the score and the far-points test); the score and the verdict with them
+    equal those measured anew, bit for bit, on right and wrong postures, with the far test on and off, with and without a level
+    that makes the score test decide (the score test reads the level only above ``net_score_mm``)."""
+    from tracker.correspond import Silhouette, data_to_model_mm
+    from tracker.init import score
+
+    cam = preset("kinect1")
+    truth = make_motion("count", hand=hand).theta
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0))
+    verdicts = set()
+    for f, other in ((40, 80), (10, 60), (70, 20)):
+        ob = observe(DepthRenderer(hand, cam).render(truth[f], labels=False).depth, cam, tr.settings.observe)
+        sil = Silhouette(ob.mask, ob.depth, cam)
+        wrong = truth[f].copy()
+        wrong[~hand.pose_mask] = truth[other][~hand.pose_mask]
+        for th in (truth[f], wrong):
+            corr = tr.context.matcher(th, ob.points, ob.normals)
+            near = data_to_model_mm(tr.context.matcher, th, ob.points)
+            s = score(tr.context, th, corr, sil)
+            assert score(tr.context, th, corr, sil, data_mm=near) == s
+            for far_share, level in itertools.product((0.1, 0.0), (0.0, s / 3.0, s)):
+                tr.settings = tr.settings.replace(net_far_share=far_share)
+                tr._search_level = level
+                full = tr._doubtful(th, truth[f], s, None, ob.points)
+                assert tr._doubtful(th, truth[f], s, None, ob.points, near_mm=near) == full
+                verdicts.add(full)
+    assert {"", "far", "score"} <= verdicts, verdicts
