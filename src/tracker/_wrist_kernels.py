@@ -214,3 +214,17 @@ def seeded_surfaces(d, seed, jump, within, dist):
         for u in range(W):
             arm[v, u] = keep[out[v, u]] and out[v, u] > 0 and dist[v, u] <= within
     return arm
+
+
+@njit(cache=True)
+def count_near(mask, depth, y0, y1, x0, x1, u, v, r, z, step_m):
+    """How many pixels of ``[y0:y1, x0:x1]`` lie within ``r`` px of ``(u, v)``, off ``mask``, at a
+    ``depth`` within ``step_m`` of ``z``: :func:`tracker.wrist.arm_behind`'s
+    ``(((yy - v) ** 2 + (xx - u) ** 2 <= r * r) & ~mask & (abs(depth - z) <= step_m)).sum()``."""
+    n = 0
+    rr = r * r
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if (y - v) ** 2 + (x - u) ** 2 <= rr and not mask[y, x] and abs(depth[y, x] - z) <= step_m:
+                n += 1
+    return n

@@ -25,7 +25,14 @@ from handmodel.dofs import anatomical_limits
 from handmodel.rigid import euler_to_matrix
 from handmodel.subspace import Subspace, hierarchical_schedule
 
-from .correspond import CorrespondSettings, Matcher, ModelSamples, Silhouette, data_to_model_mm
+from ._wrist_kernels import surface_past_outline
+from .correspond import (
+    CorrespondSettings,
+    Matcher,
+    ModelSamples,
+    Silhouette,
+    data_to_model_mm,
+)
 from .coupling import restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
@@ -42,7 +49,6 @@ from .scale import (
     shaped_context,
     size_score,
 )
-from ._wrist_kernels import surface_past_outline
 from .wrist import arm_behind, arm_length_m, wrist_cost_mm, wrist_cue
 
 LIMITS = ("anatomical", "data", "model")

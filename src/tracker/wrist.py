@@ -24,9 +24,14 @@ import numpy as np
 from scipy import ndimage
 
 from ._icp_kernels import feature_transform
-from ._wrist_kernels import longest_line, near_line, outline_and_ring, seeded_surfaces
+from ._wrist_kernels import (
+    count_near,
+    longest_line,
+    near_line,
+    outline_and_ring,
+    seeded_surfaces,
+)
 from .segment import surfaces
-
 
 WRIST_REACH_MM = 50.0
 WRIST_TURN_MM = 30.0
@@ -138,13 +143,11 @@ def arm_behind(cue, mask, frame_depth, camera, *, reach_m=0.06, step_m=0.05, min
     x0, x1 = max(int(u - r), 0), min(int(np.ceil(u + r)) + 1, w)
     if y0 >= y1 or x0 >= x1:
         return False
-    yy, xx = np.mgrid[y0:y1, x0:x1]
-    d = frame_depth[y0:y1, x0:x1]
-    near = ((yy - v) ** 2 + (xx - u) ** 2 <= r * r) & ~mask[y0:y1, x0:x1]
-    with np.errstate(invalid="ignore"):
-        near &= np.abs(d - z) <= step_m
+    # counted in compiled code: the disc's pixels, off the hand, near the cue's depth
+    near = count_near(np.asarray(mask, bool), np.asarray(frame_depth, float), y0, y1, x0, x1, float(u), float(v),
+                      float(r), z, float(step_m))
     expected = (cue.width_m * camera.fx / z) * r
-    return bool(near.sum() >= min_share * expected)
+    return bool(near >= min_share * expected)
 
 
 def arm_length_m(cue, mask, frame_depth, camera, *, reach_m=0.15, step_m=0.015, near_px=5) -> float:

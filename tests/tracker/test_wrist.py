@@ -14,7 +14,14 @@ from scipy import ndimage
 
 from tests.conftest import shared
 from tracker._icp_kernels import feature_transform
-from tracker._wrist_kernels import longest_line, near_line, outline_and_ring, seeded_surfaces, surface_past_outline
+from tracker._wrist_kernels import (
+    count_near,
+    longest_line,
+    near_line,
+    outline_and_ring,
+    seeded_surfaces,
+    surface_past_outline,
+)
 from tracker.cameras import preset
 from tracker.observe import observe
 from tracker.segment import surfaces
@@ -150,6 +157,20 @@ def test_surface_past_outline_is_the_ring_test(win, v0, u0):
     feature_transform(np.ascontiguousarray(sub), dist, np.empty((h, w), np.int32), np.empty((h, w), np.int32))
     ring = (dist > 0) & (dist <= 2.0)
     assert surface_past_outline(dist, frame, v0, u0, 2.0) == bool(np.isfinite(frame[v0:v0 + h, u0:u0 + w][ring]).any())
+
+
+@given(_window(), st.floats(-3, 16), st.floats(-3, 16), st.floats(0, 9), st.sampled_from([0.5, 0.52, 0.6]))
+@settings(max_examples=300, deadline=None)
+def test_count_near_is_arm_behinds_disc(win, u, v, r, z):
+    m, d = win
+    h, w = m.shape
+    y0, y1 = max(int(v - r), 0), min(int(np.ceil(v + r)) + 1, h)
+    x0, x1 = max(int(u - r), 0), min(int(np.ceil(u + r)) + 1, w)
+    assume(y0 < y1 and x0 < x1)
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    with np.errstate(invalid="ignore"):
+        want = (((yy - v) ** 2 + (xx - u) ** 2 <= r * r) & ~m[y0:y1, x0:x1] & (np.abs(d[y0:y1, x0:x1] - z) <= 0.05)).sum()
+    assert count_near(m, d, y0, y1, x0, x1, u, v, r, z, 0.05) == want
 
 
 def test_rendered_arm_cue_is_the_scipy_formula(hand):
