@@ -49,7 +49,8 @@ SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
-NO_NARROWING_WRIST = 1.3  # wrist distance (palm radii) from the palm centre when nothing narrows
+NO_NARROWING_WRIST = 1.2  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
+TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
 SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm even when it crosses the finger ring in pieces
 OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
@@ -782,7 +783,9 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     its own direction, from where it leaves the circle to its far end, when that is more than
     :data:`ARM_BEND_DEG` off (a wrist bent sideways puts c off the arm's axis). The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
-    smallest at the wrist; everything beyond it in a strip of ±2.5 r around the axis is removed.
+    smallest at the wrist: the cut goes where it stops narrowing — where a slow taper ends when it
+    narrows only slowly, and at least :data:`NO_NARROWING_WRIST` r out then — and everything beyond it
+    in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
     ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
     they touch goes on too (an arm entering a table the sensor's shadow separates from it), but
@@ -926,9 +929,16 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # width shrinks by less than 10 % over the next 0.3 r (a forearm further out may still taper,
     # recede or be cropped, so the global minimum would cut too late)
     i = _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
-    # no narrowing at all (an arm as wide as the palm in the image, e.g. a tilted palm): the wrist
-    # is then taken a palm's half length (1.3 r) from the palm's centre
-    t_w = lo + i if i > 0 else max(lo, int(round(NO_NARROWING_WRIST * r)))
+    if i > 0:
+        t_w = lo + i
+    else:
+        # no sharp narrowing: a slow taper (a small hand at the coarse search's resolution, r ≈ 7 px,
+        # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
+        # the palm) ends where the width stops falling over TAPER_WINDOW_R; and the wrist lies at least
+        # NO_NARROWING_WRIST r from the palm's centre (an arm as wide as the palm in the image, e.g. a
+        # tilted palm: the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames)
+        taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), 2))
+        t_w = max(lo + taper, int(round(NO_NARROWING_WRIST * r)))
     cut = strip & (t > t_w)
     out = m.copy()
     out[y0:y1, x0:x1] &= ~cut
@@ -942,5 +952,24 @@ def _end_of_narrowing(profile, window, drop=0.10):
     p = np.asarray(profile, float)
     for i in range(p.size - window):
         if p[i] - p[i + window] < drop * p[i]:
+            return i
+    return p.size - 1
+
+
+def _end_of_taper(profile, window, drop=0.10):
+    """First index from which ``profile`` never falls more than ``drop`` (relative) below its value
+    there within the next ``window`` samples; the last index when it keeps falling.
+
+    Unlike :func:`_end_of_narrowing` (the width ``window`` samples on), the lowest width within the
+    window counts, so a slow taper that ends in a flat stretch ends where the flat stretch starts.
+
+    >>> _end_of_taper([17, 17, 16, 15, 14, 13, 12, 12, 12, 12, 12, 11], 3)   # 13 is within 10 % of the flat 12
+    5
+    >>> _end_of_taper([12, 12, 12, 12], 3), _end_of_taper([9, 8, 7, 6], 2)
+    (0, 3)
+    """
+    p = np.asarray(profile, float)
+    for i in range(p.size - 1):
+        if p[i] - p[i:i + window + 1].min() < drop * p[i]:
             return i
     return p.size - 1
