@@ -393,19 +393,39 @@ def calibration_done(tracker) -> bool:
     return done and (not st.finger_lengths or tracker.finger_scales_ is not None)
 
 
-def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None):
+def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=False):
     """``tracker calibrate``: track ``job.recording``'s first frames only until the hand's size (and
     finger lengths) is settled (:func:`calibration_done`, at most ``max_frames`` frames), then write
     the calibrated hand to ``output`` (:func:`tracker.scale.calibrated_hand`, never over an existing
     file unless ``job.overwrite``). Returns ``(hand, tracker, frames)``: the hand written, the tracker
     and the frame indices tracked. A recording that ends first, or in which no frame could be
     calibrated, is refused when there is no size at all; fewer estimates than ``scale_frames`` are
-    written as they are (the record lists them)."""
+    written as they are (the record lists them). ``each``: the first ``max_frames`` frames are stills
+    or postures far apart, each fitted from its own start (:meth:`HandTracker.calibrate_each`)."""
     rec = open_job_recording(job)
     bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None
     hand = HandModel.load(job.hand_model, right=(getattr(rec, "handedness", None) or job.handedness) == "right")
     tracker = HandTracker(hand, job.settings.replace(hand_scale="auto"), synergies=bundle)
     cam, frames = rec.camera, []
+    if each:
+        obs = []
+        for frame in rec:
+            depth = frame.depth
+            if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
+                obs.append((frame.index, observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter,
+                                                 color=frame.color)))
+            if on_frame is not None:
+                on_frame(frame, None, obs[-1][1] if obs and obs[-1][0] == frame.index else None)
+            if len(obs) >= max_frames:
+                break
+        try:
+            used = tracker.calibrate_each([ob for _, ob in obs], cam)
+        except TrackerError as exc:
+            raise TrackerError(job.recording, exc.reason) from None
+        frames = [obs[k][0] for k in used]
+        out = calibrated_hand(tracker, recording=job.recording, frames=frames)
+        out.save(output, overwrite=job.overwrite)
+        return out, tracker, frames
     for frame in rec:
         depth = frame.depth
         if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):

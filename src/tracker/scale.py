@@ -456,6 +456,8 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
             k: {"unshrunk": _finite_or_none(a, 6), "se_log": _finite_or_none(se, 6)} for k, (a, se) in spread.items()},
         "recording": None if recording is None else _where(recording),
         "frames": None if frames is None else [int(f) for f in frames],
+        # each frame fitted from its own start (HandTracker.calibrate_each), or tracked frame to frame
+        "each_frame": bool(getattr(tracker, "calibrated_each_", False)),
         "settings": {"scale_frames": int(st.scale_frames), "scale_refine": st.scale_refine,
                      "finger_lengths": bool(st.finger_lengths), "scale_range": [float(v) for v in st.scale_range]},
         "tool": f"{GENERATOR} {generator_version()} (tracker.scale.calibrated_hand)",

@@ -525,7 +525,8 @@ def calibrate(
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
     hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [on]."),
-    frames: int = typer.Option(60, "--frames", help="Read at most this many frames."),
+    frames: Optional[int] = typer.Option(None, "--frames", help="Read at most this many frames [60; with --each 5]."),
+    each: bool = typer.Option(False, "--each", help="The frames are stills or postures far apart (e.g. tracker import --each): fit each from its own start instead of tracking from frame to frame; the size is their median, the finger lengths come from all of them."),
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
@@ -540,6 +541,9 @@ def calibrate(
     re-estimation, so every recording of that user gets the same hand)."""
     from .errors import TrackerError
 
+    if frames is None:
+        # stills: a few postures apart tell finger lengths apart (tracker.scale.finger_scales)
+        frames = 5 if each else 60
     if frames < 1:
         raise TrackerError("--frames", f"must be positive, got {frames}")
     _check_hand_file(output)
@@ -566,10 +570,11 @@ def calibrate(
                    overwrite=overwrite, hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start)
     with _progress("calibrating") as progress:
         bar = progress.add_task("calibrate", total=None)
-        out, tracker, used = calibrate_job(job, output, max_frames=frames,
+        out, tracker, used = calibrate_job(job, output, max_frames=frames, each=each,
                                            on_frame=lambda frame, r, ob: progress.advance(bar))
     cal = out.calibration
-    table = Table(title=f"hand calibrated on {recording} ({len(used)} frames: {used[0]}–{used[-1]})")
+    how = "each from its own start" if each else "tracked"
+    table = Table(title=f"hand calibrated on {recording} ({len(used)} frames {how}: {used[0]}–{used[-1]})")
     table.add_column("")
     table.add_column("factor", justify="right")
     table.add_column("estimates / spread", justify="right")
