@@ -49,7 +49,7 @@ SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
-NO_NARROWING_WRIST = 1.2  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
+NO_NARROWING_WRIST = 1.3  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
 TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
 SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm even when it crosses the finger ring in pieces
@@ -936,7 +936,8 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
         # the palm) ends where the width stops falling over TAPER_WINDOW_R; and the wrist lies at least
         # NO_NARROWING_WRIST r from the palm's centre (an arm as wide as the palm in the image, e.g. a
-        # tilted palm: the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames)
+        # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
+        # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
         taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), 2))
         t_w = max(lo + taper, int(round(NO_NARROWING_WRIST * r)))
     cut = strip & (t > t_w)
