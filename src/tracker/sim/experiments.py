@@ -435,6 +435,9 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
 #: The labelled real frames' fingertip names (labels.json keys) and the issue's floors.
 REAL_TIPS = ("thumb", "index", "middle", "ring", "pinky")
 REAL_TIP_PX, REAL_WRIST_PX, REAL_MASK_SHARE, REAL_MASK_DILATE_PX = 15.0, 20.0, 0.90, 8
+#: The report's second protocol: the hand calibrated from each recording's first this many stills (the
+#: tracker's own scale_frames).
+REAL_CALIBRATE_EACH = 5
 
 
 def _frame_order(name):
@@ -447,7 +450,7 @@ def _frame_order(name):
     return (rec, int(idx)) if idx.isdigit() else (name, -1)
 
 
-def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
+def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0):
     """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
     PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
     tracked as a user would: the ``sr305`` preset, the right hand, defaults, the hand size calibrated on
@@ -457,7 +460,10 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
     (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip),
     ``wrist_px``, ``in_mask`` (share of keypoints inside the mask dilated by
     :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
-    (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in)."""
+    (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in). ``calibrate_each``: the
+    hand is calibrated instead on each recording's first ``calibrate_each`` labelled frames, each fitted
+    from its own start (:meth:`HandTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
+    lengths), and every frame is tracked on that hand."""
     import json
 
     from PIL import Image
@@ -476,13 +482,24 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
     bundle = load_bundle("fingerfist")
     # in recording order: "first labelled frame" is the earliest (230536_30, not 230536_110 as text sorts)
     names = sorted((k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v), key=_frame_order)
-    rows, sizes = [], {}
+    rows, sizes, calibrated = [], {}, {}
+    depths = {name: units_to_metres(read_depth_units(root / f"{name}.png", cam), cam) for name in names}
+    if calibrate_each:
+        for recording in dict.fromkeys(n.split("_")[0] for n in names):
+            first = [n for n in names if n.split("_")[0] == recording][:calibrate_each]
+            tr = HandTracker(HandModel.load(right=True), TrackerSettings(), synergies=bundle)
+            tr.calibrate_each([observe(depths[n], cam) for n in first], cam)
+            calibrated[recording] = tr
     for k, name in enumerate(names):
-        depth = units_to_metres(read_depth_units(root / f"{name}.png", cam), cam)
+        depth = depths[name]
         mask = np.asarray(Image.open(root / "labels" / f"{name}_hand.png")) > 0
         recording = name.split("_")[0]
-        tr = HandTracker(HandModel.load(right=True), TrackerSettings().replace(hand_scale=sizes.get(recording, "auto")),
-                         synergies=bundle)
+        if calibrate_each:
+            tr = calibrated[recording]
+            tr.reset()
+        else:
+            tr = HandTracker(HandModel.load(right=True),
+                             TrackerSettings().replace(hand_scale=sizes.get(recording, "auto")), synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)
         sizes.setdefault(recording, tr.scale_)
@@ -494,7 +511,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None):
         near = ndimage.binary_dilation(mask, iterations=REAL_MASK_DILATE_PX)
         ui = np.clip(np.rint(uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
         inside = float(near[ui[:, 1], ui[:, 0]].mean())
-        rows.append({"name": name, "scale": float(tr.scale_), "uv": uv, "names": kn, "labels": lab, "mask": mask,
+        rows.append({"name": name, "scale": float(tr.scale_), "fingers": dict(tr.finger_scales_ or {}),
+                     "uv": uv, "names": kn, "labels": lab, "mask": mask,
                      "tips_px": tips, "wrist_px": wrist, "in_mask": inside,
                      "ok": bool(max(tips.values()) <= REAL_TIP_PX and wrist <= REAL_WRIST_PX
                                 and inside >= REAL_MASK_SHARE)})

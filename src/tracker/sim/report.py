@@ -19,7 +19,7 @@ from synergy.bundle import load_bundle
 
 from .experiments import (
     FIRST_FRAME_MM, PAPER, REALISTIC_SCENES, REALISTIC_SENSORS, SCENARIO_NAMES, default_camera,
-    REAL_MASK_DILATE_PX, REAL_MASK_SHARE, REAL_TIP_PX, REAL_TIPS, REAL_WRIST_PX,
+    REAL_CALIBRATE_EACH, REAL_MASK_DILATE_PX, REAL_MASK_SHARE, REAL_TIP_PX, REAL_TIPS, REAL_WRIST_PX,
     experiment_density, experiment_icp, experiment_modes, experiment_occlusion, experiment_real_frames,
     experiment_realistic,
     experiment_reduced_pcs, experiment_scenarios, experiment_single_frame, segments,
@@ -130,8 +130,9 @@ def realistic_lines(rows, frames) -> list:
     return L
 
 
-def real_lines(rows, overlay_dir="real") -> list:
-    """The "real labelled frames" section of the report (markdown lines; overlays in ``overlay_dir``)."""
+def real_lines(rows, overlay_dir="real", each=None) -> list:
+    """The "real labelled frames" section of the report (markdown lines; overlays in ``overlay_dir``);
+    ``each``: the same frames' rows on the hand calibrated from each recording's first stills."""
     L = ["## Real labelled frames (Intel RealSense SR305, ../shared/data/realsense_sr305_lada)", "",
          "Each labelled frame tracked as a user would: the `sr305` preset, the right hand, defaults, the hand size "
          "calibrated on each recording's first labelled frame and reused for its other frames. Labels (wrist crease, "
@@ -157,7 +158,27 @@ def real_lines(rows, overlay_dir="real") -> list:
           f"of the palm, whose rounded base reaches ~1 cm beyond it): median {np.median(wrists):.0f} px apart, the "
           f"joint on the palm side of the crease in {palmward} of {len(rows)} frames — part of that is a difference of "
           "definition, not of fit. The overlays draw the labelled wrist as a cyan cross beside the tips.", ""]
+    if each:
+        L += _each_lines(each)
     return L
+
+
+def _each_lines(rows) -> list:
+    """The real frames tracked on the hand calibrated from each recording's first stills, summed up."""
+    tips = np.array([v for r in rows for v in r["tips_px"].values()])
+    hands = {}
+    for r in rows:
+        hands.setdefault(r["name"].split("_")[0], r)
+    told = "; ".join(f"{k}: size {r['scale']:.3f}, " + ", ".join(f"{f} {v:.2f}" for f, v in r["fingers"].items())
+                     for k, r in hands.items())
+    return [f"The same frames on the hand calibrated from each recording's first {REAL_CALIBRATE_EACH} labelled "
+            "frames, each fitted from its own start (`tracker calibrate --each`: the size their median, each "
+            f"finger's length from all of them; {told}): frames meeting every floor: "
+            f"{sum(r['ok'] for r in rows)} of {len(rows)}; tips within {REAL_TIP_PX:g} px: "
+            f"{int(np.sum(tips <= REAL_TIP_PX))} of {tips.size} (median {np.median(tips):.1f} px, worst "
+            f"{tips.max():.0f} px); wrist within {REAL_WRIST_PX:g} px: "
+            f"{sum(r['wrist_px'] <= REAL_WRIST_PX for r in rows)} of {len(rows)}; frames off a floor: "
+            + (", ".join(r["name"] for r in rows if not r["ok"]) or "none") + ".", ""]
 
 
 def _toward_palm(row) -> float:
@@ -249,17 +270,19 @@ def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1, real_data
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     real = (experiment_real_frames(real_data, overlay_dir=out / "real") if "real" in parts else None)
+    # the same frames on the hand calibrated from each recording's first stills (tracker calibrate --each)
+    each = experiment_real_frames(real_data, calibrate_each=REAL_CALIBRATE_EACH) if "real" in parts else None
     if parts == {"real"}:
-        L = ["# Experiments: real labelled frames", "", *real_lines(real)]
+        L = ["# Experiments: real labelled frames", "", *real_lines(real, each=each)]
         atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
-        return {"real": real}
+        return {"real": real, "real_each": each}
     parts -= {"real"}
     names = [n for n in STEPS if ("realistic" if n.startswith("realistic") else "paper") in parts]
     res = run_steps(names, quick, jobs, progress)
     realistic = ([r for n in names if n.startswith("realistic") for r in res[n]] if "realistic" in parts else None)
     if parts == {"realistic"}:
         L = ["# Experiments: realistic scenes", "", *realistic_lines(realistic, realistic_frames(quick)),
-             *(real_lines(real) if real is not None else [])]
+             *(real_lines(real, each=each) if real is not None else [])]
         atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
         return {"realistic": realistic, "real": real}
     c = _shared(quick)
@@ -346,7 +369,7 @@ def report(out_dir, *, quick=False, progress=None, parts=None, jobs=1, real_data
     if realistic is not None:
         L += realistic_lines(realistic, realistic_frames(quick))
     if real is not None:
-        L += real_lines(real)
+        L += real_lines(real, each=each)
     atomic_write_text(out / "report.md", "\n".join(L) + "\n", overwrite=True)
     return {"icp": icp, "density": dens, "modes": modes, "reduced_pcs": pcs, "noise": noisy, "mesh": mesh, "occlusion": occ, "single": single,
             "scenarios": {f"{nz}{'' if net else ', no net'}": v for (nz, net), v in scen.items()}, "realistic": realistic,
