@@ -45,3 +45,24 @@ def test_real_lines_count_the_floors():
     text = "\n".join(real_lines([good, bad]))
     assert "every floor: 1 of 2" in text and "tips within 15 px: 3 of 4" in text and "[png](real/b.png)" in text
     assert "palm side of the crease in 1 of 2 frames" in text
+
+
+def test_real_lines_sum_up_the_calibrated_protocol():
+    """With the rows of the hand calibrated from stills, the section adds one line: the hand of each
+    recording (its first row's size and finger lengths) and the same counts, the frames off a floor named."""
+    from tracker.sim.report import real_lines
+
+    mask = np.zeros((20, 20), bool)
+    mask[:10, 5:15] = True
+    row = {"mask": mask, "labels": {"wrist": [10, 10]}, "uv": np.array([[10.0, 6.0]]), "in_mask": 1.0,
+           "fingers": {"thumb": 1.06, "pinky": 0.91}}
+    rows = [{**row, "name": "r1_30", "scale": 1.263, "tips_px": {"thumb": 3.0}, "wrist_px": 5.0, "ok": True},
+            {**row, "name": "r1_50", "scale": 1.263, "tips_px": {"thumb": 39.0}, "wrist_px": 5.0, "ok": False},
+            {**row, "name": "r2_0", "scale": 1.238, "tips_px": {"thumb": 4.0}, "wrist_px": 21.0, "ok": False}]
+    plain = "\n".join(real_lines(rows))
+    text = "\n".join(real_lines(rows, each=rows))
+    assert "calibrate --each" not in plain
+    extra = text[len(plain):]
+    assert "r1: size 1.263, thumb 1.06, pinky 0.91; r2: size 1.238" in extra
+    assert "every floor: 1 of 3" in extra and "tips within 15 px: 2 of 3" in extra and "worst 39 px" in extra
+    assert "wrist within 20 px: 2 of 3" in extra and "off a floor: r1_50, r2_0." in extra
