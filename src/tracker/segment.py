@@ -505,7 +505,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     hit = np.unique(lab_c[seed])
     core = np.isin(lab_c, hit[hit > 0])
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
-    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k)
+    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -528,7 +528,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     return out
 
 
-def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None):
+def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None):
     """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
 
     Each pixel's local background is the grey closing of the region's depth (the farthest depth
@@ -541,9 +541,13 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None):
     the region behind it covers at least :data:`FRONT_BEHIND_AREA_M2` — a hand held in front of the
     body, which the arm joins to the hand's surface. A hand alone, with its arm or on its own, has no
     such layer (its outline borders no data, another surface or its own pixels at its own depth) and
-    keeps its region, ``behind`` empty and ``seed`` unchanged. ``behind``: the region's pixels across
-    the step, within 3 px of the layer (where the hand's surface does not go on: an arm, which does,
-    meets the body without a step); ``seed``: the layer's part of the seed, or its nearest 15 mm."""
+    keeps its region, ``behind`` empty and ``seed`` unchanged. ``behind``: the surface's pixels outside
+    the layer (the body, past the region's reach too) except where the hand's surface goes on
+    (:func:`_goes_on`: an arm receding into the body meets it without a step across its width; a finger
+    leaning back to within the step of the body does not go on, nor does a part beside it); ``seed``:
+    the layer's part of the seed, or its nearest 15 mm, moved to the fingers' end when the layer is the
+    hand with its whole forearm (:func:`_hand_end`, ``border_px`` as there; the arm then goes on at its
+    other end)."""
     none = np.zeros(region.shape, bool)
     if not (region & seed).any():
         return region, none, seed
@@ -586,14 +590,50 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None):
     if (step.sum() < FRONT_OUTLINE_SHARE * ring.sum()
             or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2):
         return region, none, seed
-    out, behind = none.copy(), none.copy()
+    out, goes_on = none.copy(), none.copy()
     out[win] = layer
-    behind[win] = step
+    goes_on[win] = _goes_on(layer, rw & ring & ~step, dw, focal)
+    # everywhere else the surface is the body behind the layer, past the region's reach too: a finger
+    # leaning back to within the step of it, or the body beside the fingertips, is no arm going on
+    behind = (region if surface is None else surface | region) & ~out & ~goes_on
     new_seed = seed & out
     if not new_seed.any():
         with np.errstate(invalid="ignore"):
             new_seed = out & (d <= float(np.percentile(d[out], 1)) + 0.015)
+    # the layer may be the hand with its whole forearm, free-ended in front of the body (a turning hand
+    # held out): the seed is then its fingers' end, not the forearm's end nearer the camera, and the arm
+    # goes on at its other end (to the elbow and the body, whether or not a step shows there)
+    fingers, _ = _hand_end(out, d, float(np.nanmin(d[out])), np.inf, new_seed, focal, border_px)
+    if not np.array_equal(fingers, new_seed):
+        new_seed = fingers
+        yy, xx = np.nonzero(layer)
+        cy, cx = (float(v.mean()) + s.start for v, s in zip(np.nonzero(fingers[win]), win))
+        dist = np.hypot(yy + win[0].start - cy, xx + win[1].start - cx)
+        end = np.zeros(layer.shape, bool)
+        end[yy, xx] = dist >= dist.max() - 0.03 * focal / float(np.nanmedian(dw[layer]))
+        arm_end = none.copy()
+        arm_end[win] = rw & ring & ndimage.maximum_filter(end, size=7)
+        behind &= ~arm_end
     return out, behind, new_seed
+
+
+def _goes_on(layer, contact, d, focal):
+    """The pixels of ``contact`` (the region's pixels next to ``layer`` without a depth step) where the
+    hand's surface goes on past the layer: beside the layer's wide part (an opening with a disk
+    :data:`FINGER_MAX_M` across removes the fingers), in pieces spanning more than that (an arm receding
+    into the body meets it across its width; a finger leaning back, lying along the palm or the thumb,
+    meets it over a finger's width or along its length beside the wide part in a thin band)."""
+    o = fill_holes(ndimage.binary_closing(layer, iterations=1) | layer)
+    px_m = focal / float(np.nanmedian(d[layer]))
+    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
+    wide = ndimage.binary_opening(o, structure=disk)
+    out = contact & ndimage.maximum_filter(wide, size=7)
+    lab, n = ndimage.label(out, structure=np.ones((3, 3)))
+    if n == 0:
+        return out
+    span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
+    return (span >= FINGER_MAX_M * px_m)[lab] & out
 
 
 def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None, jump=0.02):

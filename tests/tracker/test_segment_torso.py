@@ -48,14 +48,31 @@ def test_torso_a_few_cm_behind_the_hand_is_left_out(hand, sensor, scale, gap, fr
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
+@pytest.mark.parametrize("sensor, scale, frame", [
+    ("realsense", 1.0, 16), ("realsense", 1.0, 21), ("kinect1", 1.5, 17), ("kinect1", 1.5, 22)])
+def test_a_turning_hand_a_few_cm_in_front_of_the_body_is_found(hand, sensor, scale, frame):
+    """Rotation with the torso 3 cm behind, depth only. The body beside the layer counted as the arm going
+    on: realsense x1 (the layer is the hand with its whole free-ended forearm) the wrist cut kept the
+    forearm's end (recall 0.00 on both frames); kinect1 x1.5 a thumb touching it was cut as the arm, with
+    fingertips (0.75, 0.71). Now the body is behind the layer except where its wide part meets it without a
+    step, and the fingers' end of a whole arm is the seed: recall ≥ 0.9 (measured 0.93-0.95), precision
+    ≥ 0.8 (0.84-0.96)."""
+    cam, depth, labels = _torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate")
+    mask = observe(depth, cam).mask
+    seen = (labels >= 0) & np.isfinite(depth)
+    both = (mask & seen).sum()
+    recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
+    assert recall >= 0.9 and precision >= 0.8, (recall, precision)
+
+
 @pytest.mark.xfail(strict=True, reason="known limit (README): a hand turning in front of the body loses "
                    "fingers that lean back to within 1 cm of it, and the wrist cut then takes the wrong end")
 @pytest.mark.parametrize("sensor, scale, frame", [("realsense", 1.0, 20), ("kinect1", 1.5, 25)])
 def test_a_turning_hand_a_few_cm_in_front_of_the_body_keeps_its_fingers(hand, sensor, scale, frame):
-    """Rotation with the torso 3 cm behind, depth only. realsense x1 frame 20: the layer in front is the
-    hand with its whole free-ended forearm (recall 0.93) and the wrist cut keeps the forearm's end (mask
-    recall 0.00); kinect1 x1.5 frame 25: a finger leaning back is left behind with the body (layer recall
-    0.76) and, through it, the thumb counts as an arm going on, whose cut takes three fingertips (0.63).
+    """Rotation with the torso 3 cm behind, depth only, still short of a hand's mask: realsense x1 frame 20
+    (recall 0.00 before the body beside the layer stopped counting as the arm going on, 0.81 now, precision
+    0.90); kinect1 x1.5 frame 25: a finger leaning back is left behind with the body (layer recall 0.76;
+    mask recall 0.63 before, 0.82 now).
     Without the layer rule the torso filled the mask (precision 0.05 and 0.23). A hand's mask is recall
     ≥ 0.85 and precision ≥ 0.8 (the open-close frames above: 0.94-0.98, 0.88-0.97)."""
     cam, depth, labels = _torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate")
@@ -67,19 +84,20 @@ def test_a_turning_hand_a_few_cm_in_front_of_the_body_keeps_its_fingers(hand, se
 
 
 def _hand_and_arm(body):
-    """A 40 × 40 px 'hand' at 0.57 m with a 16 px wide 'arm' below it receding to 0.60 m at the
+    """A 40 × 40 px 'hand' at 0.57 m with a 36 px (4 cm) wide 'arm' below it receding to 0.60 m at the
     image's lower edge, at f = 500 px (1 px ≈ 1.2 mm); with ``body``, a plane at 0.60 m behind both
     (0.12 m², a torso's front within a hand's reach)."""
     d = np.full((300, 280), 0.60 if body else np.nan)
     d[100:140, 120:160] = 0.57
-    d[140:300, 132:148] = np.linspace(0.57, 0.60, 160)[:, None]
+    d[140:300, 122:158] = np.linspace(0.57, 0.60, 160)[:, None]
     return d
 
 
 def test_the_layer_in_front_of_a_body_is_taken_and_a_hand_alone_is_kept():
     """A plane 3 cm behind a hand whose arm reaches it without a step: the region is the layer in
-    front (the hand and the arm where it is more than 1 cm in front of the plane), ``behind`` the plane's
-    pixels along the hand's outline. The same hand and arm with nothing behind keep their region."""
+    front (the hand and the arm where it is more than 1 cm in front of the plane), ``behind`` the plane
+    (around the hand and away from it alike: the body beyond the hand's outline is no arm going on), the
+    seed on the hand. The same hand and arm with nothing behind keep their region."""
     for body in (True, False):
         d = _hand_and_arm(body)
         region = np.isfinite(d)
@@ -88,8 +106,8 @@ def test_the_layer_in_front_of_a_body_is_taken_and_a_hand_alone_is_kept():
         out, behind, new_seed = _in_front(region, d, seed, 500.0)
         if body:
             assert out[100:140, 120:160].all() and not out[:95].any() and not out[:, :115].any()
-            assert out[140:240, 132:148].all() and not out[-40:].any()   # the arm until 1 cm off the plane
-            assert behind[97, 140] and behind[120, 117] and not behind[200, 60] and new_seed[120, 140]
+            assert out[140:240, 122:158].all() and not out[-40:].any()   # the arm until 1 cm off the plane
+            assert behind[97, 140] and behind[120, 117] and behind[200, 60] and new_seed[120, 140]
         else:
             assert (out == region).all() and not behind.any() and (new_seed == seed).all()
 
