@@ -24,6 +24,22 @@ def surface_past_outline(dist, frame, v0, u0, reach_px):
 
 
 @njit(cache=True)
+def _within_two(a, v, u):
+    """Whether ``a`` is set within city-block distance 2 of (v, u): what two 4-connected dilations reach."""
+    H, W = a.shape
+    for dv in range(-2, 3):
+        vv = v + dv
+        if vv < 0 or vv >= H:
+            continue
+        r = 2 - abs(dv)
+        for du in range(-r, r + 1):
+            uu = u + du
+            if 0 <= uu < W and a[vv, uu]:
+                return True
+    return False
+
+
+@njit(cache=True)
 def outline_and_ring(m, d):
     """``(inner, ring)`` of a mask window ``m`` over its depth ``d``: ``inner = m & ~binary_erosion(m)``
     (a mask pixel with a 4-neighbour off the mask or off the window) and
@@ -42,20 +58,7 @@ def outline_and_ring(m, d):
             if not np.isfinite(d[v, u]):
                 continue
             # a mask pixel within city-block distance 2 (what two 4-connected dilations reach)
-            hit = False
-            for dv in range(-2, 3):
-                vv = v + dv
-                if vv < 0 or vv >= H:
-                    continue
-                r = 2 - abs(dv)
-                for du in range(-r, r + 1):
-                    uu = u + du
-                    if 0 <= uu < W and m[vv, uu]:
-                        hit = True
-                        break
-                if hit:
-                    break
-            ring[v, u] = hit
+            ring[v, u] = _within_two(m, v, u)
     return inner, ring
 
 
@@ -131,20 +134,8 @@ def near_line(inner, line):
     out = np.zeros((H, W), np.bool_)
     for v in range(H):
         for u in range(W):
-            if not inner[v, u]:
-                continue
-            for dv in range(-2, 3):
-                vv = v + dv
-                if vv < 0 or vv >= H:
-                    continue
-                r = 2 - abs(dv)
-                for du in range(-r, r + 1):
-                    uu = u + du
-                    if 0 <= uu < W and line[vv, uu]:
-                        out[v, u] = True
-                        break
-                if out[v, u]:
-                    break
+            if inner[v, u]:
+                out[v, u] = _within_two(line, v, u)
     return out
 
 
