@@ -33,6 +33,14 @@ def _torso_frame(hand, sensor, scale, gap, frame, motion="open-close"):
     return cam, depth, r.labels
 
 
+def _mask_scores(cam, depth, labels):
+    """``(recall, precision)`` of the default segmenter's mask against the rendered hand's seen pixels."""
+    mask = observe(depth, cam).mask
+    seen = (labels >= 0) & np.isfinite(depth)
+    both = (mask & seen).sum()
+    return both / seen.sum(), both / max(mask.sum(), 1)
+
+
 @pytest.mark.parametrize("sensor, scale, gap, frame", [
     ("realsense", 1.0, 0.03, 10), ("realsense", 1.5, 0.05, 15), ("realsense", 1.5, 0.03, 0),
     ("kinect1", 1.0, 0.03, 15), ("kinect1", 1.5, 0.03, 10)])
@@ -40,11 +48,7 @@ def test_torso_a_few_cm_behind_the_hand_is_left_out(hand, sensor, scale, gap, fr
     """Without colour, a torso 3–5 cm behind the hand filled most of the mask (old precision
     0.06–0.26: the palm circle landed on the torso). The layer in front is the hand and its arm, whose
     forearm the wrist cut then removes: precision ≥ 0.8 (measured 0.88–0.97), recall ≥ 0.9 (0.94–0.98)."""
-    cam, depth, labels = _torso_frame(hand, sensor, scale, gap, frame)
-    mask = observe(depth, cam).mask
-    seen = (labels >= 0) & np.isfinite(depth)
-    both = (mask & seen).sum()
-    recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
+    recall, precision = _mask_scores(*_torso_frame(hand, sensor, scale, gap, frame))
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
@@ -57,11 +61,7 @@ def test_a_turning_hand_a_few_cm_in_front_of_the_body_is_found(hand, sensor, sca
     fingertips (0.75, 0.71). Now the body is behind the layer except where its wide part meets it without a
     step, and the fingers' end of a whole arm is the seed: recall ≥ 0.9 (measured 0.93-0.95), precision
     ≥ 0.8 (0.84-0.96)."""
-    cam, depth, labels = _torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate")
-    mask = observe(depth, cam).mask
-    seen = (labels >= 0) & np.isfinite(depth)
-    both = (mask & seen).sum()
-    recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
+    recall, precision = _mask_scores(*_torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate"))
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
@@ -75,11 +75,7 @@ def test_a_turning_hand_a_few_cm_in_front_of_the_body_keeps_its_fingers(hand, se
     mask recall 0.63 before, 0.82 now).
     Without the layer rule the torso filled the mask (precision 0.05 and 0.23). A hand's mask is recall
     ≥ 0.85 and precision ≥ 0.8 (the open-close frames above: 0.94-0.98, 0.88-0.97)."""
-    cam, depth, labels = _torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate")
-    mask = observe(depth, cam).mask
-    seen = (labels >= 0) & np.isfinite(depth)
-    both = (mask & seen).sum()
-    recall, precision = both / seen.sum(), both / max(mask.sum(), 1)
+    recall, precision = _mask_scores(*_torso_frame(hand, sensor, scale, 0.03, frame, motion="rotate"))
     assert recall >= 0.85 and precision >= 0.8, (recall, precision)
 
 
