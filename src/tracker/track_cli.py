@@ -526,7 +526,7 @@ def calibrate(
     hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [on]."),
     frames: Optional[int] = typer.Option(None, "--frames", help="Read at most this many frames [60; with --each 5]."),
-    each: bool = typer.Option(False, "--each", help="The frames are stills or postures far apart (e.g. tracker import --each): fit each from its own start instead of tracking from frame to frame; the size is their median, the finger lengths come from all of them."),
+    each: bool = typer.Option(False, "--each", help="The frames are stills or postures far apart (e.g. a folder of PNGs imported as one recording with tracker import DIR): fit each from its own start instead of tracking from frame to frame; the size is their median, the finger lengths come from all of them."),
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
