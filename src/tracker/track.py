@@ -506,8 +506,8 @@ class HandTracker:
         frame's is), the size is their median, and with ``finger_lengths`` each finger's length comes
         from every frame's start search at that size (:func:`tracker.scale.finger_scales`: postures
         apart tell lengths apart best). Frames with fewer than ``min_points`` points are skipped. The
-        tracker then tracks on the calibrated hand from a fresh start. Returns the indices of the
-        frames used.
+        tracker then tracks on the calibrated hand from a fresh start, and keeps it (however few
+        frames it was calibrated on). Returns the indices of the frames used.
 
         On the 19 labelled SR305 stills (one hand), calibrated on each recording's first 5 frames: size
         1.263 and 1.238, thumb 1.06, index 0.97, little finger 0.91 on 230536 — the ways the labelled tips
@@ -537,7 +537,8 @@ class HandTracker:
             raise TrackerError("calibration", f"no hand found in any of the {seen} frames")
         s = float(np.median(est))
         self.finger_scales_, self.calibrated_each_ = None, True
-        self._calibrations, self._scale_open = [(0.0, s)], False
+        # settled: tracking afterwards neither calibrates nor refines it (calibrated_each_)
+        self._calibrations, self._scale_open = [], False
         self.scale_, self.scale_estimates_ = s, [float(e) for e in est]
         self._use_scale(s)
         self._contexts = {k: v for k, v in self._contexts.items() if k == round(s, 5)}
@@ -650,7 +651,8 @@ class HandTracker:
                 self.prev[:3] = theta[:3]
             self.last_good = theta
             self.lost = False
-            if status == "tracked" and len(self.scale_estimates_) < (st.scale_frames if st.hand_scale == "auto" else 0):
+            if (status == "tracked" and not self.calibrated_each_
+                    and len(self.scale_estimates_) < (st.scale_frames if st.hand_scale == "auto" else 0)):
                 self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None

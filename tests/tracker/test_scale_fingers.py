@@ -156,6 +156,11 @@ def test_calibrate_each_recovers_size_and_fingers_from_stills(bundle):
     assert tr.theta is None
     r = tr.track(obs[0], CAM)
     assert r.status == "reinit" and tr.scale_ == pytest.approx(float(np.median(tr.scale_estimates_)))
+    # tracked frames afterwards keep the calibrated hand (4 estimates, fewer than scale_frames)
+    hand = tr.hand
+    for ob in (obs[0], obs[0]):
+        assert tr.track(ob, CAM).status == "tracked"
+    assert tr.hand is hand and len(tr.scale_estimates_) == 4
 
 
 def test_calibrate_each_refuses_frames_without_a_hand():
