@@ -407,15 +407,21 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
     hand = HandModel.load(job.hand_model, right=(getattr(rec, "handedness", None) or job.handedness) == "right")
     tracker = HandTracker(hand, job.settings.replace(hand_scale="auto"), synergies=bundle)
     cam, frames = rec.camera, []
+
+    def observed(frame):
+        depth = frame.depth
+        if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
+            return observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter, color=frame.color)
+        return None
+
     if each:
         obs = []
         for frame in rec:
-            depth = frame.depth
-            if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
-                obs.append((frame.index, observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter,
-                                                 color=frame.color)))
+            ob = observed(frame)
+            if ob is not None:
+                obs.append((frame.index, ob))
             if on_frame is not None:
-                on_frame(frame, None, obs[-1][1] if obs and obs[-1][0] == frame.index else None)
+                on_frame(frame, None, ob)
             if len(obs) >= max_frames:
                 break
         try:
@@ -423,24 +429,18 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
         except TrackerError as exc:
             raise TrackerError(job.recording, exc.reason) from None
         frames = [obs[k][0] for k in used]
-        out = calibrated_hand(tracker, recording=job.recording, frames=frames)
-        out.save(output, overwrite=job.overwrite)
-        return out, tracker, frames
-    for frame in rec:
-        depth = frame.depth
-        if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
-            ob = observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter, color=frame.color)
-            r = tracker.track(ob, cam, color=frame.color)
-        else:
-            ob, r = None, tracker.step(np.zeros((0, 3)))
-        frames.append(frame.index)
-        if on_frame is not None:
-            on_frame(frame, r, ob)
-        if calibration_done(tracker) or len(frames) >= max_frames:
-            break
-    if tracker.scale_ is None:
-        raise TrackerError(job.recording, f"no hand found to calibrate in its first {len(frames)} frames "
-                                          "(--depth-range, --box or --forearm steer the segmentation)")
+    else:
+        for frame in rec:
+            ob = observed(frame)
+            r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
+            frames.append(frame.index)
+            if on_frame is not None:
+                on_frame(frame, r, ob)
+            if calibration_done(tracker) or len(frames) >= max_frames:
+                break
+        if tracker.scale_ is None:
+            raise TrackerError(job.recording, f"no hand found to calibrate in its first {len(frames)} frames "
+                                              "(--depth-range, --box or --forearm steer the segmentation)")
     out = calibrated_hand(tracker, recording=job.recording, frames=frames)
     out.save(output, overwrite=job.overwrite)
     return out, tracker, frames

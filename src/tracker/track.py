@@ -412,9 +412,7 @@ class HandTracker:
 
     def track(self, observation, camera, color=None) -> FrameResult:
         """Track one :class:`tracker.observe.Observation` (``color``: its registered colour frame)."""
-        # the silhouette terms fit the mask with the sensor's dropout band (tracker.observe.dropout_band)
-        sil = observation.mask if observation.silhouette is None else observation.silhouette
-        return self.step(observation.points, normals=observation.normals, mask=sil,
+        return self.step(observation.points, normals=observation.normals, mask=_silhouette_mask(observation),
                          depth=observation.depth, camera=camera, frame_depth=observation.frame_depth, color=color)
 
     def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
@@ -521,10 +519,7 @@ class HandTracker:
         frames, used, est, seen = [], [], [], 0
         for i, ob in enumerate(observations):
             seen += 1
-            sil = None if ob.mask is None else Silhouette(ob.mask if ob.silhouette is None else ob.silhouette,
-                                                          ob.depth, camera)
-            if sil is not None:
-                sil.frame_depth = ob.frame_depth
+            sil = _silhouette(_silhouette_mask(ob), ob.depth, camera, ob.frame_depth)
             pts, nrm = _usable(ob.points, ob.normals, st.max_points)
             if len(pts) < st.min_points:
                 continue
@@ -574,9 +569,7 @@ class HandTracker:
         leave the silhouette are pulled back (the silhouette term); with the whole ``frame_depth`` too,
         the start searches use the wrist cue (``wrist_cue``); with the ``color`` frame (and
         ``rgb_seed``) they start also from the colour keypoints."""
-        sil = None if mask is None or camera is None or depth is None else Silhouette(mask, depth, camera)
-        if sil is not None:
-            sil.frame_depth = frame_depth
+        sil = _silhouette(mask, depth, camera, frame_depth)
         t0 = time.perf_counter()
         st = self.settings
         pts, nrm = _usable(points, normals, st.max_points)
@@ -887,6 +880,22 @@ def _unseen_parts(hand, synergies):
     C, lam = np.asarray(m.all_components_, float), np.asarray(m.all_explained_variance_, float)
     S = C.T @ (lam[:, None] * C) + 1e-4 * np.eye(C.shape[1])
     return moves, np.asarray(m.mean_, float), S
+
+
+def _silhouette_mask(observation):
+    """The mask an observation's silhouette term fits: its mask widened by the sensor's dropout band
+    (:func:`tracker.observe.dropout_band`) where it has one."""
+    return observation.mask if observation.silhouette is None else observation.silhouette
+
+
+def _silhouette(mask, depth, camera, frame_depth):
+    """The :class:`~tracker.correspond.Silhouette` of a frame (None without a mask, depth or camera),
+    carrying the whole frame's depth for the wrist cue."""
+    if mask is None or camera is None or depth is None:
+        return None
+    sil = Silhouette(mask, depth, camera)
+    sil.frame_depth = frame_depth
+    return sil
 
 
 def _usable(points, normals, max_points):
