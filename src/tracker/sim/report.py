@@ -146,13 +146,9 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
         tips = " | ".join(f"{r['tips_px'][t]:.0f}" if t in r["tips_px"] else "—" for t in REAL_TIPS)
         L.append(f"| {r['name']} | {r['scale']:.2f} | {tips} | {r['wrist_px']:.0f} | {100 * r['in_mask']:.0f} % | "
                  f"{'yes' if r['ok'] else 'no'} | [png]({overlay_dir}/{r['name']}.png) |")
-    tips = np.array([v for r in rows for v in r["tips_px"].values()])
     wrists = np.array([r["wrist_px"] for r in rows])
     palmward = sum(_toward_palm(r) > 0 for r in rows)
-    L += ["", f"Frames meeting every floor: {sum(r['ok'] for r in rows)} of {len(rows)}; tips within "
-          f"{REAL_TIP_PX:g} px: {int(np.sum(tips <= REAL_TIP_PX))} of {tips.size} (median {np.median(tips):.1f} px, "
-          f"worst {tips.max():.0f} px); wrist within {REAL_WRIST_PX:g} px: "
-          f"{sum(r['wrist_px'] <= REAL_WRIST_PX for r in rows)} of {len(rows)}; keypoints in the mask ≥ "
+    L += ["", f"Frames meeting {_floor_counts(rows)}; keypoints in the mask ≥ "
           f"{100 * REAL_MASK_SHARE:.0f} %: {sum(r['in_mask'] >= REAL_MASK_SHARE for r in rows)} of {len(rows)}.", "",
           f"The wrist is compared as labelled, the middle of the skin crease, with the model's wrist joint (the origin "
           f"of the palm, whose rounded base reaches ~1 cm beyond it): median {np.median(wrists):.0f} px apart, the "
@@ -163,9 +159,17 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
     return L
 
 
+def _floor_counts(rows) -> str:
+    """The counts of real-frame rows against the floors: ``every floor: k of n; tips within …; wrist within …``."""
+    tips = np.array([v for r in rows for v in r["tips_px"].values()])
+    return (f"every floor: {sum(r['ok'] for r in rows)} of {len(rows)}; tips within {REAL_TIP_PX:g} px: "
+            f"{int(np.sum(tips <= REAL_TIP_PX))} of {tips.size} (median {np.median(tips):.1f} px, worst "
+            f"{tips.max():.0f} px); wrist within {REAL_WRIST_PX:g} px: "
+            f"{sum(r['wrist_px'] <= REAL_WRIST_PX for r in rows)} of {len(rows)}")
+
+
 def _each_lines(rows) -> list:
     """The real frames tracked on the hand calibrated from each recording's first stills, summed up."""
-    tips = np.array([v for r in rows for v in r["tips_px"].values()])
     hands = {}
     for r in rows:
         hands.setdefault(r["name"].split("_")[0], r)
@@ -173,11 +177,7 @@ def _each_lines(rows) -> list:
                      for k, r in hands.items())
     return [f"The same frames on the hand calibrated from each recording's first {REAL_CALIBRATE_EACH} labelled "
             "frames, each fitted from its own start (`tracker calibrate --each`: the size their median, each "
-            f"finger's length from all of them; {told}): frames meeting every floor: "
-            f"{sum(r['ok'] for r in rows)} of {len(rows)}; tips within {REAL_TIP_PX:g} px: "
-            f"{int(np.sum(tips <= REAL_TIP_PX))} of {tips.size} (median {np.median(tips):.1f} px, worst "
-            f"{tips.max():.0f} px); wrist within {REAL_WRIST_PX:g} px: "
-            f"{sum(r['wrist_px'] <= REAL_WRIST_PX for r in rows)} of {len(rows)}; frames off a floor: "
+            f"finger's length from all of them; {told}): frames meeting {_floor_counts(rows)}; frames off a floor: "
             + (", ".join(r["name"] for r in rows if not r["ok"]) or "none") + ".", ""]
 
 
