@@ -288,6 +288,23 @@ class HandModel:
         """Keypoint positions in metres, ``(..., 21, 3)``: wrist, then each finger base → tip."""
         return self.node_frames(theta)[..., :3, 3]
 
+    def wrist_crease(self, theta) -> np.ndarray:
+        """The middle of the model hand's edge towards the forearm, ``(..., 3)`` metres.
+
+        Where a wrist-crease label (the middle of the skin crease, the hand's end in a hand mask)
+        belongs on this model: the root segment's base, its rounded end past the wrist joint (the
+        palm slab's half thickness, ~9 mm on the default hand), on the hand's axis. The wrist keypoint
+        is the joint itself, the palm's origin.
+
+        >>> hand = HandModel.load()
+        >>> np.round(hand.wrist_crease(np.zeros(26)) * 1000, 2)  # the rest pose: fingers along +y
+        array([ 0.  , -8.77,  0.  ])
+        """
+        root = int(np.flatnonzero(self.parents < 0)[0])
+        seg = next((s for s in self.segments if s.joint == root), None)
+        back = 0.0 if seg is None else (seg.half_thickness if seg.shape == "slab" else seg.radius[0])
+        return self.points(theta, [root], [[0.0, -back, 0.0]])[..., 0, :]
+
     def points(self, theta, nodes, local) -> np.ndarray:
         """World positions of points rigidly attached to nodes (``local`` in the node frames)."""
         G = self.node_frames(theta)

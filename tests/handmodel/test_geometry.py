@@ -176,3 +176,25 @@ def test_export_loads_back(tmp_path, fmt):
     np.testing.assert_allclose(np.sort(m.vertices, 0), np.sort(mesh.pose(th), 0), atol=1e-6)
     with pytest.raises(HandModelError, match="unsupported mesh format"):
         mesh.export(tmp_path / "hand.xyz")
+
+
+@pytest.mark.parametrize("right,scale", [(False, 1.0), (True, 1.3)])
+def test_wrist_crease_is_the_palms_end_towards_the_forearm(right, scale):
+    """The crease point lies on the model's surface (closest-point distance 0) and no palm surface
+    sample reaches further back along the hand's axis; it sits on that axis (the palm's mid-plane,
+    centred across), whatever the pose, handedness and size."""
+    hand = HandModel.load(right=right).scaled(scale)
+    rng = np.random.default_rng(3)
+    th = hand.zero()
+    th[:3] = rng.normal(0, 0.1, 3)
+    th[3:6] = rng.uniform(-np.pi, np.pi, 3)
+    crease = hand.wrist_crease(th)
+    _, _, _, d = closest_points(hand, th, crease[None])
+    assert abs(d[0]) < 1e-7
+    pts, seg, _ = surface_samples(hand, th, spacing=0.002)
+    G = hand.node_frames(th)[0]
+    local = (pts[seg == 0] - G[:3, 3]) @ G[:3, :3]
+    c = (crease - G[:3, 3]) @ G[:3, :3]
+    assert c[1] <= local[:, 1].min() + 1e-9 and c[1] >= local[:, 1].min() - 3e-4  # 0.3 mm: the samples' spacing
+    assert abs(c[0]) < 1e-12 and abs(c[2]) < 1e-12
+    assert np.isclose(-c[1], hand.segments[0].half_thickness)

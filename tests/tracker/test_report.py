@@ -38,13 +38,15 @@ def test_real_lines_count_the_floors():
     mask = np.zeros((20, 20), bool)
     mask[:10, 5:15] = True
     common = {"mask": mask, "labels": {"wrist": [10, 10]}}
-    good = {"name": "a", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 14.9}, "wrist_px": 19.0, "in_mask": 0.95,
+    good = {"name": "a", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 14.9}, "wrist_px": 19.0, "wrist_joint_px": 4.0, "in_mask": 0.95,
             "ok": True, "uv": np.array([[10.0, 6.0]]), **common}
-    bad = {"name": "b", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 15.1}, "wrist_px": 5.0, "in_mask": 1.0,
+    bad = {"name": "b", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 15.1}, "wrist_px": 5.0, "wrist_joint_px": 5.0, "in_mask": 1.0,
            "ok": False, "uv": np.array([[10.0, 15.0]]), **common}
     text = "\n".join(real_lines([good, bad]))
     assert "every floor: 1 of 2" in text and "tips within 15 px: 3 of 4" in text and "[png](real/b.png)" in text
     assert "palm side of the crease in 1 of 2 frames" in text
+    assert "median 12 px apart" in text and "a median 4 px from the label" in text  # crease (19, 5), joint (4, 5)
+    assert "| 19 | 4 | 95 % | yes |" in text
 
 
 def test_real_lines_sum_up_the_calibrated_protocol():
@@ -55,6 +57,7 @@ def test_real_lines_sum_up_the_calibrated_protocol():
     mask = np.zeros((20, 20), bool)
     mask[:10, 5:15] = True
     row = {"mask": mask, "labels": {"wrist": [10, 10]}, "uv": np.array([[10.0, 6.0]]), "in_mask": 1.0,
+           "wrist_joint_px": 4.0,
            "fingers": {"thumb": 1.06, "pinky": 0.91}}
     rows = [{**row, "name": "r1_30", "scale": 1.263, "tips_px": {"thumb": 3.0}, "wrist_px": 5.0, "ok": True},
             {**row, "name": "r1_50", "scale": 1.263, "tips_px": {"thumb": 39.0}, "wrist_px": 5.0, "ok": False},

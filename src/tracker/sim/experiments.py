@@ -458,7 +458,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
 
     Returns one dict per frame: ``name``, ``scale``, ``uv`` (projected keypoints, px), ``names``
     (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip),
-    ``wrist_px``, ``in_mask`` (share of keypoints inside the mask dilated by
+    ``wrist_px`` (the labelled crease → the model hand's end, :meth:`HandModel.wrist_crease`, projected
+    at ``crease_uv``), ``wrist_joint_px`` (→ the wrist joint), ``in_mask`` (share of keypoints inside the mask dilated by
     :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
     (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in). ``calibrate_each``: the
     hand is calibrated instead on each recording's first ``calibrate_each`` labelled frames, each fitted
@@ -507,13 +508,18 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
         kn = list(tr.hand.keypoint_names)
         lab = labels[name]
         tips = {t: float(np.hypot(*(uv[kn.index(t + "_tip")] - lab[t]))) for t in REAL_TIPS if t in lab}
-        wrist = float(np.hypot(*(uv[0] - lab["wrist"])))
+        # the label is the crease, the hand mask's end: compared with the model hand's end there
+        # (HandModel.wrist_crease), the joint's own distance kept beside it
+        crease = cam.project(tr.hand.wrist_crease(res.theta)[None])[0]
+        wrist = float(np.hypot(*(crease - lab["wrist"])))
+        wrist_joint = float(np.hypot(*(uv[0] - lab["wrist"])))
         near = ndimage.binary_dilation(mask, iterations=REAL_MASK_DILATE_PX)
         ui = np.clip(np.rint(uv).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
         inside = float(near[ui[:, 1], ui[:, 0]].mean())
         rows.append({"name": name, "scale": float(tr.scale_), "fingers": dict(tr.finger_scales_ or {}),
                      "uv": uv, "names": kn, "labels": lab, "mask": mask,
-                     "tips_px": tips, "wrist_px": wrist, "in_mask": inside,
+                     "tips_px": tips, "wrist_px": wrist, "wrist_joint_px": wrist_joint,
+                     "crease_uv": crease, "in_mask": inside,
                      "ok": bool(max(tips.values()) <= REAL_TIP_PX and wrist <= REAL_WRIST_PX
                                 and inside >= REAL_MASK_SHARE)})
         if overlay_dir is not None:

@@ -140,20 +140,24 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
          "LadaOndris/hand-recognition's (MIT licence; the overlays draw them under our fit). Floors of the issue: every "
          f"labelled tip ≤ {REAL_TIP_PX:g} px from its model tip, wrist ≤ {REAL_WRIST_PX:g} px, ≥ "
          f"{100 * REAL_MASK_SHARE:.0f} % of the keypoints inside the hand mask dilated by {REAL_MASK_DILATE_PX} px.", "",
-         "| frame | size | " + " | ".join(f"{t} px" for t in REAL_TIPS) + " | wrist px | keypoints in mask | all floors | overlay |",
-         "|---|---|" + "---|" * len(REAL_TIPS) + "---|---|---|---|"]
+         "| frame | size | " + " | ".join(f"{t} px" for t in REAL_TIPS) + " | wrist px | wrist joint px | keypoints in mask | all floors | overlay |",
+         "|---|---|" + "---|" * len(REAL_TIPS) + "---|---|---|---|---|"]
     for r in rows:
         tips = " | ".join(f"{r['tips_px'][t]:.0f}" if t in r["tips_px"] else "—" for t in REAL_TIPS)
-        L.append(f"| {r['name']} | {r['scale']:.2f} | {tips} | {r['wrist_px']:.0f} | {100 * r['in_mask']:.0f} % | "
+        L.append(f"| {r['name']} | {r['scale']:.2f} | {tips} | {r['wrist_px']:.0f} | {r['wrist_joint_px']:.0f} | {100 * r['in_mask']:.0f} % | "
                  f"{'yes' if r['ok'] else 'no'} | [png]({overlay_dir}/{r['name']}.png) |")
     wrists = np.array([r["wrist_px"] for r in rows])
+    joints = np.array([r["wrist_joint_px"] for r in rows])
     palmward = sum(_toward_palm(r) > 0 for r in rows)
     L += ["", f"Frames meeting {_floor_counts(rows)}; keypoints in the mask ≥ "
           f"{100 * REAL_MASK_SHARE:.0f} %: {sum(r['in_mask'] >= REAL_MASK_SHARE for r in rows)} of {len(rows)}.", "",
-          f"The wrist is compared as labelled, the middle of the skin crease, with the model's wrist joint (the origin "
-          f"of the palm, whose rounded base reaches ~1 cm beyond it): median {np.median(wrists):.0f} px apart, the "
-          f"joint on the palm side of the crease in {palmward} of {len(rows)} frames — part of that is a difference of "
-          "definition, not of fit. The overlays draw the labelled wrist as a cyan cross beside the tips.", ""]
+          "The wrist is labelled as the middle of the skin crease, where the hand mask ends; it is compared with "
+          "where the model hand ends, the middle of its palm's rounded base (`HandModel.wrist_crease`, the palm's "
+          "half thickness past the wrist joint on the hand's axis, 11 mm at size 1.25): median "
+          f"{np.median(wrists):.0f} px apart. The wrist joint itself (the palm's origin, the `wrist` keypoint of the "
+          f"keypoint files) lies a median {np.median(joints):.0f} px from the label, on the palm side of the crease in "
+          f"{palmward} of {len(rows)} frames: the difference of definition. The overlays draw the labelled wrist as "
+          "a cyan cross beside the tips.", ""]
     if each:
         L += _each_lines(each)
     return L
