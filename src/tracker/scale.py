@@ -24,9 +24,11 @@ import numpy as np
 from synergy.bundle import GENERATOR, generator_version
 
 from .correspond import Matcher
+from .coupling import recoupled, uncoupled
 from .errors import TrackerError
 from .icp import model_to_data_mean
 from .init import (
+    COUPLED_RESTART_DEG,
     FINGER_OVERLAP_WEIGHT,
     MODEL_TO_DATA_WEIGHT,
     InitSettings,
@@ -376,7 +378,10 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
     (:func:`size_score`), and a parabola through the scores summed over the frames gives the
     estimate (kept within the probes). A finger's length trades against its flexion in one view (a
     longer finger bent more covers the same pixels), so frames of several postures tell lengths
-    apart better than many of one — and one frame's fit can prefer a wrong length by 10 %.
+    apart better than many of one — and one frame's fit can prefer a wrong length by 10 %. A frame
+    whose finger breaks the coupling of its last two joints (:mod:`tracker.coupling`; a too long model
+    finger folded at its last joint to hide the excess) is fitted at every probe from its θ and from
+    the coupled joint, the better fit scoring.
 
     The estimate is trusted by how well the frames agree: each frame's own parabola gives a vertex,
     their standard error ``se`` (spread / √frames) is the estimate's uncertainty, and the log factor is
@@ -388,11 +393,22 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
     x = np.linspace(-half_width, half_width, probes)
     for f in fingers:
         y = np.zeros((len(frames), probes))
+        which = np.asarray(FINGERS) == f
+        # a frame whose finger folds its last joint off the coupling (a too long model finger hides its
+        # excess so) is also fitted from the coupled joint at every probe, the better fit scoring:
+        # from the folded start alone a shorter finger cannot unfold in a short fit, and the frame
+        # votes for the length it was fitted at
+        starts = [[theta] + ([recoupled(ctx.hand, theta, which, ctx.limits)]
+                             if uncoupled(ctx.hand, theta, COUPLED_RESTART_DEG)[which].any() else [])
+                  for _, _, _, theta in frames]
         for k, v in enumerate(x):
             c = shaped_context(ctx, base, scale, {**found, f: float(np.exp(v))})
-            for i, (points, normals, sil, theta) in enumerate(frames):
-                th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
-                y[i, k] = size_score(c, th, corr, sil)
+            for i, (points, normals, sil, _) in enumerate(frames):
+                best = np.inf
+                for theta in starts[i]:
+                    th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
+                    best = min(best, size_score(c, th, corr, sil))
+                y[i, k] = best
         best = _vertex(x, y.sum(0), none_if_flat=True)
         per = [_vertex(x, row) for row in y]
         shrunk, se = trusted_log_factor(best, per, prior_sd)

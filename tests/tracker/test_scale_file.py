@@ -174,7 +174,9 @@ def test_calibrate_each_on_real_stills(tmp_path):
     proportions (default tracking, along each finger's last bone: thumb tips beyond the model's on 17
     of the 18 frames where the thumb's last bone is seen, index short of them on 15 of 19, little finger
     on 14 of 18): thumb > 1, index and little finger < 1 (measured 1.08,
-    0.97, 0.95; size 1.27, estimates 1.26–1.36). Tracking from frame to frame would follow none of
+    0.97, 0.95; size 1.27, estimates 1.26–1.36; on an AMD EPYC 1.075, 0.932, 0.987, size 1.268 — the little
+    finger 1.013 before the finger lengths' probes also started from the coupled last joint; with the
+    fingerfist synergies, as tracking uses them, 1.059, 0.904, 0.885). Tracking from frame to frame would follow none of
     these jumps (0.7 s apart): the recording's own calibration runs on its first frame alone."""
     from tests.conftest import shared
 
