@@ -374,7 +374,10 @@ PAIR_SHAPES = (0, 1, 3, 5, 6)
 # 0.1–0.8 — the pairs there cost 60 % of the search's time for nothing —, the SR305 frames 1.5–5)
 PAIR_SCORE_MM = 1.5
 # the finger-wise restarts also start a finger from its coupled last joint (tracker.coupling) when it is
-# more than this far (°) off it; the tracker's own restart uses 50° (fingerfist breaks 30° on 29 % of frames)
+# more than this far (°) off it. The tracker's own restart uses 50° (TrackerSettings.finger_restart_deg: the
+# true fingerfist postures break 30° on 29 % of frames, 50° on 7 %, each a refit); here the restart is one more
+# start among the search's, and 50° gave worse real frames (the SR305 stills' calibrated protocol: median tip
+# 3.8 -> 4.2 px, worst 19 -> 44 px; the one-frame protocol 5.0 -> 5.3 px)
 COUPLED_RESTART_DEG = 30.0
 
 
