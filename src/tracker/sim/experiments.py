@@ -528,7 +528,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             Path(overlay_dir).mkdir(parents=True, exist_ok=True)
             overlay_png(Path(overlay_dir) / f"{name}.png", depth, cam, tr.hand, res.theta,
                         status=f"{res.status}, size {tr.scale_:.2f}, worst tip {max(tips.values()):.0f} px, "
-                               f"wrist {wrist:.0f} px", mask=ob.mask,
+                               f"wrist crease {wrist:.0f} px (joint {wrist_joint:.0f})", mask=ob.mask,
                         labelled=[lab[t] for t in (*REAL_TIPS, "wrist") if t in lab])
         if progress is not None:
             progress(k + 1, len(names), name)
