@@ -33,11 +33,12 @@ demo: $(STAMP)
 	done
 	@echo "== done: see $(DEMO) (figs/, overlay-*/, track-*.csv, synergies/)"
 
+# two workers, a test file each at a time (module fixtures such as the real frames' fits are made once)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --doctest-modules src tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --doctest-modules src tests
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow" --doctest-modules src tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules src tests
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -24,7 +24,8 @@ def bundle():
 
 
 def _cli(*args):
-    return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+    # wide enough that the summary's cells keep long temporary paths whole (pytest-xdist's are longer)
+    return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": "", "COLUMNS": "200"})
 
 
 def _one_error_line(r, path):
