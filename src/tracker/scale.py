@@ -404,11 +404,11 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
         for k, v in enumerate(x):
             c = shaped_context(ctx, base, scale, {**found, f: float(np.exp(v))})
             for i, (points, normals, sil, _) in enumerate(frames):
-                best = np.inf
+                lowest = np.inf
                 for theta in starts[i]:
                     th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
-                    best = min(best, size_score(c, th, corr, sil))
-                y[i, k] = best
+                    lowest = min(lowest, size_score(c, th, corr, sil))
+                y[i, k] = lowest
         best = _vertex(x, y.sum(0), none_if_flat=True)
         per = [_vertex(x, row) for row in y]
         shrunk, se = trusted_log_factor(best, per, prior_sd)

@@ -163,10 +163,10 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
         ob = observe(frame.depth, cam, tr.settings.observe, window=tr.segment_window(cam))
         theta = tr.track(ob, cam).theta
         kp = tr.hand.keypoints(theta)
-        uv = np.c_[cam.fx * kp[:, 0] / kp[:, 2] + cam.cx, cam.fy * kp[:, 1] / kp[:, 2] + cam.cy]
+        uv = cam.project(kp)
         lab = labels[names[frame.index]]
         w = float(np.hypot(*(uv[0] - lab["wrist"])))
-        crease = cam.project(tr.hand.wrist_crease(theta)[None])[0]
+        crease = cam.project(tr.hand.wrist_crease(theta))
         tips = [float(np.hypot(*(uv[tr.hand.keypoint_names.index(t + "_tip")] - lab[t])))
                 for t in ("thumb", "index", "middle", "ring", "pinky")]
         wrists.append(w)

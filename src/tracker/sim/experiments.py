@@ -510,7 +510,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
         tips = {t: float(np.hypot(*(uv[kn.index(t + "_tip")] - lab[t]))) for t in REAL_TIPS if t in lab}
         # the label is the crease, the hand mask's end: compared with the model hand's end there
         # (HandModel.wrist_crease), the joint's own distance kept beside it
-        crease = cam.project(tr.hand.wrist_crease(res.theta)[None])[0]
+        crease = cam.project(tr.hand.wrist_crease(res.theta))
         wrist = float(np.hypot(*(crease - lab["wrist"])))
         wrist_joint = float(np.hypot(*(uv[0] - lab["wrist"])))
         near = ndimage.binary_dilation(mask, iterations=REAL_MASK_DILATE_PX)
