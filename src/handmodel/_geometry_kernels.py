@@ -121,6 +121,18 @@ def closest_local(shape, L, r0, r1, th, q, out):
     out[6] = nn - th
 
 
+@njit(cache=True)
+def closest_local_many(shape, L, r0, r1, th, pts, out_p, out_n):
+    """:func:`closest_local` of every row of ``pts`` ``(P, 3)``: surface points into ``out_p``, outward
+    normals into ``out_n`` (one call instead of one per point from Python)."""
+    loc = np.empty(7)
+    for i in range(pts.shape[0]):
+        closest_local(shape, L, r0, r1, th, pts[i], loc)
+        for m in range(3):
+            out_p[i, m] = loc[m]
+            out_n[i, m] = loc[3 + m]
+
+
 @njit(cache=True, inline="always")
 def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, signed,
              out_p, out_n, out_seg, out_d):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from ._geometry_kernels import closest_local, closest_points as _closest_points_kernel
+from ._geometry_kernels import closest_local_many, closest_points as _closest_points_kernel
 from .errors import HandModelError
 from .fileio import atomic_write_bytes
 
@@ -78,30 +78,21 @@ def _revolve_profile(xs, rs, n_around):
 
     The first and last profile points must have r == 0 (poles)."""
     ang = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
-    rings = []
-    verts = [np.array([[0.0, xs[0], 0.0]])]
-    for x, r in zip(xs[1:-1], rs[1:-1]):
-        ring = np.stack([r * np.cos(ang), np.full(n_around, x), r * np.sin(ang)], 1)
-        rings.append(len(verts) and sum(len(v) for v in verts))
-        verts.append(ring)
-    verts.append(np.array([[0.0, xs[-1], 0.0]]))
-    V = np.concatenate(verts)
+    x, r = np.asarray(xs, float)[1:-1, None], np.asarray(rs, float)[1:-1, None]
     nring = len(xs) - 2
-    faces = []
+    rings = np.stack([r * np.cos(ang), np.broadcast_to(x, (nring, n_around)), r * np.sin(ang)], 2)
+    V = np.concatenate([[[0.0, xs[0], 0.0]], rings.reshape(-1, 3), [[0.0, xs[-1], 0.0]]])
     k = np.arange(n_around)
     k1 = (k + 1) % n_around
     first = 1
     # bottom pole (index 0) to first ring; orientation chosen so normals point outward
-    faces.append(np.stack([np.zeros(n_around, int), first + k, first + k1], 1))
-    for i in range(nring - 1):
-        a = first + i * n_around
-        b = a + n_around
-        faces.append(np.stack([a + k, b + k, b + k1], 1))
-        faces.append(np.stack([a + k, b + k1, a + k1], 1))
+    a = first + n_around * np.arange(nring - 1)[:, None]
+    b = a + n_around
+    band = np.stack([np.stack([a + k, b + k, b + k1], 2), np.stack([a + k, b + k1, a + k1], 2)], 1)
     last = len(V) - 1
     a = first + (nring - 1) * n_around
-    faces.append(np.stack([np.full(n_around, last), a + k1, a + k], 1))
-    F = np.concatenate(faces)
+    F = np.concatenate([np.stack([np.zeros(n_around, int), first + k, first + k1], 1), band.reshape(-1, 3),
+                        np.stack([np.full(n_around, last), a + k1, a + k], 1)])
     return V, F
 
 
@@ -275,7 +266,6 @@ def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
     rng = np.random.default_rng(seed)
     P, S, N = [], [], []
     fine = {"ring_vertices": 48, "cap_rings": 12, "axial_rings_per_cm": 10}
-    loc = np.empty(7)
     for s_i, seg in enumerate(hand.segments):
         V, F = segment_surface_mesh(seg, fine)
         tri = V[F]
@@ -288,10 +278,8 @@ def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
         pts = tri[f, 0] + u[:, None] * (tri[f, 1] - tri[f, 0]) + v[:, None] * (tri[f, 2] - tri[f, 0])
         shape = 0 if seg.shape == "capsule" else 1
         nrm = np.empty_like(pts)
-        for i in range(count):
-            closest_local(shape, seg.length, seg.radius[0], seg.radius[1], seg.half_thickness, pts[i], loc)
-            pts[i] = loc[:3]
-            nrm[i] = loc[3:6]
+        closest_local_many(shape, seg.length, seg.radius[0], seg.radius[1], seg.half_thickness,
+                           np.ascontiguousarray(pts), pts, nrm)
         Gj = G[seg.joint]
         P.append(pts @ Gj[:3, :3].T + Gj[:3, 3])
         N.append(nrm @ Gj[:3, :3].T)

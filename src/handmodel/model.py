@@ -269,7 +269,7 @@ class HandModel:
             raise HandModelError("theta", "not a numeric array") from None
         if th.ndim == 0 or th.shape[-1] != self.n_dofs:
             raise HandModelError("theta", f"shape {th.shape}: the last axis must have {self.n_dofs} entries")
-        if not np.all(np.isfinite(th)):
+        if not np.isfinite(th).all():  # the method: check_theta runs thousands of times a search
             raise HandModelError("theta", "contains NaN or infinite values")
         return th
 

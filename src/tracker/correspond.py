@@ -73,8 +73,8 @@ class CapsuleModel:
         self.hand = hand
         self.caps = hand.capsules
 
-    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
-        G = self.hand.node_frames(theta)
+    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0), frames=None):
+        G = self.hand.node_frames(theta) if frames is None else frames
         pts = np.ascontiguousarray(points, dtype=np.float64)
         P = len(pts)
         mp = np.zeros((P, 3))
@@ -105,8 +105,8 @@ class MeshModel:
         self.node = np.argmax(w, axis=1)
         self._G0inv = np.linalg.inv(hand.node_frames(np.zeros(hand.n_dofs)))
 
-    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0)):
-        B = self.hand.node_frames(theta) @ self._G0inv
+    def __call__(self, theta, points, *, reject=0.05, facing_only=True, camera_centre=(0.0, 0.0, 0.0), frames=None):
+        B = (self.hand.node_frames(theta) if frames is None else frames) @ self._G0inv
         Bw = np.einsum("vn,nij->vij", self.weights, B[:, :3, :])
         S = np.einsum("vij,vj->vi", Bw[:, :, :3], self.rest_pts) + Bw[:, :, 3]
         V = self.mesh.pose(theta)
@@ -155,7 +155,7 @@ class Matcher:
 DATA_CAP_MM = 30.0
 
 
-def data_to_model_mm(matcher: Matcher, theta, points, *, cap_mm=DATA_CAP_MM) -> np.ndarray:
+def data_to_model_mm(matcher: Matcher, theta, points, *, cap_mm=DATA_CAP_MM, frames=None) -> np.ndarray:
     """Per data point, its distance (mm) to the nearest model surface on any side, capped at
     ``cap_mm``: how well the hand at ``theta`` explains each point, for scoring a fit (the data→model
     half of :func:`tracker.init.score`).
@@ -165,11 +165,13 @@ def data_to_model_mm(matcher: Matcher, theta, points, *, cap_mm=DATA_CAP_MM) -> 
     the normals of a concave palm, a thenar bulge or a finger's rim disagree with the model's on
     10–20 % of the points of a right fit, which a score counting every rejected pair as a far miss
     (the earlier 100 mm each) takes for a wrong hand. A real finger the model leaves uncovered
-    (a thumb folded into the palm of a hand turned over) still costs its distance, up to the cap."""
+    (a thumb folded into the palm of a hand turned over) still costs its distance, up to the cap.
+    ``frames``: the hand's node frames at ``theta`` when the caller has them (a search scores
+    hundreds of fits)."""
     pts = np.asarray(points, float)
     if len(pts) == 0:
         return np.zeros(0)
-    c = matcher.surface(theta, pts, reject=np.inf, facing_only=False)
+    c = matcher.surface(theta, pts, reject=np.inf, facing_only=False, frames=frames)
     return np.minimum(np.where(np.isfinite(c.distance), c.distance * 1000.0, cap_mm), cap_mm)
 
 

@@ -149,27 +149,31 @@ def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> flo
     a hand whose fingers point up the arm loses even where both directions fit. (The finger-wise
     restarts add :func:`finger_overlap_mm`, see :func:`finger_search_batched`.) ``data_mm``: the
     points' :func:`tracker.correspond.data_to_model_mm` at ``theta`` when the caller has them already."""
-    s = data_cost_mm(ctx, theta, corr, data_mm=data_mm)
+    # the hand's frames once for the data term and the wrist cue (a search scores hundreds of fits)
+    cue = getattr(silhouette, "wrist", None)
+    G = ctx.hand.node_frames(theta) if cue is not None or (data_mm is None and corr.points is not None) else None
+    s = data_cost_mm(ctx, theta, corr, data_mm=data_mm, frames=G)
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     if silhouette is not None and samples is not None and not silhouette.empty:
         s += MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, silhouette)
-    cue = getattr(silhouette, "wrist", None)
     if cue is not None:
-        s += wrist_cost_mm(cue, ctx.hand, theta)
+        s += wrist_cost_mm(cue, ctx.hand, theta, keypoints=G[:, :3, 3])
     return s
 
 
-def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None) -> float:
+def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None, frames=None) -> float:
     """The data→model half of :func:`score` (mm): the mean over the fit's data points
     (``corr.points``) of their distance to the nearest model surface on any side
     (:func:`tracker.correspond.data_to_model_mm`), plus ``REJECTED_PAIR_MM`` where ICP rejected the
     point's pair, capped at ``DATA_CAP_MM``. Correspondences without their points fall back to the
     pairs' own distances (front-facing model surface only). ``data_mm``: those distances of
-    ``corr.points`` at ``theta`` when already measured (the safety net's far-points test needs them too)."""
+    ``corr.points`` at ``theta`` when already measured (the safety net's far-points test needs them too);
+    ``frames``: ``ctx.hand``'s node frames at ``theta`` when the caller has them."""
     if data_mm is not None:
         d = np.asarray(data_mm, float)
     elif corr.points is not None:
-        d = data_to_model_mm(ctx.matcher, theta, corr.points)
+        same = frames is not None and getattr(ctx.matcher.surface, "hand", None) is ctx.hand
+        d = data_to_model_mm(ctx.matcher, theta, corr.points, frames=frames if same else None)
     else:
         d = np.where(np.isfinite(corr.distance), corr.distance * 1000.0, DATA_CAP_MM)
     d = np.minimum(d + REJECTED_PAIR_MM * ~np.asarray(corr.valid, bool), DATA_CAP_MM)

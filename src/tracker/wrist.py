@@ -209,7 +209,8 @@ def _points(camera, u, v, z):
     return np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
 
 
-def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_mm=WRIST_TURN_MM) -> float:
+def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_mm=WRIST_TURN_MM,
+                  keypoints=None) -> float:
     """How far (mm) a hand at ``theta`` is from agreeing with the wrist ``cue``: its wrist keypoint
     farther than ``reach_mm`` from the cue's point costs the excess, and its fingers pointing up the
     arm in the image cost up to ``turn_mm`` (× the cosine between the hand's axis, wrist → middle
@@ -221,8 +222,8 @@ def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_m
     pays the full cost — an upside-down fit does. The reach is generous: the cue sits where the mask
     ends, which a mask that keeps a little forearm puts a few centimetres past the wrist joint
     (measured 13–20 mm on rendered arms, up to ~45 mm on a real frame); a hand behind the camera
-    costs the most."""
-    kp = hand.keypoints(np.asarray(theta, float))
+    costs the most. ``keypoints``: ``hand.keypoints(theta)`` when the caller has them."""
+    kp = hand.keypoints(np.asarray(theta, float)) if keypoints is None else keypoints
     # across the image only (at the cue's depth): the mask's end can lie on forearm receding from the
     # camera, centimetres behind the wrist joint, while where it is in the image is sharp
     w, p = kp[0], np.asarray(cue.point, float)
