@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._segment_kernels import surface_labels
+
 
 @njit(cache=True)
 def surface_past_outline(dist, frame, v0, u0, reach_px):
@@ -146,55 +148,7 @@ def seeded_surfaces(d, seed, jump, within, dist):
     that hold a ``seed`` pixel, and that lie within ``within`` of one (``dist``: the exact distance to
     the nearest seed pixel, as ``distance_transform_edt(~seed)``)."""
     H, W = d.shape
-    core = np.zeros((H, W), np.bool_)
-    for v in range(H):
-        for u in range(W):
-            z = d[v, u]
-            if not np.isfinite(z):
-                continue
-            # the far side of a step to any 4-neighbour is not core (surfaces' far_right / far_down)
-            far = ((u > 0 and z - d[v, u - 1] > jump) or (u < W - 1 and z - d[v, u + 1] > jump)
-                   or (v > 0 and z - d[v - 1, u] > jump) or (v < H - 1 and z - d[v + 1, u] > jump))
-            core[v, u] = not far
-    lab = np.zeros((H, W), np.int32)
-    stack = np.empty(H * W, np.int64)
-    n = 0
-    for v in range(H):
-        for u in range(W):
-            if not core[v, u] or lab[v, u]:
-                continue
-            n += 1
-            lab[v, u] = n
-            stack[0] = v * W + u
-            top = 1
-            while top:
-                top -= 1
-                p = stack[top]
-                pv, pu = p // W, p % W
-                for k in range(4):
-                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
-                    if 0 <= qv < H and 0 <= qu < W and core[qv, qu] and not lab[qv, qu]:
-                        lab[qv, qu] = n
-                        stack[top] = qv * W + qu
-                        top += 1
-    # step pixels join a neighbour's surface (segment._reattach: right, left, down, up; the nearest in
-    # depth within the jump, the first on ties)
-    out = lab.copy()
-    for v in range(H):
-        for u in range(W):
-            z = d[v, u]
-            if core[v, u] or not np.isfinite(z):
-                continue
-            best, got = np.inf, 0
-            for k in range(4):
-                qv = v + (1 if k == 2 else -1 if k == 3 else 0)
-                qu = u + (1 if k == 0 else -1 if k == 1 else 0)
-                if 0 <= qv < H and 0 <= qu < W and lab[qv, qu] > 0:
-                    diff = abs(d[qv, qu] - z)
-                    if diff <= jump and diff < best:
-                        got, best = lab[qv, qu], diff
-            out[v, u] = got
+    out, n = surface_labels(d, jump)
     keep = np.zeros(n + 1, np.bool_)
     for v in range(H):
         for u in range(W):

@@ -44,6 +44,9 @@ import matplotlib.colors as mcolors
 import numpy as np
 from scipy import ndimage
 
+from ._icp_kernels import feature_transform
+from ._segment_kernels import city_block, closed_filled, label_max, surface_labels, window_any, window_extreme
+
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
@@ -247,8 +250,8 @@ def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
     up_d = np.where(coarse_mask, coarse_depth, np.nan)[np.ix_(iy, ix)]
     size = 2 * step + 1
     # the depth range of the masked samples around each pixel (separable min / max filters)
-    lo = ndimage.minimum_filter(np.where(up, up_d, np.inf), size=size, mode="constant", cval=np.inf)
-    hi = ndimage.maximum_filter(np.where(up, up_d, -np.inf), size=size, mode="constant", cval=-np.inf)
+    lo = _window_min(np.where(up, up_d, np.inf), size)
+    hi = _window_max(np.where(up, up_d, -np.inf), size)
     with np.errstate(invalid="ignore"):
         dd = depth[win]
         ok = (dd >= lo - jump) & (dd <= hi + jump)
@@ -326,6 +329,38 @@ def fill_holes(mask):
     return m | hole[bg]
 
 
+# compiled morphology of the segmenter's small windows (scipy's calls cost mostly their overhead
+# there; every tracked frame runs dozens): each equals the scipy call named in its docstring
+# (tests/tracker/test_segment_real.py compares them)
+def _dilate(mask, k):
+    """``scipy.ndimage.binary_dilation(mask, iterations=k)`` (its cross)."""
+    return city_block(np.ascontiguousarray(mask, dtype=np.bool_)) <= k
+
+
+def _edt(targets):
+    """``scipy.ndimage.distance_transform_edt(~targets)``: each pixel's distance to the nearest target."""
+    t = np.ascontiguousarray(targets, dtype=np.bool_)
+    dist = np.empty(t.shape)
+    if not feature_transform(t, dist, np.empty(t.shape, np.int32), np.empty(t.shape, np.int32)):
+        return ndimage.distance_transform_edt(~t)
+    return dist
+
+
+def _window_max(a, size):
+    """``scipy.ndimage.maximum_filter(a, size)`` for an odd ``size``, an array without NaN and a border
+    mode that cannot win (``reflect``, ``nearest``, ``constant`` at −inf or 0 for masks); boolean in,
+    boolean out."""
+    a = np.asarray(a)
+    if a.dtype == np.bool_:
+        return window_any(np.ascontiguousarray(a), (int(size) - 1) // 2)
+    return window_extreme(np.ascontiguousarray(a, dtype=np.float64), (int(size) - 1) // 2, 1.0)
+
+
+def _window_min(a, size):
+    """``scipy.ndimage.minimum_filter(a, size, mode="constant", cval=np.inf)`` (odd ``size``, no NaN)."""
+    return window_extreme(np.ascontiguousarray(a, dtype=np.float64), (int(size) - 1) // 2, -1.0)
+
+
 def _largest_in_window(mask):
     """:func:`largest_component`, labelling only the mask's bounding box."""
     out = np.zeros_like(mask)
@@ -338,50 +373,20 @@ def _largest_in_window(mask):
 
 def surfaces(depth, jump=0.02):
     """``(labels, n)``: 4-connected surfaces of a depth image (NaN = no data); neighbours whose
-    depths differ by more than ``jump`` lie on different surfaces."""
-    d = np.asarray(depth, float)
-    finite = np.isfinite(d)
-    with np.errstate(invalid="ignore"):
-        # a pixel is cut off from its right / lower neighbour across a step; the step's far side
-        # is removed (one pixel), which splits the surfaces without changing the near one
-        far_right = np.zeros_like(finite)
-        far_down = np.zeros_like(finite)
-        dx = d[:, 1:] - d[:, :-1]
-        dy = d[1:, :] - d[:-1, :]
-        far_right[:, 1:] |= dx > jump
-        far_right[:, :-1] |= -dx > jump
-        far_down[1:, :] |= dy > jump
-        far_down[:-1, :] |= -dy > jump
-    core = finite & ~far_right & ~far_down
-    lab, n = ndimage.label(core)
-    if n:
-        # give the step pixels back to the surface of their nearest-in-depth labelled neighbour
-        # whose depth is within the jump (they are the far side of a step, not a surface of their own)
-        lab = _reattach(lab, d, finite & ~core, jump)
-    return lab, n
+    depths differ by more than ``jump`` lie on different surfaces.
 
+    A pixel is cut off from a neighbour across a step by leaving the step's far side out of the
+    labelling (which splits the surfaces without changing the near one); such pixels then join the
+    surface of their nearest-in-depth labelled neighbour within the jump (they are the far side of a
+    step, not a surface of their own). Labels are numbered as ``scipy.ndimage.label`` numbers them;
+    compiled (:func:`tracker._segment_kernels.surface_labels`): it runs several times a tracked frame.
 
-def _reattach(lab, d, todo, jump):
-    out = lab.copy()
-    H, W = lab.shape
-    ty, tx = np.nonzero(todo)
-    if ty.size == 0:
-        return out
-    z = d[ty, tx]
-    best = np.full(ty.size, np.inf)
-    got = np.zeros(ty.size, lab.dtype)
-    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        ny, nx = ty + dy, tx + dx
-        inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
-        ny, nx = np.clip(ny, 0, H - 1), np.clip(nx, 0, W - 1)
-        nl = lab[ny, nx]
-        with np.errstate(invalid="ignore"):
-            diff = np.abs(d[ny, nx] - z)
-            take = inside & (nl > 0) & (diff <= jump) & (diff < best)
-        got[take] = nl[take]
-        best[take] = diff[take]
-    out[ty, tx] = got
-    return out
+    >>> d = np.array([[0.5, 0.5, 0.6], [0.5, np.nan, 0.6]])
+    >>> lab, n = surfaces(d)
+    >>> lab.tolist(), n
+    ([[1, 1, 2], [1, 0, 2]], 2)
+    """
+    return surface_labels(np.ascontiguousarray(depth, dtype=np.float64), float(jump))
 
 
 def focal_from_points(points):
@@ -511,8 +516,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
     x0, x1 = max(xa - margin_px, 0), min(xb + margin_px + 1, d.shape[1])
     win = (slice(y0, y1), slice(x0, x1))
-    zone = (ndimage.maximum_filter(core[win], size=2 * int(margin_px) + 1, mode="constant")
-            if margin_px > 0 else core[win])
+    zone = _window_max(core[win], 2 * int(margin_px) + 1) if margin_px > 0 else core[win]
     cand = zone & near[win] & ~core[win] & (lab[win] > 0) & (lab[win] != k)
     out = core.copy()
     if cand.any():
@@ -561,9 +565,8 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     big = (slice(max(ya - half, 0), min(yb + half + 1, H)), slice(max(xa - half, 0), min(xb + half + 1, W)))
     back = region[big] if surface is None else (surface | region)[big]
     with np.errstate(invalid="ignore"):
-        far = ndimage.maximum_filter(np.where(back, d[big], -np.inf), size=size, mode="constant", cval=-np.inf)
-        far = ndimage.minimum_filter(np.where(np.isfinite(far), far, np.inf), size=size, mode="constant",
-                                     cval=np.inf)
+        far = _window_max(np.where(back, d[big], -np.inf), size)
+        far = _window_min(np.where(np.isfinite(far), far, np.inf), size)
     win = (slice(max(ya - 3, 0), min(yb + 4, H)), slice(max(xa - 3, 0), min(xb + 4, W)))
     far = far[win[0].start - big[0].start:win[0].stop - big[0].start, win[1].start - big[1].start:win[1].stop - big[1].start]
     dw = d[win]
@@ -583,7 +586,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
         return region, none, seed
     layer = lab == best
     # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
-    layer_far = ndimage.maximum_filter(np.where(layer, dw, -np.inf), size=7)
+    layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
     ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
     with np.errstate(invalid="ignore"):
         step = rw & ring & (dw - layer_far > FRONT_STEP_M)
@@ -612,7 +615,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
         end = np.zeros(layer.shape, bool)
         end[yy, xx] = dist >= dist.max() - 0.03 * focal / float(np.nanmedian(dw[layer]))
         arm_end = none.copy()
-        arm_end[win] = rw & ring & ndimage.maximum_filter(end, size=7)
+        arm_end[win] = rw & ring & _window_max(end, 7)
         behind &= ~arm_end
     return out, behind, new_seed
 
@@ -623,12 +626,12 @@ def _goes_on(layer, contact, d, focal):
     :data:`FINGER_MAX_M` across removes the fingers), in pieces spanning more than that (an arm receding
     into the body meets it across its width; a finger leaning back, lying along the palm or the thumb,
     meets it over a finger's width or along its length beside the wide part in a thin band)."""
-    o = fill_holes(ndimage.binary_closing(layer, iterations=1) | layer)
+    o = closed_filled(layer)
     px_m = focal / float(np.nanmedian(d[layer]))
     rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
     disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
     wide = ndimage.binary_opening(o, structure=disk)
-    out = contact & ndimage.maximum_filter(wide, size=7)
+    out = contact & _window_max(wide, 7)
     lab, n = ndimage.label(out, structure=np.ones((3, 3)))
     if n == 0:
         return out
@@ -683,7 +686,7 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     # the distances within the surface's bounds only: the border pixels it is measured from lie there
     (ya, yb), (xa, xb) = bounds(surface)
     win = (slice(ya, yb + 1), slice(xa, xb + 1))
-    dist[win] = ndimage.distance_transform_edt(~(edge[win] & surface[win]))
+    dist[win] = _edt(edge[win] & surface[win])
     dist[~surface] = -1.0
     z = float(np.nanmedian(d[surface]))
     seed = _largest_in_window(surface & (dist >= dist.max() - 0.02 * focal / z))
@@ -719,13 +722,13 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
         return seed, front
     (ya, yb), (xa, xb) = bounds(obj)
     win = (slice(ya, yb + 1), slice(xa, xb + 1))
-    o = fill_holes(ndimage.binary_closing(obj[win], iterations=1) | obj[win])
+    o = closed_filled(np.ascontiguousarray(obj[win]))
     yy, xx = np.nonzero(o)
     P = np.stack([yy, xx], 1).astype(float)
     c = P.mean(axis=0)
     w, V = np.linalg.eigh(np.cov((P - c).T))
     t = (P - c) @ V[:, -1]
-    palm = 2.0 * float(ndimage.distance_transform_edt(np.pad(o, 1)).max())  # padded: the window is the bounds
+    palm = 2.0 * float(_edt(~np.pad(o, 1)).max())  # padded: the window is the bounds
     if t.max() - t.min() < ARM_LENGTH_PALMS * palm:
         return seed, front
     z = float(np.nanmedian(d[win][o]))
@@ -790,7 +793,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22):
     part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
     if not part.any():
         return False
-    o = fill_holes(ndimage.binary_closing(part, iterations=1) | part)
+    o = closed_filled(np.ascontiguousarray(part, dtype=np.bool_))
     _, size, big = _finger_pieces(o, px_m)
     return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
 
@@ -839,12 +842,12 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # close one-pixel no-data cracks and fill the holes the sensor leaves inside the hand (Kinect v1:
     # dropouts and shadows inside a fist) so that neither splits nor shrinks the palm circle: a
     # circle shrunk by a hole makes every finger reach "farther than a finger can" (an arm)
-    solid = fill_holes(ndimage.binary_closing(sub, iterations=1) | sub)
-    dt = ndimage.distance_transform_edt(solid)
+    solid = closed_filled(np.ascontiguousarray(sub))
+    dt = _edt(~solid)
     # where the region goes on: the image border or the surface beyond it (the arm's side)
     go_on = np.zeros(sub.shape, bool)
     if beyond is not None:
-        go_on |= ndimage.binary_dilation(np.asarray(beyond, bool)[y0:y1, x0:x1], iterations=2)
+        go_on |= _dilate(np.asarray(beyond, bool)[y0:y1, x0:x1], 2)
     H, W = m.shape
     go_on[:, :1] |= x0 == 0
     go_on[:, -1:] |= x1 == W
@@ -855,12 +858,12 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # forearm) the one farthest from where the region goes on
     cand = dt >= PALM_WIDTH_SHARE * dt.max()
     if go_on.any():
-        far = ndimage.distance_transform_edt(~go_on)
+        far = _edt(go_on)
         cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
     elif seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
         # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
         # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
-        near = ndimage.distance_transform_edt(~np.asarray(seed, bool)[y0:y1, x0:x1])
+        near = _edt(np.asarray(seed, bool)[y0:y1, x0:x1])
         cy, cx = np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
     else:
         cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
@@ -888,11 +891,11 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if joins is not None:
         # a part another object meets at its depth goes on into it (an arm into a table or the
         # body); not used for the palm's place: fingertips touch the body too
-        touch = ndimage.binary_dilation(np.asarray(joins, bool)[y0:y1, x0:x1], iterations=2) & solid
+        touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
         continues[np.unique(lab[touch & (lab > 0)])] = True
     # a part reaching farther from the palm's centre than any finger can is an arm even where it
     # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
-    reach_r = np.asarray(ndimage.maximum(rho, lab, index=idx), float)
+    reach_r = label_max(rho, lab, n)
     continues[1:] |= reach_r > ARM_REACH_R * r
     # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
     nb = np.maximum(np.bincount(lab[base], minlength=n + 1)[1:], 1)
@@ -933,7 +936,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if pieces[j] >= 2:
         # an arm with a finger touching it: its direction is that of its widest piece on the ring
         mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
-        ring = ring & ndimage.binary_dilation(ring_lab == mine[np.argmax(piece_size[mine])], iterations=2)
+        ring = ring & _dilate(ring_lab == mine[np.argmax(piece_size[mine])], 2)
     if not ring.any():
         ring = arm
     ay, ax = vy[ring].mean(), vx[ring].mean()

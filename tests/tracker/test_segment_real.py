@@ -8,6 +8,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 from scipy import ndimage
 
@@ -298,3 +300,94 @@ def test_rendered_forearm_is_cut_off_the_hand():
         assert (m & ~gt).sum() <= 0.05 * m.sum(), f"row {row}: forearm in the mask"
         kept = observe(r.depth, cam, segmenter=Segmenter(forearm="keep")).mask
         assert (kept & ~gt).sum() > 0.3 * kept.sum()
+
+
+def _surfaces_numpy(depth, jump=0.02):
+    """:func:`tracker.segment.surfaces` as it was before it was compiled: numpy step tests, scipy's
+    labelling, the step pixels given back by vectorised neighbour tests (right, left, down, up)."""
+    d = np.asarray(depth, float)
+    finite = np.isfinite(d)
+    with np.errstate(invalid="ignore"):
+        far = np.zeros_like(finite)
+        dx, dy = d[:, 1:] - d[:, :-1], d[1:, :] - d[:-1, :]
+        far[:, 1:] |= dx > jump
+        far[:, :-1] |= -dx > jump
+        far[1:, :] |= dy > jump
+        far[:-1, :] |= -dy > jump
+    core = finite & ~far
+    lab, n = ndimage.label(core)
+    out = lab.copy()
+    H, W = lab.shape
+    ty, tx = np.nonzero(finite & ~core)
+    if n and ty.size:
+        z = d[ty, tx]
+        best, got = np.full(ty.size, np.inf), np.zeros(ty.size, lab.dtype)
+        for ddy, ddx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            ny, nx = ty + ddy, tx + ddx
+            inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
+            ny, nx = np.clip(ny, 0, H - 1), np.clip(nx, 0, W - 1)
+            nl = lab[ny, nx]
+            with np.errstate(invalid="ignore"):
+                diff = np.abs(d[ny, nx] - z)
+                take = inside & (nl > 0) & (diff <= jump) & (diff < best)
+            got[take], best[take] = nl[take], diff[take]
+        out[ty, tx] = got
+    return out, n
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2 ** 32 - 1), st.floats(0.0, 0.6),
+       st.sampled_from([0.005, 0.02, 0.05]), st.booleans())
+def test_compiled_surfaces_equal_the_numpy_scipy_ones(h, w, seed, holes, jump, noisy):
+    """The compiled labelling gives the same labels (scipy's numbering) and count as numpy + scipy,
+    on depth images with steps of every size, ties between neighbours and no-data holes."""
+    rng = np.random.default_rng(seed)
+    # a few depth levels (without noise: a step's far pixel exactly as near to two surfaces), noise; holes
+    d = rng.choice([0.5, 0.515, 0.53, 0.6, 0.9], size=(h, w)) + noisy * rng.uniform(0, 0.03) * rng.random((h, w))
+    d[rng.random((h, w)) < holes] = np.nan
+    got, n = surfaces(d, jump)
+    want, n_want = _surfaces_numpy(d, jump)
+    assert n == n_want
+    np.testing.assert_array_equal(got, want)
+
+
+def test_compiled_surfaces_equal_the_numpy_ones_on_a_real_frame():
+    """The same on a real SR305 frame (hand, arm, body, flying pixels), whole frame."""
+    _, d, _ = _load("20210326-230536_30")
+    for jump in (0.015, 0.02):
+        got, n = surfaces(d, jump)
+        want, n_want = _surfaces_numpy(d, jump)
+        assert n == n_want > 10
+        np.testing.assert_array_equal(got, want)
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 30), st.integers(0, 2 ** 32 - 1), st.floats(0.02, 0.98),
+       st.integers(0, 4))
+def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
+    """The segmenter's compiled morphology gives scipy's results exactly: dilation by the cross
+    ``k`` times, closing-and-filling, the distance transform, square max / min filters (masks and
+    depths with ±inf, every border mode that cannot win) and the per-label maximum."""
+    from tracker.segment import _dilate, _edt, _window_max, _window_min
+    from tracker._segment_kernels import closed_filled, label_max
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((h, w)) < fill
+    np.testing.assert_array_equal(_dilate(m, k), ndimage.binary_dilation(m, iterations=k) if k else m)
+    np.testing.assert_array_equal(closed_filled(m), ndimage.binary_fill_holes(ndimage.binary_closing(m) | m))
+    if m.any():
+        np.testing.assert_array_equal(_edt(m), ndimage.distance_transform_edt(~m))
+    size = 2 * k + 1
+    np.testing.assert_array_equal(_window_max(m, size), ndimage.maximum_filter(m, size=size, mode="constant"))
+    np.testing.assert_array_equal(_window_max(m, size), ndimage.maximum_filter(m, size=size))
+    d = np.round(rng.uniform(0.4, 0.9, (h, w)), 2)       # rounded: ties
+    dm = np.where(m, d, -np.inf)
+    np.testing.assert_array_equal(_window_max(dm, size),
+                                  ndimage.maximum_filter(dm, size=size, mode="constant", cval=-np.inf))
+    np.testing.assert_array_equal(_window_max(dm, size), ndimage.maximum_filter(dm, size=size))
+    dp = np.where(m, d, np.inf)
+    np.testing.assert_array_equal(_window_min(dp, size),
+                                  ndimage.minimum_filter(dp, size=size, mode="constant", cval=np.inf))
+    lab, n = ndimage.label(m, structure=np.ones((3, 3)))
+    if n:
+        np.testing.assert_array_equal(label_max(d, lab, n), ndimage.maximum(d, lab, index=np.arange(1, n + 1)))

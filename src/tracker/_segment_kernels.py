@@ -1,0 +1,242 @@
+"""Numba kernel of the segmenter's surfaces (:func:`tracker.segment.surfaces`), which runs several
+times on every tracked frame's window: scipy's labelling and the numpy step tests cost mostly their
+call overhead there. It computes exactly what the numpy / scipy expression in its docstring did
+(tests/tracker/test_segment.py compares them)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def surface_labels(d, jump):
+    """``(labels int32 (H, W), n)``: the 4-connected surfaces of the depth image ``d`` (NaN = none),
+    split where neighbours differ by more than ``jump``.
+
+    A pixel more than ``jump`` behind a 4-neighbour (a step's far side) is not core; the core pixels
+    are labelled as ``scipy.ndimage.label`` does (4-connected, numbered in raster order of each
+    surface's first pixel; ``n`` counts them); each far-side pixel then takes the label of its
+    4-neighbour nearest in depth within ``jump`` (right, left, down, up: the first on ties; 0 when
+    none)."""
+    H, W = d.shape
+    core = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            z = d[v, u]
+            if not np.isfinite(z):
+                continue
+            far = ((u > 0 and z - d[v, u - 1] > jump) or (u < W - 1 and z - d[v, u + 1] > jump)
+                   or (v > 0 and z - d[v - 1, u] > jump) or (v < H - 1 and z - d[v + 1, u] > jump))
+            core[v, u] = not far
+    lab = np.zeros((H, W), np.int32)
+    stack = np.empty(H * W, np.int64)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if not core[v, u] or lab[v, u]:
+                continue
+            n += 1
+            lab[v, u] = n
+            stack[0] = v * W + u
+            top = 1
+            while top:
+                top -= 1
+                p = stack[top]
+                pv, pu = p // W, p % W
+                for k in range(4):
+                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+                    if 0 <= qv < H and 0 <= qu < W and core[qv, qu] and not lab[qv, qu]:
+                        lab[qv, qu] = n
+                        stack[top] = qv * W + qu
+                        top += 1
+    out = lab.copy()
+    for v in range(H):
+        for u in range(W):
+            z = d[v, u]
+            if core[v, u] or not np.isfinite(z):
+                continue
+            best, got = np.inf, 0
+            for k in range(4):
+                qv = v + (1 if k == 2 else -1 if k == 3 else 0)
+                qu = u + (1 if k == 0 else -1 if k == 1 else 0)
+                if 0 <= qv < H and 0 <= qu < W and lab[qv, qu] > 0:
+                    diff = abs(d[qv, qu] - z)
+                    if diff <= jump and diff < best:
+                        got, best = lab[qv, qu], diff
+            out[v, u] = got
+    return out, n
+
+
+@njit(cache=True)
+def city_block(mask):
+    """The 4-connected (city-block) distance of every pixel to the nearest ``mask`` pixel, in pixels
+    (2⁶² where the mask is empty): two raster passes. ``city_block(m) <= k`` is what ``k``
+    iterations of ``scipy.ndimage.binary_dilation(m)`` (its cross) give."""
+    H, W = mask.shape
+    big = 1 << 62
+    d = np.empty((H, W), np.int64)
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                d[v, u] = 0
+            else:
+                best = big
+                if v > 0 and d[v - 1, u] + 1 < best:
+                    best = d[v - 1, u] + 1
+                if u > 0 and d[v, u - 1] + 1 < best:
+                    best = d[v, u - 1] + 1
+                d[v, u] = best
+    for v in range(H - 1, -1, -1):
+        for u in range(W - 1, -1, -1):
+            if v < H - 1 and d[v + 1, u] + 1 < d[v, u]:
+                d[v, u] = d[v + 1, u] + 1
+            if u < W - 1 and d[v, u + 1] + 1 < d[v, u]:
+                d[v, u] = d[v, u + 1] + 1
+    return d
+
+
+@njit(cache=True)
+def closed_filled(m):
+    """``fill_holes(binary_closing(m) | m)`` (scipy's closing with its cross, the border outside
+    counting as background; holes: background 4-connected, not reaching the array's edge)."""
+    H, W = m.shape
+    dil = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            dil[v, u] = m[v, u] or (v > 0 and m[v - 1, u]) or (v < H - 1 and m[v + 1, u]) or (
+                u > 0 and m[v, u - 1]) or (u < W - 1 and m[v, u + 1])
+    out = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if m[v, u]:
+                out[v, u] = True
+            elif 0 < v < H - 1 and 0 < u < W - 1:
+                out[v, u] = dil[v, u] and dil[v - 1, u] and dil[v + 1, u] and dil[v, u - 1] and dil[v, u + 1]
+    # the background reachable from the edge stays; the rest are holes
+    reach = np.zeros((H, W), np.bool_)
+    stack = np.empty(H * W, np.int64)
+    top = 0
+    for v in range(H):
+        for u in range(W):
+            if (v == 0 or u == 0 or v == H - 1 or u == W - 1) and not out[v, u] and not reach[v, u]:
+                reach[v, u] = True
+                stack[top] = v * W + u
+                top += 1
+    while top:
+        top -= 1
+        p = stack[top]
+        pv, pu = p // W, p % W
+        for k in range(4):
+            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+            if 0 <= qv < H and 0 <= qu < W and not out[qv, qu] and not reach[qv, qu]:
+                reach[qv, qu] = True
+                stack[top] = qv * W + qu
+                top += 1
+    for v in range(H):
+        for u in range(W):
+            if not reach[v, u]:
+                out[v, u] = True
+    return out
+
+
+@njit(cache=True)
+def _line_extreme(x, n, h, sign, pad, g, r, out):
+    """``out[i] = sign · max(sign · x[j] for |j − i| <= h, 0 <= j < n)`` (van Herk / Gil-Werman: a
+    running maximum forwards and backwards in blocks of the window's width; ``pad``, ``g``, ``r``:
+    work arrays of at least ``n + 2h``)."""
+    w = 2 * h + 1
+    m = n + 2 * h
+    for i in range(h):
+        pad[i] = -np.inf
+        pad[m - 1 - i] = -np.inf
+    for i in range(n):
+        pad[h + i] = sign * x[i]
+    for b in range(0, m, w):
+        e = min(b + w, m)
+        acc = pad[b]
+        g[b] = acc
+        for i in range(b + 1, e):
+            if pad[i] > acc:
+                acc = pad[i]
+            g[i] = acc
+        acc = pad[e - 1]
+        r[e - 1] = acc
+        for i in range(e - 2, b - 1, -1):
+            if pad[i] > acc:
+                acc = pad[i]
+            r[i] = acc
+    for i in range(n):
+        x0, x1 = r[i], g[i + 2 * h]
+        out[i] = sign * (x0 if x0 > x1 else x1)
+
+
+@njit(cache=True)
+def window_extreme(a, h, sign):
+    """The maximum (``sign`` 1) or minimum (−1) of ``a`` over each pixel's ``(2h+1)²`` window, pixels
+    outside the array left out: ``scipy.ndimage.maximum_filter`` / ``minimum_filter`` with
+    ``size=2h+1`` under any border mode that cannot win (``constant`` with ±inf, ``reflect``,
+    ``nearest``), for arrays without NaN."""
+    H, W = a.shape
+    L = max(H, W) + 2 * h
+    pad, g, r = np.empty(L), np.empty(L), np.empty(L)
+    tmp = np.empty((W, H))  # the row pass's result transposed: the column pass reads rows again
+    row = np.empty(W)
+    for v in range(H):
+        _line_extreme(a[v], W, h, sign, pad, g, r, row)
+        for u in range(W):
+            tmp[u, v] = row[u]
+    out = np.empty((H, W))
+    col = np.empty(H)
+    for u in range(W):
+        _line_extreme(tmp[u], H, h, sign, pad, g, r, col)
+        for v in range(H):
+            out[v, u] = col[v]
+    return out
+
+
+@njit(cache=True)
+def window_any(m, h):
+    """``scipy.ndimage.maximum_filter(m, size=2h+1)`` of a boolean mask (any mask pixel in the
+    ``(2h+1)²`` window; the border never wins): running counts along rows, then columns."""
+    H, W = m.shape
+    tmp = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        c = 0
+        for u in range(min(h, W)):
+            c += m[v, u]
+        for u in range(W):
+            if u + h < W:
+                c += m[v, u + h]
+            if u - h - 1 >= 0:
+                c -= m[v, u - h - 1]
+            tmp[v, u] = c > 0
+    out = np.zeros((H, W), np.bool_)
+    cnt = np.zeros(W, np.int64)
+    for v in range(min(h, H)):
+        for u in range(W):
+            cnt[u] += tmp[v, u]
+    for v in range(H):
+        if v + h < H:
+            for u in range(W):
+                cnt[u] += tmp[v + h, u]
+        if v - h - 1 >= 0:
+            for u in range(W):
+                cnt[u] -= tmp[v - h - 1, u]
+        for u in range(W):
+            out[v, u] = cnt[u] > 0
+    return out
+
+
+@njit(cache=True)
+def label_max(values, lab, n):
+    """``scipy.ndimage.maximum(values, lab, index=range(1, n + 1))`` for labels that all occur."""
+    out = np.full(n, -np.inf)
+    H, W = lab.shape
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0 and values[v, u] > out[k - 1]:
+                out[k - 1] = values[v, u]
+    return out
