@@ -240,3 +240,97 @@ def label_max(values, lab, n):
             if k > 0 and values[v, u] > out[k - 1]:
                 out[k - 1] = values[v, u]
     return out
+
+
+@njit(cache=True)
+def _voronoi_line(fa, fo, n, c, g, out_a, out_o):
+    """One line of Maurer, Qi & Raghavan's exact feature transform (PAMI 2003): positions ``0..n-1``
+    along an axis, at coordinate ``c`` on the other; ``fa[i]``/``fo[i]`` the coordinates (along /
+    other) of the site position ``i`` holds (``fa[i] < 0``: none). Keeps the sites whose Voronoi
+    cells cross the line, then gives each position its nearest; ties go as scipy's implementation
+    of the same paper sends them (a site is dropped when the test is <= 0, the earlier site is kept
+    when as near)."""
+    l = -1
+    for i in range(n):
+        if fa[i] < 0:
+            continue
+        w_r = float((fo[i] - c) * (fo[i] - c))
+        while l >= 1:
+            i1, i2 = g[l], g[l - 1]
+            a = float(fa[i1] - fa[i2])
+            b = float(fa[i] - fa[i1])
+            cc = a + b
+            u_r = float((fo[i2] - c) * (fo[i2] - c))
+            v_r = float((fo[i1] - c) * (fo[i1] - c))
+            if cc * v_r - b * u_r - a * w_r - a * b * cc <= 0.0:
+                break
+            l -= 1
+        l += 1
+        g[l] = i
+    if l < 0:
+        for i in range(n):
+            out_a[i] = fa[i]
+            out_o[i] = fo[i]
+        return
+    top = l
+    l = 0
+    for i in range(n):
+        d1 = (fa[g[l]] - i) * (fa[g[l]] - i) + (fo[g[l]] - c) * (fo[g[l]] - c)
+        while l < top:
+            j = g[l + 1]
+            d2 = (fa[j] - i) * (fa[j] - i) + (fo[j] - c) * (fo[j] - c)
+            if d1 <= d2:
+                break
+            d1 = d2
+            l += 1
+        out_a[i] = fa[g[l]]
+        out_o[i] = fo[g[l]]
+
+
+@njit(cache=True)
+def nearest_target(targets, dist, iv, iu):
+    """Each pixel's nearest ``targets`` pixel (row ``iv``, column ``iu``) and its distance ``dist``, as
+    ``scipy.ndimage.distance_transform_edt(~targets, return_indices=True)`` gives them, ties included
+    (the same algorithm: per column along the rows, then per row along the columns). Returns False
+    (outputs unset) when there is no target."""
+    H, W = targets.shape
+    any_t = False
+    for v in range(H):
+        for u in range(W):
+            if targets[v, u]:
+                any_t = True
+    if not any_t:
+        return False
+    n = max(H, W)
+    g = np.empty(n, np.int64)
+    fa, fo = np.empty(n, np.int64), np.empty(n, np.int64)
+    oa, oo = np.empty(n, np.int64), np.empty(n, np.int64)
+    # the first pass (per column along the rows) has every site on the line itself, so none is ever
+    # dropped and each pixel takes its column's nearest target row, the upper one on ties: two sweeps
+    # in memory order
+    rv = np.empty((H, W), np.int64)
+    last = np.full(W, -1, np.int64)
+    for v in range(H):
+        for u in range(W):
+            if targets[v, u]:
+                last[u] = v
+            rv[v, u] = last[u]
+    last[:] = -1
+    for v in range(H - 1, -1, -1):
+        for u in range(W):
+            if targets[v, u]:
+                last[u] = v
+            if last[u] >= 0 and (rv[v, u] < 0 or last[u] - v < v - rv[v, u]):
+                rv[v, u] = last[u]
+    for v in range(H):
+        for u in range(W):
+            # along the row: the along coordinate is the column, "none" marked by the row
+            fa[u] = u if rv[v, u] >= 0 else -1
+            fo[u] = rv[v, u]
+        _voronoi_line(fa, fo, W, v, g, oa, oo)
+        for u in range(W):
+            iu[v, u] = oa[u]
+            iv[v, u] = oo[u]
+            du, dv = float(oa[u] - u), float(oo[u] - v)
+            dist[v, u] = np.sqrt(dv * dv + du * du)
+    return True

@@ -45,7 +45,15 @@ import numpy as np
 from scipy import ndimage
 
 from ._icp_kernels import feature_transform
-from ._segment_kernels import city_block, closed_filled, label_max, surface_labels, window_any, window_extreme
+from ._segment_kernels import (
+    city_block,
+    closed_filled,
+    label_max,
+    nearest_target,
+    surface_labels,
+    window_any,
+    window_extreme,
+)
 
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
@@ -344,6 +352,16 @@ def _edt(targets):
     if not feature_transform(t, dist, np.empty(t.shape, np.int32), np.empty(t.shape, np.int32)):
         return ndimage.distance_transform_edt(~t)
     return dist
+
+
+def _nearest(targets):
+    """``(dist, rows, cols)``: ``scipy.ndimage.distance_transform_edt(~targets, return_indices=True)``,
+    the nearest target of every pixel as scipy names it on ties."""
+    t = np.ascontiguousarray(targets, dtype=np.bool_)
+    dist, iv, iu = np.empty(t.shape), np.empty(t.shape, np.int32), np.empty(t.shape, np.int32)
+    if not nearest_target(t, dist, iv, iu):
+        dist, (iv, iu) = ndimage.distance_transform_edt(~t, return_indices=True)
+    return dist, iv, iu
 
 
 def _window_max(a, size):
@@ -658,7 +676,7 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     m = px + int(np.ceil(TOUCH_WINDOW_M * focal / z))
     win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
     r = region[win]
-    dist, (iy, ix) = ndimage.distance_transform_edt(~r, return_indices=True)
+    dist, iy, ix = _nearest(r)
     da = np.asarray(depth_all, float)[win]
     with np.errstate(invalid="ignore"):
         close = (dist <= px) & (np.abs(da - d[win][iy, ix]) <= dz)

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from ._icp_kernels import feature_transform
 from ._wrist_kernels import (
@@ -31,7 +30,7 @@ from ._wrist_kernels import (
     outline_and_ring,
     seeded_surfaces,
 )
-from .segment import surfaces
+from .segment import _nearest, surfaces
 
 WRIST_REACH_MM = 50.0
 WRIST_TURN_MM = 30.0
@@ -73,8 +72,8 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     if not ring.any():
         return None
     # each outside ring pixel's nearest mask depth: the surface goes on when they agree
-    near_inside = ndimage.distance_transform_edt(~inner, return_distances=False, return_indices=True)
-    iy, ix = near_inside[0][ring], near_inside[1][ring]
+    _, near_y, near_x = _nearest(inner)
+    iy, ix = near_y[ring], near_x[ring]
     ry, rx = np.nonzero(ring)
     dz = np.abs(d[ry, rx] - d[iy, ix])
     goes_on = np.zeros_like(m)

@@ -391,3 +391,21 @@ def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
     lab, n = ndimage.label(m, structure=np.ones((3, 3)))
     if n:
         np.testing.assert_array_equal(label_max(d, lab, n), ndimage.maximum(d, lab, index=np.arange(1, n + 1)))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2 ** 32 - 1),
+       st.sampled_from([0.002, 0.03, 0.3, 0.9]))
+def test_compiled_nearest_pixels_are_scipys(h, w, seed, share):
+    """The compiled feature transform names the same nearest pixel as scipy's, ties included (the
+    segmenter's joins and the wrist cue read the depth there), and the same distances."""
+    from tracker.segment import _nearest
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((h, w)) < share
+    m[rng.integers(h), rng.integers(w)] = True
+    dist, iv, iu = _nearest(m)
+    want, (wv, wu) = ndimage.distance_transform_edt(~m, return_indices=True)
+    np.testing.assert_array_equal(dist, want)
+    np.testing.assert_array_equal(iv, wv)
+    np.testing.assert_array_equal(iu, wu)
