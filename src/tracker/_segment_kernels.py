@@ -334,3 +334,82 @@ def nearest_target(targets, dist, iv, iu):
             du, dv = float(oa[u] - u), float(oo[u] - v)
             dist[v, u] = np.sqrt(dv * dv + du * du)
     return True
+
+
+@njit(cache=True)
+def _components(mask, lab, stack):
+    """4-connected components of ``mask`` into ``lab`` (numbered in raster order of their first pixel,
+    as ``scipy.ndimage.label`` numbers them); returns their count."""
+    H, W = mask.shape
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if not mask[v, u] or lab[v, u]:
+                continue
+            n += 1
+            lab[v, u] = n
+            stack[0] = v * W + u
+            top = 1
+            while top:
+                top -= 1
+                p = stack[top]
+                pv, pu = p // W, p % W
+                for k in range(4):
+                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+                    if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not lab[qv, qu]:
+                        lab[qv, qu] = n
+                        stack[top] = qv * W + qu
+                        top += 1
+    return n
+
+
+@njit(cache=True)
+def largest_component(mask):
+    """The largest 4-connected component of ``mask`` (the first in raster order on ties, as
+    ``np.argmax`` over ``scipy.ndimage.label``'s sizes picks it); the mask itself when it has at most one."""
+    H, W = mask.shape
+    lab = np.zeros((H, W), np.int32)
+    n = _components(mask, lab, np.empty(H * W, np.int64))
+    if n <= 1:
+        return mask.copy()
+    size = np.zeros(n + 1, np.int64)
+    for v in range(H):
+        for u in range(W):
+            size[lab[v, u]] += 1
+    best = 1
+    for k in range(2, n + 1):
+        if size[k] > size[best]:
+            best = k
+    out = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            out[v, u] = lab[v, u] == best
+    return out
+
+
+@njit(cache=True)
+def components_holding(mask, seed):
+    """The 4-connected components of ``mask`` that hold a ``seed`` pixel."""
+    H, W = mask.shape
+    out = np.zeros((H, W), np.bool_)
+    stack = np.empty(H * W, np.int64)
+    top = 0
+    for v in range(H):
+        for u in range(W):
+            if seed[v, u] and mask[v, u] and not out[v, u]:
+                out[v, u] = True
+                stack[top] = v * W + u
+                top += 1
+    while top:
+        top -= 1
+        p = stack[top]
+        pv, pu = p // W, p % W
+        for k in range(4):
+            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+            if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not out[qv, qu]:
+                out[qv, qu] = True
+                stack[top] = qv * W + qu
+                top += 1
+    return out

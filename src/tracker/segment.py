@@ -48,7 +48,9 @@ from ._icp_kernels import feature_transform
 from ._segment_kernels import (
     city_block,
     closed_filled,
+    components_holding,
     label_max,
+    largest_component as _largest_component,
     nearest_target,
     surface_labels,
     window_any,
@@ -309,12 +311,9 @@ def bounds(mask):
 
 
 def largest_component(mask):
-    """The largest 4-connected component of a boolean mask."""
-    lab, n = ndimage.label(mask)
-    if n <= 1:
-        return mask
-    sizes = np.bincount(lab.ravel())[1:]
-    return lab == (1 + int(np.argmax(sizes)))
+    """The largest 4-connected component of a boolean mask (the first in raster order on ties;
+    compiled: :func:`tracker._segment_kernels.largest_component`)."""
+    return _largest_component(np.ascontiguousarray(mask, dtype=np.bool_))
 
 
 def fill_holes(mask):
@@ -524,9 +523,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             near &= _sq_dist(X, centre) <= reach ** 2
     near |= seed
     core = (lab == k) & near
-    lab_c, _ = ndimage.label(core)
-    hit = np.unique(lab_c[seed])
-    core = np.isin(lab_c, hit[hit > 0])
+    core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
     core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px)
     # small surfaces close to the hand in the image and in depth: fingertip blobs

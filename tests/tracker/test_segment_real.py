@@ -409,3 +409,21 @@ def test_compiled_nearest_pixels_are_scipys(h, w, seed, share):
     np.testing.assert_array_equal(dist, want)
     np.testing.assert_array_equal(iv, wv)
     np.testing.assert_array_equal(iu, wu)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 30), st.integers(0, 2 ** 32 - 1), st.floats(0.05, 0.95))
+def test_compiled_components_are_scipys(h, w, seed, fill):
+    """The compiled largest component (ties to the first in raster order) and the components holding
+    a seed pixel are those of ``scipy.ndimage.label``."""
+    from tracker._segment_kernels import components_holding
+    from tracker.segment import largest_component
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((h, w)) < fill
+    lab, n = ndimage.label(m)
+    want = m if n <= 1 else lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
+    np.testing.assert_array_equal(largest_component(m), want)
+    s = rng.random((h, w)) < 0.05
+    hit = np.unique(lab[s])
+    np.testing.assert_array_equal(components_holding(m, s), np.isin(lab, hit[hit > 0]))
