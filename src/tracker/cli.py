@@ -180,14 +180,15 @@ def import_(
     recording files in place.)"""
     import time
 
-    from handmodel.fileio import check_output
-
     from .errors import TrackerError
     from .recording import import_pngs, import_recording_file, is_recording_file
+    from .track_cli import _check_not_inputs, _check_output
 
     if not src.exists():
         raise TrackerError(src, "no such folder or file")
-    check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
+    if is_recording_file(src):  # a folder of PNGs may hold its recording (-o pngs/rec); it is never the source
+        _check_not_inputs([src], [("-o", output)])
+    _check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
     t0 = time.perf_counter()
     if is_recording_file(src):
         given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
@@ -321,21 +322,22 @@ def show(
                                              "(--keypoints kp.csv) of this recording: draw each shown frame's fitted "
                                              "skeleton, thumb orange, wrist a blue square."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output file."),
+    check_recording: bool = typer.Option(True, "--check-recording/--no-check-recording", help="Refuse a --keypoints CSV whose header names another recording (folder name) or handedness; --no-check-recording draws it anyway [on]."),
 ):
     """Contact sheet of depth frames, colour-mapped in mm; pixels without depth are light grey; the
     segmented hand outlined in white. With --keypoints the depth in greys (white = no depth), the mask
     outlined in green and the fitted skeletons. Given a Rerun recording of
     a tracking (tracker track --rerun out.rrd), a picture of one logged frame instead: the depth with the
     mask and the fitted skeleton, and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
-    from handmodel.fileio import check_output
-
     from .errors import TrackerError
+    from .track_cli import _check_not_inputs, _check_output
 
+    _check_not_inputs([recording, keypoints], [("-o", output)])
     if output.suffix.lower() != ".png":
         raise TrackerError(output, "the picture is written as PNG: name it .png")
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
-    check_output(output, overwrite=overwrite)  # before the frames are read
+    _check_output(output, overwrite=overwrite)  # before the frames are read
     if recording.suffix.lower() == ".rrd":
         given = [o for o, v in (("--topic", topic), ("--every", every or None), ("--near", near), ("--far", far),
                                 ("--depth-range", depth_range), ("--box", box), ("--keypoints", keypoints))
@@ -375,7 +377,11 @@ def show(
         from .plots import project
 
         hand = HandModel.load()  # its bones only: the keypoints are the fitted hand's own
-        fitted = _keypoints_by_frame(keypoints, hand.keypoint_names, n)
+        fitted, meta = _keypoints_by_frame(keypoints, hand.keypoint_names, n)
+        if check_recording:
+            from .track_cli import _check_same_recording
+
+            _check_same_recording(keypoints, meta, recording, rec)
     depths, masks, times = [], [], []
     with _progress("reading") as p:
         bar = p.add_task("read", total=len(shown))
@@ -411,29 +417,24 @@ def show(
         _print(warning)
 
 
-def _keypoints_by_frame(path, names, n_frames) -> dict:
-    """Frame index → (K, 3) keypoints in metres of a keypoints CSV (``tracker track --keypoints``),
-    frames without a fit (NaN) left out; refused when its columns or frames do not fit the recording."""
+def _keypoints_by_frame(path, names, n_frames):
+    """``(frames, header)``: frame index → (K, 3) keypoints in metres of a keypoints CSV (``tracker track
+    --keypoints``, :func:`tracker.run.read_keypoints`), frames without a fit (NaN) left out, and its
+    ``# key: value`` header; refused when its columns or frames do not fit the recording."""
     import numpy as np
     import pandas as pd
 
     from .errors import TrackerError
+    from .run import read_keypoints
 
-    try:
-        df = pd.read_csv(path)
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise TrackerError(path, f"cannot read a keypoints CSV ({type(exc).__name__}: {exc})") from None
+    df, meta = read_keypoints(path, names)
     cols = [f"{k}_{a}_mm" for k in names for a in "xyz"]
-    missing = [c for c in ["frame", *cols] if c not in df.columns]
-    if missing:
-        raise TrackerError(path, f"not a keypoints CSV of tracker track (missing {', '.join(missing[:3])}"
-                                 f"{' …' if len(missing) > 3 else ''})")
     frames = pd.to_numeric(df["frame"], errors="coerce").to_numpy(float)
     if len(frames) and (not np.isfinite(frames).all() or frames.min() < 0 or frames.max() >= n_frames):
         raise TrackerError(path, f"has frames up to {np.nanmax(frames):g}, the recording {n_frames} "
                                  "(keypoints of another recording?)")
     xyz = df[cols].apply(pd.to_numeric, errors="coerce").to_numpy(float).reshape(len(df), len(names), 3) / 1000.0
-    return {int(f): k for f, k in zip(frames, xyz) if np.isfinite(k).all() and (k[:, 2] > 0).all()}
+    return {int(f): k for f, k in zip(frames, xyz) if np.isfinite(k).all() and (k[:, 2] > 0).all()}, meta
 
 
 # the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer

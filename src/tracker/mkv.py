@@ -110,9 +110,15 @@ def cut_short(path: Path):
     return (declared, size) if declared > size else None
 
 
-def _cut_note(path: Path) -> str:
+def _cut_text(path: Path) -> str:
+    """"cut short: the file has N of its M bytes" for a file cut short (:func:`cut_short`), else ""."""
     cut = cut_short(path)
-    return "" if cut is None else f"; cut short: the file has {cut[1]} of its {cut[0]} bytes"
+    return "" if cut is None else f"cut short: the file has {cut[1]} of its {cut[0]} bytes"
+
+
+def _cut_note(path: Path) -> str:
+    cut = _cut_text(path)
+    return cut and f"; {cut}"
 
 
 def _open_container(path: Path):
@@ -243,8 +249,12 @@ def open_mkv(path, *, handedness: str = "left") -> MkvRecording:
             cam = Camera(w, h, fx, fy, cx, cy, 0.001, "uint16", f"azure_kinect_{mode.lower()}")
         except TrackerError as exc:
             raise RecordingError(path, exc.reason) from None
-        # a file cut short still reads up to its cut; tracker info shows that frames may be missing
-        return MkvRecording(path, cam, stamps, pts, fps, handedness,
-                            f"Azure Kinect recording {path.name}, depth mode {mode}{_cut_note(path)}", s.index)
+        # a file cut short still reads up to its cut; tracker info shows that frames may be missing,
+        # tracker track warns of it
+        cut = _cut_text(path)
+        rec = MkvRecording(path, cam, stamps, pts, fps, handedness,
+                           f"Azure Kinect recording {path.name}, depth mode {mode}{cut and '; ' + cut}", s.index)
+        rec.damage = cut
+        return rec
     finally:
         c.close()

@@ -61,6 +61,21 @@ def check_frame_size(width: int, height: int, where) -> None:
                                     f"{MAX_FRAME_SIDE}×{MAX_FRAME_SIDE}")
 
 
+#: Longest quoted value an error message shows (a CSV written over recording.yaml is one 4 kB value).
+MAX_SHOWN_VALUE = 80
+
+
+def _shortened(message: str) -> str:
+    """``message`` with every quoted value longer than :data:`MAX_SHOWN_VALUE` characters cut with …,
+    so an error stays a line that can be read.
+
+    >>> _shortened("field (top level): '" + "0123456789" * 20 + "' is not of type 'object'")
+    "field (top level): '0123456789012345678901234567890123456789012345678901234567890123456789012345678…' is not of type 'object'"
+    """
+    return re.sub(r"'([^']{%d,})'" % (MAX_SHOWN_VALUE + 1),
+                  lambda m: f"'{m.group(1)[:MAX_SHOWN_VALUE - 1]}…'", message)
+
+
 def _natural_key(p: Path):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]
 
@@ -222,7 +237,7 @@ class Recording:
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
         if problem:
-            raise RecordingError(y, f"schema violation, {problem}")
+            raise RecordingError(y, f"schema violation, {_shortened(problem)}")
         c, dp = meta["camera"], meta["depth"]
         try:
             cam = Camera(c["width"], c["height"], c["fx"], c["fy"], c["cx"], c["cy"], dp["scale_m"], dp["encoding"],
@@ -337,6 +352,9 @@ class FileRecording(Recording):
 
     #: what :meth:`_read_raw` gives: integer ``units`` (× camera.depth_scale_m) or float ``metres``
     depth_kind = "units"
+    #: what is wrong with a file whose frames still read up to the damage (say "cut short: …"), or ""
+    #: for a sound one: the commands warn of it, as the frames past it are missing
+    damage = ""
 
     def __init__(self, path, camera: Camera, stamps_ns, fps: float, handedness: str, source: str,
                  has_color: bool):

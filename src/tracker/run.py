@@ -3,7 +3,9 @@
 The tracking output is a CSV with ``# key: value`` header lines (recording, mode, synergies, PCs,
 settings, hand model and its hash, units), then one row per frame: ``frame, time_s, status, fit_mm,
 points_used, points, ms`` and the 26 DoF columns (metres, radians). :func:`write_tracking` and :func:`read_tracking` are its one writer and
-reader (``tracker track`` writes it; ``tracker eval``, the experiments and users read it).
+reader (``tracker track`` writes it; ``tracker eval``, the experiments and users read it);
+:func:`write_keypoints` and :func:`read_keypoints` those of the keypoints CSV (``tracker track
+--keypoints``, read by ``tracker show --keypoints``).
 
 >>> import io, numpy as np, pandas as pd
 >>> df = pd.DataFrame([[0, 0.0, "reinit", 1.5, 300, 310, 20.0] + [0.0] * 26],
@@ -161,8 +163,8 @@ def write_tracking(path, df, meta, *, overwrite=False) -> Path:
     return atomic_write_text(path, tracking_csv(df, meta), overwrite=overwrite)
 
 
-def parse_tracking(stream, where):
-    """``(table, metadata)`` of a tracking output read from a text stream; ``where`` names it in errors."""
+def _split_header(stream):
+    """``(metadata, table lines)`` of a text stream whose ``# key: value`` lines are its header."""
     meta = {}
     lines = []
     for line in stream:
@@ -172,6 +174,12 @@ def parse_tracking(stream, where):
                 meta[k.strip()] = v.strip()
         else:
             lines.append(line)
+    return meta, lines
+
+
+def parse_tracking(stream, where):
+    """``(table, metadata)`` of a tracking output read from a text stream; ``where`` names it in errors."""
+    meta, lines = _split_header(stream)
     try:
         df = pd.read_csv(io.StringIO("".join(lines)))
     except (ValueError, pd.errors.ParserError) as exc:
@@ -208,6 +216,43 @@ def keypoints_table(hand, df) -> pd.DataFrame:
     kd = pd.DataFrame(kps, columns=[f"{n}_{a}_mm" for n in hand.keypoint_names for a in "xyz"])
     kd.insert(0, "frame", df["frame"].to_numpy())
     return kd
+
+
+#: Header keys of a keypoints CSV: the tracking output's, so ``tracker show`` can tell keypoints of
+#: another recording (a file without them, written before they were, is read as it is).
+KEYPOINTS_HEADER = ("recording", "handedness")
+
+
+def write_keypoints(path, hand, df, meta, *, overwrite=False) -> Path:
+    """Write the keypoints CSV of a tracking (:func:`keypoints_table` of ``df`` on ``hand``) atomically,
+    after ``# recording:`` and ``# handedness:`` lines taken from its header ``meta``; it is never written
+    over an existing file unless ``overwrite``. :func:`read_keypoints` reads it."""
+    head = "".join(f"# {k}: {meta[k]}\n" for k in KEYPOINTS_HEADER if k in meta)
+    return atomic_write_text(path, head + keypoints_table(hand, df).to_csv(index=False, float_format="%.4f"),
+                             overwrite=overwrite)
+
+
+def read_keypoints(path, names):
+    """``(table, metadata)`` of a keypoints CSV of :func:`write_keypoints` (its header may be absent),
+    whose keypoints must include ``names``.
+
+    Raises
+    ------
+    TrackerError
+        Naming ``path``: not readable, or not a keypoints CSV (the first missing columns).
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            meta, lines = _split_header(f)
+        df = pd.read_csv(io.StringIO("".join(lines)))
+    except (OSError, ValueError, pd.errors.ParserError) as exc:  # UnicodeDecodeError is a ValueError
+        raise TrackerError(path, f"cannot read a keypoints CSV ({type(exc).__name__}: {exc})") from None
+    cols = [f"{k}_{a}_mm" for k in names for a in "xyz"]
+    missing = [c for c in ["frame", *cols] if c not in df.columns]
+    if missing:
+        raise TrackerError(path, f"not a keypoints CSV of tracker track (missing {', '.join(missing[:3])}"
+                                 f"{' …' if len(missing) > 3 else ''})")
+    return df, meta
 
 
 # ----------------------------------------------------------------------------- one run, many runs
@@ -351,8 +396,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
             calibrated_hand(tracker, recording=job.recording, frames=calibration_frames).save(
                 job.save_hand, overwrite=job.overwrite)
         if job.keypoints is not None:
-            atomic_write_text(job.keypoints, keypoints_table(tracker.hand, df).to_csv(index=False, float_format="%.4f"),
-                              overwrite=job.overwrite)
+            write_keypoints(job.keypoints, tracker.hand, df, meta, overwrite=job.overwrite)
     except BaseException:
         if viewer is not None:
             viewer.abort()

@@ -77,6 +77,9 @@ def track(
 
         require_mediapipe("--rgb-seed")
 
+    _check_not_inputs([*recordings, _input_file(hand_model), _input_file(synergies)],
+                      [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
+                       ("--save-hand", save_hand)])
     if len(recordings) > 1 or dask is not None:
         per_file = [n for n, v in (("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                                    ("--rerun-spawn", rerun_spawn), ("--save-hand", save_hand)) if v]
@@ -123,15 +126,72 @@ def _hand_side(hand):
     return hand
 
 
-def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
-    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
-    where a file goes, fails now and not after minutes of tracking."""
+def _input_file(spec):
+    """The file a ``--hand-model`` or ``--synergies`` value names, or None for a shipped name."""
+    return Path(spec) if spec and Path(spec).is_file() else None
+
+
+def _check_not_inputs(inputs, outputs):
+    """Refuse an output that is one of the command's inputs or lies inside an input folder (a
+    recording): ``--overwrite`` replaces earlier outputs, never what the command reads.
+
+    Parameters
+    ----------
+    inputs : paths the command reads (None entries are skipped)
+    outputs : ``(option, path)`` pairs of what it writes (None paths are skipped)
+
+    Raises
+    ------
+    TrackerError
+        Naming the output, the option and the input.
+    """
+    import os
+
+    from .errors import TrackerError
+
+    # resolved, so a symbolic link or ``rec/../rec`` does not slip past; samefile catches a hard link
+    ins = [(p, Path(p).resolve()) for p in inputs if p is not None]
+    for option, out in outputs:
+        if out is None:
+            continue
+        o = Path(out).resolve()
+        for given, i in ins:
+            if o == i or (o.exists() and i.exists() and os.path.samefile(o, i)):
+                raise TrackerError(out, f"{option} is an input of this command ({given}); an output never "
+                                        "replaces an input: write it elsewhere")
+            if i.is_dir() and i in o.parents:
+                raise TrackerError(out, f"{option} lies inside the input {given}; an output never goes into "
+                                        "an input: write it elsewhere")
+
+
+def _check_output(path, *, overwrite=False, folder=False):
+    """:func:`handmodel.fileio.check_output`, with a folder that exists but takes no new file (``/proc``,
+    ``/sys``: creating one there fails with "no such file") said as such."""
+    import errno
+
     from handmodel.fileio import check_output
 
     from .errors import TrackerError
 
+    try:
+        return check_output(path, overwrite=overwrite, folder=folder)
+    except OSError as exc:
+        if exc.errno != errno.ENOENT:
+            raise
+        where = Path(path) if folder else Path(path).parent
+        while not where.exists():
+            where = where.parent
+        raise TrackerError(path, f"cannot be created there: the folder {where} exists but takes no new files "
+                                 "(a virtual file system such as /proc or /sys?)") from None
+
+
+def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
+    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
+    where a file goes, fails now and not after minutes of tracking."""
+    from .errors import TrackerError
+
     if folder:
-        check_output(output, folder=True)
+        _check_output(output, folder=True)
         return
     if save_hand is not None:
         _check_hand_file(save_hand)
@@ -139,16 +199,45 @@ def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, s
         if p is not None and p.exists() and not overwrite and not p.is_dir():
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         if p is not None:
-            check_output(p, overwrite=overwrite)
+            _check_output(p, overwrite=overwrite)
     if rerun is not None and rerun.suffix.lower() != ".rrd":
         raise TrackerError(rerun, "a Rerun recording must end in .rrd")
     if overlay is not None:
-        check_output(overlay, folder=True)
+        _check_output(overlay, folder=True)
         if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
             raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
     outs = [p for p in (output, keypoints, overlay, rerun, save_hand) if p is not None]
     if len(set(outs)) < len(outs):
         raise TrackerError("track", "-o, --keypoints, --overlay, --rerun and --save-hand need different paths")
+
+
+def _check_same_recording(path, meta, recording, rec):
+    """Refuse an output of tracker track (``path``, its header ``meta``) whose ``# recording:`` or
+    ``# handedness:`` line names another recording than ``recording`` (opened: ``rec``).
+
+    The recording is compared by its folder or file name, as typed paths differ between working
+    folders; a header without these lines (an older file) is not checked, nor the handedness of a
+    recording file (the file does not say which hand it shows). ``--no-check-recording`` skips this.
+
+    Raises
+    ------
+    TrackerError
+        Naming ``path``, both recordings and hands, and the option that overrides.
+    """
+    from .errors import TrackerError
+
+    def name(p):
+        p = Path(p)
+        return p.name if p.name not in ("", ".", "..") else p.resolve().name
+
+    tracked = meta.get("recording")
+    if tracked and name(tracked) != name(recording):
+        raise TrackerError(path, f"was tracked on recording {tracked}, not on {recording} (--no-check-recording "
+                                 "uses it anyway)")
+    hand = meta.get("handedness")
+    if hand and getattr(rec, "times_s", None) is None and hand != rec.handedness:
+        raise TrackerError(path, f"was tracked as a {hand} hand, {recording} is a {rec.handedness} hand "
+                                 "(--no-check-recording uses it anyway)")
 
 
 def _check_hand_file(path):
@@ -163,8 +252,13 @@ def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, dampi
               robust, finger_search, projected_steps, hand_scale, check_hand):
     """The :class:`tracker.track.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value."""
+    from .errors import TrackerError
+    from .icp import MODES
     from .track import TrackerSettings
 
+    # before the synergy bundle a mode needs: a typo must not read as a missing --synergies
+    if mode not in MODES:
+        raise TrackerError("--mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {mode!r}")
     given = dict(stride=stride, smooth=smooth, target_points=None if points == 0 else points,
                  icp_iterations=icp, gn_iterations=gn, damping=damping, model=model, silhouette_weight=silhouette,
                  prediction=prediction, robust_mm=robust, finger_search=finger_search, projected_steps=projected_steps)
@@ -185,6 +279,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     from .run import open_job_recording, run_job
 
     rec = open_job_recording(job)
+    if getattr(rec, "damage", ""):
+        # said before the frames are tracked, as tracker info says it; the frames up to the damage are tracked
+        Console(stderr=True, markup=False, soft_wrap=True).print(
+            f"warning: {recording}: {rec.damage}; tracking the {len(rec)} frame{'s' * (len(rec) != 1)} it holds")
     with _progress("tracking") as progress:
         bar = progress.add_task("track", total=_length(rec))
         run = run_job(job, lambda frame, r, ob: progress.advance(bar), source=rec)
@@ -255,7 +353,7 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     from rich.table import Table
 
     from handmodel.cliutil import print_error
-    from handmodel.fileio import atomic_write_text, check_output
+    from handmodel.fileio import atomic_write_text
 
     from .cli import _progress
     from .errors import TrackerError
@@ -263,23 +361,37 @@ def _track_many(recordings, outdir, template, dask, overwrite):
 
     jobs = batch_jobs(recordings, outdir, template)
     summary = Path(outdir) / "summary.csv"
-    for p in [Path(j.output) for j in jobs] + [summary]:
+    outputs = [Path(j.output) for j in jobs] + [summary]
+    _check_not_inputs(recordings, [("-o", p) for p in outputs])
+    for p in outputs:
         if p.exists() and not overwrite:
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
-        check_output(p, overwrite=overwrite)
+        _check_output(p, overwrite=overwrite)
     with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
         bar = progress.add_task("recordings", total=len(jobs))
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
     atomic_write_text(summary, table.to_csv(index=False, float_format="%.4f"), overwrite=overwrite)
-    t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
-    for c in ("name", "frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "result"):
-        t.add_column(c, justify="left" if c in ("name", "result") else "right", overflow="fold")
+    # short headers and fps as the run's (wall time, as the one-recording table's "fps run"), so a
+    # readable name and all the numbers fit 100 columns
+    heads = ("frames", "tracked", "lost", "reinit", "fit mm", "ms", "fps", "result")
+    rows = []
     for row in table.to_dict("records"):
         ok = not row["error"]
-        t.add_row(Path(row["recording"]).name, *(str(row[k]) if ok else "-" for k in ("frames", "tracked", "lost", "reinit")),
-                  f"{row['median_fit_mm']:.2f}" if ok else "-", f"{row['median_ms']:.1f}" if ok else "-",
-                  "failed" if not ok else "other hand?" if row["other_hand_better"] in (True, "True") else "ok")
+        fps = row["frames"] / row["wall_s"] if ok and row["wall_s"] else None
+        rows.append((Path(row["recording"]).name, *(str(row[k]) if ok else "-" for k in ("frames", "tracked", "lost", "reinit")),
+                     f"{row['median_fit_mm']:.2f}" if ok else "-", f"{row['median_ms']:.1f}" if ok else "-",
+                     "-" if fps is None else f"{fps:.1f}",
+                     "failed" if not ok else "other hand?" if row["other_hand_better"] in (True, "True") else "ok"))
     console = Console(markup=False)  # paths are printed as typed, never read as markup
+    # the name takes what the numbers leave (each column 3 more for padding and its rule), one line cut
+    # with …: folded or squeezed by rich, a 100-column terminal left 9 characters a line of it
+    numbers = sum(max(len(h), *(len(r[k + 1]) for r in rows)) for k, h in enumerate(heads))
+    t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
+    t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=max(12, console.width - numbers - 3 * len(heads) - 4))
+    for c in heads:
+        t.add_column(c, justify="left" if c == "result" else "right", no_wrap=True)
+    for r in rows:
+        t.add_row(*r)
     console.print(t)
     for row in table.to_dict("records"):
         if row["other_hand_better"] in (True, "True"):
@@ -354,16 +466,16 @@ def evaluate(
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG of the error per frame."),
     skip: int = typer.Option(0, "--skip", help="Leave out the first N frames (e.g. a lead-in)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --plot file."),
+    check_recording: bool = typer.Option(True, "--check-recording/--no-check-recording", help="Refuse results whose header names another recording (folder name) or handedness than RECORDING's; --no-check-recording evaluates them anyway (a recording renamed since) [on]."),
 ):
     """Posture error (degrees, mean |Δ| of the 20 posture angles, as the paper), keypoint error (mm)."""
-    from handmodel.fileio import check_output
-
     from .errors import TrackerError
 
+    _check_not_inputs([recording, result], [("--plot", plot)])
     if plot is not None:
         if plot.exists() and not overwrite and not plot.is_dir():
             raise TrackerError(plot, "exists and is never overwritten (use --overwrite)")
-        check_output(plot, overwrite=overwrite)
+        _check_output(plot, overwrite=overwrite)
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     import numpy as np
     from rich.console import Console
@@ -382,6 +494,8 @@ def evaluate(
     if truth is None:
         raise TrackerError(recording, "has no truth.csv to evaluate against")
     df, meta = read_tracking(result)
+    if check_recording:
+        _check_same_recording(result, meta, recording, rec)
     # θ on the hand tracked (its file, size and finger lengths), the truth on the hand rendered
     hand = tracked_hand(meta, result)
     shown = truth_hand(recording) or HandModel.load(right=rec.handedness == "right")
@@ -443,11 +557,12 @@ def live(
         raise TrackerError("--hand", f"must be left or right, got {hand!r}")
     if (frames is not None and frames < 1) or (seconds is not None and not seconds > 0):
         raise TrackerError("live", "--frames and --seconds must be positive")
+    _check_not_inputs([playback, _input_file(hand_model), _input_file(synergies)],
+                      [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
+                       ("--save", save)])
     _check_outputs(output, keypoints, overlay, rerun, overwrite)
     if save is not None:
-        from handmodel.fileio import check_output
-
-        check_output(save, folder=True)
+        _check_output(save, folder=True)
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
     segmenter = _segmenter(depth_range, box, forearm)
@@ -547,11 +662,10 @@ def calibrate(
     if frames < 1:
         raise TrackerError("--frames", f"must be positive, got {frames}")
     _check_hand_file(output)
+    _check_not_inputs([recording, _input_file(hand_model), _input_file(synergies)], [("-o", output)])
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
-    from handmodel.fileio import check_output
-
-    check_output(output, overwrite=overwrite)
+    _check_output(output, overwrite=overwrite)
     segmenter = _segmenter(depth_range, box, forearm)
     settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
                          None, None, "auto", False)

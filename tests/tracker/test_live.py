@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from tracker.cli import app
 from tracker.recording import Recording
-from tracker.run import read_tracking
+from tracker.run import read_keypoints, read_tracking
 
 # ImportError too: the wheel is there but the system libusb is not (.ci/run installs it where it can)
 pytest.importorskip("pyrealsense2", exc_type=ImportError)
@@ -127,7 +127,8 @@ def test_live_is_the_track_pipeline(synthetic_bag, tmp_path):
     track, _ = read_tracking(tmp_path / "track.csv")
     pd.testing.assert_frame_equal(live.drop(columns=["ms", "time_s"]), track.drop(columns=["ms", "time_s"]))
     assert (live["status"] != "lost").all() and live["fit_mm"].max() < 2.0
-    assert len(pd.read_csv(tmp_path / "kp.csv")) == 5
+    kp, kmeta = read_keypoints(tmp_path / "kp.csv", [])
+    assert len(kp) == 5 and kmeta["recording"]
 
 
 def test_frames_limit_and_ctrl_c(synthetic_bag, tmp_path, monkeypatch):

@@ -174,3 +174,21 @@ def test_mutated_mkv_never_crashes(tmp_path):
                 assert rec.depth_units(i).shape == rec.camera.shape
         except RecordingError as exc:
             assert str(bad) in str(exc)
+
+
+def test_track_warns_of_a_cut_mkv_and_tracks_what_it_holds(tmp_path):
+    """tracker info said the file was cut short, tracker track said nothing: now one warning line on
+    stderr, and the frames before the cut are tracked."""
+    from tracker.run import read_tracking
+
+    data = _mkv().read_bytes()
+    bad = tmp_path / "cut.mkv"
+    bad.write_bytes(data[:1_600_000])
+    r = _cli("track", bad, "--no-check-hand", "--no-safety-net", "-o", tmp_path / "t.csv")
+    assert r.exit_code == 0, r.output
+    assert r.stderr == (f"warning: {bad}: cut short: the file has 1600000 of its {len(data)} bytes; "
+                        "tracking the 1 frame it holds\n")
+    df, _ = read_tracking(tmp_path / "t.csv")
+    assert len(df) == 1
+    r = _cli("track", MKV, "--no-check-hand", "--no-safety-net", "-o", tmp_path / "whole.csv")
+    assert r.exit_code == 0 and "cut short" not in r.stderr, r.output  # a sound file: no warning

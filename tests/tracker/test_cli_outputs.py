@@ -1,0 +1,186 @@
+"""Where the tracker commands write and what they read back: an output never goes into an input (even
+with --overwrite), results and keypoints of another recording are refused, an invalid --mode or an
+output folder that takes no files is said as such, and the many-recordings table stays readable."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from handmodel.dofs import DOF_NAMES
+from tracker.cli import app
+from tracker.run import FRAME_COLUMNS, tracking_csv
+
+
+def _cli(*args, env=None):
+    return CliRunner().invoke(app, [str(a) for a in args], env=env)
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    from tracker.sim.synthesize import synthesize
+
+    d = tmp_path_factory.mktemp("outputs") / "rec"
+    synthesize("open-close", "kinect1", None, d, frames=2)
+    return d
+
+
+def _one_error(r, *parts):
+    """Exit 2, one line on stderr holding every part, nothing on stdout."""
+    assert r.exit_code == 2, r.output
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("error: "), r.stderr
+    for p in parts:
+        assert p in r.stderr, r.stderr
+    assert r.stdout == ""
+
+
+def _snapshot(folder):
+    return {p: p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
+
+
+def _results(rec, path, **header):
+    """A tracking output holding the recording's own truth (so it evaluates to zero error)."""
+    truth = pd.read_csv(rec / "truth.csv")
+    n = len(truth)
+    df = pd.DataFrame({"frame": range(n), "time_s": truth["time_s"], "status": "tracked", "fit_mm": 1.0,
+                       "points_used": 100, "points": 100, "ms": 10.0})
+    df = pd.concat([df, truth[list(DOF_NAMES)]], axis=1)[[*FRAME_COLUMNS, *DOF_NAMES]]
+    path.write_text(tracking_csv(df, {**header, "units": "metres, radians"}))
+    return df
+
+
+@pytest.mark.parametrize("args", [
+    ("track", "{rec}", "-o", "{rec}/recording.yaml"),
+    ("track", "{rec}", "-o", "{tmp}/t.csv", "--keypoints", "{rec}/depth/000000.png"),
+    ("track", "{rec}", "-o", "{tmp}/t.csv", "--overlay", "{rec}/depth"),
+    ("track", "{rec}", "-o", "{tmp}/t.csv", "--overlay", "{rec}"),
+    ("track", "{rec}", "-o", "{tmp}/t.csv", "--rerun", "{rec}/x.rrd"),
+    ("track", "{rec}", "-o", "{tmp}/t.csv", "--save-hand", "{rec}/truth_hand.yaml"),
+    ("track", "{rec}", "{tmp}/other", "-o", "{rec}"),
+    ("show", "{rec}", "-o", "{rec}/depth/000000.png"),
+    ("show", "{tmp}/../{tmpname}/link", "-o", "{rec}/depth/000001.png"),
+    ("calibrate", "{rec}", "-o", "{rec}/recording.yaml"),
+    ("eval", "{rec}", "{rec}/truth.csv", "--plot", "{rec}/depth/000000.png"),
+])
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_an_output_never_goes_into_an_input(rec, tmp_path, args, overwrite):
+    """`track rec -o rec/recording.yaml --overwrite` replaced the recording's metadata with the CSV,
+    `show rec -o rec/depth/000000.png --overwrite` a depth frame: refused, with or without --overwrite,
+    also through a symbolic link, and the recording is left as it was."""
+    (tmp_path / "link").symlink_to(rec)
+    before = _snapshot(rec)
+    argv = [a.format(rec=rec, tmp=tmp_path, tmpname=tmp_path.name) for a in args]
+    r = _cli(*argv, *(["--overwrite"] if overwrite else []))
+    _one_error(r, "an input", "write it elsewhere")
+    assert _snapshot(rec) == before
+
+
+def test_eval_plot_over_its_results_is_refused(rec, tmp_path):
+    res = tmp_path / "res.csv"
+    _results(rec, res, recording=str(rec), handedness="left")
+    text = res.read_text()
+    _one_error(_cli("eval", rec, res, "--plot", res, "--overwrite"), str(res), "--plot is an input")
+    assert res.read_text() == text
+
+
+def test_a_metadata_error_shows_a_short_value(rec, tmp_path):
+    """A CSV written over recording.yaml made `tracker info` print a 4 kB line holding the whole CSV."""
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "recording.yaml").write_text("frame,time_s," + ",".join(DOF_NAMES) + ",0" * 2000 + "\n")
+    r = _cli("info", bad)
+    _one_error(r, f"{bad / 'recording.yaml'}: schema violation", "…' is not of type 'object'")
+    assert len(r.stderr) - len(str(bad)) < 200  # the value cut to 80 characters, not the 4 kB
+
+
+def test_eval_refuses_results_of_another_recording(rec, tmp_path):
+    """Only the frame count was checked: results of another recording of the same length were scored."""
+    res = tmp_path / "res.csv"
+    _results(rec, res, recording="/elsewhere/other-take", handedness="left")
+    _one_error(_cli("eval", rec, res), f"{res}: was tracked on recording /elsewhere/other-take, not on {rec}",
+               "--no-check-recording")
+    _results(rec, res, recording="/elsewhere/rec", handedness="right")  # the same name, the other hand
+    _one_error(_cli("eval", rec, res), "was tracked as a right hand", "is a left hand")
+    r = _cli("eval", rec, res, "--no-check-recording")
+    assert r.exit_code == 0, r.output
+    # its own results, tracked from another working folder, and an older file without the header lines
+    for header in ({"recording": f"../x/{rec.name}", "handedness": "left"}, {}):
+        _results(rec, res, **header)
+        r = _cli("eval", rec, res)
+        assert r.exit_code == 0 and "posture_error_mean_deg" in r.stdout, r.output
+
+
+def test_keypoints_name_their_recording_and_show_checks_it(rec, tmp_path, hand):
+    """The keypoints CSV had no header, so `show --keypoints` drew another recording's skeletons; its
+    one writer now names the recording and hand, its one reader gives them back (and still reads a
+    header-less file)."""
+    from tracker.run import keypoints_table, read_keypoints, write_keypoints
+
+    df = _results(rec, tmp_path / "res.csv")
+    kp = tmp_path / "kp.csv"
+    write_keypoints(kp, hand, df, {"recording": "takes/other", "handedness": "left", "mode": "full"})
+    assert kp.read_text().startswith("# recording: takes/other\n# handedness: left\nframe,")
+    table, meta = read_keypoints(kp, hand.keypoint_names)
+    assert meta == {"recording": "takes/other", "handedness": "left"} and len(table) == len(df)
+    _one_error(_cli("show", rec, "-o", tmp_path / "s.png", "--keypoints", kp), f"{kp}: was tracked on recording "
+               "takes/other")
+    assert not (tmp_path / "s.png").exists()
+    r = _cli("show", rec, "-o", tmp_path / "s.png", "--keypoints", kp, "--no-check-recording")
+    assert r.exit_code == 0, r.output
+    write_keypoints(kp, hand, df, {"recording": str(rec), "handedness": "right"}, overwrite=True)
+    _one_error(_cli("show", rec, "-o", tmp_path / "h.png", "--keypoints", kp), "was tracked as a right hand")
+    keypoints_table(hand, df).to_csv(kp, index=False)  # as written before the header
+    r = _cli("show", rec, "-o", tmp_path / "old.png", "--keypoints", kp)
+    assert r.exit_code == 0, r.output
+    assert "2 of 2 frames shown" in " ".join(r.stdout.replace("│", " ").split())
+
+
+def test_track_writes_the_keypoints_header(rec, tmp_path):
+    r = _cli("track", rec, "-o", tmp_path / "t.csv", "--keypoints", tmp_path / "kp.csv", "--no-check-hand",
+             "--no-safety-net", "--hand-scale", "1")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "kp.csv").read_text().startswith(f"# recording: {rec}\n# handedness: left\nframe,")
+
+
+def test_an_invalid_mode_is_named_before_the_synergies(rec, tmp_path):
+    """`--mode foo` said `--synergies: mode 'foo' needs a synergy bundle`."""
+    for extra in ([], ["-s", "fingerfist"]):
+        r = _cli("track", rec, "--mode", "foo", *extra, "-o", tmp_path / "t.csv")
+        assert r.stderr == "error: --mode: must be full, reduced or hierarchical, got 'foo'\n", r.output
+        assert r.exit_code == 2
+    assert not (tmp_path / "t.csv").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc (a folder that takes no files)")
+def test_an_output_in_a_folder_that_takes_no_files(rec, tmp_path):
+    """`-o /proc/out.csv` said `no such file or folder` of a folder that is there."""
+    for argv in (["track", rec, "-o", "/proc/out.csv"], ["show", rec, "-o", "/proc/out.png"],
+                 ["import", tmp_path, "--camera", "sr305", "-o", "/proc/rec"]):
+        r = _cli(*argv)
+        _one_error(r, "cannot be created there: the folder /proc exists but takes no new files")
+        assert "no such file" not in r.stderr
+
+
+def test_many_recordings_table_keeps_names_on_one_line(tmp_path):
+    """Several recordings: the name column was folded to 9 characters a line (3 lines a name) and the
+    table had no fps; now each name is one line and the table fits 100 columns."""
+    from tracker.sim.synthesize import synthesize
+
+    names = ["20210326-230536_110", "20210326-231615_0"]
+    for name in names:
+        synthesize("open-close", "kinect1", None, tmp_path / name, frames=1)
+    r = _cli("track", *(tmp_path / n for n in names), "-o", tmp_path / "out", "--no-check-hand",
+             "--no-safety-net", "--hand-scale", "1", env={"COLUMNS": "100"})
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert max(map(len, lines)) <= 100
+    head = next(line for line in lines if "name" in line)
+    assert "fps" in head.split()
+    for name in names:
+        row = next(line for line in lines if name in line)  # the whole name on one line …
+        cells = [c.strip() for c in row.strip("│").split("│")]
+        fps = float(cells[[c.strip() for c in head.strip("┃").split("┃")].index("fps")])
+        assert np.isfinite(fps) and fps > 0  # … and its rate
