@@ -48,7 +48,8 @@ from synergy.pca import SynergyModel
 
 __all__ = [
     "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
-    "manifest_sha256", "next_version", "read_bundle", "registry_paths", "save_bundle", "select_bundle",
+    "check_new_bundle", "manifest_sha256", "next_version", "read_bundle", "registry_paths", "save_bundle",
+    "select_bundle", "target_registry",
 ]
 
 #: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
@@ -118,6 +119,60 @@ def next_version(name: str, folder: str | os.PathLike) -> str:
         return "1.0.0"
     a, b, c = max(versions)
     return f"{a}.{b}.{c + 1}"
+
+
+def target_registry(registry: str | os.PathLike | None, name: str) -> Path:
+    """The folder a new bundle ``name`` goes into: ``registry``, else the first ``SYNERGY_PATH`` folder.
+
+    Raises
+    ------
+    BundleError
+        Naming the bundle, when neither is given.
+    """
+    if registry is None:
+        env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
+        if not env:
+            raise BundleError(name, "no target registry: pass one (CLI: -o DIR) or set SYNERGY_PATH")
+        registry = env[0]
+    return Path(registry)
+
+
+def _check_name_version(name: str, version: str | None) -> None:
+    if not _NAME_RE.match(name):
+        raise BundleError(name, "bad bundle name: use letters, digits, '_', '.', '-'")
+    if version is not None and not _VERSION_RE.match(version):
+        raise BundleError(name, f"bad version {version!r}: expected MAJOR.MINOR.PATCH")
+
+
+def _version_taken(path: Path, version: str) -> BundleError:
+    return BundleError(path, f"version {version} exists; bundle versions are immutable")
+
+
+def check_new_bundle(name: str, version: str | None = None, registry: str | os.PathLike | None = None) -> Path:
+    """Fail now, not after the trials are converted, if :func:`save_bundle` would refuse the bundle.
+
+    Checks the name, the version's form, that there is a target registry and that an explicit
+    ``version`` is not there already. :func:`save_bundle` checks all of it again when it writes (another
+    writer may take the version in between). Returns the registry folder.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> reg = tempfile.mkdtemp()
+    >>> check_new_bundle("demo", "1.0.0", reg) == Path(reg)
+    True
+    >>> check_new_bundle("demo", "1.0", reg)
+    Traceback (most recent call last):
+    ...
+    synergy.errors.BundleError: demo: bad version '1.0': expected MAJOR.MINOR.PATCH
+    """
+    _check_name_version(name, version)
+    folder = target_registry(registry, name)
+    if version is not None:
+        path = folder / f"{name}-{version}.npz"
+        if path.exists() or path.is_symlink():  # a dangling link would still make the final link fail
+            raise _version_taken(path, version)
+    return folder
 
 
 # ----------------------------------------------------------------------------- manifest helpers
@@ -268,10 +323,7 @@ def save_bundle(
         raise BundleError(name, "model is not fitted")
     if not (np.isfinite(model.pc_min_).all() and np.isfinite(model.pc_max_).all()):
         raise BundleError(name, "PC limits are missing: call model.update_limits(X) on the training data")
-    if not _NAME_RE.match(name):
-        raise BundleError(name, "bad bundle name: use letters, digits, '_', '.', '-'")
-    if version is not None and not _VERSION_RE.match(version):
-        raise BundleError(name, f"bad version {version!r}: expected MAJOR.MINOR.PATCH")
+    _check_name_version(name, version)
     d = model.mean_.shape[0]
     if dof_names is None:
         dof_names = getattr(model, "feature_names_in_", None)
@@ -281,12 +333,7 @@ def save_bundle(
             dof_names = POSTURE_DOF_NAMES
     if len(dof_names) != d:
         raise BundleError(name, f"{len(dof_names)} dof_names for a {d}-DoF model")
-    if registry is None:
-        env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
-        if not env:
-            raise BundleError(name, "no target registry: pass one (CLI: -o DIR) or set SYNERGY_PATH")
-        registry = env[0]
-    folder = Path(registry)
+    folder = target_registry(registry, name)
     arrays = _arrays_of(model, dof_names)
     variance = model.n_components if isinstance(model.n_components, float) else None
     manifest = {
@@ -319,7 +366,7 @@ def save_bundle(
             return atomic_write_bytes(path, buf.getvalue(), overwrite=False)
         except FileExistsError:
             if version is not None:
-                raise BundleError(path, f"version {ver} exists; bundle versions are immutable") from None
+                raise _version_taken(path, ver) from None
             # A concurrent writer took this version: take the next one.
         except OSError as exc:
             raise BundleError(path, f"cannot write ({exc.strerror or exc})") from None

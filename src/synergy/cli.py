@@ -39,6 +39,16 @@ def _check_variance(variance: float) -> None:
         raise SynergyError("--variance", f"must be a fraction in (0, 1), got {variance}")
 
 
+def _check_new_file(path: Path, overwrite: bool) -> None:
+    """An output file that exists is refused, with the option that replaces it, before the work."""
+    from handmodel.fileio import check_output
+    from synergy.errors import SynergyError
+
+    if not overwrite and path.exists() and not path.is_dir():  # a folder is check_output's error
+        raise SynergyError(path, "exists and is never overwritten (use --overwrite)")
+    check_output(path, overwrite=overwrite)
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
@@ -70,18 +80,17 @@ def fit(
     hand_model_sha256: Optional[str] = typer.Option(None, "--hand-model-sha256", help="Its hash (default: hash of models/hands/NAME.yaml)."),
 ):
     """Fit synergies on posture files and save a new bundle version."""
-    import os
-
     from handmodel.fileio import check_output
+    from synergy.bundle import check_new_bundle
 
-    target = registry or next((p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()), None)
-    if target is not None:  # no target at all is the library's error, named there
-        check_output(target, folder=True)  # a read-only or full registry fails before the files are read
+    # Everything that would refuse the bundle at the end is checked first: the conversion takes minutes.
+    target = check_new_bundle(name, None, registry)  # the name, and a registry given or in SYNERGY_PATH
+    check_output(target, folder=True)  # a read-only or full registry fails before the files are read
     from rich.progress import Progress
 
     from synergy.errors import SynergyError
     from synergy.calibrate import load_calibration
-    from synergy.fit import bundle_from_trials, group_by_task, quality_problems, read_trial, task_labels
+    from synergy.fit import bundle_from_trials, check_inputs, group_by_task, quality_problems, read_trial, task_labels
     from synergy.tasks import load_task_map
 
     _check_variance(variance)
@@ -94,6 +103,9 @@ def fit(
         raise SynergyError("fit", "give either --task or --tasks, not both")
     task_map = load_task_map(tasks) if tasks else None
     labels = task_labels(inputs, task, task_map)
+    # the bundles known now (--per-task: by the labels given; a C3D's own task event is read with it)
+    for bname in [f"{name}-{t}" for t in dict.fromkeys(labels.values()) if t] if per_task else [name]:
+        check_new_bundle(bname, version, target)
     read_kw = dict(markers=markers, hand=hand, smooth_hz=smooth_hz, check_hand=not no_hand_check,
                    calibration=load_calibration(subject) if subject is not None else "trial")
     if dip_prior_sd is not None:  # otherwise read_trial's default, the same as synergy angles'
@@ -104,6 +116,8 @@ def fit(
         read_kw["markersets"] = available_markersets(markersets)
         if markers:
             read_kw["markers"] = load_markerset(markers, user_markerset_dirs(markersets))
+
+    check_inputs(inputs, fmt)  # a missing, truncated or unreadable file fails before any is converted
 
     trials = []
     stats_of = {}
@@ -134,7 +148,7 @@ def fit(
     groups = group_by_task(trials, name, per_task=per_task, order=task_map.tasks if task_map is not None else None)
     for bname, group in groups.items():
         bundle = bundle_from_trials(
-            group, bname, n_components=variance, registry=registry, version=version,
+            group, bname, n_components=variance, registry=target, version=version,
             hand_model=hand_model, hand_model_sha256=hand_model_sha256,
             stats=[stats_of[id(t)] for t in group] if stats_of else None,
         )
@@ -328,10 +342,11 @@ def plot(
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Write a Rerun recording (.rrd): the hand swept from −2σ to +2σ along each PC on the 'sweep' timeline (extra [viz])."),
     pcs: int = typer.Option(3, "--pcs", help="PCs in the --rerun sweep."),
     steps: int = typer.Option(21, "--steps", help="Steps of the --rerun sweep."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --rerun file."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output PNGs (named NAME-VERSION-KIND.png) and an existing --rerun file."),
 ):
     """Scree/cumulative-variance PNG, the hand at μ ± 2σ along PC1–3 (paper Fig. 6), and reconstruction
-    error vs PCs if held-out data exist; with --rerun, the synergies in the 3-D viewer."""
+    error vs PCs if held-out data exist; with --rerun, the synergies in the 3-D viewer. Existing
+    outputs are kept unless --overwrite."""
     from handmodel.fileio import check_output
 
     if out is None and rerun is None:
@@ -339,17 +354,19 @@ def plot(
     if out is not None:
         check_output(out, folder=True)  # before the bundle and held-out files are read
     if rerun is not None:
-        check_output(rerun, overwrite=overwrite)
+        _check_new_file(rerun, overwrite)
     import numpy as np
 
     from synergy.bundle import load_bundle
     from synergy.fit import read_trial
-    from synergy.plots import bundle_figures
+    from synergy.plots import bundle_figures, figure_paths
 
     b = load_bundle(spec, registry)
     if out is not None:
+        for p in figure_paths(b, out, heldout=bool(heldout)):  # the PNGs' names need the bundle's version
+            _check_new_file(p, overwrite)
         X = np.vstack([read_trial(f, fmt).postures for f in heldout]) if heldout else None
-        for p in bundle_figures(b, out, heldout=X):
+        for p in bundle_figures(b, out, heldout=X, overwrite=overwrite):
             typer.echo(str(p))
     if rerun is not None:
         from synergy.viewer import write_synergy_rrd  # an optional extra ([viz]): loaded only when asked for

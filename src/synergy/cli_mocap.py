@@ -24,20 +24,72 @@ def register(app, errors_exit_2) -> None:
     app.command()(errors_exit_2(angles))
 
 
-def fit_table(title, columns, rows, *, wrap_first=True):
+class _Name:
+    """A trial's name on one line, cut in the middle when its column is narrower ("ART-Human…no6dof.c3d"):
+    folded, a name took three lines of a 100-column table, and the names of one session differ at the
+    end (``trial_01``, ``trial_02``), which a cut at the end would hide. Plain text, never markup."""
+
+    def __init__(self, text: str):
+        self.text = text
+
+    def __rich_measure__(self, console, options):
+        from rich.cells import cell_len
+        from rich.measure import Measurement
+
+        n = cell_len(self.text)
+        return Measurement(min(n, 8), n)
+
+    def __rich_console__(self, console, options):
+        from rich.text import Text
+
+        yield Text(cut_middle(self.text, options.max_width), no_wrap=True, overflow="crop")
+
+
+def cut_middle(text: str, width: int) -> str:
+    """``text`` in at most ``width`` terminal cells: its start and end around "…" (the end, with the
+    distinguishing part of a trial's name, gets the odd cell).
+
+    >>> cut_middle("power_grasp_session_2026_trial_01.c3d", 20)
+    'power_gra…ial_01.c3d'
+    >>> cut_middle("short.c3d", 20)
+    'short.c3d'
+    """
+    from rich.cells import cell_len
+
+    if cell_len(text) <= width:
+        return text
+    if width < 3:
+        return "…"[:width]
+    head_room = (width - 1) // 2
+    tail_room = width - 1 - head_room
+    head, tail = "", ""
+    for ch in text:  # cell by cell: a wide character takes two
+        if cell_len(head + ch) > head_room:
+            break
+        head += ch
+    for ch in reversed(text):
+        if cell_len(ch + tail) > tail_room:
+            break
+        tail = ch + tail
+    return f"{head}…{tail}"
+
+
+def fit_table(title, columns, rows, *, names_first=True):
     """A rich table that fits the terminal (80 columns at least): numbers are never cut; the
-    first column (names) folds onto more lines, headers wrap."""
+    first column (names) takes the room left and stays on one line, cut in the middle if it must
+    be (:func:`cut_middle`; the files written keep full paths)."""
     from rich.markup import escape
     from rich.table import Table
 
     table = Table(title=escape(title), title_justify="left", pad_edge=False, collapse_padding=True)
     for i, c in enumerate(columns):
-        if i == 0 and wrap_first:
-            table.add_column(c, overflow="fold", ratio=1, min_width=8)
+        if i == 0 and names_first:  # wrappable for rich, so that this column is the one narrowed
+            table.add_column(c, overflow="crop", ratio=1, min_width=8)
         else:
             table.add_column(c, justify="right", no_wrap=True)
     for r in rows:
-        table.add_row(*(escape(str(x)) for x in r))  # file names are shown as typed, not read as markup
+        # file names are shown as typed, not read as markup
+        table.add_row(*(_Name(str(x)) if i == 0 and names_first else escape(str(x)) for i, x in enumerate(r)))
     return table
 
 
@@ -256,9 +308,8 @@ def angles(
             notes += describe_trial(f.name, df)
             progress.advance(bar)
     con = _console()
-    con.print(fit_table(f"marker IK ({ms.name}, {hand} hand) → {out}",
-                        ("trial", "frames", "gap %", "res. med mm", "res. 95th mm", "ok %", "verdict", "frames/s"),
-                        rows))
+    con.print(fit_table(f"marker IK ({ms.name}, {hand} hand; marker residuals) → {out}",
+                        ("trial", "frames", "gap %", "med mm", "95th mm", "ok %", "verdict", "frames/s"), rows))
     for line in notes:
         con.print(line)
     if failed:

@@ -31,11 +31,11 @@ from synergy.calibrate import Calibration
 from synergy.errors import MarkerSetError, SynergyError, TaskMapError
 from synergy.markers import MarkerSet, available_markersets, choose_markerset, load_markerset
 from synergy.pca import SufficientStats, SynergyModel, heldout_curve
-from synergy.postures import postures_from_table, read_csv_postures, read_schroeder26
+from synergy.postures import check_csv_header, postures_from_table, read_csv_postures, read_schroeder26
 from synergy.tasks import TaskMap, label_for
 
-__all__ = ["FORMATS", "Trial", "bundle_from_trials", "fit_trials", "group_by_task", "poor_reasons", "quality_problems",
-           "read_trial", "task_labels"]
+__all__ = ["FORMATS", "Trial", "bundle_from_trials", "check_inputs", "fit_trials", "group_by_task", "poor_reasons",
+           "quality_problems", "read_trial", "task_labels"]
 
 #: Input formats of :func:`read_trial` (``auto`` picks by suffix).
 FORMATS = ("auto", "csv", "schroeder26", "c3d")
@@ -94,15 +94,7 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
     ``Trial.conversion`` records it all, the DIP prior included.
     """
     p = Path(path)
-    if fmt == "auto":
-        fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
-            p.suffix.lower(), "")
-        if not fmt:
-            raise SynergyError(p, "unknown file type: give the format (csv, schroeder26, c3d)")
-    if fmt not in FORMATS:
-        raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
-    if not p.is_file():
-        raise SynergyError(p, "no such file")
+    fmt = _format_of(p, fmt)
     conversion = None
     if fmt == "csv":
         X = read_csv_postures(p)
@@ -113,6 +105,53 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
                                                         markersets, dip_prior_sd)
         task = task or stored_task
     return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p), conversion)
+
+
+def _format_of(p: Path, fmt: str) -> str:
+    """The format ``p`` is read in (``auto``: by suffix); a missing file is an error here too."""
+    if fmt == "auto":
+        fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
+            p.suffix.lower(), "")
+        if not fmt:
+            raise SynergyError(p, "unknown file type: give the format (csv, schroeder26, c3d)")
+    if fmt not in FORMATS:
+        raise SynergyError(p, f"unknown format {fmt!r} (known: {', '.join(FORMATS[1:])})")
+    if not p.is_file():
+        raise SynergyError(p, "no such file")
+    return fmt
+
+
+def check_inputs(paths: Sequence[str | os.PathLike], fmt: str = "auto") -> None:
+    """Fail now, not minutes into the conversion of the others, if one of ``paths`` cannot be read.
+
+    Each file must have a known format, exist and open; a C3D file must read as a C3D (header,
+    parameters, all the frames it announces: :func:`~synergy.c3d.read_c3d`, a fraction of a second
+    against the minutes of its marker IK), and a CSV table must name every posture column in its
+    header. The errors are those :func:`read_trial` would raise on the same file, so a user sees the
+    same line, only sooner.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> f = os.path.join(tempfile.mkdtemp(), "t.csv")
+    >>> _ = open(f, "w").write("frame,thumb1_abd")  # a header without the other posture columns
+    >>> check_inputs([f])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    synergy.errors.SynergyError: ...t.csv: missing posture column(s): thumb1_flex, thumb2_flex, ...
+    """
+    for path in paths:
+        p = Path(path)
+        fmt_p = _format_of(p, fmt)
+        try:
+            with open(p, "rb") as fh:
+                fh.read(1)
+        except OSError as exc:
+            raise SynergyError(p, f"cannot read ({exc.strerror or exc})") from None
+        if fmt_p == "c3d":
+            read_c3d(p)  # the data are dropped: holding every trial's markers until its turn costs memory
+        elif fmt_p == "csv":
+            check_csv_header(p)
 
 
 def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):

@@ -1,6 +1,7 @@
 """Pictures of a synergy bundle: the scree / cumulative-variance chart, the hand at μ − 2σ, μ and μ + 2σ
 along the first principal components (the paper's Fig. 6) and the reconstruction error against the
-number of PCs. Each function writes one PNG (atomically) and returns its path.
+number of PCs. Each function writes one PNG (atomically; an existing file only with ``overwrite``) and
+returns its path.
 
 Figures are built on matplotlib's object API with an Agg canvas, so nothing here touches pyplot's
 global state or the user's backend.
@@ -27,13 +28,13 @@ def _figure(**kw) -> Figure:
     return fig
 
 
-def _save_png(fig: Figure, path, dpi: int) -> Path:
+def _save_png(fig: Figure, path, dpi: int, overwrite: bool) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    return atomic_write_bytes(Path(path), buf.getvalue())
+    return atomic_write_bytes(Path(path), buf.getvalue(), overwrite=overwrite)
 
 
-def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="default") -> Path:
+def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="default", overwrite=False) -> Path:
     """A grid of shaded hand meshes: one row per PC, one column per multiple of σ."""
     hand = HandModel.load(hand_model)
     m = bundle.model
@@ -51,10 +52,10 @@ def synergy_hands(bundle, path, n_pcs=3, sigmas=(-2.0, 0.0, 2.0), hand_model="de
                          if c == 0 else ("μ" if s == 0 else f"μ {s:+g}σ"), fontsize=8)
     fig.suptitle(f"{bundle.name}@{bundle.version}: synergies (hand at μ ± 2σ)", fontsize=10)
     fig.tight_layout()
-    return _save_png(fig, path, dpi=90)
+    return _save_png(fig, path, dpi=90, overwrite=overwrite)
 
 
-def scree_plot(bundle, path) -> Path:
+def scree_plot(bundle, path, overwrite=False) -> Path:
     """Variance explained per PC (bars) and cumulative (line), with the bundle's default PC count."""
     r = bundle.model.all_explained_variance_ratio_
     k = np.arange(1, r.size + 1)
@@ -68,7 +69,7 @@ def scree_plot(bundle, path) -> Path:
            title=f"{bundle.spec}: {bundle.manifest['n_samples']} postures", xticks=k)
     ax.grid(alpha=0.3)
     ax.legend(loc="center right")
-    return _save_png(fig, path, dpi=120)
+    return _save_png(fig, path, dpi=120, overwrite=overwrite)
 
 
 def reconstruction_curves(bundle, heldout=None) -> dict[str, np.ndarray]:
@@ -83,7 +84,7 @@ def reconstruction_curves(bundle, heldout=None) -> dict[str, np.ndarray]:
     return curves
 
 
-def reconstruction_plot(bundle, curves: dict, path) -> Path:
+def reconstruction_plot(bundle, curves: dict, path, overwrite=False) -> Path:
     """The curves of :func:`reconstruction_curves` against the number of PCs."""
     fig = _figure(figsize=(6.4, 4.0), layout="constrained")
     ax = fig.subplots()
@@ -95,16 +96,25 @@ def reconstruction_plot(bundle, curves: dict, path) -> Path:
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.grid(alpha=0.3)
     ax.legend()
-    return _save_png(fig, path, dpi=120)
+    return _save_png(fig, path, dpi=120, overwrite=overwrite)
 
 
-def bundle_figures(bundle, out, heldout=None) -> list[Path]:
+def figure_paths(bundle, out, heldout: bool = False) -> list[Path]:
+    """The PNGs :func:`bundle_figures` writes for ``bundle`` in folder ``out`` (``heldout``: extra held-out
+    postures will be given), so that a caller can refuse existing ones before anything is drawn."""
+    stem = Path(out) / f"{bundle.name}-{bundle.version}"
+    kinds = ["scree", "hands"] + (["reconstruction"] if heldout or "heldout" in bundle.manifest else [])
+    return [stem.with_name(f"{stem.name}-{k}.png") for k in kinds]
+
+
+def bundle_figures(bundle, out, heldout=None, overwrite=False) -> list[Path]:
     """Scree, hands and (when any held-out data exist) reconstruction PNGs of ``bundle`` in folder
-    ``out``, named ``<name>-<version>-<kind>.png``; ``heldout`` are extra held-out postures (N × D)."""
-    out = Path(out)
-    stem = f"{bundle.name}-{bundle.version}"
-    written = [scree_plot(bundle, out / f"{stem}-scree.png"), synergy_hands(bundle, out / f"{stem}-hands.png")]
+    ``out``, named ``<name>-<version>-<kind>.png`` (:func:`figure_paths`); ``heldout`` are extra held-out
+    postures (N × D). An existing PNG is replaced only with ``overwrite`` (else ``FileExistsError``)."""
+    paths = figure_paths(bundle, out, heldout is not None)
+    written = [scree_plot(bundle, paths[0], overwrite=overwrite),
+               synergy_hands(bundle, paths[1], overwrite=overwrite)]
     curves = reconstruction_curves(bundle, heldout)
     if curves:
-        written.append(reconstruction_plot(bundle, curves, out / f"{stem}-reconstruction.png"))
+        written.append(reconstruction_plot(bundle, curves, paths[2], overwrite=overwrite))
     return written

@@ -49,12 +49,18 @@ def read_schroeder26(path: str | os.PathLike) -> np.ndarray:
     return A[:, len(POSE_DOF_NAMES):]
 
 
+def check_posture_columns(columns, where) -> None:
+    """Raise :class:`~synergy.errors.SynergyError` naming ``where`` unless ``columns`` hold every
+    posture DoF (a table's header is enough to know)."""
+    missing = [c for c in POSTURE_DOF_NAMES if c not in columns]
+    if missing:
+        raise SynergyError(where, f"missing posture column(s): {', '.join(missing)}")
+
+
 def postures_from_table(table: pd.DataFrame, where) -> np.ndarray:
     """The complete posture rows of a joint-angle table; rows with a missing angle are dropped
     (frames where marker IK failed carry NaN)."""
-    missing = [c for c in POSTURE_DOF_NAMES if c not in table.columns]
-    if missing:
-        raise SynergyError(where, f"missing posture column(s): {', '.join(missing)}")
+    check_posture_columns(table.columns, where)
     try:
         X = table.loc[:, list(POSTURE_DOF_NAMES)].to_numpy(dtype=float)
     except (ValueError, TypeError) as exc:
@@ -65,11 +71,21 @@ def postures_from_table(table: pd.DataFrame, where) -> np.ndarray:
     return X
 
 
+def _read_csv(p: Path, **kw) -> pd.DataFrame:
+    try:
+        return pd.read_csv(p, comment="#", skipinitialspace=True, **kw)
+    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise SynergyError(p, f"cannot read CSV ({exc})") from None
+
+
 def read_csv_postures(path: str | os.PathLike) -> np.ndarray:
     """The complete posture rows of a joint-angle CSV table, ``(F, 20)`` radians."""
     p = Path(path)
-    try:
-        table = pd.read_csv(p, comment="#", skipinitialspace=True)
-    except (ValueError, OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise SynergyError(p, f"cannot read CSV ({exc})") from None
-    return postures_from_table(table, p)
+    return postures_from_table(_read_csv(p), p)
+
+
+def check_csv_header(path: str | os.PathLike) -> None:
+    """Raise :class:`~synergy.errors.SynergyError` as :func:`read_csv_postures` would if the CSV
+    table's header lacks a posture column or cannot be read; reads the header only."""
+    p = Path(path)
+    check_posture_columns(_read_csv(p, nrows=0).columns, p)

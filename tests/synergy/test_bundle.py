@@ -480,6 +480,35 @@ def test_cli_errors_exit_2_one_line(csvs, reg, tmp_path):
     assert_one_line_error(run("info", tampered), "arrays_sha256")
 
 
+def test_cli_plot_refuses_existing_pngs_unless_overwrite(csvs, reg, tmp_path, monkeypatch):
+    import synergy.plots
+
+    assert run("fit", "--angles", *csvs, "--name", "demo", "-o", reg).exit_code == 0
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    earlier = figs / "demo-1.0.0-reconstruction.png"  # one of the three (the bundle has a held-out curve)
+    earlier.write_bytes(b"an earlier figure")
+    drawn = []
+    real = synergy.plots.bundle_figures
+    monkeypatch.setattr(synergy.plots, "bundle_figures", lambda *a, **kw: drawn.append(1) or real(*a, **kw))
+    r = run("plot", "demo", "-o", figs, "-r", reg)
+    assert_one_line_error(r, f"{earlier}: exists and is never overwritten (use --overwrite)")
+    assert r.stdout == "" and not drawn  # refused before anything was drawn
+    assert sorted(figs.iterdir()) == [earlier] and earlier.read_bytes() == b"an earlier figure"
+    r = run("plot", "demo", "-o", figs, "-r", reg, "--overwrite")
+    assert r.exit_code == 0, r.output
+    pngs = sorted(figs.glob("*.png"))
+    assert [p.name for p in pngs] == ["demo-1.0.0-hands.png", "demo-1.0.0-reconstruction.png", "demo-1.0.0-scree.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    # the library refuses too (a file that appears after the CLI's check is not replaced)
+    scree = figs / "demo-1.0.0-scree.png"
+    before = scree.read_bytes()
+    with pytest.raises(FileExistsError, match="never overwritten"):
+        real(load_bundle("demo", [reg]), figs)
+    assert scree.read_bytes() == before
+    assert "Replace existing output PNGs" in " ".join(run("plot", "--help").stdout.split())
+
+
 def test_cli_help_is_fast_and_lazy():
     code = "import sys, synergy.cli; print(sorted(m for m in ('numpy', 'sklearn', 'pandas', 'matplotlib', 'scipy') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

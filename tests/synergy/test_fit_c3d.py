@@ -126,8 +126,9 @@ def test_print_names_the_other_hand_of_a_two_handed_file():
     assert ("marker set art-joint-centres, hand left (21 of 21 labels matched); the file also carries the right "
             "hand (--hand right): a_very_long_trial_name_of_a_session_2026.c3d") in text
     assert max(len(ln) for ln in text.splitlines() if "│" in ln) <= 80
-    # a long name folds in its column; the numbers stay whole
-    assert re.search(r"│ *art-joint-centres L *│ *1\.58 *│ *12\.05 *│ *100\.0 *│ *good│", text), text
+    # a long name stays on its row, cut in the middle (start and end kept); the numbers stay whole
+    assert re.search(r"^│a_very_long\w*…\w*_2026\.c3d *│ *art-joint-centres L *│ *1\.58 *│ *12\.05 *│ *100\.0 *│ *good│$",
+                     text, re.M), text
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +198,42 @@ def test_fit_dip_prior_sd_reaches_the_ik_and_the_manifest(sims, tmp_path):
         assert rec == (None if sd is None else {"ratio": pytest.approx(2 / 3), "sd_deg": sd})
     r = runner.invoke(app, ["fit", str(sims["hand16"]), "--name", "bad", "-o", str(tmp_path), "--dip-prior-sd", "-2"])
     assert r.exit_code == 2 and len(_lines(r.output)) == 1 and "--dip-prior-sd" in r.output
+
+
+def test_fit_refuses_a_bad_target_or_input_before_converting(tmp_path, monkeypatch):
+    """What the end of `synergy fit` would refuse is refused before any file is converted (that took
+    minutes): no registry, an existing --version (per task too), a truncated C3D after a good one."""
+    import synergy.fit
+
+    good = shared("c3dorg_art_hands", "ART-Human_hands_real_no6dof.c3d")
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(good.read_bytes()[:500_000])
+    reg = tmp_path / "reg"
+    reg.mkdir()
+    taken = reg / "art-1.0.0.npz"
+    taken.write_bytes(b"an earlier bundle")
+    (reg / "art-grasp-1.0.0.npz").write_bytes(b"an earlier bundle")
+    converted = []
+
+    def convert(f, *a, **kw):
+        converted.append(f)
+        raise AssertionError(f"{f} converted")
+
+    monkeypatch.setattr(synergy.fit, "read_trial", convert)
+    cases = [
+        (["--name", "noreg"], "noreg: no target registry"),
+        (["--name", "art", "--version", "1.0.0", "-o", str(reg)],
+         f"{taken}: version 1.0.0 exists; bundle versions are immutable"),
+        (["--name", "art", "--task", "grasp", "--per-task", "--version", "1.0.0", "-o", str(reg)],
+         f"{reg / 'art-grasp-1.0.0.npz'}: version 1.0.0 exists"),
+        (["--name", "art", "-o", str(reg), str(cut)], f"{cut}: unreadable; ezc3d: truncated: 969 frames announced"),
+    ]
+    for args, line in cases:
+        r = runner.invoke(app, ["fit", str(good), *args], env={"SYNERGY_PATH": ""})
+        assert r.exit_code == 2, (args, r.output, r.exception)
+        assert len(_lines(r.output)) == 1 and r.output.startswith(f"error: {line}"), r.output
+        assert not converted
+    assert taken.read_bytes() == b"an earlier bundle" and len(list(reg.iterdir())) == 2
+    # the same command with a free version reaches the conversion: the patch above is what it calls
+    r = runner.invoke(app, ["fit", str(good), "--name", "art", "--version", "1.0.1", "-o", str(reg)])
+    assert isinstance(r.exception, AssertionError) and converted == [good]

@@ -47,6 +47,29 @@ def test_angles_command_writes_tables_and_refuses_overwrite(mocap, tmp_path):
     assert r.exit_code == 2 and "never overwritten" in r.output
 
 
+def test_angles_table_keeps_each_trial_on_one_line_at_100_columns(mocap, tmp_path):
+    # a folded name took 3 lines of the table; each trial is one line now, and a name too long for its
+    # column keeps its start and its distinguishing end; the file written keeps the full path
+    src = tmp_path / "in"
+    src.mkdir()
+    fits = src / "ART-Human_hands_real_no6dof_copy.c3d"
+    long = src / "subject_07_session_2026-03-14_power_grasp_right_hand_trial_01.c3d"
+    for f in (fits, long):
+        f.write_bytes((mocap / "open_close_01.c3d").read_bytes())
+    r = runner.invoke(app, ["angles", str(fits), str(long), "--markers", "hand16", "-o", str(tmp_path / "out")],
+                      env={"COLUMNS": "100"})
+    assert r.exit_code == 0, r.output
+    table = [ln for ln in r.stdout.splitlines() if ln.startswith(("┃", "│", "┏", "┡", "└"))]
+    assert max(len(ln) for ln in table) <= 100
+    rows = [ln for ln in table if ln.startswith("│")]
+    assert len(rows) == 2, r.stdout
+    assert rows[0].startswith(f"│{fits.name} ")  # whole
+    cells = [c.strip() for c in rows[1].strip("│").split("│")]
+    assert cells[0].startswith("subject_07_session") and "…" in cells[0] and cells[0].endswith("trial_01.c3d")
+    assert cells[-2] == "good" and int(cells[1]) == 200  # the numbers whole beside it
+    assert read_angles_csv(tmp_path / "out" / f"{long.stem}.csv").attrs["source"] == str(long)
+
+
 def test_per_task_bundles_differ(mocap, tmp_path):
     files = sorted(str(p) for p in mocap.glob("*.c3d"))
     r = runner.invoke(app, ["fit", *files, "--markers", "hand16", "--name", "sim", "--per-task", "-o", str(tmp_path)])
