@@ -44,6 +44,18 @@ FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points",
 STATUSES = ("tracked", "lost", "reinit")
 
 
+def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
+    """The tracker's :func:`tracker.observe.observe` of one recorded ``frame`` (in the hand's predicted
+    window unless ``window`` is False: :meth:`HandTracker.segment_window`), or None when the frame has
+    no usable depth image (missing, wrong size). ``tracker track``, ``tracker calibrate`` and
+    ``tracker live`` observe their frames through it, so the same frames give the same hand."""
+    depth = frame.depth
+    if depth is None or np.ndim(depth) != 2 or np.shape(depth) != (camera.height, camera.width):
+        return None
+    return observe(depth, camera, tracker.settings.observe, segmenter=segmenter, color=frame.color,
+                   window=tracker.segment_window(camera) if window else None)
+
+
 def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.DataFrame:
     """Track every frame of ``recording`` (anything with ``camera`` that iterates frames with
     ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`HandTracker`).
@@ -55,14 +67,8 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
     cam = recording.camera
     rows = []
     for frame in recording:
-        depth = frame.depth
-        ob = None
-        if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
-            ob = observe(depth, cam, tracker.settings.observe, segmenter=segmenter, color=frame.color,
-                         window=tracker.segment_window(cam))
-            r = tracker.track(ob, cam, color=frame.color)
-        else:
-            r = tracker.step(np.zeros((0, 3)))
+        ob = observe_frame(tracker, frame, cam, segmenter)
+        r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
         rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used,
                      0 if ob is None else len(ob.points), r.ms, *r.theta))
         if on_frame is not None:
@@ -452,16 +458,11 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
     tracker = HandTracker(hand, job.settings.replace(hand_scale="auto"), synergies=bundle)
     cam, frames = rec.camera, []
 
-    def observed(frame):
-        depth = frame.depth
-        if depth is not None and np.ndim(depth) == 2 and np.shape(depth) == (cam.height, cam.width):
-            return observe(depth, cam, tracker.settings.observe, segmenter=job.segmenter, color=frame.color)
-        return None
-
     if each:
         obs = []
         for frame in rec:
-            ob = observed(frame)
+            # stills, each fitted from its own start: the whole frame, as tracker.calibrate_each reads them
+            ob = observe_frame(tracker, frame, cam, job.segmenter, window=False)
             if ob is not None:
                 obs.append((frame.index, ob))
             if on_frame is not None:
@@ -475,7 +476,8 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
         frames = [obs[k][0] for k in used]
     else:
         for frame in rec:
-            ob = observed(frame)
+            # as tracker track observes them (the hand's window once it is tracked): the same hand as --save-hand
+            ob = observe_frame(tracker, frame, cam, job.segmenter)
             r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
             frames.append(frame.index)
             if on_frame is not None:
