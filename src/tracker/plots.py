@@ -245,21 +245,35 @@ def overlay_png(path, depth, camera, hand, theta, status="", mask=None, labelled
     _save(fig, path)
 
 
-def error_plot(path, posture_deg, keypoint_mm, status=None, title=""):
-    """Posture and keypoint error per frame; frames not tracked are marked in red."""
+def error_plot(path, posture_deg, keypoint_mm, status=None, title="", frames=None):
+    """Posture and keypoint error per frame (``frames``: their numbers, default 0, 1, …); frames the
+    tracker lost are shaded red, frames it started from a new search (``reinit``: the first frame, or
+    the safety net's replacement) orange, each named in the legend; the means in the title."""
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
+
     fig = _figure(figsize=(8, 5))
     ax = fig.subplots(2, 1, sharex=True)
-    f = np.arange(len(posture_deg))
+    f = np.arange(len(posture_deg)) if frames is None else np.asarray(frames)
     ax[0].plot(f, posture_deg, lw=1)
     ax[0].set_ylabel("posture error (°)")
     ax[1].plot(f, keypoint_mm, lw=1, color="C1")
     ax[1].set_ylabel("keypoint error (mm)")
     ax[1].set_xlabel("frame")
+    ax[1].xaxis.set_major_locator(MaxNLocator(integer=True))  # frames are whole numbers
+    marks = []
     if status is not None:
-        lost = np.flatnonzero(np.asarray(status) != "tracked")
-        for a in ax:
-            for i in lost:
-                a.axvline(i, color="r", alpha=0.2, lw=1)
-    ax[0].set_title(title)
+        st = np.asarray(status)
+        for kind, colour in (("lost", "r"), ("reinit", "orange")):
+            at = f[st == kind]
+            for a in ax:
+                for i in at:
+                    a.axvspan(i - 0.5, i + 0.5, color=colour, alpha=0.25, lw=0)
+            if at.size:
+                marks.append(Patch(color=colour, alpha=0.4, label=f"{kind} ({at.size} frame{'s' * (at.size != 1)})"))
+    if marks:
+        ax[0].legend(handles=marks, fontsize=8, loc="best")
+    mean = f"posture {np.nanmean(posture_deg):.1f}° mean, keypoints {np.nanmean(keypoint_mm):.1f} mm mean"
+    ax[0].set_title(f"{title}: {mean}" if title else mean, fontsize=10)
     fig.tight_layout()
     _save(fig, path)

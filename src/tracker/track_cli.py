@@ -512,7 +512,8 @@ def evaluate(
         table.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
     console = Console(markup=False)  # file names are printed as typed, never read as markup
     if plot is not None:  # before the table: an error must be the last thing printed
-        error_plot(plot, pe, ke, df["status"].to_numpy()[skip:], title=str(result.name))
+        error_plot(plot, pe, ke, df["status"].to_numpy()[skip:], title=f"{result.name} on {Path(recording).name}",
+                   frames=df["frame"].to_numpy()[skip:])
     console.print(table)
     if plot is not None:
         console.print(f"wrote {plot}")
