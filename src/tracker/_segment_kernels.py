@@ -29,27 +29,7 @@ def surface_labels(d, jump):
                    or (v > 0 and z - d[v - 1, u] > jump) or (v < H - 1 and z - d[v + 1, u] > jump))
             core[v, u] = not far
     lab = np.zeros((H, W), np.int32)
-    stack = np.empty(H * W, np.int64)
-    n = 0
-    for v in range(H):
-        for u in range(W):
-            if not core[v, u] or lab[v, u]:
-                continue
-            n += 1
-            lab[v, u] = n
-            stack[0] = v * W + u
-            top = 1
-            while top:
-                top -= 1
-                p = stack[top]
-                pv, pu = p // W, p % W
-                for k in range(4):
-                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
-                    if 0 <= qv < H and 0 <= qu < W and core[qv, qu] and not lab[qv, qu]:
-                        lab[qv, qu] = n
-                        stack[top] = qv * W + qu
-                        top += 1
+    n = _components(core, lab, np.empty(H * W, np.int64))
     out = lab.copy()
     for v in range(H):
         for u in range(W):
@@ -123,17 +103,7 @@ def closed_filled(m):
                 reach[v, u] = True
                 stack[top] = v * W + u
                 top += 1
-    while top:
-        top -= 1
-        p = stack[top]
-        pv, pu = p // W, p % W
-        for k in range(4):
-            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
-            if 0 <= qv < H and 0 <= qu < W and not out[qv, qu] and not reach[qv, qu]:
-                reach[qv, qu] = True
-                stack[top] = qv * W + qu
-                top += 1
+    _flood(~out, reach, True, stack, top)
     for v in range(H):
         for u in range(W):
             if not reach[v, u]:
@@ -337,6 +307,24 @@ def nearest_target(targets, dist, iv, iu):
 
 
 @njit(cache=True)
+def _flood(mask, mark, value, stack, top):
+    """Spread ``value`` into ``mark`` from the pixels on ``stack[:top]`` (flat indices, marked already)
+    over the 4-connected pixels of ``mask`` not marked yet."""
+    H, W = mask.shape
+    while top:
+        top -= 1
+        p = stack[top]
+        pv, pu = p // W, p % W
+        for k in range(4):
+            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
+            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+            if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not mark[qv, qu]:
+                mark[qv, qu] = value
+                stack[top] = qv * W + qu
+                top += 1
+
+
+@njit(cache=True)
 def _components(mask, lab, stack):
     """4-connected components of ``mask`` into ``lab`` (numbered in raster order of their first pixel,
     as ``scipy.ndimage.label`` numbers them); returns their count."""
@@ -349,18 +337,7 @@ def _components(mask, lab, stack):
             n += 1
             lab[v, u] = n
             stack[0] = v * W + u
-            top = 1
-            while top:
-                top -= 1
-                p = stack[top]
-                pv, pu = p // W, p % W
-                for k in range(4):
-                    qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-                    qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
-                    if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not lab[qv, qu]:
-                        lab[qv, qu] = n
-                        stack[top] = qv * W + qu
-                        top += 1
+            _flood(mask, lab, n, stack, 1)
     return n
 
 
@@ -401,15 +378,5 @@ def components_holding(mask, seed):
                 out[v, u] = True
                 stack[top] = v * W + u
                 top += 1
-    while top:
-        top -= 1
-        p = stack[top]
-        pv, pu = p // W, p % W
-        for k in range(4):
-            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
-            if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not out[qv, qu]:
-                out[qv, qu] = True
-                stack[top] = qv * W + qu
-                top += 1
+    _flood(mask, out, True, stack, top)
     return out
