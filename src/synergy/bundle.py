@@ -33,7 +33,7 @@ from datetime import datetime, timezone
 from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version as _dist_version
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import jsonschema
 import numpy as np
@@ -44,7 +44,9 @@ from handmodel.fileio import atomic_write_bytes, first_non_finite, load_npz, mod
 from handmodel.model import HandModel
 from handmodel.subspace import Subspace
 from synergy.errors import BundleError, SynergyError
-from synergy.pca import SynergyModel
+
+if TYPE_CHECKING:  # the annotations only; see read_bundle
+    from synergy.pca import SynergyModel
 
 __all__ = [
     "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
@@ -376,6 +378,27 @@ def save_bundle(
 def read_bundle(path: str | os.PathLike) -> Bundle:
     """Load and verify one bundle file (schema, manifest hash, shapes, arrays hash)."""
     path = Path(path)
+    arrays, manifest = _verified(path)
+    # imported here: scikit-learn takes seconds to import, and listing bundles needs no model
+    from synergy.pca import SynergyModel
+
+    model = SynergyModel.from_arrays(
+        **{k: arrays[k] for k in ARRAY_NAMES if k != "dof_names"},
+        n_samples=manifest["n_samples"],
+        n_components=manifest["n_components"],
+    )
+    return Bundle(model, manifest, path, tuple(str(s) for s in arrays["dof_names"]))
+
+
+def verified_manifest(path: str | os.PathLike) -> dict:
+    """The manifest of a bundle file after every check :func:`read_bundle` makes (``synergy list``
+    shows it without building the model)."""
+    return _verified(Path(path))[1]
+
+
+def _verified(path: Path) -> tuple[dict, dict]:
+    """``(arrays, manifest)`` of a bundle file, verified (schema, manifest hash, shapes, arrays hash,
+    the file's name against the manifest)."""
     if not path.is_file():
         raise BundleError(path, "no such bundle file")
     try:
@@ -410,12 +433,7 @@ def read_bundle(path: str | os.PathLike) -> Bundle:
             path, f"file name says {m['name']}@{m['version']} but manifest says "
             f"{manifest['name']}@{manifest['version']}"
         )
-    model = SynergyModel.from_arrays(
-        **{k: arrays[k] for k in ARRAY_NAMES if k != "dof_names"},
-        n_samples=manifest["n_samples"],
-        n_components=manifest["n_components"],
-    )
-    return Bundle(model, manifest, path, tuple(str(s) for s in arrays["dof_names"]))
+    return arrays, manifest
 
 
 def _check_arrays(a: dict[str, np.ndarray], manifest: dict, path: Path) -> None:

@@ -221,7 +221,7 @@ def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REG
     from rich.table import Table
     from rich.text import Text
 
-    from synergy.bundle import list_bundles, read_bundle
+    from synergy.bundle import list_bundles, verified_manifest
     from synergy.errors import BundleError
 
     t = Table(title="synergy bundles")
@@ -229,8 +229,7 @@ def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REG
         t.add_column(col, overflow="fold")
     for ref in list_bundles(registry):
         try:
-            b = read_bundle(ref.path)
-            man = b.manifest
+            man = verified_manifest(ref.path)
             t.add_row(ref.name, ref.version, ", ".join(man["tasks"]) or "-", str(man["n_samples"]),
                       str(man["n_components"]), str(ref.path))
         except BundleError as err:

@@ -165,6 +165,36 @@ def test_tampered_bundle_is_rejected(model, reg):
     assert str(info.value).startswith(f"{path}: ")
 
 
+def test_verified_manifest_makes_every_check_of_read_bundle(model, reg, tmp_path):
+    """``synergy list`` verifies bundles without building the model: the same manifest on a good file,
+    the same refusal of a tampered or renamed one."""
+    from synergy.bundle import verified_manifest
+
+    path = save_bundle(model, "grip", registry=reg)
+    assert verified_manifest(path) == read_bundle(path).manifest
+    renamed = tmp_path / "other-2.0.0.npz"
+    renamed.write_bytes(path.read_bytes())
+    with pytest.raises(BundleError, match="file name says"):
+        verified_manifest(renamed)
+    with np.load(path, allow_pickle=False) as z:
+        comps = z["components"].copy()
+    comps[0, 0] += 1e-12
+    rewrite(path, components=comps)
+    with pytest.raises(BundleError, match="arrays_sha256"):
+        verified_manifest(path)
+
+
+def test_listing_bundles_does_not_import_scikit_learn(model, reg):
+    """``synergy list`` answers without scikit-learn (seconds of import for a listing; checked by the
+    modules loaded, not by a wall clock)."""
+    save_bundle(model, "grip", registry=reg)
+    code = ("import sys; from typer.testing import CliRunner; from synergy.cli import app; "
+            f"r = CliRunner().invoke(app, ['list', '-r', {str(reg)!r}]); "
+            "print(r.exit_code, 'grip' in r.output, 'sklearn' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["0", "True", "False"], out.stdout + out.stderr
+
+
 def test_arrays_hash_covers_every_array(model, reg):
     path = save_bundle(model, "grip", registry=reg)
     with np.load(path, allow_pickle=False) as z:
