@@ -380,3 +380,67 @@ def components_holding(mask, seed):
                 top += 1
     _flood(mask, out, True, stack, top)
     return out
+
+
+@njit(cache=True)
+def dropout_band_kernel(m, d, width, band, fill):
+    """:func:`tracker.observe.dropout_band` into ``band`` (bool) and ``fill`` (NaN off the band): ring by
+    ring, the pixels without depth 4-adjacent to the mask or the band so far, each given the smallest
+    depth of its 4-neighbours (their own, or their fill; NaN when none has one)."""
+    H, W = m.shape
+    reach = m.copy()
+    val = np.full((H, W), np.nan)
+    for v in range(H):
+        for u in range(W):
+            band[v, u] = False
+            if m[v, u] and np.isfinite(d[v, u]):
+                val[v, u] = d[v, u]
+    add = np.zeros((H, W), np.bool_)
+    near = np.empty((H, W))
+    for _ in range(width):
+        any_add = False
+        for v in range(H):
+            for u in range(W):
+                add[v, u] = False
+                if reach[v, u] or np.isfinite(d[v, u]):
+                    continue
+                grow = False
+                best = np.nan
+                for k in range(4):
+                    qv = v + (1 if k == 0 else -1 if k == 1 else 0)
+                    qu = u + (1 if k == 2 else -1 if k == 3 else 0)
+                    if 0 <= qv < H and 0 <= qu < W:
+                        grow = grow or reach[qv, qu]
+                        x = val[qv, qu]
+                        if not np.isnan(x) and (np.isnan(best) or x < best):
+                            best = x
+                if grow:
+                    add[v, u] = True
+                    near[v, u] = best
+                    any_add = True
+        if not any_add:
+            break
+        for v in range(H):
+            for u in range(W):
+                if add[v, u]:
+                    band[v, u] = True
+                    reach[v, u] = True
+                    val[v, u] = near[v, u]
+    for v in range(H):
+        for u in range(W):
+            fill[v, u] = val[v, u] if band[v, u] else np.nan
+
+
+@njit(cache=True)
+def skin_channels(c, v0, v1, s0, s1):
+    """The skin test on the channels (any hue): ``V = max(r, g, b)`` within ``[v0, v1]`` and the
+    spread ``(V − min)·255`` within ``[s0·V, s1·V]``, in integers (:func:`tracker.segment.skin_mask`)."""
+    H, W = c.shape[0], c.shape[1]
+    out = np.empty((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            r, g, b = np.int32(c[v, u, 0]), np.int32(c[v, u, 1]), np.int32(c[v, u, 2])
+            hi = max(r, max(g, b))
+            spread = (hi - min(r, min(g, b))) * 255
+            out[v, u] = v0 <= hi <= v1 and s0 * hi <= spread <= s1 * hi
+    return out

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._icp_kernels import gate_kernel, observe_window
+from ._segment_kernels import dropout_band_kernel
 from .segment import Segmenter, bounds
 
 
@@ -146,44 +147,13 @@ def dropout_band(mask, depth, width=1):
     >>> band.astype(int).tolist(), fill[0, :2].tolist()
     ([[1, 1, 0, 1, 0]], [0.5, 0.5])
     """
-    m = np.asarray(mask, bool)
-    d = np.asarray(depth, float)
-    missing = ~np.isfinite(d)
-    reach = m.copy()
-    val = np.where(m & ~missing, d, np.nan)
-    band = np.zeros_like(m)
-    H, W = m.shape
-    # one 4-connected ring per step, so a band pixel takes the depth of the ring inside it
-    for _ in range(int(width)):
-        grow = np.zeros_like(m)
-        near = np.full(m.shape, np.nan)
-        for (ta, tb), (sa, sb) in _SHIFTS.items():
-            grow[ta(H), tb(W)] |= reach[sa(H), sb(W)]
-            near[ta(H), tb(W)] = np.fmin(near[ta(H), tb(W)], val[sa(H), sb(W)])
-        add = grow & ~reach & missing
-        if not add.any():
-            break
-        band |= add
-        reach |= add
-        val[add] = near[add]
-    return band, np.where(band, val, np.nan)
-
-
-def _all(n):
-    return slice(0, n)
-
-
-def _head(n):
-    return slice(0, n - 1)
-
-
-def _tail(n):
-    return slice(1, n)
-
-
-# target slices ← source slices of the four 4-connected neighbours
-_SHIFTS = {(_tail, _all): (_head, _all), (_head, _all): (_tail, _all),
-           (_all, _tail): (_all, _head), (_all, _head): (_all, _tail)}
+    m = np.ascontiguousarray(mask, dtype=np.bool_)
+    d = np.ascontiguousarray(depth, dtype=np.float64)
+    # one 4-connected ring per step, so a band pixel takes the depth of the ring inside it (compiled:
+    # every tracked frame runs it; tests/tracker/test_observe.py checks it against the definition)
+    band, fill = np.empty(m.shape, np.bool_), np.empty(m.shape)
+    dropout_band_kernel(m, d, int(width), band, fill)
+    return band, fill
 
 
 @dataclass

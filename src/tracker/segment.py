@@ -52,6 +52,7 @@ from ._segment_kernels import (
     label_max,
     largest_component as _largest_component,
     nearest_target,
+    skin_channels,
     surface_labels,
     window_any,
     window_extreme,
@@ -296,11 +297,8 @@ def skin_mask(color):
         hsv = mcolors.rgb_to_hsv(c.astype(float) / 255.0)
         h, s, v = hsv[..., 0] * 179.0, hsv[..., 1] * 255.0, hsv[..., 2] * 255.0
         return (h >= h0) & (h <= h1) & (s >= s0) & (s <= s1) & (v >= v0) & (v <= v1)
-    # channel by channel: numpy's reduction over a last axis of 3 is several times slower
-    r, g, b = c[..., 0], c[..., 1], c[..., 2]
-    hi = np.maximum(np.maximum(r, g), b).astype(np.int32)
-    spread = (hi - np.minimum(np.minimum(r, g), b)) * 255  # S·255 >= s0 ⇔ spread >= s0 · V, in integers
-    return (hi >= v0) & (hi <= v1) & (spread >= s0 * hi) & (spread <= s1 * hi)
+    # S·255 >= s0 ⇔ (V − min)·255 >= s0 · V, in integers, compiled (twice a tracked frame)
+    return skin_channels(np.ascontiguousarray(c, dtype=np.uint8), v0, v1, s0, s1)
 
 
 def bounds(mask):
