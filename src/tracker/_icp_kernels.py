@@ -926,17 +926,31 @@ def _any_within(p, X, lo, dims, cell, start, order, r2):
         if f < -1.0 or f >= dims[r] + 1.0:
             return False
         c0[r] = int(np.floor(f))
+    # the point's own cell first: a near point mostly has its neighbour there (the answer is the same)
+    own = -1
+    if 0 <= c0[0] < dims[0] and 0 <= c0[1] < dims[1] and 0 <= c0[2] < dims[2]:
+        own = (c0[0] * dims[1] + c0[1]) * dims[2] + c0[2]
+        if _cell_within(p, X, start, order, own, r2):
+            return True
     for a in range(max(c0[0] - 1, 0), min(c0[0] + 2, dims[0])):
         for b in range(max(c0[1] - 1, 0), min(c0[1] + 2, dims[1])):
             for c in range(max(c0[2] - 1, 0), min(c0[2] + 2, dims[2])):
                 k = (a * dims[1] + b) * dims[2] + c
-                for q in range(start[k], start[k + 1]):
-                    i = order[q]
-                    d0 = X[i, 0] - p[0]
-                    d1 = X[i, 1] - p[1]
-                    d2 = X[i, 2] - p[2]
-                    if d0 * d0 + d1 * d1 + d2 * d2 < r2:
-                        return True
+                if k != own and _cell_within(p, X, start, order, k, r2):
+                    return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _cell_within(p, X, start, order, k, r2):
+    """Whether a row of ``X`` in grid cell ``k`` lies closer than √r2 to ``p``."""
+    for q in range(start[k], start[k + 1]):
+        i = order[q]
+        d0 = X[i, 0] - p[0]
+        d1 = X[i, 1] - p[1]
+        d2 = X[i, 2] - p[2]
+        if d0 * d0 + d1 * d1 + d2 * d2 < r2:
+            return True
     return False
 
 
