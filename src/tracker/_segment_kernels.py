@@ -444,3 +444,33 @@ def skin_channels(c, v0, v1, s0, s1):
             spread = (hi - min(r, min(g, b))) * 255
             out[v, u] = v0 <= hi <= v1 and s0 * hi <= spread <= s1 * hi
     return out
+
+
+@njit(cache=True)
+def refine_window(cmask, cdepth, depth, y0, y1, x0, x1, step, jump):
+    """:func:`tracker.segment.refine`'s test in its window ``[y0:y1, x0:x1]``: each full-resolution pixel
+    takes its nearest coarse sample (``rint(i / step)``, halves to even, clipped), and is kept when its
+    depth lies within ``jump`` of the range of the masked samples' depths in the ``(2·step + 1)²``
+    window around it (NaN depth: not kept)."""
+    h, w = y1 - y0, x1 - x0
+    Hc, Wc = cmask.shape
+    lo_src = np.empty((h, w))
+    hi_src = np.empty((h, w))
+    for r in range(h):
+        iy = min(max(int(np.rint((y0 + r) / step)), 0), Hc - 1)
+        for c in range(w):
+            ix = min(max(int(np.rint((x0 + c) / step)), 0), Wc - 1)
+            if cmask[iy, ix]:
+                lo_src[r, c] = cdepth[iy, ix]
+                hi_src[r, c] = cdepth[iy, ix]
+            else:
+                lo_src[r, c] = np.inf
+                hi_src[r, c] = -np.inf
+    lo = window_extreme(lo_src, step, -1.0)
+    hi = window_extreme(hi_src, step, 1.0)
+    ok = np.empty((h, w), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            z = depth[y0 + r, x0 + c]
+            ok[r, c] = z >= lo[r, c] - jump and z <= hi[r, c] + jump
+    return ok

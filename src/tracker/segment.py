@@ -52,6 +52,7 @@ from ._segment_kernels import (
     label_max,
     largest_component as _largest_component,
     nearest_target,
+    refine_window,
     skin_channels,
     surface_labels,
     window_any,
@@ -255,19 +256,11 @@ def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
     y0, y1 = max((ya - 1) * step, 0), min((yb + 2) * step, H)
     x0, x1 = max((xa - 1) * step, 0), min((xb + 2) * step, W)
     win = (slice(y0, y1), slice(x0, x1))
-    iy = np.clip(np.rint(np.arange(y0, y1) / step).astype(int), 0, coarse_mask.shape[0] - 1)
-    ix = np.clip(np.rint(np.arange(x0, x1) / step).astype(int), 0, coarse_mask.shape[1] - 1)
-    up = coarse_mask[np.ix_(iy, ix)]
-    up_d = np.where(coarse_mask, coarse_depth, np.nan)[np.ix_(iy, ix)]
-    size = 2 * step + 1
-    # the depth range of the masked samples around each pixel (separable min / max filters)
-    lo = _window_min(np.where(up, up_d, np.inf), size)
-    hi = _window_max(np.where(up, up_d, -np.inf), size)
-    with np.errstate(invalid="ignore"):
-        dd = depth[win]
-        ok = (dd >= lo - jump) & (dd <= hi + jump)
+    # the depth range of the masked samples around each pixel (separable min / max filters), compiled
     out = np.zeros((H, W), bool)
-    out[win] = ok
+    out[win] = refine_window(np.ascontiguousarray(coarse_mask, dtype=np.bool_),
+                             np.ascontiguousarray(coarse_depth, dtype=np.float64),
+                             np.ascontiguousarray(depth, dtype=np.float64), y0, y1, x0, x1, int(step), float(jump))
     return out, win
 
 

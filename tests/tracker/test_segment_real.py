@@ -445,3 +445,44 @@ def test_compiled_skin_test_is_the_integer_formula(seed):
     spread = (hi - np.minimum(np.minimum(r, g), b)) * 255
     want = (hi >= v0) & (hi <= v1) & (spread >= s0 * hi) & (spread <= s1 * hi)
     np.testing.assert_array_equal(skin_mask(c), want)
+
+
+def _refine_numpy(coarse_mask, coarse_depth, depth, step, jump=0.02):
+    """:func:`tracker.segment.refine` as it was in numpy (nearest coarse samples by ``np.ix_``, scipy's
+    min / max filters)."""
+    from tracker.segment import bounds
+
+    H, W = depth.shape
+    (ya, yb), (xa, xb) = bounds(coarse_mask)
+    y0, y1 = max((ya - 1) * step, 0), min((yb + 2) * step, H)
+    x0, x1 = max((xa - 1) * step, 0), min((xb + 2) * step, W)
+    iy = np.clip(np.rint(np.arange(y0, y1) / step).astype(int), 0, coarse_mask.shape[0] - 1)
+    ix = np.clip(np.rint(np.arange(x0, x1) / step).astype(int), 0, coarse_mask.shape[1] - 1)
+    up = coarse_mask[np.ix_(iy, ix)]
+    up_d = np.where(coarse_mask, coarse_depth, np.nan)[np.ix_(iy, ix)]
+    size = 2 * step + 1
+    lo = ndimage.minimum_filter(np.where(up, up_d, np.inf), size=size, mode="constant", cval=np.inf)
+    hi = ndimage.maximum_filter(np.where(up, up_d, -np.inf), size=size, mode="constant", cval=-np.inf)
+    with np.errstate(invalid="ignore"):
+        ok = (depth[y0:y1, x0:x1] >= lo - jump) & (depth[y0:y1, x0:x1] <= hi + jump)
+    out = np.zeros((H, W), bool)
+    out[y0:y1, x0:x1] = ok
+    return out
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(8, 60), st.integers(8, 60), st.integers(0, 2 ** 32 - 1), st.sampled_from([2, 3]))
+def test_compiled_refine_is_the_numpy_one(h, w, seed, step):
+    """The compiled edge refinement keeps the same full-resolution pixels as the numpy one (nearest
+    samples with halves rounded to even, the window's min / max, NaN depths, the image's edges)."""
+    from tracker.segment import refine
+
+    rng = np.random.default_rng(seed)
+    depth = np.round(rng.uniform(0.5, 0.6, (h, w)), 3)
+    depth[rng.random((h, w)) < 0.1] = np.nan
+    cd = depth[::step, ::step]
+    cm = np.isfinite(cd) & (rng.random(cd.shape) < 0.6)
+    if not cm.any():
+        cm[0, 0], cd[0, 0] = True, 0.55
+    got, _ = refine(cm, cd, depth, step, 0.02)
+    np.testing.assert_array_equal(got, _refine_numpy(cm, cd, depth, step, 0.02))
