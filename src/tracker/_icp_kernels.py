@@ -33,6 +33,7 @@ from handmodel._solver_kernels import (
 )
 from handmodel.kinematics import fk_single
 
+from ._segment_kernels import nearest_rows
 from ._silhouette_kernels import silhouette_pairs_kernel
 
 ENTRY_NONE, ENTRY_CLAMP, ENTRY_THROUGH = 0, 1, 2
@@ -1042,26 +1043,10 @@ def feature_transform(mask, dist, iv, iu):
     parabolas). Returns False (outputs unset) when the mask is empty. Every tracked frame builds its
     silhouette's transform; scipy's takes ~4× as long."""
     H, W = mask.shape
-    # per column: the nearest mask pixel's row (−1: none), row by row (the arrays' memory order)
+    # per column: the nearest mask pixel's row (−1: none; the upper one on ties, as scipy's)
     gr = np.empty((H, W), np.int32)
-    last = np.full(W, -1, np.int32)
-    any_mask = False
-    for v in range(H):
-        for u in range(W):
-            if mask[v, u]:
-                last[u] = v
-                any_mask = True
-            gr[v, u] = last[u]
-    if not any_mask:
+    if not nearest_rows(mask, gr):
         return False
-    last[:] = -1
-    for v in range(H - 1, -1, -1):
-        for u in range(W):
-            if mask[v, u]:
-                last[u] = v
-            # the upper one wins ties (as scipy's)
-            if last[u] >= 0 and (gr[v, u] < 0 or last[u] - v < v - gr[v, u]):
-                gr[v, u] = last[u]
     # per row: the lower envelope of u ↦ (u − q)² + (v − gr[v, q])² over the columns q with a mask pixel
     cols = np.empty(W, np.int64)
     fs = np.empty(W)

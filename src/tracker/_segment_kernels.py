@@ -258,40 +258,46 @@ def _voronoi_line(fa, fo, n, c, g, out_a, out_o):
 
 
 @njit(cache=True)
+def nearest_rows(mask, rows):
+    """Each pixel's nearest ``mask`` pixel in its own column, its row into ``rows`` (−1: the column has
+    none; the upper one on ties, as scipy's transforms), by two sweeps in memory order. Returns whether
+    the mask has a pixel at all. The first pass of both exact distance transforms
+    (:func:`nearest_target`, :func:`tracker._icp_kernels.feature_transform`)."""
+    H, W = mask.shape
+    last = np.full(W, -1, np.int64)
+    any_mask = False
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                last[u] = v
+                any_mask = True
+            rows[v, u] = last[u]
+    last[:] = -1
+    for v in range(H - 1, -1, -1):
+        for u in range(W):
+            if mask[v, u]:
+                last[u] = v
+            if last[u] >= 0 and (rows[v, u] < 0 or last[u] - v < v - rows[v, u]):
+                rows[v, u] = last[u]
+    return any_mask
+
+
+@njit(cache=True)
 def nearest_target(targets, dist, iv, iu):
     """Each pixel's nearest ``targets`` pixel (row ``iv``, column ``iu``) and its distance ``dist``, as
     ``scipy.ndimage.distance_transform_edt(~targets, return_indices=True)`` gives them, ties included
     (the same algorithm: per column along the rows, then per row along the columns). Returns False
     (outputs unset) when there is no target."""
     H, W = targets.shape
-    any_t = False
-    for v in range(H):
-        for u in range(W):
-            if targets[v, u]:
-                any_t = True
-    if not any_t:
+    rv = np.empty((H, W), np.int64)
+    if not nearest_rows(targets, rv):
         return False
     n = max(H, W)
     g = np.empty(n, np.int64)
     fa, fo = np.empty(n, np.int64), np.empty(n, np.int64)
     oa, oo = np.empty(n, np.int64), np.empty(n, np.int64)
-    # the first pass (per column along the rows) has every site on the line itself, so none is ever
-    # dropped and each pixel takes its column's nearest target row, the upper one on ties: two sweeps
-    # in memory order
-    rv = np.empty((H, W), np.int64)
-    last = np.full(W, -1, np.int64)
-    for v in range(H):
-        for u in range(W):
-            if targets[v, u]:
-                last[u] = v
-            rv[v, u] = last[u]
-    last[:] = -1
-    for v in range(H - 1, -1, -1):
-        for u in range(W):
-            if targets[v, u]:
-                last[u] = v
-            if last[u] >= 0 and (rv[v, u] < 0 or last[u] - v < v - rv[v, u]):
-                rv[v, u] = last[u]
+    # the first pass (per column along the rows, in nearest_rows above) has every site on the line
+    # itself, so none is ever dropped and each pixel takes its column's nearest target row
     for v in range(H):
         for u in range(W):
             # along the row: the along coordinate is the column, "none" marked by the row
