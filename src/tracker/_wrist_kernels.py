@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._segment_kernels import surface_labels
+from ._segment_kernels import city_block, surface_labels
 
 
 @njit(cache=True)
@@ -71,19 +71,7 @@ def longest_line(goes_on, min_share):
     component met first in row order (as ``np.argmax`` over ``scipy.ndimage.label``'s numbering) —
     and whether that group holds at least ``min_share`` of all ``goes_on`` pixels."""
     H, W = goes_on.shape
-    grown = np.zeros((H, W), np.bool_)
-    for v in range(H):
-        for u in range(W):
-            if goes_on[v, u]:
-                for dv in range(-3, 4):
-                    vv = v + dv
-                    if vv < 0 or vv >= H:
-                        continue
-                    r = 3 - abs(dv)
-                    for du in range(-r, r + 1):
-                        uu = u + du
-                        if 0 <= uu < W:
-                            grown[vv, uu] = True
+    grown = city_block(goes_on) <= 3
     lab = np.zeros((H, W), np.int32)
     stack = np.empty(H * W, np.int64)
     sizes = np.zeros(H * W + 1, np.int64)
