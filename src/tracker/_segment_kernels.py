@@ -78,7 +78,7 @@ def city_block(mask):
 
 @njit(cache=True)
 def closed_filled(m):
-    """``fill_holes(binary_closing(m) | m)`` (scipy's closing with its cross, the border outside
+    """``binary_fill_holes(binary_closing(m) | m)`` (scipy's closing with its cross, the border outside
     counting as background; holes: background 4-connected, not reaching the array's edge)."""
     H, W = m.shape
     dil = np.zeros((H, W), np.bool_)

@@ -5,11 +5,9 @@ the four curled fingers off (open/close under the Kinect v1 noise model: 23° in
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from tracker.cameras import preset
 from tracker.observe import observe
-from tracker.segment import fill_holes
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import DepthRenderer
@@ -46,11 +44,3 @@ def test_sensor_holes_inside_a_fist_do_not_shrink_the_palm_into_a_forearm_cut(ha
         assert (m & seen).sum() >= 0.97 * seen.sum(), (i, f, (m & seen).sum() / seen.sum())
 
 
-def test_fill_holes_is_scipys():
-    """The labelling hole fill (run three times a frame) against ``scipy.ndimage.binary_fill_holes`` on
-    random masks of every density and shape, down to one row: the same pixels (a hole touching the
-    edge, or one joined diagonally to the outside, stays open in both)."""
-    rng = np.random.default_rng(0)
-    for _ in range(300):
-        m = rng.random((rng.integers(1, 40), rng.integers(1, 40))) < rng.uniform(0.2, 0.9)
-        np.testing.assert_array_equal(fill_holes(m), ndimage.binary_fill_holes(m))
