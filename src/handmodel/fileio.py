@@ -81,6 +81,10 @@ def check_output(path: str | os.PathLike, *, overwrite: bool = False, folder: bo
         os.unlink(probe)
         st = os.statvfs(probe_in) if hasattr(os, "statvfs") else None
     except OSError as exc:
+        if exc.errno == errno.ENOENT:
+            # "no such file" of a folder that is there: it takes no new files (/proc, /sys)
+            raise OSError(errno.ENOENT, f"cannot be created there: the folder {probe_in} exists but takes no new "
+                                        "files (a virtual file system such as /proc or /sys?)", str(path)) from None
         raise _os_error(exc, path) from None
     # root may use the blocks reserved for it; f_blocks == 0 is a file system that keeps no count
     if st is not None and st.f_blocks and not (st.f_bfree if os.geteuid() == 0 else st.f_bavail):

@@ -182,13 +182,15 @@ def import_(
 
     from .errors import TrackerError
     from .recording import import_pngs, import_recording_file, is_recording_file
-    from .track_cli import _check_not_inputs, _check_output
+    from handmodel.fileio import check_output
+
+    from .track_cli import _check_not_inputs
 
     if not src.exists():
         raise TrackerError(src, "no such folder or file")
     if is_recording_file(src):  # a folder of PNGs may hold its recording (-o pngs/rec); it is never the source
         _check_not_inputs([src], [("-o", output)])
-    _check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
+    check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
     t0 = time.perf_counter()
     if is_recording_file(src):
         given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
@@ -330,14 +332,16 @@ def show(
     a tracking (tracker track --rerun out.rrd), a picture of one logged frame instead: the depth with the
     mask and the fitted skeleton, and the points and hand in 3-D (no viewer or screen needed; extra [viz])."""
     from .errors import TrackerError
-    from .track_cli import _check_not_inputs, _check_output
+    from handmodel.fileio import check_output
+
+    from .track_cli import _check_not_inputs
 
     _check_not_inputs([recording, keypoints], [("-o", output)])
     if output.suffix.lower() != ".png":
         raise TrackerError(output, "the picture is written as PNG: name it .png")
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
-    _check_output(output, overwrite=overwrite)  # before the frames are read
+    check_output(output, overwrite=overwrite)  # before the frames are read
     if recording.suffix.lower() == ".rrd":
         given = [o for o, v in (("--topic", topic), ("--every", every or None), ("--near", near), ("--far", far),
                                 ("--depth-range", depth_range), ("--box", box), ("--keypoints", keypoints))

@@ -164,34 +164,15 @@ def _check_not_inputs(inputs, outputs):
                                         "an input: write it elsewhere")
 
 
-def _check_output(path, *, overwrite=False, folder=False):
-    """:func:`handmodel.fileio.check_output`, with a folder that exists but takes no new file (``/proc``,
-    ``/sys``: creating one there fails with "no such file") said as such."""
-    import errno
-
+def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
+    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
+    where a file goes, fails now and not after minutes of tracking."""
     from handmodel.fileio import check_output
 
     from .errors import TrackerError
 
-    try:
-        return check_output(path, overwrite=overwrite, folder=folder)
-    except OSError as exc:
-        if exc.errno != errno.ENOENT:
-            raise
-        where = Path(path) if folder else Path(path).parent
-        while not where.exists():
-            where = where.parent
-        raise TrackerError(path, f"cannot be created there: the folder {where} exists but takes no new files "
-                                 "(a virtual file system such as /proc or /sys?)") from None
-
-
-def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
-    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
-    where a file goes, fails now and not after minutes of tracking."""
-    from .errors import TrackerError
-
     if folder:
-        _check_output(output, folder=True)
+        check_output(output, folder=True)
         return
     if save_hand is not None:
         _check_hand_file(save_hand)
@@ -199,11 +180,11 @@ def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, s
         if p is not None and p.exists() and not overwrite and not p.is_dir():
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         if p is not None:
-            _check_output(p, overwrite=overwrite)
+            check_output(p, overwrite=overwrite)
     if rerun is not None and rerun.suffix.lower() != ".rrd":
         raise TrackerError(rerun, "a Rerun recording must end in .rrd")
     if overlay is not None:
-        _check_output(overlay, folder=True)
+        check_output(overlay, folder=True)
         if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
             raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
     outs = [p for p in (output, keypoints, overlay, rerun, save_hand) if p is not None]
@@ -353,7 +334,7 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     from rich.table import Table
 
     from handmodel.cliutil import print_error
-    from handmodel.fileio import atomic_write_text
+    from handmodel.fileio import atomic_write_text, check_output
 
     from .cli import _progress
     from .errors import TrackerError
@@ -366,7 +347,7 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     for p in outputs:
         if p.exists() and not overwrite:
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
-        _check_output(p, overwrite=overwrite)
+        check_output(p, overwrite=overwrite)
     with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
         bar = progress.add_task("recordings", total=len(jobs))
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
@@ -469,13 +450,15 @@ def evaluate(
     check_recording: bool = typer.Option(True, "--check-recording/--no-check-recording", help="Refuse results whose header names another recording (folder name) or handedness than RECORDING's; --no-check-recording evaluates them anyway (a recording renamed since) [on]."),
 ):
     """Posture error (degrees, mean |Δ| of the 20 posture angles, as the paper), keypoint error (mm)."""
+    from handmodel.fileio import check_output
+
     from .errors import TrackerError
 
     _check_not_inputs([recording, result], [("--plot", plot)])
     if plot is not None:
         if plot.exists() and not overwrite and not plot.is_dir():
             raise TrackerError(plot, "exists and is never overwritten (use --overwrite)")
-        _check_output(plot, overwrite=overwrite)
+        check_output(plot, overwrite=overwrite)
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     import numpy as np
     from rich.console import Console
@@ -552,6 +535,8 @@ def live(
 ):
     """Track the hand live from a RealSense camera (extra [realsense]) with the pipeline of tracker
     track and its outputs; Ctrl-C stops and still writes them (a second Ctrl-C aborts)."""
+    from handmodel.fileio import check_output
+
     from .errors import TrackerError
 
     if hand not in ("left", "right"):
@@ -563,7 +548,7 @@ def live(
                        ("--save", save)])
     _check_outputs(output, keypoints, overlay, rerun, overwrite)
     if save is not None:
-        _check_output(save, folder=True)
+        check_output(save, folder=True)
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
     segmenter = _segmenter(depth_range, box, forearm)
@@ -655,6 +640,8 @@ def calibrate(
     """Estimate the user's hand (size, and finger lengths) on a recording's first frames and write it
     as a hand file: track later recordings on it with tracker track --hand-model FILE (no
     re-estimation, so every recording of that user gets the same hand)."""
+    from handmodel.fileio import check_output
+
     from .errors import TrackerError
 
     if frames is None:
@@ -666,7 +653,7 @@ def calibrate(
     _check_not_inputs([recording, _input_file(hand_model), _input_file(synergies)], [("-o", output)])
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
-    _check_output(output, overwrite=overwrite)
+    check_output(output, overwrite=overwrite)
     segmenter = _segmenter(depth_range, box, forearm)
     settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
                          None, None, "auto", False)
