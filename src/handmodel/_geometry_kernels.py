@@ -214,7 +214,7 @@ def closest_points(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, poin
              out_p, out_n, out_seg, out_d)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only,
                           out_p, out_n, out_seg, out_d):
     """Like :func:`closest_points`, but the smallest absolute distance wins and a candidate whose

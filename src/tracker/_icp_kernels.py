@@ -718,7 +718,7 @@ def _solve_pairs(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, mo
     return th
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th,
                points, normals, cam, facing_only, reject, agreement, n_rigid, local_m,
@@ -1083,7 +1083,7 @@ def feature_transform(mask, dist, iv, iu):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, nodes, local, fx, fy, cx, cy,
                        dist, depth, v0, u0, tolerance_mm, tolerance_px, cap_mm):
     """The mean over the samples of :func:`tracker.correspond.model_to_data_mm` (the model→data part
@@ -1122,6 +1122,97 @@ def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_ax
             cost = 0.0
         total += min(cost, cap_mm)
     return total / n
+
+
+@njit(cache=True, inline="always")
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of ``a[lo:lo + n]`` for n ≤ 128: in order below 8, else 8 accumulators."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    m = n - n % 8
+    while i < m:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def pairwise_sum(a, lo, n):
+    """``np.add.reduce(a[lo:lo + n])`` for float64 ``a`` as numpy sums it: blocks of up to 128 (see
+    :func:`_pairwise_block`), longer runs split in halves (a multiple of 8 first) and the halves' sums
+    added — the same bits, so a compiled mean ranks fits exactly as numpy's did. The halving runs on an
+    explicit stack: a recursive function in numba's cache leaves its callers an unresolved symbol."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    s_lo = np.empty(64, np.int64)
+    s_n = np.empty(64, np.int64)
+    s_st = np.empty(64, np.int64)
+    vals = np.empty(66)
+    sp, vp = 1, 0
+    s_lo[0], s_n[0], s_st[0] = lo, n, 0
+    while sp > 0:
+        t = sp - 1
+        m = s_n[t]
+        if m <= 128:
+            vals[vp] = _pairwise_block(a, s_lo[t], m)
+            vp += 1
+            sp -= 1
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        if s_st[t] == 0:  # the first half
+            s_st[t] = 1
+            s_lo[sp], s_n[sp], s_st[sp] = s_lo[t], n2, 0
+            sp += 1
+        elif s_st[t] == 1:  # the second half
+            s_st[t] = 2
+            s_lo[sp], s_n[sp], s_st[sp] = s_lo[t] + n2, m - n2, 0
+            sp += 1
+        else:  # both halves summed: their sum replaces them
+            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
+            vp -= 1
+            sp -= 1
+    return vals[0]
+
+
+@njit(cache=True, nogil=True)
+def data_cost_mean(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, valid, rejected_mm, cap_mm):
+    """:func:`tracker.init.data_cost_mm` on the capsule model posed by the node frames ``G``, in one
+    call: each point's distance (mm) to the nearest surface on any side, ``rejected_mm`` more where its
+    pair was rejected (``valid`` False), capped at ``cap_mm``; their mean, summed as numpy sums."""
+    P = points.shape[0]
+    if P == 0:
+        return cap_mm
+    out_p = np.empty((P, 3))
+    out_n = np.empty((P, 3))
+    out_seg = np.empty(P, np.int64)
+    out_d = np.empty(P)
+    closest_points_facing(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, np.zeros(3), False,
+                          out_p, out_n, out_seg, out_d)
+    for i in range(P):
+        d = out_d[i] * 1000.0 if np.isfinite(out_d[i]) else cap_mm
+        d = min(d, cap_mm)
+        if not valid[i]:
+            d = d + rejected_mm
+        out_d[i] = min(d, cap_mm)
+    return pairwise_sum(out_d, 0, P) / P
 
 
 # ----------------------------------------------------------------------------- the observe stage's window

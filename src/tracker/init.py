@@ -11,6 +11,8 @@ Everything here works on a :class:`FitContext`, the parts of one hand's fits tha
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -21,7 +23,8 @@ from handmodel.geometry import surface_samples
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from .coupling import recoupled, uncoupled
-from .correspond import DATA_CAP_MM, Matcher, ModelSamples, data_to_model_mm
+from ._icp_kernels import data_cost_mean
+from .correspond import DATA_CAP_MM, CapsuleModel, Matcher, ModelSamples, data_to_model_mm
 from .errors import TrackerError
 from .icp import IcpSettings, fit, model_to_data_mean, search_schedule
 from .wrist import wrist_cost_mm
@@ -37,6 +40,10 @@ class InitSettings:
     ``finger_search_icp``: ICP iterations of a finger's best restart on the full cloud; ``placements``:
     how many orientation-diverse placements go on; ``coarse_points``: size of the thinned cloud that
     ranks candidates.
+
+    ``threads``: how many fits of a batch (:meth:`FitContext.fit_many`) run at once, in threads (the
+    compiled fit releases the GIL; each fit is independent, so the result is the same for any count);
+    0 = the cores this process may use, at most 4 (:func:`search_threads`).
 
     ``strategy``: ``"halving"`` (default, successive halving) fits every start briefly on
     ``rank_points`` points (``rank_icp`` ICP iterations of ``rank_gn`` Gauss-Newton steps,
@@ -70,6 +77,7 @@ class InitSettings:
     finger_sweeps: int = 3
     refit_pose: bool = False
     finger_pairs: bool = True
+    threads: int = 0
 
     @classmethod
     def cheap(cls, **changes) -> InitSettings:
@@ -86,6 +94,31 @@ class InitSettings:
             raise TrackerError("settings", f"init strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if min(self.keep, default=0) < 1 or len(self.keep) != 2:
             raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
+        if int(self.threads) < 0:
+            raise TrackerError("settings", f"init threads must be ≥ 0 (0 = the cores available), got {self.threads!r}")
+
+
+def search_threads(threads: int = 0) -> int:
+    """The threads a start search's batches of fits use: ``threads``, or for 0 the cores this process
+    may run on (its CPU affinity), at most 4 (the batches hold 10–60 fits of ~1 ms; more threads gain
+    little once the Python around each fit, which holds the GIL, is a third of the work)."""
+    if threads:
+        return int(threads)
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(n, 4))
+
+
+_POOLS: dict = {}
+
+
+def _pool(n):
+    """One lasting thread pool per size (a search runs ~20 batches; a pool per batch costs more than it gains)."""
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="fit")
+    return _POOLS[n]
 
 
 STRATEGIES = ("halving", "exhaustive")
@@ -108,6 +141,7 @@ class FitContext:
     samples: ModelSamples | None = None
     finger_shapes: list = field(default_factory=list)
     score_samples: ModelSamples | None = None   # the model→data part of :func:`score`
+    threads: int = 1                  # fits of one batch run at once (:func:`search_threads`)
     # derived from ``hand`` (recomputed by dataclasses.replace, as a resized context needs)
     capsules: tuple = field(init=False, repr=False)
 
@@ -130,10 +164,22 @@ class FitContext:
         stages = search_schedule(mode, n_icp, self.full, self.reduced, self.ladder, through=through)
         out_t = np.empty_like(thetas)
         out_s = np.empty(len(thetas))
-        for k, th in enumerate(thetas):
-            out_t[k], corr = fit(self.hand, points, th, stages, self.matcher, icp, n_rigid=n_rigid, normals=normals,
-                                 samples=self.samples, silhouette=silhouette)
+
+        def one(k):
+            out_t[k], corr = fit(self.hand, points, thetas[k], stages, self.matcher, icp, n_rigid=n_rigid,
+                                 normals=normals, samples=self.samples, silhouette=silhouette)
             out_s[k] = score(self, out_t[k], corr, silhouette)
+
+        if len(thetas):
+            # the first on this thread: a kernel compiled or loaded from numba's cache while another
+            # thread calls it crashes the process, and the first fit calls every kernel of the batch
+            one(0)
+        if self.threads > 1 and len(thetas) > 2:
+            # list(): the first exception a fit raised is raised here
+            list(_pool(self.threads).map(one, range(1, len(thetas))))
+        else:
+            for k in range(1, len(thetas)):
+                one(k)
         return out_t, out_s
 
 
@@ -169,6 +215,13 @@ def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None, frames=None) -> 
     pairs' own distances (front-facing model surface only). ``data_mm``: those distances of
     ``corr.points`` at ``theta`` when already measured (the safety net's far-points test needs them too);
     ``frames``: ``ctx.hand``'s node frames at ``theta`` when the caller has them."""
+    if data_mm is None and corr.points is not None and isinstance(ctx.matcher.surface, CapsuleModel):
+        # compiled (a search scores hundreds of fits; the numpy path below is its definition)
+        surf = ctx.matcher.surface
+        G = frames if frames is not None and surf.hand is ctx.hand else surf.hand.node_frames(theta)
+        return float(data_cost_mean(np.ascontiguousarray(G, dtype=np.float64), *surf.caps.kernel_args(),
+                                    np.ascontiguousarray(corr.points, dtype=np.float64),
+                                    np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM, DATA_CAP_MM))
     if data_mm is not None:
         d = np.asarray(data_mm, float)
     elif corr.points is not None:

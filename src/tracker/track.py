@@ -36,7 +36,7 @@ from .correspond import (
 from .coupling import restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
-from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, thin
+from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, search_threads, thin
 from .observe import ObserveSettings, gate, hand_window
 from .rgb import RgbSeed
 from .scale import (
@@ -315,7 +315,7 @@ def fit_context(hand, settings: TrackerSettings, synergies=None):
     samples = ModelSamples(hand) if settings.icp.silhouette_weight > 0 else None
     # the start search scores both directions even when the fit itself has no silhouette term
     ctx = FitContext(hand, lim, matcher, settings.icp, full, reduced, ladder, model, samples, finger_shapes(hand, lim),
-                     score_samples=ModelSamples(hand, spacing=0.006))
+                     score_samples=ModelSamples(hand, spacing=0.006), threads=search_threads(settings.init.threads))
     return ctx, n_pcs
 
 

@@ -8,6 +8,7 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import List, Optional
 
@@ -67,6 +68,7 @@ def track(
     end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=0, help="Threads for the fits of a start search (the first frame, a lost frame, the safety net); the result is the same for any count [0 = the cores, at most 4; 1 per recording with --dask]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through one or many recordings; writes per-frame hand parameters and a summary."""
@@ -101,6 +103,9 @@ def track(
         if not 0.0 <= unseen_prior <= 1.0:
             raise TrackerError("--unseen-prior", f"must be within 0..1, got {unseen_prior}")
         settings.unseen_prior = unseen_prior
+    if threads is not None or dask is not None:
+        # Dask's workers already run recordings side by side
+        settings.init = replace(settings.init, threads=1 if threads is None else threads)
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob

@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from handmodel import HandModel
 from handmodel import _geometry_kernels as GK
@@ -328,3 +329,44 @@ def test_model_to_data_mean_is_the_numpy_score_term(bundle, frames):
     assert min(values) < 5.0 and max(values) == pytest.approx(30.0)  # near fits and the cap were both covered
     empty = Silhouette(np.zeros((48, 64), bool), np.full((48, 64), np.nan), CAM)
     assert model_to_data_mean(samples, frames[0][0], empty) == 30.0
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 5000), st.integers(0, 2**32 - 1))
+def test_pairwise_sum_is_numpys_sum_bit_for_bit(n, seed):
+    """numpy's pairwise summation (blocks of 8 accumulators, halves above 128) rebuilt: the same bits
+    for any length and offset (a compiled mean that ranks fits must rank them as numpy's did)."""
+    rng = np.random.default_rng(seed)
+    a = rng.random(n + 7) * 30.0 * (rng.random(n + 7) < 0.7) + rng.random(n + 7) * 1e-3
+    lo = int(rng.integers(0, 8))
+    n = min(n, len(a) - lo)
+    assert K.pairwise_sum(a, lo, n) == np.add.reduce(a[lo:lo + n])
+
+
+def test_compiled_data_cost_is_the_numpy_score_term(bundle, frames):
+    """init.data_cost_mm's compiled path equals its numpy definition (the points' distances to the
+    model on any side, rejected pairs penalised, capped; numpy's mean) exactly, for fits near and
+    far (the cap and the rejected pairs both covered), and with no points."""
+    from tracker.correspond import Correspondences, data_to_model_mm
+    from tracker.init import DATA_CAP_MM, REJECTED_PAIR_MM, data_cost_mm
+
+    ctx = _tracker(bundle, True).context
+    rng = np.random.default_rng(7)
+    values = []
+    for truth, pts, _, _ in frames:
+        for k in range(6):
+            th = truth.copy()
+            th[:3] += rng.normal(0, 0.004 if k < 3 else 0.04, 3)
+            th[3:6] += rng.normal(0, 0.1 if k < 3 else 0.8, 3)
+            valid = rng.random(len(pts)) < 0.8
+            corr = Correspondences(np.zeros((len(pts), 3)), np.zeros(len(pts), np.int64), np.zeros((len(pts), 3)),
+                                   np.zeros(len(pts)), valid, pts)
+            want = float(np.mean(np.minimum(data_to_model_mm(ctx.matcher, th, pts) + REJECTED_PAIR_MM * ~valid,
+                                            DATA_CAP_MM)))
+            assert data_cost_mm(ctx, th, corr) == want
+            assert data_cost_mm(ctx, th, corr, frames=ctx.hand.node_frames(th)) == want
+            values.append(want)
+    assert min(values) < 4.0 and max(values) > 15.0
+    none = Correspondences(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool),
+                           np.zeros((0, 3)))
+    assert data_cost_mm(ctx, frames[0][0], none) == DATA_CAP_MM

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from handmodel import HandModel
+from handmodel.errors import HandModelError
 from tracker.cameras import preset
 from tracker.correspond import Silhouette
 from tracker.errors import TrackerError
@@ -14,6 +15,7 @@ from tracker.evaluate import posture_error_deg
 from tracker.init import (
     InitSettings,
     finger_search_batched,
+    search_threads,
     fit_single_frame,
     score,
     thin,
@@ -77,6 +79,31 @@ def test_fit_many_is_one_fit_and_score_per_start(bundle):
     ctx1 = replace(ctx, icp=replace(ctx.icp, gn_iterations=1))
     np.testing.assert_array_equal(T1[0], ctx1.fit(starts[0], pts, "full", 0, 2, silhouette=sil, normals=nrm)[0])
     assert not np.array_equal(T1[0], ctx.fit(starts[0], pts, "full", 0, 2, silhouette=sil, normals=nrm)[0])
+
+
+def test_fits_in_threads_are_the_fits_one_after_another(bundle):
+    """A batch fitted on 3 threads gives every start's θ and score bit for bit, in the starts' order (a
+    shared buffer or a shuffled result would not), and a whole start search on 2 threads is the one on
+    one; a fit that raises raises out of the threaded batch."""
+    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    ctx = tr.context
+    (_, start, ob, sil), = protocol_frames(bundle, [1200])
+    sub = thin(ob.points, 300)
+    pts, nrm = ob.points[sub], ob.normals[sub]
+    rng = np.random.default_rng(1)
+    starts = [start + np.r_[rng.normal(0.0, 0.01, 6), rng.normal(0.0, 0.3, HAND.n_dofs - 6)] for _ in range(9)]
+    T1, S1 = replace(ctx, threads=1).fit_many(starts, pts, "full", 1, 2, silhouette=sil, normals=nrm)
+    T3, S3 = replace(ctx, threads=3).fit_many(starts, pts, "full", 1, 2, silhouette=sil, normals=nrm)
+    np.testing.assert_array_equal(T3, T1)
+    np.testing.assert_array_equal(S3, S1)
+    assert len(np.unique(S1)) == len(S1)  # distinct fits: an order mix-up would show
+    one = fit_single_frame(replace(ctx, threads=1), ob.points, InitSettings.cheap(), silhouette=sil, normals=ob.normals)
+    two = fit_single_frame(replace(ctx, threads=2), ob.points, InitSettings.cheap(), silhouette=sil, normals=ob.normals)
+    np.testing.assert_array_equal(two[0], one[0])
+    bad = [starts[0], np.full(HAND.n_dofs, np.nan)]
+    with pytest.raises(HandModelError, match="NaN"):
+        replace(ctx, threads=2).fit_many(bad, pts, "full", 1, 2, silhouette=sil, normals=nrm)
+    assert search_threads(3) == 3 and 1 <= search_threads(0) <= 4
 
 
 @pytest.mark.slow
@@ -144,7 +171,7 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
 
 
 @pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"keep": (0, 3)}, "keep"),
-                                          ({"keep": (4,)}, "keep")])
+                                          ({"keep": (4,)}, "keep"), ({"threads": -1}, "threads")])
 def test_bad_search_settings_are_refused(bundle, change, word):
     tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
     st = replace(InitSettings(), **change)

@@ -184,3 +184,18 @@ def test_many_recordings_table_keeps_names_on_one_line(tmp_path):
         cells = [c.strip() for c in row.strip("│").split("│")]
         fps = float(cells[[c.strip() for c in head.strip("┃").split("┃")].index("fps")])
         assert np.isfinite(fps) and fps > 0  # … and its rate
+
+
+def test_threads_change_the_time_not_the_result(rec, tmp_path):
+    """``--threads`` runs a start search's fits side by side: the tracked θ are the same as on one
+    thread; a negative count is refused."""
+    outs = []
+    for n in (1, 2):
+        out = tmp_path / f"t{n}.csv"
+        r = _cli("track", rec, "-o", out, "--threads", n, "--no-check-hand")
+        assert r.exit_code == 0, r.output
+        outs.append(pd.read_csv(out, comment="#"))
+    pd.testing.assert_frame_equal(outs[0][list(DOF_NAMES)], outs[1][list(DOF_NAMES)], check_exact=True)
+    assert set(outs[0]["status"]) <= {"tracked", "reinit"}
+    r = _cli("track", rec, "-o", tmp_path / "t.csv", "--threads", -1)
+    assert r.exit_code == 2 and "--threads" in r.output
