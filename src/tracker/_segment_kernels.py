@@ -480,3 +480,94 @@ def refine_window(cmask, cdepth, depth, y0, y1, x0, x1, step, jump):
             z = depth[y0 + r, x0 + c]
             ok[r, c] = z >= lo[r, c] - jump and z <= hi[r, c] + jump
     return ok
+
+
+@njit(cache=True)
+def mask_bounds(mask):
+    """``(row_min, row_max, col_min, col_max)`` of the set pixels of a 2-D boolean mask (inclusive),
+    or ``(-1, -1, -1, -1)`` when none is set: ``np.flatnonzero(mask.any(1))`` / ``(0)``'s ends in one
+    pass, rows scanned from the top and bottom until a set pixel (a hand fills a few rows of its window)."""
+    H, W = mask.shape
+    r0 = -1
+    for y in range(H):
+        for x in range(W):
+            if mask[y, x]:
+                r0 = y
+                break
+        if r0 >= 0:
+            break
+    if r0 < 0:
+        return -1, -1, -1, -1
+    r1 = r0
+    for y in range(H - 1, r0, -1):
+        found = False
+        for x in range(W):
+            if mask[y, x]:
+                found = True
+                break
+        if found:
+            r1 = y
+            break
+    c0, c1 = W, -1
+    for y in range(r0, r1 + 1):
+        for x in range(W):
+            if mask[y, x]:
+                c0 = min(c0, x)
+                break
+        for x in range(W - 1, c1, -1):
+            if mask[y, x]:
+                c1 = max(c1, x)
+                break
+    return r0, r1, c0, c1
+
+
+@njit(cache=True)
+def nan_median(values):
+    """``np.nanmedian`` of a 1-D float64 array: the middle of its non-NaN values sorted, or the mean of
+    the two middle ones, (a + b) / 2 as numpy computes it; NaN when every value is NaN."""
+    n = 0
+    buf = np.empty(values.shape[0])
+    for i in range(values.shape[0]):
+        if not np.isnan(values[i]):
+            buf[n] = values[i]
+            n += 1
+    if n == 0:
+        return np.nan
+    s = np.sort(buf[:n])
+    h = n // 2
+    if n % 2:
+        return s[h]
+    return (s[h - 1] + s[h]) / 2.0
+
+
+@njit(cache=True)
+def component_labels(mask, eight):
+    """``scipy.ndimage.label(mask)`` (4-connected) or with ``structure=np.ones((3, 3))`` (``eight``):
+    ``(labels int32, n)``, numbered in raster order of each component's first pixel as scipy numbers
+    them."""
+    H, W = mask.shape
+    lab = np.zeros((H, W), np.int32)
+    stack = np.empty(H * W, np.int64)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if not mask[v, u] or lab[v, u]:
+                continue
+            n += 1
+            lab[v, u] = n
+            stack[0] = v * W + u
+            top = 1
+            while top:
+                top -= 1
+                p = stack[top]
+                pv, pu = p // W, p % W
+                for dv in range(-1, 2):
+                    for du in range(-1, 2):
+                        if (dv == 0 and du == 0) or (not eight and dv != 0 and du != 0):
+                            continue
+                        qv, qu = pv + dv, pu + du
+                        if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not lab[qv, qu]:
+                            lab[qv, qu] = n
+                            stack[top] = qv * W + qu
+                            top += 1
+    return lab, n

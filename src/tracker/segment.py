@@ -48,9 +48,12 @@ from ._icp_kernels import feature_transform
 from ._segment_kernels import (
     city_block,
     closed_filled,
+    component_labels,
     components_holding,
     label_max,
     largest_component as _largest_component,
+    mask_bounds,
+    nan_median,
     nearest_target,
     refine_window,
     skin_channels,
@@ -295,10 +298,26 @@ def skin_mask(color):
 
 
 def bounds(mask):
-    """``((row_min, row_max), (col_min, col_max))`` of a non-empty boolean mask (inclusive)."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    return (int(rows[0]), int(rows[-1])), (int(cols[0]), int(cols[-1]))
+    """``((row_min, row_max), (col_min, col_max))`` of a non-empty boolean mask (inclusive); compiled
+    (:func:`tracker._segment_kernels.mask_bounds`: a tracked frame asks ~10 times)."""
+    m = np.asarray(mask)
+    r0, r1, c0, c1 = mask_bounds(m if m.dtype == np.bool_ else m.astype(bool))
+    if r0 < 0:
+        raise ValueError("bounds of an empty mask")
+    return (int(r0), int(r1)), (int(c0), int(c1))
+
+
+def _label(mask, eight=False):
+    """``scipy.ndimage.label(mask)``, or with ``structure=np.ones((3, 3))`` when ``eight``: ``(labels,
+    n)``, the same numbering, compiled (:func:`tracker._segment_kernels.component_labels`; scipy's
+    costs ~0.1 ms of call overhead on a hand's window, several times a tracked frame)."""
+    return component_labels(np.ascontiguousarray(mask, dtype=np.bool_), bool(eight))
+
+
+def _nanmedian(values) -> float:
+    """``float(np.nanmedian(values))`` (the same value; NaN, without numpy's warning, when every value
+    is NaN), compiled: numpy's takes ~50 µs on the few hundred depths the segmenter asks it for."""
+    return float(nan_median(np.ravel(np.asarray(values, dtype=np.float64))))
 
 
 def largest_component(mask):
@@ -542,7 +561,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     if not (region & seed).any():
         return region, none, seed
     (ya, yb), (xa, xb) = bounds(region)
-    z = float(np.nanmedian(d[seed]))
+    z = _nanmedian(d[seed])
     half = max(int(round(FRONT_WINDOW_M * focal / z)), 1)
     size = 2 * half + 1
     H, W = d.shape
@@ -599,7 +618,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
         cy, cx = (float(v.mean()) + s.start for v, s in zip(np.nonzero(fingers[win]), win))
         dist = np.hypot(yy + win[0].start - cy, xx + win[1].start - cx)
         end = np.zeros(layer.shape, bool)
-        end[yy, xx] = dist >= dist.max() - 0.03 * focal / float(np.nanmedian(dw[layer]))
+        end[yy, xx] = dist >= dist.max() - 0.03 * focal / _nanmedian(dw[layer])
         arm_end = none.copy()
         arm_end[win] = rw & ring & _window_max(end, 7)
         behind &= ~arm_end
@@ -613,12 +632,12 @@ def _goes_on(layer, contact, d, focal):
     into the body meets it across its width; a finger leaning back, lying along the palm or the thumb,
     meets it over a finger's width or along its length beside the wide part in a thin band)."""
     o = closed_filled(layer)
-    px_m = focal / float(np.nanmedian(d[layer]))
+    px_m = focal / _nanmedian(d[layer])
     rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
     disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
     wide = ndimage.binary_opening(o, structure=disk)
     out = contact & _window_max(wide, 7)
-    lab, n = ndimage.label(out, structure=np.ones((3, 3)))
+    lab, n = _label(out, eight=True)
     if n == 0:
         return out
     span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
@@ -640,7 +659,7 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
         return out
     (ya, yb), (xa, xb) = bounds(region)
     H, W = region.shape
-    z = float(np.nanmedian(d[region]))
+    z = _nanmedian(d[region])
     m = px + int(np.ceil(TOUCH_WINDOW_M * focal / z))
     win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
     r = region[win]
@@ -674,7 +693,7 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     win = (slice(ya, yb + 1), slice(xa, xb + 1))
     dist[win] = _edt(edge[win] & surface[win])
     dist[~surface] = -1.0
-    z = float(np.nanmedian(d[surface]))
+    z = _nanmedian(d[surface])
     seed = _largest_in_window(surface & (dist >= dist.max() - 0.02 * focal / z))
     centre = X[seed].mean(axis=0)
     with np.errstate(invalid="ignore"):
@@ -700,7 +719,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
         return seed, front
     (ya, yb), (xa, xb) = bounds(obj)
     win = (slice(ya, yb + 1), slice(xa, xb + 1))
-    lab_o, _ = ndimage.label(obj[win])
+    lab_o, _ = _label(obj[win])
     hit = np.unique(lab_o[seed[win]])
     obj = np.zeros_like(obj)
     obj[win] = np.isin(lab_o, hit[hit > 0])
@@ -717,7 +736,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     palm = 2.0 * float(_edt(~np.pad(o, 1)).max())  # padded: the window is the bounds
     if t.max() - t.min() < ARM_LENGTH_PALMS * palm:
         return seed, front
-    z = float(np.nanmedian(d[win][o]))
+    z = _nanmedian(d[win][o])
     px_m = focal / z
     lab_t, size, big = _finger_pieces(o, px_m)
     if not big.any():
@@ -745,7 +764,7 @@ def _finger_pieces(o, px_m):
     rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
     disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
     thin = o & ~ndimage.binary_opening(o, structure=disk)
-    lab_t, n = ndimage.label(thin)
+    lab_t, n = _label(thin)
     size = np.bincount(lab_t.ravel(), minlength=n + 1)
     # a finger is long and thin; clothing that the skin filter leaves in patches is not
     yy, xx = np.nonzero(thin)
@@ -769,7 +788,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22):
     :data:`FINGER_MIN_AREA_M2` in all."""
     if not seed.any():
         return False
-    z = float(np.nanmedian(d[seed]))
+    z = _nanmedian(d[seed])
     px_m = focal / z
     cy, cx = (float(v.mean()) for v in np.nonzero(seed))
     r = int(np.ceil((reach or 0.22) * px_m))
@@ -854,17 +873,17 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     else:
         cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
     r = float(dt[cy, cx])
-    zc = np.nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
+    zc = _nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
     if not np.isfinite(zc):
-        zc = np.nanmedian(np.asarray(depth, float)[m])
+        zc = _nanmedian(np.asarray(depth, float)[m])
     r_m = r * zc / focal
     if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
         return m
-    yy, xx = np.mgrid[0:sub.shape[0], 0:sub.shape[1]]
-    vy, vx = yy - cy, xx - cx
+    # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
+    vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
     rho = np.hypot(vy, vx)
     outside = solid & (rho > 1.6 * r)
-    lab, n = ndimage.label(outside, structure=np.ones((3, 3)))
+    lab, n = _label(outside, eight=True)
     if n == 0:
         return m
     idx = np.arange(1, n + 1)
@@ -889,7 +908,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     cx_p = np.bincount(lab[base], weights=vx[base], minlength=n + 1)[1:] / nb
     # spread fingers cross a ring around the palm as several pieces, an arm as one: a part that
     # does is the fingers even where it reaches beyond the region (fingertips past the reach)
-    ring_lab, _ = ndimage.label(outside & (rho >= 2.0 * r) & (rho <= 2.4 * r), structure=np.ones((3, 3)))
+    ring_lab, _ = _label(outside & (rho >= 2.0 * r) & (rho <= 2.4 * r), eight=True)
     on = ring_lab > 0
     piece_size = np.bincount(ring_lab[on])
     big = np.flatnonzero(piece_size >= 0.05 * r * r)

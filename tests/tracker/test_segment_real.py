@@ -5,6 +5,7 @@ forearm)."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -486,3 +487,54 @@ def test_compiled_refine_is_the_numpy_one(h, w, seed, step):
         cm[0, 0], cd[0, 0] = True, 0.55
     got, _ = refine(cm, cd, depth, step, 0.02)
     np.testing.assert_array_equal(got, _refine_numpy(cm, cd, depth, step, 0.02))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 30), st.floats(0.0, 1.0), st.integers(0, 2**32 - 1), st.booleans())
+def test_mask_bounds_are_numpys(h, w, share, seed, strided):
+    """The compiled bounds of a mask (any layout: a window of a frame is a strided view) are numpy's
+    ends of the rows and columns holding a set pixel; an empty mask says so."""
+    from tracker._segment_kernels import mask_bounds
+
+    m = np.random.default_rng(seed).random((h, 2 * w if strided else w)) < share
+    if strided:
+        m = m[:, ::2]
+    got = mask_bounds(m)
+    if not m.any():
+        assert got == (-1, -1, -1, -1)
+        return
+    rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+    assert got == (rows[0], rows[-1], cols[0], cols[-1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(0.1, 5.0), st.just(float("nan")), st.just(float("inf"))), max_size=40),
+       st.booleans())
+def test_nan_median_is_numpys(values, grid):
+    """The segmenter's compiled median is ``np.nanmedian`` bit for bit: odd and even counts, NaNs
+    left out, infinities kept, all-NaN and empty give NaN (without numpy's warning); a 2-D window
+    is taken whole."""
+    from tracker.segment import _nanmedian
+
+    a = np.array(values, float)
+    if grid and a.size % 2 == 0 and a.size:
+        a = a.reshape(2, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        want = np.nanmedian(a) if a.size else np.nan
+    got = _nanmedian(a)
+    assert (np.isnan(got) and np.isnan(want)) or got == want
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(1, 24), st.integers(1, 24), st.floats(0.05, 0.95), st.integers(0, 2**32 - 1), st.booleans())
+def test_component_labels_are_scipys(h, w, share, seed, eight):
+    """The compiled labelling numbers the 4- and 8-connected components exactly as scipy.ndimage.label
+    does (raster order of their first pixel; the segmenter reads parts by number)."""
+    from tracker.segment import _label
+
+    m = np.random.default_rng(seed).random((h, w)) < share
+    want, n = ndimage.label(m, structure=np.ones((3, 3)) if eight else None)
+    got, k = _label(m, eight=eight)
+    assert k == n
+    np.testing.assert_array_equal(got, want)
