@@ -571,3 +571,66 @@ def component_labels(mask, eight):
                             stack[top] = qv * W + qu
                             top += 1
     return lab, n
+
+
+@njit(cache=True)
+def back_points(depth, focal, cy, cx):
+    """``np.stack([(u - cx) * depth / focal, (v - cy) * depth / focal, depth], -1)`` over the pixel grid
+    (``v, u = np.mgrid[0:H, 0:W]``): the same operations in the same order, one pass."""
+    H, W = depth.shape
+    out = np.empty((H, W, 3))
+    for v in range(H):
+        for u in range(W):
+            z = depth[v, u]
+            out[v, u, 0] = (u - cx) * z / focal
+            out[v, u, 1] = (v - cy) * z / focal
+            out[v, u, 2] = z
+    return out
+
+
+@njit(cache=True)
+def fronts_of_surfaces(lab, n, d, focal, min_pixels, min_area):
+    """:func:`tracker.segment.surface_fronts` in one pass: each label's pixel count and area (the
+    squared pixel size at its depth, summed in raster order as ``np.bincount`` sums), the kept labels'
+    ``int(0.01 · count)``-th smallest depth, nearest first (a stable sort, as ``np.argsort(kind=
+    "stable")``). Returns ``(ids, fronts)``."""
+    H, W = lab.shape
+    count = np.zeros(n + 1, np.int64)
+    area = np.zeros(n + 1)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0:
+                count[k] += 1
+                q = d[v, u] / focal
+                area[k] += q * q
+    m = 0
+    for k in range(1, n + 1):
+        if count[k] >= max(min_pixels, 1) and area[k] >= min_area:
+            m += 1
+    ids = np.empty(m, np.int64)
+    slot = np.full(n + 1, -1, np.int64)
+    start = np.zeros(m + 1, np.int64)
+    j = 0
+    for k in range(1, n + 1):
+        if count[k] >= max(min_pixels, 1) and area[k] >= min_area:
+            ids[j] = k
+            slot[k] = j
+            start[j + 1] = start[j] + count[k]
+            j += 1
+    fronts = np.empty(m)
+    if m == 0:
+        return ids, fronts
+    z = np.empty(start[m])
+    fill = start[:m].copy()
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0 and slot[k] >= 0:
+                z[fill[slot[k]]] = d[v, u]
+                fill[slot[k]] += 1
+    for j in range(m):
+        zs = np.sort(z[start[j]:start[j + 1]])
+        fronts[j] = zs[int(0.01 * count[ids[j]])]
+    o = np.argsort(fronts, kind="mergesort")
+    return ids[o], fronts[o]

@@ -46,10 +46,12 @@ from scipy import ndimage
 
 from ._icp_kernels import feature_transform
 from ._segment_kernels import (
+    back_points,
     city_block,
     closed_filled,
     component_labels,
     components_holding,
+    fronts_of_surfaces,
     label_max,
     largest_component as _largest_component,
     mask_bounds,
@@ -415,7 +417,16 @@ def pixel_area(depth, focal):
 def surface_fronts(lab, n, depth, focal, min_pixels=30, min_area=0.004):
     """``(ids, fronts)``: the surfaces of at least ``min_pixels`` pixels and ``min_area`` m², and the
     depth of each one's nearest part (its 1st percentile, so flying pixels on its edge don't
-    count), nearest first."""
+    count), nearest first. Compiled (:func:`tracker._segment_kernels.fronts_of_surfaces`; its numpy
+    definition is :func:`_surface_fronts_numpy`)."""
+    if n == 0:
+        return np.zeros(0, int), np.zeros(0)
+    return fronts_of_surfaces(np.ascontiguousarray(lab), int(n), np.ascontiguousarray(depth, dtype=np.float64),
+                              float(focal), int(min_pixels), float(min_area))
+
+
+def _surface_fronts_numpy(lab, n, depth, focal, min_pixels=30, min_area=0.004):
+    """:func:`surface_fronts` in numpy (the definition the compiled one is tested against)."""
     if n == 0:
         return np.zeros(0, int), np.zeros(0)
     d = np.asarray(depth, float)
@@ -814,8 +825,8 @@ def _points(depth, focal, centre=None):
     no points are given."""
     H, W = depth.shape
     cy, cx = ((H - 1) / 2, (W - 1) / 2) if centre is None else centre
-    v, u = np.mgrid[0:H, 0:W]
-    return np.stack([(u - cx) * depth / focal, (v - cy) * depth / focal, depth], -1)
+    # compiled: np.stack([(u - cx) * depth / focal, (v - cy) * depth / focal, depth], -1) on np.mgrid's u, v
+    return back_points(np.ascontiguousarray(depth, dtype=np.float64), float(focal), float(cy), float(cx))
 
 
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
