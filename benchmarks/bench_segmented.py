@@ -72,7 +72,8 @@ def main():
 
     for sensor, spec in SCENES:
         cam, frames = frames_of(hand, sensor, spec, a.frames)
-        tr = HandTracker(hand, TrackerSettings(), synergies=bundle)
+        # one core: a start search's fits one after the other too (InitSettings.threads)
+        tr = HandTracker(hand, TrackerSettings().replace(init_threads=1), synergies=bundle)
         c = {k: [] for k in cols}
         for f, (depth, color) in enumerate(frames):
             t0 = time.process_time()

@@ -63,7 +63,7 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
     and the tracker."""
     # the rendered hand is the model's size
     base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
+    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1, **kw), synergies=bundle)
     ms, err = [], []
     for t, ob in zip(truth, obs):
         t0 = time.process_time()
@@ -101,7 +101,7 @@ def timed_parts(acc):
 def breakdown(hand, bundle, cam, obs, mode, ours=True):
     """Mean CPU ms per tracked frame of each part of ``HandTracker.step`` (frames after the 10th)."""
     base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode), synergies=bundle)
+    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1), synergies=bundle)
     for ob in obs[:10]:
         tr.track(ob, cam)
     acc, total = {}, 0.0
@@ -121,7 +121,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
     failed (no energy drop after the halvings; each ends its stage), the trial steps' energy
     evaluations, the closest-point searches and the local passes (:func:`tracker.icp.fit`'s ``stats``)."""
     base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, **kw), synergies=bundle)
+    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1, **kw), synergies=bundle)
     stats = np.zeros(5, np.int64)
     for ob in obs[:10]:
         tr.track(ob, cam)
@@ -133,7 +133,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
 
 def peer(hand, bundle, cam, truth, obs):
     """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
-    tr = HandTracker(hand, TrackerSettings.paper(mode="full"), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings.paper(mode="full", init_threads=1), synergies=bundle)
     match = tr.context.matcher
     lo, hi = tr.limits[:, 0], tr.limits[:, 1]
     theta = truth[0].copy()
