@@ -16,7 +16,6 @@ from handmodel._geometry_kernels import closest_points_facing
 from handmodel.geometry import surface_samples
 
 from ._icp_kernels import feature_transform
-from ._segment_kernels import mask_bounds
 from ._silhouette_kernels import silhouette_pairs_kernel
 from .errors import TrackerError
 
@@ -212,14 +211,14 @@ class Silhouette:
         self.mask = np.asarray(mask, bool)
         self.depth = depth
         self.camera = camera
-        r0, r1, c0, c1 = mask_bounds(self.mask)
-        self.empty = r0 < 0
+        rows, cols = np.flatnonzero(self.mask.any(1)), np.flatnonzero(self.mask.any(0))
+        self.empty = rows.size == 0
         if self.empty:
             return
-        self.v0 = max(r0 - margin, 0)
-        self.u0 = max(c0 - margin, 0)
-        v1 = min(r1 + margin + 1, self.mask.shape[0])
-        u1 = min(c1 + margin + 1, self.mask.shape[1])
+        self.v0 = max(rows[0] - margin, 0)
+        self.u0 = max(cols[0] - margin, 0)
+        v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
+        u1 = min(cols[-1] + margin + 1, self.mask.shape[1])
         sub = self.mask[self.v0:v1, self.u0:u1]
         h, w = sub.shape
         self.dist, self.iv, self.iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)

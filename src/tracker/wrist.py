@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._icp_kernels import feature_transform
-from ._segment_kernels import mask_bounds
 from ._wrist_kernels import (
     count_near,
     longest_line,
@@ -60,12 +59,12 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     """
     full_m = np.asarray(mask, bool)
     full_d = np.asarray(depth, float)
-    r0, r1, c0, c1 = mask_bounds(full_m)
-    if r0 < 0:
+    if not full_m.any():
         return None
     # the outline work happens in the mask's window (a tenth of the frame or less)
-    y0, y1 = max(r0 - 4, 0), min(r1 + 5, full_m.shape[0])
-    x0, x1 = max(c0 - 4, 0), min(c1 + 5, full_m.shape[1])
+    rows, cols = np.flatnonzero(full_m.any(1)), np.flatnonzero(full_m.any(0))
+    y0, y1 = max(rows[0] - 4, 0), min(rows[-1] + 5, full_m.shape[0])
+    x0, x1 = max(cols[0] - 4, 0), min(cols[-1] + 5, full_m.shape[1])
     m, d = full_m[y0:y1, x0:x1], full_d[y0:y1, x0:x1]
     cam = _Shifted(camera.fx, camera.fy, camera.cx - x0, camera.cy - y0)
     # the window's morphology compiled (scipy's calls cost mostly their overhead here)
