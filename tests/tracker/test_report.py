@@ -69,3 +69,24 @@ def test_real_lines_sum_up_the_calibrated_protocol():
     assert "r1: size 1.263, thumb 1.06, pinky 0.91; r2: size 1.238" in extra
     assert "every floor: 1 of 3" in extra and "tips within 15 px: 2 of 3" in extra and "worst 39 px" in extra
     assert "wrist within 20 px: 2 of 3" in extra and "off a floor: r1_50, r2_0." in extra
+
+
+def test_report_never_replaces_a_report_or_goes_into_the_real_data(tmp_path):
+    """`tracker experiments` refuses a folder holding a report (without --overwrite) and an output
+    inside the labelled frames' folder, before any work: one line, exit 2, the earlier report as it was."""
+    import subprocess
+    import sys
+
+    data = tmp_path / "data"
+    (data / "labels").mkdir(parents=True)
+    (data / "labels" / "labels.json").write_text("{}")
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "report.md").write_text("earlier\n")
+    for out, want in ((old, "--overwrite"), (data / "rep", "input")):
+        r = subprocess.run([sys.executable, "-m", "tracker.cli", "experiments", "--only", "real", "-o", str(out),
+                            "--real-data", str(data)],
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+        assert want in r.stderr, r.stderr
+    assert (old / "report.md").read_text() == "earlier\n" and not (data / "rep").exists()

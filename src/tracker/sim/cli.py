@@ -141,6 +141,7 @@ def experiments(
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes (the parts run side by side)."),
     real_data: Optional[Path] = typer.Option(None, "--real-data", help="Folder of labelled real SR305 frames "
                                              "(../shared/data/realsense_sr305_lada): their section and overlays."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the report a folder holds already."),
 ):
     """Reproduce the paper's experiments on our renderer, and realistic scenes (clutter, RealSense and
     Kinect v1 noise, hand sizes); writes report.md with tables and plots."""
@@ -148,12 +149,18 @@ def experiments(
 
     from ..errors import TrackerError
 
-    check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
     # before the progress bar: an error inside it would follow the bar's blank line
     if only == "real" and real_data is None:
         raise TrackerError("experiments", "the real part needs the labelled frames' folder (--real-data)")
     if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
         raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
+    from ..track_cli import _check_not_inputs
+
+    # the labelled frames are third-party data: the report (and its real/ overlays) never goes among them
+    _check_not_inputs([real_data], [("-o", output)])
+    if (output / "report.md").exists() and not overwrite:
+        raise TrackerError(output, "holds a report already, never overwritten (use --overwrite)")
+    check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
