@@ -1089,13 +1089,21 @@ def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_ax
     """The mean over the samples of :func:`tracker.correspond.model_to_data_mm` (the model→data part
     of :func:`tracker.init.score`) at θ, the samples posed here: the same per-sample costs, summed in
     order (numpy's mean sums pairwise: equal to ~1e-15 relative)."""
-    n = nodes.shape[0]
-    if n == 0:
+    if nodes.shape[0] == 0:
         return np.nan
     G = np.empty((parents.shape[0], 4, 4))
     wa = np.empty((dof_axes.shape[0], 3))
     wo = np.empty((dof_axes.shape[0], 3))
     fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    return _model_to_data_at(G, nodes, local, fx, fy, cx, cy, dist, depth, v0, u0, tolerance_mm, tolerance_px, cap_mm)
+
+
+@njit(cache=True, inline="always")
+def _model_to_data_at(G, nodes, local, fx, fy, cx, cy, dist, depth, v0, u0, tolerance_mm, tolerance_px, cap_mm):
+    """:func:`model_to_data_mean` with the samples' node frames ``G`` given."""
+    n = nodes.shape[0]
+    if n == 0:
+        return np.nan
     h, w = dist.shape
     H, W = depth.shape
     total = 0.0
@@ -1122,6 +1130,24 @@ def model_to_data_mean(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_ax
             cost = 0.0
         total += min(cost, cap_mm)
     return total / n
+
+
+@njit(cache=True, inline="always")
+def wrist_cost_at(G, point, direction, reach_mm, turn_mm):
+    """:func:`tracker.wrist.wrist_cost_mm` with the hand's node frames ``G`` (keypoints 0, the wrist, and
+    9, the middle finger's base, are nodes 0 and 9's origins): the same operations in order."""
+    w0, w1, w2 = G[0, 0, 3], G[0, 1, 3], G[0, 2, 3]
+    if w2 <= 1e-3:
+        return reach_mm + 1.5 * turn_mm
+    far = np.hypot(w0 / w2 - point[0] / point[2], w1 / w2 - point[1] / point[2]) * point[2] * 1000.0
+    cost = max(far - reach_mm, 0.0)
+    a0, a1 = direction[0], direction[1]
+    f0, f1 = G[9, 0, 3] - w0, G[9, 1, 3] - w1
+    na = np.sqrt(a0 * a0 + a1 * a1)
+    nf = np.sqrt(f0 * f0 + f1 * f1)
+    if na > 0.3 and nf > 1e-6:
+        cost += turn_mm * max((a0 * f0 + a1 * f1) / (na * nf), 0.0)
+    return cost
 
 
 @njit(cache=True, inline="always")
@@ -1213,6 +1239,27 @@ def data_cost_mean(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, poin
             d = d + rejected_mm
         out_d[i] = min(d, cap_mm)
     return pairwise_sum(out_d, 0, P) / P
+
+
+@njit(cache=True, nogil=True)
+def search_score(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
+                 seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, valid, rejected_mm, data_cap_mm,
+                 m2d_on, m2d_weight, nodes, local, fx, fy, cx, cy, dist, depth, v0, u0, tolerance_mm, tolerance_px,
+                 m2d_cap_mm, cue_on, cue_point, cue_direction, reach_mm, turn_mm):
+    """:func:`tracker.init.score` in one call, for a hand whose matcher, score samples and wrist cue all
+    pose the same model: θ posed once, the data term (:func:`data_cost_mean`), ``m2d_weight`` × the
+    model→data mean when ``m2d_on``, the wrist cue's cost when ``cue_on``, added in that order."""
+    G = np.empty((parents.shape[0], 4, 4))
+    wa = np.empty((dof_axes.shape[0], 3))
+    wo = np.empty((dof_axes.shape[0], 3))
+    fk_single(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes, G, wa, wo)
+    s = data_cost_mean(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, valid, rejected_mm, data_cap_mm)
+    if m2d_on:
+        s += m2d_weight * _model_to_data_at(G, nodes, local, fx, fy, cx, cy, dist, depth, v0, u0, tolerance_mm,
+                                            tolerance_px, m2d_cap_mm)
+    if cue_on:
+        s += wrist_cost_at(G, cue_point, cue_direction, reach_mm, turn_mm)
+    return s
 
 
 # ----------------------------------------------------------------------------- the observe stage's window

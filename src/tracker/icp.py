@@ -355,7 +355,12 @@ def centre_shift(points, samples_posed):
     return shift
 
 
-def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=6.0, tolerance_px=1.0, cap_mm=30.0) -> float:
+# the model→data score's settings (one owner: the compiled score of tracker.init passes the same)
+M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM = 6.0, 1.0, 30.0
+
+
+def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=M2D_TOLERANCE_MM, tolerance_px=M2D_TOLERANCE_PX,
+                       cap_mm=M2D_CAP_MM) -> float:
     """``np.mean(tracker.correspond.model_to_data_mm(samples, θ, silhouette, …))`` in one compiled call
     (the model→data part of :func:`tracker.init.score`, which the safety net computes on every tracked
     frame; equal to ~1e-15 relative, the sum's order differs). ``samples``:

@@ -23,11 +23,11 @@ from handmodel.geometry import surface_samples
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from .coupling import recoupled, uncoupled
-from ._icp_kernels import data_cost_mean
+from ._icp_kernels import data_cost_mean, search_score
 from .correspond import DATA_CAP_MM, CapsuleModel, Matcher, ModelSamples, data_to_model_mm
 from .errors import TrackerError
-from .icp import IcpSettings, fit, model_to_data_mean, search_schedule
-from .wrist import wrist_cost_mm
+from .icp import M2D_CAP_MM, M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, IcpSettings, fit, model_to_data_mean, search_schedule
+from .wrist import WRIST_REACH_MM, WRIST_TURN_MM, wrist_cost_mm
 
 
 @dataclass
@@ -197,14 +197,45 @@ def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> flo
     points' :func:`tracker.correspond.data_to_model_mm` at ``theta`` when the caller has them already."""
     # the hand's frames once for the data term and the wrist cue (a search scores hundreds of fits)
     cue = getattr(silhouette, "wrist", None)
+    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
+    m2d = silhouette is not None and samples is not None and not silhouette.empty
+    surf = ctx.matcher.surface
+    if (data_mm is None and corr.points is not None and isinstance(surf, CapsuleModel) and surf.hand is ctx.hand
+            and (not m2d or samples.hand is ctx.hand)):
+        # one compiled call (the same sums in the same order as the terms below)
+        return _score_compiled(ctx, theta, corr, silhouette, samples if m2d else None, cue)
     G = ctx.hand.node_frames(theta) if cue is not None or (data_mm is None and corr.points is not None) else None
     s = data_cost_mm(ctx, theta, corr, data_mm=data_mm, frames=G)
-    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
-    if silhouette is not None and samples is not None and not silhouette.empty:
+    if m2d:
         s += MODEL_TO_DATA_WEIGHT * model_to_data_mean(samples, theta, silhouette)
     if cue is not None:
         s += wrist_cost_mm(cue, ctx.hand, theta, keypoints=G[:, :3, 3])
     return s
+
+
+def _score_compiled(ctx, theta, corr, silhouette, samples, cue) -> float:
+    """:func:`score` by :func:`tracker._icp_kernels.search_score` (``samples`` None: no model→data term;
+    ``cue`` None: no wrist cost)."""
+    if samples is not None:
+        cam = silhouette.camera
+        m2d = (True, MODEL_TO_DATA_WEIGHT, samples.nodes, samples.local, float(cam.fx), float(cam.fy), float(cam.cx),
+               float(cam.cy), silhouette.dist, np.asarray(silhouette.depth, np.float64), int(silhouette.v0),
+               int(silhouette.u0), M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM)
+    else:
+        m2d = (False, MODEL_TO_DATA_WEIGHT, *_NO_M2D)
+    wrist = ((True, np.asarray(cue.point, np.float64), np.asarray(cue.direction, np.float64)) if cue is not None
+             else (False, _ZERO3, _ZERO3))
+    return float(search_score(np.array(ctx.hand.check_theta(theta), float), *ctx.hand.kernel_args(),
+                              *ctx.matcher.surface.caps.kernel_args(),
+                              np.ascontiguousarray(corr.points, dtype=np.float64),
+                              np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM, DATA_CAP_MM,
+                              *m2d, *wrist, WRIST_REACH_MM, WRIST_TURN_MM))
+
+
+# stand-ins of the model→data arrays' types when the term is off (one compiled version serves both)
+_NO_M2D = (np.zeros(0, np.int64), np.zeros((0, 3)), 1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1)), 0, 0,
+           M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM)
+_ZERO3 = np.zeros(3)
 
 
 def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None, frames=None) -> float:

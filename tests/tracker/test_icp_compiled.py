@@ -370,3 +370,42 @@ def test_compiled_data_cost_is_the_numpy_score_term(bundle, frames):
     none = Correspondences(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool),
                            np.zeros((0, 3)))
     assert data_cost_mm(ctx, frames[0][0], none) == DATA_CAP_MM
+
+
+def test_compiled_score_is_the_sum_of_its_terms(bundle, frames):
+    """init.score's one compiled call equals its terms computed one by one (the data term, the
+    model→data mean × its weight, the wrist cue's cost by tracker.wrist.wrist_cost_mm) exactly, with
+    and without a wrist cue, for fits near and far, a cue the hand agrees with and one it points
+    up; with the data term given (the safety net's path) the terms are added as before."""
+    from tracker.correspond import Correspondences
+    from tracker.icp import model_to_data_mean
+    from tracker.init import MODEL_TO_DATA_WEIGHT, data_cost_mm, score
+    from tracker.wrist import WristCue, wrist_cost_mm
+
+    ctx = _tracker(bundle, True).context
+    rng = np.random.default_rng(8)
+    costs = []
+    for truth, pts, _, sil in frames[:4]:
+        kp = HAND.keypoints(truth)
+        for k in range(6):
+            th = truth.copy()
+            th[:3] += rng.normal(0, 0.004 if k < 3 else 0.03, 3)
+            th[3:6] += rng.normal(0, 0.1 if k < 3 else 0.9, 3)
+            valid = rng.random(len(pts)) < 0.85
+            corr = Correspondences(np.zeros((len(pts), 3)), np.zeros(len(pts), np.int64), np.zeros((len(pts), 3)),
+                                   np.zeros(len(pts)), valid, pts)
+            sil.__dict__.pop("wrist", None)
+            plain = data_cost_mm(ctx, th, corr) + MODEL_TO_DATA_WEIGHT * model_to_data_mean(ctx.score_samples, th, sil)
+            assert score(ctx, th, corr, sil) == plain
+            # a cue at the wrist, the arm away from the fingers, or along them (a hand folded back)
+            away = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
+            sil.wrist = WristCue(kp[0] + rng.normal(0, 0.02, 3), kp[0], away if k % 2 else -away, 0.06)
+            cost = wrist_cost_mm(sil.wrist, HAND, th)
+            costs.append(cost)
+            assert score(ctx, th, corr, sil) == plain + cost
+            near = np.minimum(np.abs(rng.normal(3.0, 2.0, len(pts))), 30.0)
+            assert score(ctx, th, corr, sil, data_mm=near) == pytest.approx(
+                data_cost_mm(ctx, th, corr, data_mm=near) + MODEL_TO_DATA_WEIGHT * model_to_data_mean(
+                    ctx.score_samples, th, sil) + cost, rel=1e-15)
+            sil.__dict__.pop("wrist", None)
+    assert min(costs) == 0.0 and max(costs) > 10.0  # both sides of the cue's cost covered
