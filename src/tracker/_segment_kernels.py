@@ -29,7 +29,7 @@ def surface_labels(d, jump):
                    or (v > 0 and z - d[v - 1, u] > jump) or (v < H - 1 and z - d[v + 1, u] > jump))
             core[v, u] = not far
     lab = np.zeros((H, W), np.int32)
-    n = _components(core, lab, np.empty(H * W, np.int64))
+    n = _components(core, lab, np.empty(H * W, np.int64), False)
     out = lab.copy()
     for v in range(H):
         for u in range(W):
@@ -103,7 +103,7 @@ def closed_filled(m):
                 reach[v, u] = True
                 stack[top] = v * W + u
                 top += 1
-    _flood(~out, reach, True, stack, top)
+    _flood(~out, reach, True, stack, top, False)
     for v in range(H):
         for u in range(W):
             if not reach[v, u]:
@@ -312,18 +312,24 @@ def nearest_target(targets, dist, iv, iu):
     return True
 
 
+# neighbour steps: the first four are the 4-connected ones (a flood visits them in this order)
+_DV = (1, -1, 0, 0, 1, 1, -1, -1)
+_DU = (0, 0, 1, -1, 1, -1, 1, -1)
+
+
 @njit(cache=True)
-def _flood(mask, mark, value, stack, top):
+def _flood(mask, mark, value, stack, top, eight):
     """Spread ``value`` into ``mark`` from the pixels on ``stack[:top]`` (flat indices, marked already)
-    over the 4-connected pixels of ``mask`` not marked yet."""
+    over the 4-connected (or, with ``eight``, 8-connected) pixels of ``mask`` not marked yet."""
     H, W = mask.shape
+    nk = 8 if eight else 4
     while top:
         top -= 1
         p = stack[top]
         pv, pu = p // W, p % W
-        for k in range(4):
-            qv = pv + (1 if k == 0 else -1 if k == 1 else 0)
-            qu = pu + (1 if k == 2 else -1 if k == 3 else 0)
+        for k in range(nk):
+            qv = pv + _DV[k]
+            qu = pu + _DU[k]
             if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not mark[qv, qu]:
                 mark[qv, qu] = value
                 stack[top] = qv * W + qu
@@ -331,9 +337,9 @@ def _flood(mask, mark, value, stack, top):
 
 
 @njit(cache=True)
-def _components(mask, lab, stack):
-    """4-connected components of ``mask`` into ``lab`` (numbered in raster order of their first pixel,
-    as ``scipy.ndimage.label`` numbers them); returns their count."""
+def _components(mask, lab, stack, eight):
+    """4-connected (or, with ``eight``, 8-connected) components of ``mask`` into ``lab`` (numbered in
+    raster order of their first pixel, as ``scipy.ndimage.label`` numbers them); returns their count."""
     H, W = mask.shape
     n = 0
     for v in range(H):
@@ -343,7 +349,7 @@ def _components(mask, lab, stack):
             n += 1
             lab[v, u] = n
             stack[0] = v * W + u
-            _flood(mask, lab, n, stack, 1)
+            _flood(mask, lab, n, stack, 1, eight)
     return n
 
 
@@ -353,7 +359,7 @@ def largest_component(mask):
     ``np.argmax`` over ``scipy.ndimage.label``'s sizes picks it); the mask itself when it has at most one."""
     H, W = mask.shape
     lab = np.zeros((H, W), np.int32)
-    n = _components(mask, lab, np.empty(H * W, np.int64))
+    n = _components(mask, lab, np.empty(H * W, np.int64), False)
     if n <= 1:
         return mask.copy()
     size = np.zeros(n + 1, np.int64)
@@ -384,7 +390,7 @@ def components_holding(mask, seed):
                 out[v, u] = True
                 stack[top] = v * W + u
                 top += 1
-    _flood(mask, out, True, stack, top)
+    _flood(mask, out, True, stack, top, False)
     return out
 
 
@@ -547,29 +553,7 @@ def component_labels(mask, eight):
     them."""
     H, W = mask.shape
     lab = np.zeros((H, W), np.int32)
-    stack = np.empty(H * W, np.int64)
-    n = 0
-    for v in range(H):
-        for u in range(W):
-            if not mask[v, u] or lab[v, u]:
-                continue
-            n += 1
-            lab[v, u] = n
-            stack[0] = v * W + u
-            top = 1
-            while top:
-                top -= 1
-                p = stack[top]
-                pv, pu = p // W, p % W
-                for dv in range(-1, 2):
-                    for du in range(-1, 2):
-                        if (dv == 0 and du == 0) or (not eight and dv != 0 and du != 0):
-                            continue
-                        qv, qu = pv + dv, pu + du
-                        if 0 <= qv < H and 0 <= qu < W and mask[qv, qu] and not lab[qv, qu]:
-                            lab[qv, qu] = n
-                            stack[top] = qv * W + qu
-                            top += 1
+    n = _components(mask, lab, np.empty(H * W, np.int64), eight)
     return lab, n
 
 

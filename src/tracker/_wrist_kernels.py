@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._segment_kernels import city_block, surface_labels
+from ._segment_kernels import city_block, component_labels, surface_labels
 
 
 @njit(cache=True)
@@ -72,36 +72,12 @@ def longest_line(goes_on, min_share):
     and whether that group holds at least ``min_share`` of all ``goes_on`` pixels."""
     H, W = goes_on.shape
     grown = city_block(goes_on) <= 3
-    lab = np.zeros((H, W), np.int32)
-    stack = np.empty(H * W, np.int64)
-    sizes = np.zeros(H * W + 1, np.int64)
-    n = 0
+    lab, n = component_labels(grown, True)
+    sizes = np.zeros(n + 1, np.int64)
     for v in range(H):
         for u in range(W):
-            if not grown[v, u] or lab[v, u]:
-                continue
-            # a new component, numbered in the order the row scan meets it
-            n += 1
-            lab[v, u] = n
-            top = 0
-            stack[0] = v * W + u
-            top = 1
-            while top:
-                top -= 1
-                p = stack[top]
-                pv, pu = p // W, p % W
-                if goes_on[pv, pu]:
-                    sizes[n] += 1
-                for dv in range(-1, 2):
-                    qv = pv + dv
-                    if qv < 0 or qv >= H:
-                        continue
-                    for du in range(-1, 2):
-                        qu = pu + du
-                        if 0 <= qu < W and grown[qv, qu] and not lab[qv, qu]:
-                            lab[qv, qu] = n
-                            stack[top] = qv * W + qu
-                            top += 1
+            if goes_on[v, u]:
+                sizes[lab[v, u]] += 1
     line = np.zeros((H, W), np.bool_)
     if n == 0:
         return line, False
