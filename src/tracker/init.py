@@ -115,10 +115,13 @@ _POOLS: dict = {}
 
 
 def _pool(n):
-    """One lasting thread pool per size (a search runs ~20 batches; a pool per batch costs more than it gains)."""
-    if n not in _POOLS:
-        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="fit")
-    return _POOLS[n]
+    """One lasting thread pool per size and process (a search runs ~20 batches; a pool per batch costs
+    more than it gains). A process forked after a search (a worker of ``-j``) gets its own: the
+    parent's pool has no threads there and would never run a fit."""
+    key = (n, os.getpid())
+    if key not in _POOLS:
+        _POOLS[key] = ThreadPoolExecutor(n, thread_name_prefix="fit")
+    return _POOLS[key]
 
 
 STRATEGIES = ("halving", "exhaustive")

@@ -106,6 +106,35 @@ def test_fits_in_threads_are_the_fits_one_after_another(bundle):
     assert search_threads(3) == 3 and 1 <= search_threads(0) <= 4
 
 
+def _search_in(q, ctx, points):
+    q.put(fit_single_frame(ctx, points, InitSettings.cheap())[0])
+
+
+def test_a_process_forked_after_a_threaded_search_searches_too(bundle):
+    """A worker forked after a search (``-j`` workers) runs its own searches on threads: the parent's
+    pool has no threads in the child (reused, the child waited for ever). The child's θ is the parent's."""
+    import multiprocessing as mp
+    import queue
+
+    tr = HandTracker(HAND, TrackerSettings().replace(init_threads=2), synergies=bundle)
+    (_, _, ob, _), = protocol_frames(bundle, [300])
+    pts = ob.points[thin(ob.points, 400)]
+    want = fit_single_frame(tr.context, pts, InitSettings.cheap())[0]
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    p = ctx.Process(target=_search_in, args=(q, tr.context, pts))
+    p.start()
+    try:
+        got = q.get(timeout=120)
+    except queue.Empty:
+        pytest.fail("the forked process's search never finished")
+    finally:
+        p.join(5)
+        if p.is_alive():
+            p.kill()
+    np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.slow
 def test_halving_search_is_accurate_from_the_global_pose(bundle):
     """The report's protocol (hierarchical, 30 ICP iterations): the halving search gets every frame
