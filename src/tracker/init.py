@@ -174,8 +174,9 @@ class FitContext:
             out_s[k] = score(self, out_t[k], corr, silhouette)
 
         if len(thetas):
-            # the first on this thread: a kernel compiled or loaded from numba's cache while another
-            # thread calls it crashes the process, and the first fit calls every kernel of the batch
+            # the first on this thread: a kernel compiled while another thread calls it gave wrong numbers
+            # (uninitialised memory, NaN θ; measured with an empty numba cache) — the first fit compiles
+            # every kernel the batch calls (tests/tracker/test_init_search.py, the slow cold-cache test)
             one(0)
         if self.threads > 1 and len(thetas) > 2:
             # list(): the first exception a fit raised is raised here
