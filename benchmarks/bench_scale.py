@@ -20,7 +20,6 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 # one core: numba, OpenMP and BLAS threads (before numpy and numba are imported)
@@ -42,7 +41,7 @@ from tracker.sim.hands import HandShape
 from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
-from tracker.init import InitSettings, search_threads
+from tracker.init import search_threads
 from tracker.track import HandTracker, TrackerSettings, fit_context
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realsense_sr305_lada"
@@ -116,7 +115,7 @@ def main(argv=None):
         return 2
     hand, bundle = HandModel.load(), load_bundle("fingerfist")
     # one core: the search's fits one after the other (InitSettings.threads)
-    settings = TrackerSettings(hand_scale="auto").replace(init=InitSettings(threads=1))
+    settings = TrackerSettings(hand_scale="auto").replace(init_threads=1)
     frames = realistic_frames(hand, limit)
     # compile once (numba) before anything is timed
     warm = HandTracker(hand, settings, synergies=bundle)
@@ -152,7 +151,7 @@ def main(argv=None):
     n_thr = search_threads(0)
     timings = {}
     for k in sorted({1, n_thr}):
-        tr = HandTracker(right, settings.replace(init=replace(settings.init, threads=k)), synergies=bundle)
+        tr = HandTracker(right, settings.replace(init_threads=k), synergies=bundle)
         c0, w0 = time.process_time(), time.perf_counter()
         ob = observe(depth, cam, settings.observe)
         res = tr.track(ob, cam)

@@ -243,7 +243,13 @@ def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
     return nodes[:k], local[:k], tgt[:k]
 
 
-def model_to_data_mm(samples, theta, sil, *, tolerance_mm=6.0, tolerance_px=1.0, cap_mm=30.0) -> np.ndarray:
+# the model→data cost's settings (its compiled means, tracker.icp.model_to_data_mean and the start
+# search's score, take the same)
+M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM = 6.0, 1.0, 30.0
+
+
+def model_to_data_mm(samples, theta, sil, *, tolerance_mm=M2D_TOLERANCE_MM, tolerance_px=M2D_TOLERANCE_PX,
+                     cap_mm=M2D_CAP_MM) -> np.ndarray:
     """Per model sample, how far (mm) it is from anywhere the camera allows it to be: a sample
     projecting outside the hand silhouette costs its distance to the silhouette beyond ``tolerance_px``
     (pixels × depth / f; the silhouette's edge is only known to a pixel, which is 2–3 % of a small

@@ -26,6 +26,9 @@ from handmodel.subspace import Subspace
 
 from . import _icp_kernels as K
 from .correspond import (
+    M2D_CAP_MM,
+    M2D_TOLERANCE_MM,
+    M2D_TOLERANCE_PX,
     CapsuleModel,
     Correspondences,
     Matcher,
@@ -353,10 +356,6 @@ def centre_shift(points, samples_posed):
     if K.centre_shift(np.ascontiguousarray(points, dtype=np.float64), P, N, shift) < 10:
         return None
     return shift
-
-
-# the model→data score's settings (one owner: the compiled score of tracker.init passes the same)
-M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM = 6.0, 1.0, 30.0
 
 
 def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=M2D_TOLERANCE_MM, tolerance_px=M2D_TOLERANCE_PX,

@@ -24,9 +24,18 @@ from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from .coupling import recoupled, uncoupled
 from ._icp_kernels import data_cost_mean, search_score
-from .correspond import DATA_CAP_MM, CapsuleModel, Matcher, ModelSamples, data_to_model_mm
+from .correspond import (
+    DATA_CAP_MM,
+    M2D_CAP_MM,
+    M2D_TOLERANCE_MM,
+    M2D_TOLERANCE_PX,
+    CapsuleModel,
+    Matcher,
+    ModelSamples,
+    data_to_model_mm,
+)
 from .errors import TrackerError
-from .icp import M2D_CAP_MM, M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, IcpSettings, fit, model_to_data_mean, search_schedule
+from .icp import IcpSettings, fit, model_to_data_mean, search_schedule
 from .wrist import WRIST_REACH_MM, WRIST_TURN_MM, wrist_cost_mm
 
 

@@ -8,7 +8,6 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import List, Optional
 
@@ -105,7 +104,7 @@ def track(
         settings.unseen_prior = unseen_prior
     if threads is not None or dask is not None:
         # Dask's workers already run recordings side by side
-        settings.init = replace(settings.init, threads=1 if threads is None else threads)
+        settings = settings.replace(init_threads=1 if threads is None else threads)
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob
