@@ -343,6 +343,19 @@ def test_pairwise_sum_is_numpys_sum_bit_for_bit(n, seed):
     assert K.pairwise_sum(a, lo, n) == np.add.reduce(a[lo:lo + n])
 
 
+def _moved_fit(truth, pts, rng, shift_m, turn_rad, share):
+    """θ moved off the truth (normal, ``shift_m`` and ``turn_rad`` per axis) and correspondences holding the
+    ``pts`` with about ``share`` of their pairs valid (what the scores read of a fit)."""
+    from tracker.correspond import Correspondences
+
+    th = truth.copy()
+    th[:3] += rng.normal(0, shift_m, 3)
+    th[3:6] += rng.normal(0, turn_rad, 3)
+    valid = rng.random(len(pts)) < share
+    P = len(pts)
+    return th, Correspondences(np.zeros((P, 3)), np.zeros(P, np.int64), np.zeros((P, 3)), np.zeros(P), valid, pts)
+
+
 def test_compiled_data_cost_is_the_numpy_score_term(bundle, frames):
     """init.data_cost_mm's compiled path equals its numpy definition (the points' distances to the
     model on any side, rejected pairs penalised, capped; numpy's mean) exactly, for fits near and
@@ -355,12 +368,8 @@ def test_compiled_data_cost_is_the_numpy_score_term(bundle, frames):
     values = []
     for truth, pts, _, _ in frames:
         for k in range(6):
-            th = truth.copy()
-            th[:3] += rng.normal(0, 0.004 if k < 3 else 0.04, 3)
-            th[3:6] += rng.normal(0, 0.1 if k < 3 else 0.8, 3)
-            valid = rng.random(len(pts)) < 0.8
-            corr = Correspondences(np.zeros((len(pts), 3)), np.zeros(len(pts), np.int64), np.zeros((len(pts), 3)),
-                                   np.zeros(len(pts)), valid, pts)
+            th, corr = _moved_fit(truth, pts, rng, 0.04 if k >= 3 else 0.004, 0.8 if k >= 3 else 0.1, 0.8)
+            valid = corr.valid
             want = float(np.mean(np.minimum(data_to_model_mm(ctx.matcher, th, pts) + REJECTED_PAIR_MM * ~valid,
                                             DATA_CAP_MM)))
             assert data_cost_mm(ctx, th, corr) == want
@@ -377,7 +386,6 @@ def test_compiled_score_is_the_sum_of_its_terms(bundle, frames):
     model→data mean × its weight, the wrist cue's cost by tracker.wrist.wrist_cost_mm) exactly, with
     and without a wrist cue, for fits near and far, a cue the hand agrees with and one it points
     up; with the data term given (the safety net's path) the terms are added as before."""
-    from tracker.correspond import Correspondences
     from tracker.icp import model_to_data_mean
     from tracker.init import MODEL_TO_DATA_WEIGHT, data_cost_mm, score
     from tracker.wrist import WristCue, wrist_cost_mm
@@ -388,12 +396,7 @@ def test_compiled_score_is_the_sum_of_its_terms(bundle, frames):
     for truth, pts, _, sil in frames[:4]:
         kp = HAND.keypoints(truth)
         for k in range(6):
-            th = truth.copy()
-            th[:3] += rng.normal(0, 0.004 if k < 3 else 0.03, 3)
-            th[3:6] += rng.normal(0, 0.1 if k < 3 else 0.9, 3)
-            valid = rng.random(len(pts)) < 0.85
-            corr = Correspondences(np.zeros((len(pts), 3)), np.zeros(len(pts), np.int64), np.zeros((len(pts), 3)),
-                                   np.zeros(len(pts)), valid, pts)
+            th, corr = _moved_fit(truth, pts, rng, 0.03 if k >= 3 else 0.004, 0.9 if k >= 3 else 0.1, 0.85)
             sil.__dict__.pop("wrist", None)
             plain = data_cost_mm(ctx, th, corr) + MODEL_TO_DATA_WEIGHT * model_to_data_mean(ctx.score_samples, th, sil)
             assert score(ctx, th, corr, sil) == plain
