@@ -52,6 +52,19 @@ def quat_to_matrix(q):
     ], -2)
 
 
+def wrapped_angles(angles):
+    """Euler angles each moved by whole turns into [−π, π): the same :func:`euler_to_matrix` (every
+    factor is a rotation about one axis). A fit that turned the hand round several times reads as
+    the rotation it is (an SR305 frame's fit came out at −17.8 rad).
+
+    >>> a = np.array([-17.8, 3.0, 7.0])
+    >>> bool(np.allclose(euler_to_matrix(wrapped_angles(a)), euler_to_matrix(a))), bool(np.all(np.abs(wrapped_angles(a)) <= np.pi))
+    (True, True)
+    """
+    a = np.asarray(angles, float)
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
 def euler_to_matrix(angles):
     """R = Rx(a)·Ry(b)·Rz(c), batched over leading axes."""
     a = np.asarray(angles, float)

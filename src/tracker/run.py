@@ -403,6 +403,9 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
                 job.save_hand, overwrite=job.overwrite)
         if job.keypoints is not None:
             write_keypoints(job.keypoints, tracker.hand, df, meta, overwrite=job.overwrite)
+        if overlay is not None and job.overwrite:
+            # an earlier run's overlays of other frames would pass for this run's (its settings, its fits)
+            stale_overlays(overlay, written)
     except BaseException:
         if viewer is not None:
             viewer.abort()
@@ -410,6 +413,17 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     rrd = viewer.close() if viewer is not None else None
     warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
     return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings)
+
+
+def stale_overlays(folder, written) -> list[Path]:
+    """Remove the overlay PNGs (``overlay_NNNNNN.png``) in ``folder`` of frames not in ``written`` (an
+    earlier run's, left by ``--overwrite``); returns them. Other files are left alone."""
+    keep = {f"overlay_{i:06d}.png" for i in written}
+    gone = [p for p in sorted(Path(folder).glob("overlay_*.png"))
+            if p.name not in keep and p.stem[8:].isdigit() and len(p.stem) == 14 and p.is_file()]
+    for p in gone:
+        p.unlink()
+    return gone
 
 
 def settings_for_hand(hand, settings, hand_scale_asked=False):

@@ -288,8 +288,15 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
                   f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
+    if tracker.no_hand_:
+        # what was segmented was fitted, but left too much unexplained to be a hand (TrackerSettings.no_hand_rejected)
+        console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "
+                      f"hand (its fit rejected more than {tracker.settings.no_hand_rejected:.0%} of the points); "
+                      "those frames are lost, without θ")
     if len(df) and not found.any():
-        console.print(f"warning: no hand found in any frame of {recording}: nothing segmented where a hand can be "
+        why = ("nothing segmented looks like a hand" if tracker.no_hand_
+               else "nothing segmented where a hand can be")
+        console.print(f"warning: no hand found in any frame of {recording}: {why} "
                       "(check the camera preset and depth unit with tracker info, or give --depth-range / --box)")
     if tracker.base_hand.calibration and tracker.settings.hand_scale != "auto":
         console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
@@ -431,8 +438,10 @@ def _finite(v):
 
 
 def _hand_scale(text):
-    """``--hand-scale``: "auto" or a positive number."""
+    """``--hand-scale``: "auto" or a factor within the sizes "auto" searches (``TrackerSettings.scale_range``:
+    0.05 tracked nothing and blamed the segmentation)."""
     from .errors import TrackerError
+    from .track import TrackerSettings
 
     if text.strip().lower() == "auto":
         return "auto"
@@ -440,8 +449,10 @@ def _hand_scale(text):
         value = float(text)
     except ValueError:
         value = float("nan")
-    if not (value > 0 and value < float("inf")):
-        raise TrackerError("--hand-scale", f"must be 'auto' or a positive number, got {text!r}")
+    lo, hi = TrackerSettings().scale_range
+    if not lo <= value <= hi:
+        raise TrackerError("--hand-scale", f"must be 'auto' or a factor in {lo:g}–{hi:g} (the hand model's size × it), "
+                                           f"got {text!r}")
     return value
 
 

@@ -28,10 +28,19 @@ def test_bad_hand_scale_refused(bad):
         HandTracker(BASE, TrackerSettings().replace(hand_scale=bad))
 
 
+@pytest.mark.parametrize("bad", [0.05, 0.59, 2.01, 50.0])
+def test_hand_scale_outside_the_searched_sizes_refused(bad):
+    with pytest.raises(TrackerError, match="hand_scale must be within scale_range 0.6–2"):
+        HandTracker(BASE, TrackerSettings().replace(hand_scale=bad))
+    HandTracker(BASE, TrackerSettings().replace(hand_scale=bad, scale_range=(0.01, 100.0)))  # the range decides
+
+
 def test_cli_hand_scale_option():
     assert _hand_scale("auto") == "auto" and _hand_scale(" AUTO ") == "auto" and _hand_scale("1.25") == 1.25
-    for bad in ("0", "-2", "nan", "inf", "large"):
-        with pytest.raises(TrackerError, match="--hand-scale: .*'auto' or a positive number"):
+    assert _hand_scale("0.6") == 0.6 and _hand_scale("2") == 2.0
+    # 0.05 tracked nothing and 50 fitted nothing, each blaming the segmentation
+    for bad in ("0", "-2", "nan", "inf", "large", "0.05", "50", "2.5"):
+        with pytest.raises(TrackerError, match="--hand-scale: must be 'auto' or a factor in 0.6–2"):
             _hand_scale(bad)
 
 

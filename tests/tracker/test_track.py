@@ -401,3 +401,22 @@ def test_model_samples_pose_agrees_with_node_frames(model_samples):
     np.testing.assert_allclose(P, HAND.points(th, nodes, model_samples.local), atol=1e-12)
     origin = HAND.points(th, nodes, np.zeros_like(model_samples.local_n))
     np.testing.assert_allclose(N, HAND.points(th, nodes, model_samples.local_n) - origin, atol=1e-12)
+
+
+def test_output_rotation_is_wrapped():
+    """A hand whose θ has turned round several times (a start on an SR305 frame came out at −17.8 rad,
+    and the lost frames after it repeated it) is output as the same rotation in [−π, π)."""
+    from test_init_orientation import CAM, scene
+
+    hand = HandModel.load()
+    th, ob, _ = scene(hand, "palm", np.zeros(hand.n_dofs - 6))
+    turned = th + np.r_[0, 0, 0, np.array([6.0, -4.0, 2.0]) * np.pi, np.zeros(hand.n_dofs - 6)]
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0, safety_net=False, finger_restart_deg=0.0))
+    tr.theta, tr.lost = turned.copy(), False
+    lost = tr.step(np.zeros((0, 3)))  # a frame without points repeats the last θ
+    assert lost.status == "lost" and np.all(np.abs(lost.theta[3:6]) <= np.pi)
+    assert np.allclose(hand.keypoints(lost.theta), hand.keypoints(turned), atol=1e-9)  # the same hand
+    tr.theta, tr.lost = turned.copy(), False
+    r = tr.track(ob, CAM)
+    assert r.status == "tracked" and np.all(np.abs(r.theta[3:6]) <= np.pi)
+    assert np.allclose(hand.keypoints(r.theta), hand.keypoints(th), atol=0.004)  # and it fits the frame

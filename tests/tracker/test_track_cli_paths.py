@@ -199,3 +199,19 @@ def test_threads_change_the_time_not_the_result(rec, tmp_path):
     assert set(outs[0]["status"]) <= {"tracked", "reinit"}
     r = _cli("track", rec, "-o", tmp_path / "t.csv", "--threads", -1)
     assert r.exit_code == 2 and "--threads" in r.output
+
+
+def test_overwrite_leaves_no_overlay_of_an_earlier_run(rec, tmp_path):
+    """With --overwrite, the overlays of frames this run did not draw (an earlier run's, other settings)
+    are removed after the run; files that are not overlays stay."""
+    figs = tmp_path / "figs"
+    base = ("track", rec, "-o", tmp_path / "t.csv", "--overlay", figs, "--no-check-hand", "--no-safety-net",
+            "--hand-scale", "1", "--threads", "1")
+    r = _cli(*base, "--overlay-every", "1")
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in figs.iterdir()) == ["overlay_000000.png", "overlay_000001.png"]
+    (figs / "notes.png").write_bytes(b"mine")
+    (figs / "overlay_best.png").write_bytes(b"mine too")
+    r = _cli(*base, "--overlay-every", "2", "--overwrite")
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in figs.iterdir()) == ["notes.png", "overlay_000000.png", "overlay_best.png"]

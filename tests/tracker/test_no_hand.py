@@ -1,0 +1,121 @@
+"""Frames without a hand (``TrackerSettings.no_hand_rejected``): the real D435 and Azure Kinect
+recordings (no hand in view) and rendered scenes whose hand is out of view are lost without θ and
+leave the size alone; the same scenes with the hand in view are found; the CLI says so."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from handmodel import HandModel
+from handmodel.rigid import euler_to_matrix
+from synergy.bundle import load_bundle
+from tests.conftest import shared
+from tracker.cameras import preset
+from tracker.cli import app
+from tracker.errors import TrackerError
+from tracker.observe import observe
+from tracker.recording import Recording
+from tracker.run import read_tracking
+from tracker.sim.experiments import REALISTIC_SENSORS
+from tracker.sim.motions import hand_centre, make_motion
+from tracker.sim.noise import NoiseModel
+from tracker.sim.render import Clutter, DepthRenderer
+from tracker.track import HandTracker, TrackerSettings
+
+RECORDINGS = ("librealsense_single_depth_color_640x480.bag", "azure_kinect_recording.mkv")
+# a start search on one core: the tests compare states, not times
+SETTINGS = TrackerSettings().replace(init_threads=1)
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    return load_bundle("fingerfist")
+
+
+@pytest.fixture(scope="module")
+def right():
+    return HandModel.load(right=True)
+
+
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_real_recordings_without_a_hand_find_none(name, bundle, right):
+    rec = Recording.open(shared("sensor_recordings", name), handedness="right")
+    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    for frame in rec:
+        ob = observe(frame.depth, rec.camera, SETTINGS.observe, color=frame.color)
+        assert len(ob.points) > 500  # something was segmented: a wall, a door, a mug
+        r = tr.track(ob, rec.camera, color=frame.color)
+        assert r.status == "lost" and np.isnan(r.theta).all() and np.isnan(r.fit_mm)
+        # what the start fitted left a third of its points unexplained (a hand: ≤ 15 % on the SR305 stills)
+        assert r.rejected_share > SETTINGS.no_hand_rejected
+    assert tr.no_hand_ == len(rec) and tr.scale_ is None and tr.lost
+    assert tr._calibrations == [] and list(tr._contexts) == [1.0]
+
+
+def _scene(hand, sensor, spec, in_view):
+    """Frame 0 of the open/close motion with ``spec``'s clutter placed for the hand in view; the hand
+    itself moved 50 m aside when not ``in_view`` (the clutter stays)."""
+    cam_name, noise_name = REALISTIC_SENSORS[sensor]
+    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
+    th = make_motion("open-close", hand=hand, frames=30, seed=0).theta[0].copy()
+    clutter = Clutter.parse(spec).fixed(th[:3] + euler_to_matrix(th[3:6]) @ hand_centre(hand))
+    if not in_view:
+        th[0] += 50.0
+    r = DepthRenderer(hand, cam).render(th, labels=False, clutter=clutter, incidence=nm.needs_incidence,
+                                        reflectance=nm.needs_reflectance)
+    return nm.apply(r.depth, cam, np.random.default_rng(0), r.cos_incidence, r.reflectance), cam
+
+
+@pytest.mark.parametrize("sensor, spec", [("kinect1", "torso"), ("realsense", "table")])
+def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, spec, bundle, right):
+    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    with_hand, cam = _scene(right, sensor, "forearm,torso", True)
+    r = tr.track(observe(with_hand, cam, SETTINGS.observe), cam)
+    assert r.status == "reinit" and r.rejected_share < 0.1 and abs(tr.scale_ - 1.0) < 0.04
+    size, calibrations = tr.scale_, list(tr._calibrations)
+    empty, cam = _scene(right, sensor, spec, False)
+    ob = observe(empty, cam, SETTINGS.observe)
+    assert len(ob.points) >= SETTINGS.min_points  # the torso / table was segmented and fitted
+    tr.lost = True  # as after a loss: the next frame is a start
+    r = tr.track(ob, cam)
+    assert r.status == "lost" and np.isnan(r.theta).all() and r.rejected_share > 0.3
+    assert tr.no_hand_ == 1 and tr.scale_ == size and tr._calibrations == calibrations
+    # without the test the same frame is accepted as a hand, of the wrong size if it calibrates
+    loose = HandTracker(right, SETTINGS.replace(no_hand_rejected=0.0), synergies=bundle)
+    r = loose.track(ob, cam)
+    assert r.status == "reinit" and loose.no_hand_ == 0 and abs(loose.scale_ - 1.0) > 0.1
+
+
+def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
+    frames = [_scene(right, "kinect1", spec, in_view) for spec, in_view in
+              (("torso", False), ("forearm,torso", True))]
+    obs = [observe(d, cam, SETTINGS.observe) for d, cam in frames]
+    tr = HandTracker(right, SETTINGS.replace(finger_lengths=False), synergies=bundle)
+    assert tr.calibrate_each(obs, frames[0][1]) == [1]
+    assert tr.no_hand_ == 1 and abs(tr.scale_ - 1.0) < 0.04
+    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    with pytest.raises(TrackerError, match="no hand found in any of the 1 frames"):
+        tr.calibrate_each(obs[:1], frames[0][1])
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.0, float("nan")])
+def test_the_setting_is_a_share(bad):
+    with pytest.raises(TrackerError, match="no_hand_rejected"):
+        HandTracker(HandModel.load(), TrackerSettings(no_hand_rejected=bad))
+
+
+def test_the_papers_method_has_no_such_test():
+    assert TrackerSettings.paper().no_hand_rejected == 0.0 and TrackerSettings().no_hand_rejected == 0.25
+
+
+def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
+    bag = shared("sensor_recordings", RECORDINGS[0])
+    r = CliRunner().invoke(app, ["track", str(bag), "--hand", "right", "--no-check-hand", "--threads", "1",
+                                 "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert "no hand: on 2 frames what was segmented is no hand" in out
+    assert "nothing segmented looks like a hand" in out
+    df, meta = read_tracking(tmp_path / "t.csv")
+    assert (df["status"] == "lost").all() and df["tx"].isna().all()
