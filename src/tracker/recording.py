@@ -231,8 +231,10 @@ class Recording:
                                         f"-o RECORDING")
             inner = [d for d in path.iterdir() if (d / "recording.yaml").is_file()]
             if inner:  # a folder of recordings (tracker import --each): a command takes them one by one
-                raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give them all "
-                                        f"(tracker track {path / '*'} -o RESULTS/) or one of them")
+                raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give one of them, "
+                                        f"or all of them to tracker track ({path / '*'} -o RESULTS/); tracker "
+                                        "calibrate --each takes stills imported as one recording (tracker import "
+                                        "without --each)")
             raise RecordingError(y, "missing (not a recording folder)")
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
@@ -647,6 +649,9 @@ def list_pngs(folder) -> list[Path]:
     """The PNG files directly in ``folder`` (any case of ``.png``, hidden files skipped), natural order."""
     folder = Path(folder)
     if not folder.is_dir():
+        if folder.is_file():
+            raise RecordingError(folder, "is a file, not a folder of depth PNGs (give the folder that holds it, or a "
+                                         "recording file: .bag, .db3, .mcap, .mkv)")
         raise RecordingError(folder, "no such folder")
     return natural_sorted(p for p in folder.iterdir()
                           if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file())

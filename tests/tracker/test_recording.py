@@ -508,7 +508,9 @@ def test_import_each_still_is_its_own_recording(tmp_path):
     assert [len(x) for x in recs] == [1, 1, 1] and {x.handedness for x in recs} == {"right"}
     assert [int(x.depth_units(0)[0, 0]) for x in recs] == [502, 501, 500]  # each its own file's units
     assert sorted(p.name for p in (tmp_path / "stills").iterdir()) == ["f1", "f10", "f2"]
-    with pytest.raises(RecordingError, match=r"stills holds 3 recordings, not one; give them all \(tracker track "):
+    with pytest.raises(RecordingError, match=r"stills holds 3 recordings, not one; give one of them, or all of "
+                                             r"them to tracker track \(.*; tracker calibrate --each takes stills "
+                                             r"imported as one recording \(tracker import without --each\)"):
         Recording.open(tmp_path / "stills")
     # never over anything but recordings; a failure removes what it wrote
     from tracker.recording import import_stills
@@ -557,6 +559,9 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     assert "--camera PRESET" in line
     line = _one_error_line(_cli("import", tmp_path / "nothing", "-o", tmp_path / "r", "--camera", "sr305"))
     assert "no such folder" in line
+    # one PNG given where its folder belongs: said as such, not "no such folder"
+    line = _one_error_line(_cli("import", src / "0.png", "-o", tmp_path / "r", "--camera", "sr305"))
+    assert "0.png: is a file, not a folder of depth PNGs (give the folder that holds it" in line
     line = _one_error_line(_cli("info", tmp_path))
     assert "recording.yaml: missing" in line
     d = _write(tmp_path)
