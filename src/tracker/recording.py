@@ -88,13 +88,14 @@ def natural_sorted(paths) -> list[Path]:
 @dataclass
 class Frame:
     """One frame: ``depth (H, W)`` float32 metres (NaN = no data), ``color (H, W, 3)`` uint8 or None,
-    ``truth (26,)`` θ or None."""
+    ``truth (26,)`` θ or None; ``problem``: why its files could not be read (then ``depth`` is None)."""
 
     index: int
     time_s: float
     depth: np.ndarray
     color: np.ndarray | None = None
     truth: np.ndarray | None = None
+    problem: str = ""
 
 
 # ----------------------------------------------------------------------------- reading
@@ -295,6 +296,16 @@ class Recording:
     def __iter__(self):
         for i in range(len(self)):
             yield self[i]
+
+    def frames_or_problems(self):
+        """The frames as ``for frame in rec`` gives them, except that a frame whose files cannot be read
+        (a PNG cut short, garbage bytes) comes as a :class:`Frame` without depth whose ``problem`` says
+        why, and the frames after it still come: a long run is not lost to one bad file."""
+        for i in range(len(self)):
+            try:
+                yield self[i]
+            except RecordingError as exc:
+                yield Frame(i, i / self.fps, None, problem=str(exc))
 
     def truth_array(self):
         """θ of every frame ``(F, 26)``, or None."""

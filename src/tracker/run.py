@@ -60,13 +60,15 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
     """Track every frame of ``recording`` (anything with ``camera`` that iterates frames with
     ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`HandTracker`).
 
-    A frame without a usable depth image (missing, wrong size) is tracked as empty, so it is lost.
-    ``on_frame(frame, result, observation)`` is called after each frame (``observation`` None for an
-    unusable one): progress, overlays, keypoints. Returns one row per frame (:data:`FRAME_COLUMNS` and
-    the hand's DoF names)."""
+    A frame without a usable depth image (missing, wrong size, or a folder recording's file that
+    cannot be read: :meth:`tracker.recording.Recording.frames_or_problems`, the frame's ``problem``) is
+    tracked as empty, so it is lost. ``on_frame(frame, result, observation)`` is called after each frame
+    (``observation`` None for an unusable one): progress, overlays, keypoints. Returns one row per frame
+    (:data:`FRAME_COLUMNS` and the hand's DoF names)."""
     cam = recording.camera
     rows = []
-    for frame in recording:
+    frames = recording.frames_or_problems() if hasattr(recording, "frames_or_problems") else recording
+    for frame in frames:
         ob = observe_frame(tracker, frame, cam, segmenter)
         r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
         rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used,
@@ -329,7 +331,8 @@ def open_job_recording(job: TrackJob):
 class TrackRun:
     """What :func:`run_job` did: the table and header written, the tracker (its hand size and
     handedness check), the recording, the wall time, the overlay frames written, the Rerun file and
-    warnings (a spawned viewer that went away)."""
+    warnings (a spawned viewer that went away); ``unreadable``: why frames could not be read (each
+    tracked as lost, the outputs written all the same)."""
 
     df: pd.DataFrame
     meta: dict
@@ -339,6 +342,7 @@ class TrackRun:
     overlays: list
     rerun: Path | None = None
     warnings: list = field(default_factory=list)
+    unreadable: list = field(default_factory=list)  # the problems of frames whose files could not be read
 
 
 def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
@@ -367,10 +371,12 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
 
         viewer = RerunLog(cam, job.rerun, spawn=job.rerun_spawn, overwrite=job.overwrite,
                           name=f"tracker {Path(str(job.recording)).name}")
-    written = []
+    written, unreadable = [], []
     calibration_frames, settled = [], [False]
 
     def each(frame, r, ob):
+        if getattr(frame, "problem", ""):
+            unreadable.append(frame.problem)
         if job.save_hand is not None and not settled[0]:
             # the frames tracked until the size was settled, this one included
             calibration_frames.append(frame.index)
@@ -412,7 +418,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         raise
     rrd = viewer.close() if viewer is not None else None
     warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
-    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings)
+    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable)
 
 
 def stale_overlays(folder, written) -> list[Path]:
@@ -524,7 +530,17 @@ def summary_row(job: TrackJob, run: TrackRun | None = None, error: str = "") -> 
         check = run.tracker.hand_check_
         if check is not None:
             row.update(hand_check=str(check), other_hand_better=bool(check.other_fits_better))
+        if run.unreadable and not error:
+            # its output is written (those frames lost), but the recording is damaged: said, not hidden
+            row.update(error=unreadable_text(run.unreadable, len(run.df)))
     return row
+
+
+def unreadable_text(problems, frames) -> str:
+    """One line on a run's unreadable frames: the first one's problem and how many there were."""
+    more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+    return (f"{problems[0]}{more}: {len(problems)} of {frames} frames unreadable, tracked as lost; "
+            "the outputs hold every frame")
 
 
 def run_job_row(job: TrackJob) -> dict:

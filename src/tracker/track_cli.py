@@ -328,6 +328,12 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"wrote {job.save_hand} (the calibrated hand; track on it with --hand-model {job.save_hand})")
     for w in run.warnings:
         console.print(f"warning: {w}")
+    if run.unreadable:
+        from .errors import TrackerError
+        from .run import unreadable_text
+
+        # the outputs are written; the damaged input still ends the command with the error code
+        raise TrackerError(recording, unreadable_text(run.unreadable, len(df)))
 
 
 def _length(source):

@@ -215,3 +215,32 @@ def test_overwrite_leaves_no_overlay_of_an_earlier_run(rec, tmp_path):
     r = _cli(*base, "--overlay-every", "2", "--overwrite")
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in figs.iterdir()) == ["notes.png", "overlay_000000.png", "overlay_best.png"]
+
+
+def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
+    """A frame file cut short in the middle of a recording folder: the frames after it are tracked, the
+    outputs hold every frame (that one lost), and the command then fails naming the file (exit 2);
+    many recordings: its summary row says so."""
+    import shutil
+
+    from tracker.run import read_tracking
+    from tracker.sim.synthesize import synthesize
+
+    rec = tmp_path / "rec"
+    synthesize("open-close", "kinect1", None, rec, frames=3)
+    bad = rec / "depth" / "000001.png"
+    bad.write_bytes(bad.read_bytes()[:300])
+    args = ("--no-check-hand", "--no-safety-net", "--hand-scale", "1", "--threads", "1")
+    r = _cli("track", rec, "-o", tmp_path / "t.csv", "--keypoints", tmp_path / "k.csv", *args)
+    assert r.exit_code == 2, r.output
+    assert "000001.png: unreadable PNG" in r.stderr and "1 of 3 frames unreadable, tracked as lost" in r.stderr
+    df, _ = read_tracking(tmp_path / "t.csv")
+    assert df["status"].tolist()[1] == "lost" and df["status"].tolist()[2] != "lost" and len(df) == 3
+    assert (tmp_path / "k.csv").is_file()
+    other = tmp_path / "other"
+    shutil.copytree(rec, other)
+    r = _cli("track", rec, other, "-o", tmp_path / "many", *args)
+    assert r.exit_code == 2, r.output
+    summary = pd.read_csv(tmp_path / "many" / "summary.csv")
+    assert summary["error"].str.contains("1 of 3 frames unreadable").all()
+    assert (tmp_path / "many" / "rec.csv").is_file() and (tmp_path / "many" / "other.csv").is_file()
