@@ -385,11 +385,12 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     # with …: folded or squeezed by rich, a 100-column terminal left 9 characters a line of it
     numbers = sum(max(len(h), *(len(r[k + 1]) for r in rows)) for k, h in enumerate(heads))
     t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
-    t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=max(12, console.width - numbers - 3 * len(heads) - 4))
+    width = max(12, console.width - numbers - 3 * len(heads) - 4)
+    t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=width)
     for c in heads:
         t.add_column(c, justify="left" if c == "result" else "right", no_wrap=True)
     for r in rows:
-        t.add_row(*r)
+        t.add_row(middle_cut(r[0], width), *r[1:])
     console.print(t)
     for row in table.to_dict("records"):
         if row["other_hand_better"] in (True, "True"):
@@ -400,6 +401,19 @@ def _track_many(recordings, outdir, template, dask, overwrite):
         print_error(err)
     if len(failed):
         raise typer.Exit(2)
+
+
+def middle_cut(name: str, width: int) -> str:
+    """``name`` cut to ``width`` characters in its middle, where recordings of one session share their
+    date (the 19 SR305 stills all read "20210326-23…" cut at the end), keeping its start and its end.
+
+    >>> middle_cut("20210326-230536_110", 12), middle_cut("short", 12)
+    ('202…0536_110', 'short')
+    """
+    if len(name) <= width:
+        return name
+    head = max((width - 1) // 3, 1)
+    return name[:head] + "…" + name[len(name) - (width - 1 - head):]
 
 
 def _segmenter(depth_range, box, forearm):

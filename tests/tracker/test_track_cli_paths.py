@@ -244,3 +244,20 @@ def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
     summary = pd.read_csv(tmp_path / "many" / "summary.csv")
     assert summary["error"].str.contains("1 of 3 frames unreadable").all()
     assert (tmp_path / "many" / "rec.csv").is_file() and (tmp_path / "many" / "other.csv").is_file()
+
+
+def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path):
+    """At 80 columns the names of one session's recordings were cut at the end, all alike
+    ("20210326-23…"); cut in the middle, each keeps the part that tells them apart."""
+    from tracker.sim.synthesize import synthesize
+
+    names = ["20210326-230536_110", "20210326-231615_0"]
+    for name in names:
+        synthesize("open-close", "kinect1", None, tmp_path / name, frames=1)
+    r = _cli("track", *(tmp_path / n for n in names), "-o", tmp_path / "out", "--no-check-hand",
+             "--no-safety-net", "--hand-scale", "1", env={"COLUMNS": "80"})
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert max(map(len, lines)) <= 80
+    firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
+    assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
