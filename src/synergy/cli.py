@@ -117,7 +117,8 @@ def fit(
         if markers:
             read_kw["markers"] = load_markerset(markers, user_markerset_dirs(markersets))
 
-    check_inputs(inputs, fmt)  # a missing, truncated or unreadable file fails before any is converted
+    # a missing, truncated or unreadable file, or one --per-task cannot place, fails before any is converted
+    check_inputs(inputs, fmt, labels=labels if per_task else None)
 
     trials = []
     stats_of = {}

@@ -121,8 +121,10 @@ def _format_of(p: Path, fmt: str) -> str:
     return fmt
 
 
-def check_inputs(paths: Sequence[str | os.PathLike], fmt: str = "auto") -> None:
-    """Fail now, not minutes into the conversion of the others, if one of ``paths`` cannot be read.
+def check_inputs(paths: Sequence[str | os.PathLike], fmt: str = "auto", *, labels: dict | None = None) -> None:
+    """Fail now, not minutes into the conversion of the others, if one of ``paths`` cannot be read
+    or, with ``labels`` (``--per-task``: path → task label or None), one has no task: no label and,
+    for a C3D, no ``task:<label>`` event (:func:`group_by_task`'s error, before the conversion).
 
     Each file must have a known format, exist and open; a C3D file must read as a C3D (header,
     parameters, all the frames it announces: :func:`~synergy.c3d.read_c3d`, a fraction of a second
@@ -148,10 +150,18 @@ def check_inputs(paths: Sequence[str | os.PathLike], fmt: str = "auto") -> None:
                 fh.read(1)
         except OSError as exc:
             raise SynergyError(p, f"cannot read ({exc.strerror or exc})") from None
+        data = None
         if fmt_p == "c3d":
-            read_c3d(p)  # the data are dropped: holding every trial's markers until its turn costs memory
+            data = read_c3d(p)  # the data are dropped: holding every trial's markers until its turn costs memory
         elif fmt_p == "csv":
             check_csv_header(p)
+        if labels is not None and not labels.get(path) and (data is None or not task_from_events(data)):
+            raise _no_task(p)
+
+
+def _no_task(path) -> SynergyError:
+    return SynergyError(path, "--per-task: no task label (give --tasks map.yaml, or files that carry a "
+                              "task:<label> event)")
 
 
 def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
@@ -270,8 +280,7 @@ def group_by_task(trials: Sequence[Trial], name: str, *, per_task: bool = False,
         return {name: list(trials)}
     unlabelled = [tr.path for tr in trials if not tr.task]
     if unlabelled:
-        raise SynergyError(unlabelled[0], "--per-task: no task label (give --tasks map.yaml, or files that "
-                                          "carry a task:<label> event)")
+        raise _no_task(unlabelled[0])
     order = list(order) if order is not None else sorted({tr.task for tr in trials})
     groups = {f"{name}-{t}": [tr for tr in trials if tr.task == t] for t in order}
     return {k: v for k, v in groups.items() if v}

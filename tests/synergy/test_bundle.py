@@ -617,3 +617,17 @@ def test_task_labels_and_per_task_groups(tmp_path):
     assert list(group_by_task(trials, "n", per_task=True)) == ["n-free", "n-grasp"]
     with pytest.raises(SynergyError, match="no task label"):
         group_by_task([*trials, Trial("u.csv", postures(5))], "n", per_task=True)
+
+
+def test_cli_per_task_without_labels_fails_before_converting(csvs, tmp_path, monkeypatch):
+    """--per-task with files that carry no task (no --tasks, no task event) failed only after every
+    file was converted (40 s for two real C3D files): now before the first, naming the file."""
+    import synergy.fit
+
+    converted = []
+    read_trial = synergy.fit.read_trial
+    monkeypatch.setattr(synergy.fit, "read_trial", lambda *a, **k: converted.append(a[0]) or read_trial(*a, **k))
+    r = run("fit", "--angles", *csvs, "--name", "demo", "--per-task", "-o", tmp_path / "reg")
+    assert r.exit_code == 2
+    assert f"{csvs[0]}: --per-task: no task label (give --tasks map.yaml" in " ".join(r.output.split())
+    assert converted == [] and not (tmp_path / "reg").exists()
