@@ -164,19 +164,25 @@ def test_an_output_in_a_folder_that_takes_no_files(rec, tmp_path):
         assert "no such file" not in r.stderr
 
 
-def test_many_recordings_table_keeps_names_on_one_line(tmp_path):
-    """Several recordings: the name column was folded to 9 characters a line (3 lines a name) and the
-    table had no fps; now each name is one line and the table fits 100 columns."""
+def _many_names_table(tmp_path, columns):
+    """The table of ``tracker track`` on two recordings of one session at ``columns`` columns: its lines."""
     from tracker.sim.synthesize import synthesize
 
     names = ["20210326-230536_110", "20210326-231615_0"]
     for name in names:
         synthesize("open-close", "kinect1", None, tmp_path / name, frames=1)
     r = _cli("track", *(tmp_path / n for n in names), "-o", tmp_path / "out", "--no-check-hand",
-             "--no-safety-net", "--hand-scale", "1", env={"COLUMNS": "100"})
+             "--no-safety-net", "--hand-scale", "1", env={"COLUMNS": str(columns)})
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()
-    assert max(map(len, lines)) <= 100
+    assert max(map(len, lines)) <= columns
+    return names, lines
+
+
+def test_many_recordings_table_keeps_names_on_one_line(tmp_path):
+    """Several recordings: the name column was folded to 9 characters a line (3 lines a name) and the
+    table had no fps; now each name is one line and the table fits 100 columns."""
+    names, lines = _many_names_table(tmp_path, 100)
     head = next(line for line in lines if "name" in line)
     assert "fps" in head.split()
     for name in names:
@@ -184,6 +190,14 @@ def test_many_recordings_table_keeps_names_on_one_line(tmp_path):
         cells = [c.strip() for c in row.strip("│").split("│")]
         fps = float(cells[[c.strip() for c in head.strip("┃").split("┃")].index("fps")])
         assert np.isfinite(fps) and fps > 0  # … and its rate
+
+
+def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path):
+    """At 80 columns the names of one session's recordings were cut at the end, all alike
+    ("20210326-23…"); cut in the middle, each keeps the part that tells them apart."""
+    _, lines = _many_names_table(tmp_path, 80)
+    firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
+    assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
 
 
 def test_threads_change_the_time_not_the_result(rec, tmp_path):
@@ -244,20 +258,3 @@ def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
     summary = pd.read_csv(tmp_path / "many" / "summary.csv")
     assert summary["error"].str.contains("1 of 3 frames unreadable").all()
     assert (tmp_path / "many" / "rec.csv").is_file() and (tmp_path / "many" / "other.csv").is_file()
-
-
-def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path):
-    """At 80 columns the names of one session's recordings were cut at the end, all alike
-    ("20210326-23…"); cut in the middle, each keeps the part that tells them apart."""
-    from tracker.sim.synthesize import synthesize
-
-    names = ["20210326-230536_110", "20210326-231615_0"]
-    for name in names:
-        synthesize("open-close", "kinect1", None, tmp_path / name, frames=1)
-    r = _cli("track", *(tmp_path / n for n in names), "-o", tmp_path / "out", "--no-check-hand",
-             "--no-safety-net", "--hand-scale", "1", env={"COLUMNS": "80"})
-    assert r.exit_code == 0, r.output
-    lines = r.stdout.splitlines()
-    assert max(map(len, lines)) <= 80
-    firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
-    assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
