@@ -55,6 +55,7 @@ def track(
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="With --hand-scale auto, also estimate each finger's length once the size is settled [on; paper off]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
+    no_hand: Optional[float] = typer.Option(None, "--no-hand-rejected", help="A start (first frame, after a loss) whose fit rejects more than this share of its points found no hand: the frame is lost, without θ [0.25; 0 = off, as with --paper]."),
     unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it, or keep the hand with --save-hand) [auto; 1 with --paper or a calibrated --hand-model file]."),
     depth_range: Optional[str] = DEPTH_RANGE,
@@ -102,6 +103,10 @@ def track(
         if not 0.0 <= unseen_prior <= 1.0:
             raise TrackerError("--unseen-prior", f"must be within 0..1, got {unseen_prior}")
         settings.unseen_prior = unseen_prior
+    if no_hand is not None:
+        if not 0.0 <= no_hand < 1.0:
+            raise TrackerError("--no-hand-rejected", f"must be a share in [0, 1) (0 = off), got {no_hand}")
+        settings.no_hand_rejected = no_hand
     if threads is not None or dask is not None:
         # Dask's workers already run recordings side by side
         settings = settings.replace(init_threads=1 if threads is None else threads)

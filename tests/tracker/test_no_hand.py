@@ -119,3 +119,15 @@ def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
     assert "nothing segmented looks like a hand" in out
     df, meta = read_tracking(tmp_path / "t.csv")
     assert (df["status"] == "lost").all() and df["tx"].isna().all()
+
+
+def test_cli_option_turns_the_test_off_or_is_refused(tmp_path):
+    bag = shared("sensor_recordings", RECORDINGS[0])
+    base = ["track", str(bag), "--hand", "right", "--no-check-hand", "--threads", "1"]
+    r = CliRunner().invoke(app, [*base, "--no-hand-rejected", "0", "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0, r.output
+    df, _ = read_tracking(tmp_path / "t.csv")
+    assert (df["status"] != "lost").all() and "no hand:" not in r.output  # the wall fitted as a hand again
+    r = CliRunner().invoke(app, [*base, "--no-hand-rejected", "1", "-o", str(tmp_path / "u.csv")])
+    assert r.exit_code == 2 and "--no-hand-rejected: must be a share in [0, 1)" in r.output
+    assert not (tmp_path / "u.csv").exists()
