@@ -235,8 +235,8 @@ def calibrate(
 
 def angles(
     files: List[Path] = typer.Argument(..., help="C3D trials."),
-    markers: str = typer.Option(..., "--markers", help="Marker set name or YAML file."),
-    hand: str = typer.Option("left", "--hand", help="left or right."),
+    markers: Optional[str] = typer.Option(None, "--markers", help="Marker set name or YAML file [chosen from each trial's labels, as synergy fit]."),
+    hand: Optional[str] = typer.Option(None, "--hand", help="left or right [from the labels, else the hand whose fit explains the markers, as synergy fit]."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: one CSV per trial (never overwritten)."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="Low-pass the markers (Hz) before IK."),
     subject: Optional[Path] = typer.Option(None, "--subject", help="Subject calibration from 'synergy calibrate'."),
@@ -260,12 +260,15 @@ def angles(
     from synergy.c3d import read_c3d
     from synergy.calibrate import calibrate as run, load_calibration
     from synergy.errors import SynergyError
+    from synergy.fit import _choose
     from synergy.markers import load_markerset
 
     if dip_prior_sd is not None and not dip_prior_sd >= 0:
         raise SynergyError("--dip-prior-sd", f"must be 0 (off) or a positive SD in degrees, got {dip_prior_sd}")
+    if hand is not None and hand not in ("left", "right"):
+        raise SynergyError("--hand", f"must be left or right, got {hand!r}")
     coupling = {} if dip_prior_sd is None else {"ip_coupling_sd_deg": dip_prior_sd or None}
-    ms = load_markerset(markers)
+    ms = load_markerset(markers) if markers is not None else None
     targets = [(f, out / f"{f.stem}.csv") for f in files]
     for f, dst in targets:
         if dst.exists():
@@ -278,10 +281,13 @@ def angles(
     elif subject is not None:
         cal = load_calibration(subject)
     elif static is not None:
-        cal = run(read_c3d(static), ms.for_hand(hand), HandModel.load(ms.hand_model, right=hand == "right"),
+        # the static trial decides the set and hand of every trial it calibrates
+        sdata = read_c3d(static)
+        ms, hand, _ = _choose(sdata, static, ms, hand, None, not no_hand_check, None)
+        cal = run(sdata, ms.for_hand(hand), HandModel.load(ms.hand_model, right=hand == "right"),
                   right=hand == "right", subject=False)
         cal.source = str(static)
-    rows, notes = [], []
+    rows, notes, chosen = [], [], set()
     failed = []
     with Progress(console=_console(stderr=True), transient=True) as progress:
         bar = progress.add_task("converting", total=len(files))
@@ -289,8 +295,11 @@ def angles(
             progress.update(bar, description=f"{f.name}")
             try:
                 data = read_c3d(f)
+                # as synergy fit reads it: the set the labels fit, the hand they name or whose fit explains them
+                ms_f, hand_f, _ = _choose(data, f, ms, hand, cal, not no_hand_check, None)
+                chosen.add((ms_f.name, hand_f))
                 t0 = time.perf_counter()
-                df = markers_to_angles(data, ms, hand=hand, calibration=cal, smooth_hz=smooth_hz,
+                df = markers_to_angles(data, ms_f, hand=hand_f, calibration=cal, smooth_hz=smooth_hz,
                                        check_hand=None if no_hand_check else "stop", **coupling)
                 dt = time.perf_counter() - t0
                 write_angles_csv(df, dst)
@@ -308,8 +317,11 @@ def angles(
             notes += describe_trial(f.name, df)
             progress.advance(bar)
     con = _console()
-    con.print(fit_table(f"marker IK ({ms.name}, {hand} hand; marker residuals) → {out}",
-                        ("trial", "frames", "gap %", "med mm", "95th mm", "ok %", "verdict", "frames/s"), rows))
+    if rows:  # every trial failed: only their errors, no empty table headed by a guess
+        sets = "/".join(sorted({m for m, _ in chosen}))
+        hands = "/".join(sorted({h for _, h in chosen}))
+        con.print(fit_table(f"marker IK ({sets}, {hands} hand; marker residuals) → {out}",
+                            ("trial", "frames", "gap %", "med mm", "95th mm", "ok %", "verdict", "frames/s"), rows))
     for line in notes:
         con.print(line)
     if failed:

@@ -47,6 +47,27 @@ def test_angles_command_writes_tables_and_refuses_overwrite(mocap, tmp_path):
     assert r.exit_code == 2 and "never overwritten" in r.output
 
 
+def test_angles_chooses_the_marker_set_and_hand_as_fit_does(mocap, tmp_path):
+    """Without --markers and --hand, angles reads a trial with the set its labels fit and the hand they
+    name, as synergy fit does (it required --markers and took the left hand: the real DFKI glove trial
+    stopped with 'the right hand fits these markers better')."""
+    from pathlib import Path
+
+    from synergy.fit import _choose
+
+    f = mocap / "power_grasp_01.c3d"
+    ms, hand, rep = _choose(read_c3d(f), Path(f), None, None, "trial", True, None)
+    r = runner.invoke(app, ["angles", str(f), "-o", str(tmp_path / "auto")])
+    assert r.exit_code == 0, r.output
+    assert f"marker IK ({ms.name}, {hand} hand;" in r.output
+    r = runner.invoke(app, ["angles", str(f), "--markers", ms.name, "--hand", hand, "-o", str(tmp_path / "given")])
+    assert r.exit_code == 0, r.output
+    auto, given = read_angles_csv(tmp_path / "auto" / f"{f.stem}.csv"), read_angles_csv(tmp_path / "given" / f"{f.stem}.csv")
+    pd.testing.assert_frame_equal(auto, given)
+    r = runner.invoke(app, ["angles", str(f), "--hand", "both", "-o", str(tmp_path / "bad")])
+    assert r.exit_code == 2 and "--hand: must be left or right" in r.output
+
+
 def test_angles_table_keeps_each_trial_on_one_line_at_100_columns(mocap, tmp_path):
     # a folded name took 3 lines of the table; each trial is one line now, and a name too long for its
     # column keeps its start and its distinguishing end; the file written keeps the full path
