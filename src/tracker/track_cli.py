@@ -249,6 +249,8 @@ def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, dampi
     # before the synergy bundle a mode needs: a typo must not read as a missing --synergies
     if mode not in MODES:
         raise TrackerError("--mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {mode!r}")
+    if not pcs and not 0.0 < variance < 1.0:  # the option's own name, not the PCA's n_components
+        raise TrackerError("--variance", f"must be a fraction in (0, 1), got {variance}")
     given = dict(stride=stride, smooth=smooth, target_points=None if points == 0 else points,
                  icp_iterations=icp, gn_iterations=gn, damping=damping, model=model, silhouette_weight=silhouette,
                  prediction=prediction, robust_mm=robust, finger_search=finger_search, projected_steps=projected_steps)
