@@ -167,7 +167,7 @@ def import_(
                                                 help="Metres per stored depth unit (default 0.001 = mm)."),
     depth_encoding: Optional[str] = typer.Option(None, "--depth-encoding",
                                                  help="uint16 (16-bit PNG) or nyu_rgb (G·256+B of an RGB PNG)."),
-    fps: float = typer.Option(30.0, "--fps", help="Frame rate (Hz)."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="Frame rate (Hz) of a folder of PNGs, whose names carry no times [30]."),
     hand: str = typer.Option("left", "--hand", "--handedness", help="Handedness of the recorded hand: left or right."),
     color: Optional[Path] = typer.Option(None, "--color", "--colour", help="Folder of colour frames registered to the depth (PNG or JPEG, one per depth PNG, same name order): used for skin segmentation."),
     each: bool = typer.Option(False, "--each", help="Still frames, not a video: one recording per PNG, "
@@ -196,7 +196,7 @@ def import_(
         given = [o for o, v in (("--camera", camera), ("--fx", fx), ("--fy", fy), ("--cx", cx), ("--cy", cy),
                                 ("--width", width), ("--height", height), ("--depth-scale", depth_scale),
                                 ("--depth-encoding", depth_encoding), ("--color", color),
-                                ("--fps", None if fps == 30.0 else fps), ("--each", each or None)) if v is not None]
+                                ("--fps", fps), ("--each", each or None)) if v is not None]
         if given:
             raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera, "
                                     "frame rate and colour")
@@ -213,6 +213,7 @@ def import_(
         raise TrackerError(src, f"{', '.join(given)} apply to recording files (.bag, .db3, .mcap, .mkv), "
                                 "not to a folder of PNGs")
     cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
+    fps_given, fps = fps is not None, 30.0 if fps is None else fps
     if each:
         from .recording import import_stills
 
@@ -227,6 +228,9 @@ def import_(
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
                           progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
     _imported(src, output, rec, time.perf_counter() - t0)
+    if not fps_given:
+        # PNG names carry no times: the rate is the option's (the SR305 stills lie ~0.7 s apart)
+        _print(f"note: {rec.fps:g} fps assumed (PNG files carry no frame times; give --fps to set it)")
 
 
 def _imported(src, output, rec, seconds):

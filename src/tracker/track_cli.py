@@ -328,7 +328,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     if keypoints is not None:
         console.print(f"wrote {keypoints}")
     if overlay is not None:
-        console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
+        console.print(f"wrote {len(run.overlays)} overlay{'s' * (len(run.overlays) != 1)} to {overlay}")
     if run.rerun is not None:
         console.print(f"wrote {run.rerun}")
     if job.save_hand is not None:
@@ -656,7 +656,7 @@ def live(
         if p is not None:
             console.print(f"wrote {p}")
     if overlay is not None:
-        console.print(f"wrote {len(run.overlays)} overlays to {overlay}")
+        console.print(f"wrote {len(run.overlays)} overlay{'s' * (len(run.overlays) != 1)} to {overlay}")
     for w in run.warnings:
         console.print(f"warning: {w}")
 
