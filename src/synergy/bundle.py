@@ -51,7 +51,7 @@ if TYPE_CHECKING:  # the annotations only; see read_bundle
 __all__ = [
     "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
     "check_new_bundle", "manifest_sha256", "next_version", "read_bundle", "registry_paths", "save_bundle",
-    "select_bundle", "target_registry",
+    "ranked_bundles", "select_bundle", "selection_key", "target_registry",
 ]
 
 #: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
@@ -480,10 +480,22 @@ def load_bundle(spec: str | os.PathLike, registries: Sequence[str | os.PathLike]
 
 
 def select_bundle(task: str, registries: Sequence[str | os.PathLike] | None = None) -> Bundle:
-    """The bundle for ``task``: labelled with it, fewest tasks (most specific), then most samples.
+    """The bundle for ``task``: labelled with it, fewest tasks (most specific), then most samples, then
+    the name (:func:`ranked_bundles`' first).
 
     Only the highest version of each name counts; unreadable bundles are passed over.
     """
+    return ranked_bundles(task, registries)[0]
+
+
+def selection_key(b: Bundle) -> tuple:
+    """How :func:`select_bundle` ranks the bundles of a task: fewest tasks, most samples, then name."""
+    return (len(b.tasks), -b.manifest["n_samples"], b.name)
+
+
+def ranked_bundles(task: str, registries: Sequence[str | os.PathLike] | None = None) -> list[Bundle]:
+    """Every bundle labelled with ``task`` (the highest version of each name), best first by
+    :func:`selection_key`; a task no bundle carries is an error naming the tasks there are."""
     latest: dict[str, BundleRef] = {}
     for r in list_bundles(registries):
         if r.name not in latest or r.version_key > latest[r.name].version_key:
@@ -501,4 +513,4 @@ def select_bundle(task: str, registries: Sequence[str | os.PathLike] | None = No
         raise BundleError(
             f"task {task}", f"no bundle is labelled with this task (tasks: {', '.join(sorted(known)) or 'none'})"
         )
-    return min(cands, key=lambda b: (len(b.tasks), -b.manifest["n_samples"], b.name))
+    return sorted(cands, key=selection_key)

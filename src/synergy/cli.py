@@ -292,13 +292,20 @@ def select(
     """Which bundle serves a task, and how many PCs reach the variance."""
     import numpy as np
 
-    from synergy.bundle import select_bundle
+    from synergy.bundle import ranked_bundles, selection_key
 
     _check_variance(variance)
-    b = select_bundle(task, registry)
+    ranked = ranked_bundles(task, registry)
+    b = ranked[0]
     k = b.model.n_components_for(variance)
     got = float(np.cumsum(b.model.all_explained_variance_ratio_)[k - 1])
-    typer.echo(f"{b.spec}\t{k} PCs ({_pct(got)} variance)\t{b.path}")
+    typer.echo(f"{b.spec}\t{k} PC{'s' * (k != 1)} ({_pct(got)} variance)\t{b.path}")
+    tied = [o.spec for o in ranked[1:] if selection_key(o)[:2] == selection_key(b)[:2]]
+    if tied:
+        # the name broke the tie: say so, the choice is the user's to make with NAME
+        _console(stderr=True).print(f"note: {b.spec} ties with {', '.join(tied)} ({len(b.tasks)} task"
+                                    f"{'s' * (len(b.tasks) != 1)}, {b.manifest['n_samples']} samples each): "
+                                    "chosen by name; give the bundle by name to choose another")
 
 
 @app.command()

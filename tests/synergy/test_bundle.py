@@ -379,6 +379,15 @@ def test_select_prefers_specific_bundle(model, reg):
     assert select_bundle("sign", [reg]).name == "all"
     with pytest.raises(BundleError, match="tasks: general, grasp, sign"):
         select_bundle("juggle", [reg])
+    # a tie on tasks and samples goes to the name, and the command says it broke one
+    save_bundle(model, "a-grasp", registry=reg, tasks=["grasp"])
+    assert select_bundle("grasp", [reg]).name == "a-grasp"
+    r = run("select", "--task", "grasp", "-r", reg)
+    assert r.exit_code == 0 and r.stdout.startswith("a-grasp@1.0.0\t")
+    note = " ".join(r.stderr.split())
+    assert "note: a-grasp@1.0.0 ties with grasp-only@1.0.0 (1 task," in note and "chosen by name" in note
+    r = run("select", "--task", "sign", "-r", reg)
+    assert r.exit_code == 0 and r.stderr == ""
 
 
 # ----------------------------------------------------------------------------- readers
