@@ -29,7 +29,7 @@ def track(
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable); SYNERGY_PATH and the shipped bundles follow."),
     mode: str = typer.Option("full", "--mode", help="full, reduced or hierarchical."),
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
-    variance: float = typer.Option(0.99, "--variance", help="…or the variance the PCs must explain."),
+    variance: Optional[float] = typer.Option(None, "--variance", help="…or the variance the PCs must explain [0.99]."),
     output: Path = typer.Option(..., "-o", "--output", help="Output CSV (one row per frame); with several recordings (or --dask) a folder: NAME.csv per recording and summary.csv."),
     keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Also write the 21 keypoints per frame (CSV, mm)."),
     overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
@@ -249,6 +249,9 @@ def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, dampi
     # before the synergy bundle a mode needs: a typo must not read as a missing --synergies
     if mode not in MODES:
         raise TrackerError("--mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {mode!r}")
+    if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
+        raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
+    variance = 0.99 if variance is None else variance
     if not pcs and not 0.0 < variance < 1.0:  # the option's own name, not the PCA's n_components
         raise TrackerError("--variance", f"must be a fraction in (0, 1), got {variance}")
     given = dict(stride=stride, smooth=smooth, target_points=None if points == 0 else points,
@@ -565,7 +568,7 @@ def live(
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
     mode: str = typer.Option("full", "--mode", help="full, reduced or hierarchical."),
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
-    variance: float = typer.Option(0.99, "--variance", help="…or the variance the PCs must explain."),
+    variance: Optional[float] = typer.Option(None, "--variance", help="…or the variance the PCs must explain [0.99]."),
     paper: bool = typer.Option(False, "--paper", help="The paper's method (as tracker track --paper)."),
     hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),

@@ -154,6 +154,9 @@ def test_an_invalid_mode_is_named_before_the_synergies(rec, tmp_path):
     # a variance out of range is named as the option, not as the PCA's n_components
     r = _cli("track", rec, "--mode", "reduced", "-s", "fingerfist", "--variance", "1.5", "-o", tmp_path / "t.csv")
     assert r.stderr == "error: --variance: must be a fraction in (0, 1), got 1.5\n" and r.exit_code == 2, r.output
+    r = _cli("track", rec, "--mode", "reduced", "-s", "fingerfist", "--pcs", "3", "--variance", "0.5", "-o",
+             tmp_path / "t.csv")
+    assert r.stderr == "error: --pcs: give --pcs or --variance, not both (got 3 and 0.5)\n" and r.exit_code == 2
     assert not (tmp_path / "t.csv").exists()
 
 
