@@ -132,7 +132,9 @@ class TrackerSettings:
     frames with the size calibrated: right fits reject at most 15 % (19 labelled SR305 stills,
     2–15 %; 72 rendered realistic frames, ≤ 6 %), fits to frames without a hand 32–36 % (the real
     RealSense D435 and Azure Kinect recordings, three frames) and 39–71 % (rendered torso or table
-    alone); a box the size of a hand is fitted (6–19 %).
+    alone); a box the size of a hand is fitted (6–19 %). A start needs ``start_min_points`` points too
+    (0 = off; a tracked frame needs ``min_points``): right first frames have 606–2288 (rendered) and
+    689–1403 (the stills); a hand the ``--box`` cut to 35 points was fitted at 0.47 mm, outside the box.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
     fingers point up the arm never wins. ``rgb_seed``: frames given with their colour image start
@@ -171,6 +173,7 @@ class TrackerSettings:
     net_far_share: float = 0.1
     net_far_mm: float = 15.0
     no_hand_rejected: float = 0.25
+    start_min_points: int = 150
     unseen_prior: float = 0.5
     unseen_points: int = 3
     finger_restart_deg: float = 50.0
@@ -195,7 +198,7 @@ class TrackerSettings:
                                    stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
                    hand_scale=1.0, finger_lengths=False, unseen_prior=0.0, finger_restart_deg=0.0,
-                   no_hand_rejected=0.0)
+                   no_hand_rejected=0.0, start_min_points=0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -232,6 +235,8 @@ class TrackerSettings:
             raise TrackerError("settings", f"scale_refine must be 'search' or 'local', got {self.scale_refine!r}")
         if self.observe.stride < 1:
             raise TrackerError("settings", "stride must be positive")
+        if self.start_min_points < 0:
+            raise TrackerError("settings", f"start_min_points must be ≥ 0 (0 = off), got {self.start_min_points!r}")
         if not 0.0 <= self.no_hand_rejected < 1.0:
             raise TrackerError("settings", f"no_hand_rejected must be in [0, 1), got {self.no_hand_rejected!r}")
         self.correspond.check()
@@ -354,7 +359,8 @@ class HandTracker:
         from the tracked pose and from placements
     recentred_ : how often the prediction was moved onto the cloud
     unseen_frames_ : the frames on which joints without data were pulled (``unseen_prior``)
-    no_hand_ : the frames whose start found no hand (``no_hand_rejected``)
+    no_hand_ : the frames whose start found no hand (``no_hand_rejected``, ``start_min_points``);
+        too_few_ : those of them with fewer than ``start_min_points`` points
     rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
         instead of MediaPipe), else None; rgb_seeds_ : the searches it seeded; rgb_kept_ : how often
         the seed refined alone beat the search
@@ -388,7 +394,7 @@ class HandTracker:
         # the synergy model's joint covariance and which parts each posture DoF moves (unseen_prior)
         self._unseen = _unseen_parts(hand, synergies)
         self.unseen_frames_ = 0
-        self.no_hand_ = 0
+        self.no_hand_, self.too_few_ = 0, 0
         self.reset()
 
     def context_for(self, scale):
@@ -478,12 +484,14 @@ class HandTracker:
         return bool(limit) and len(corr.valid) > 0 and 1.0 - float(corr.valid.mean()) > limit
 
     def _no_hand(self, corr, n_in, t0) -> FrameResult:
-        """A frame whose start found no hand (``corr``: its fit's pairs): lost, no θ, the tracker's
-        state as before it."""
+        """A frame whose start found no hand (``corr``: its fit's pairs, None when it had too few points
+        to fit): lost, no θ, the tracker's state as before it."""
         self.lost = True
         self.no_hand_ += 1
+        self.too_few_ += corr is None
+        rejected = 1.0 if corr is None else 1.0 - float(corr.valid.mean())
         return FrameResult(np.full(self.hand.n_dofs, np.nan), "lost", float("nan"), 0, n_in,
-                           (time.perf_counter() - t0) * 1e3, 1.0 - float(corr.valid.mean()))
+                           (time.perf_counter() - t0) * 1e3, rejected)
 
     def _refine_scale(self, pts, nrm, sil):
         """One more frame's size estimate; the size becomes the median of the estimates so far, θ
@@ -624,6 +632,10 @@ class HandTracker:
             th = np.array(self.theta, float) if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
             th[3:6] = wrapped_angles(th[3:6])
             return FrameResult(th, "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
+        starting = (st.hand_scale == "auto" and (self.scale_ is None or self._scale_open)) or self.lost or self.theta is None
+        if starting and n_in < st.start_min_points:
+            # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything
+            return self._no_hand(None, n_in, t0)
         if self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open):
             self._add_wrist(sil)
             theta, corr, found = self._calibrate(pts, nrm, sil)

@@ -299,10 +299,14 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
     if tracker.no_hand_:
-        # what was segmented was fitted, but left too much unexplained to be a hand (TrackerSettings.no_hand_rejected)
+        # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
+        # (TrackerSettings.start_min_points, no_hand_rejected)
+        st, few = tracker.settings, tracker.too_few_
+        why = [f"{few} with fewer than {st.start_min_points} points to start from"] if few else []
+        if tracker.no_hand_ > few:
+            why.append(f"{tracker.no_hand_ - few} whose fit rejected more than {st.no_hand_rejected:.0%} of the points")
         console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "
-                      f"hand (its fit rejected more than {tracker.settings.no_hand_rejected:.0%} of the points); "
-                      "those frames are lost, without θ")
+                      f"hand ({'; '.join(why)}); those frames are lost, without θ")
     if len(df) and not found.any():
         why = ("nothing segmented looks like a hand" if tracker.no_hand_
                else "nothing segmented where a hand can be")

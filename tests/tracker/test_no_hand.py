@@ -115,7 +115,7 @@ def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
                                  "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
-    assert "no hand: on 2 frames what was segmented is no hand" in out
+    assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 25% of the points)" in out
     assert "nothing segmented looks like a hand" in out
     df, meta = read_tracking(tmp_path / "t.csv")
     assert (df["status"] == "lost").all() and df["tx"].isna().all()
@@ -131,3 +131,25 @@ def test_cli_option_turns_the_test_off_or_is_refused(tmp_path):
     r = CliRunner().invoke(app, [*base, "--no-hand-rejected", "1", "-o", str(tmp_path / "u.csv")])
     assert r.exit_code == 2 and "--no-hand-rejected: must be a share in [0, 1)" in r.output
     assert not (tmp_path / "u.csv").exists()
+
+
+def test_a_start_needs_enough_points(right, bundle):
+    """A start on a few dozen points fits 26 DoF to anything (a hand the --box cut to 35 points came out
+    at 0.47 mm, outside the box): below start_min_points it is no hand; tracked frames keep min_points."""
+    depth, cam = _scene(right, "kinect1", "forearm,torso", True)
+    ob = observe(depth, cam, SETTINGS.observe)
+    assert len(ob.points) >= 600  # a whole hand: 606–2288 points on the rendered first frames
+    few = ob.points[:: max(len(ob.points) // 100, 1)][:100]
+    settings = SETTINGS.replace(hand_scale=1.0)
+    tr = HandTracker(right, settings, synergies=bundle)
+    r = tr.step(few)
+    assert r.status == "lost" and np.isnan(r.theta).all() and tr.no_hand_ == tr.too_few_ == 1 and r.points_in == 100
+    assert tr.step(few).status == "lost"  # still a start
+    r = HandTracker(right, settings.replace(start_min_points=0), synergies=bundle).step(few)
+    assert r.status == "reinit"  # fitted, as before the test
+    r = tr.step(ob.points, normals=ob.normals)
+    assert r.status == "reinit" and not tr.lost  # a hand found: a tracked frame is no start
+    r = tr.step(few)
+    assert tr.no_hand_ == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
+    with pytest.raises(TrackerError, match="start_min_points"):
+        HandTracker(right, TrackerSettings(start_min_points=-1))
