@@ -132,9 +132,10 @@ class TrackerSettings:
     frames with the size calibrated: right fits reject at most 15 % (19 labelled SR305 stills,
     2–15 %; 72 rendered realistic frames, ≤ 6 %), fits to frames without a hand 32–36 % (the real
     RealSense D435 and Azure Kinect recordings, three frames) and 39–71 % (rendered torso or table
-    alone); a box the size of a hand is fitted (6–19 %). A start needs ``start_min_points`` points too
-    (0 = off; a tracked frame needs ``min_points``): right first frames have 606–2288 (rendered) and
-    689–1403 (the stills); a hand the ``--box`` cut to 35 points was fitted at 0.47 mm, outside the box.
+    alone); a box the size of a hand is fitted (6–19 %). A start needs a segmented region of
+    ``start_min_pixels`` pixels too (its points when no mask is given; 0 = off; a tracked frame needs
+    ``min_points``): right first frames have 1171–8270 mask pixels (rendered) and 6210–12550 (the
+    stills); a hand the ``--box`` cut to 35 pixels was fitted at 0.47 mm, outside the box.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
     fingers point up the arm never wins. ``rgb_seed``: frames given with their colour image start
@@ -173,7 +174,7 @@ class TrackerSettings:
     net_far_share: float = 0.1
     net_far_mm: float = 15.0
     no_hand_rejected: float = 0.25
-    start_min_points: int = 150
+    start_min_pixels: int = 150
     unseen_prior: float = 0.5
     unseen_points: int = 3
     finger_restart_deg: float = 50.0
@@ -198,7 +199,7 @@ class TrackerSettings:
                                    stages_per_pass=1),
                    init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
                    hand_scale=1.0, finger_lengths=False, unseen_prior=0.0, finger_restart_deg=0.0,
-                   no_hand_rejected=0.0, start_min_points=0)
+                   no_hand_rejected=0.0, start_min_pixels=0)
         return base.replace(**changes)
 
     def replace(self, **changes) -> "TrackerSettings":
@@ -235,8 +236,8 @@ class TrackerSettings:
             raise TrackerError("settings", f"scale_refine must be 'search' or 'local', got {self.scale_refine!r}")
         if self.observe.stride < 1:
             raise TrackerError("settings", "stride must be positive")
-        if self.start_min_points < 0:
-            raise TrackerError("settings", f"start_min_points must be ≥ 0 (0 = off), got {self.start_min_points!r}")
+        if self.start_min_pixels < 0:
+            raise TrackerError("settings", f"start_min_pixels must be ≥ 0 (0 = off), got {self.start_min_pixels!r}")
         if not 0.0 <= self.no_hand_rejected < 1.0:
             raise TrackerError("settings", f"no_hand_rejected must be in [0, 1), got {self.no_hand_rejected!r}")
         self.correspond.check()
@@ -359,8 +360,8 @@ class HandTracker:
         from the tracked pose and from placements
     recentred_ : how often the prediction was moved onto the cloud
     unseen_frames_ : the frames on which joints without data were pulled (``unseen_prior``)
-    no_hand_ : the frames whose start found no hand (``no_hand_rejected``, ``start_min_points``);
-        too_few_ : those of them with fewer than ``start_min_points`` points
+    no_hand_ : the frames whose start found no hand (``no_hand_rejected``, ``start_min_pixels``);
+        too_few_ : those of them with a region of fewer than ``start_min_pixels`` pixels
     rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
         instead of MediaPipe), else None; rgb_seeds_ : the searches it seeded; rgb_kept_ : how often
         the seed refined alone beat the search
@@ -633,9 +634,12 @@ class HandTracker:
             th[3:6] = wrapped_angles(th[3:6])
             return FrameResult(th, "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
         starting = (st.hand_scale == "auto" and (self.scale_ is None or self._scale_open)) or self.lost or self.theta is None
-        if starting and n_in < st.start_min_points:
-            # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything
-            return self._no_hand(None, n_in, t0)
+        if starting and st.start_min_pixels:
+            # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything.
+            # The region's pixels, not its points: a coarse stride (Fig. 9's 1/36) samples a whole hand sparsely
+            region = n_in if sil is None or sil.empty else int(np.count_nonzero(sil.mask))
+            if region < st.start_min_pixels:
+                return self._no_hand(None, n_in, t0)
         if self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open):
             self._add_wrist(sil)
             theta, corr, found = self._calibrate(pts, nrm, sil)

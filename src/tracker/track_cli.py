@@ -300,9 +300,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     console.print(table)
     if tracker.no_hand_:
         # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
-        # (TrackerSettings.start_min_points, no_hand_rejected)
+        # (TrackerSettings.start_min_pixels, no_hand_rejected)
         st, few = tracker.settings, tracker.too_few_
-        why = [f"{few} with fewer than {st.start_min_points} points to start from"] if few else []
+        why = [f"{few} with fewer than {st.start_min_pixels} pixels to start from"] if few else []
         if tracker.no_hand_ > few:
             why.append(f"{tracker.no_hand_ - few} whose fit rejected more than {st.no_hand_rejected:.0%} of the points")
         console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "

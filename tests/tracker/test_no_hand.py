@@ -135,7 +135,7 @@ def test_cli_option_turns_the_test_off_or_is_refused(tmp_path):
 
 def test_a_start_needs_enough_points(right, bundle):
     """A start on a few dozen points fits 26 DoF to anything (a hand the --box cut to 35 points came out
-    at 0.47 mm, outside the box): below start_min_points it is no hand; tracked frames keep min_points."""
+    at 0.47 mm, outside the box): below start_min_pixels it is no hand; tracked frames keep min_points."""
     depth, cam = _scene(right, "kinect1", "forearm,torso", True)
     ob = observe(depth, cam, SETTINGS.observe)
     assert len(ob.points) >= 600  # a whole hand: 606–2288 points on the rendered first frames
@@ -145,11 +145,11 @@ def test_a_start_needs_enough_points(right, bundle):
     r = tr.step(few)
     assert r.status == "lost" and np.isnan(r.theta).all() and tr.no_hand_ == tr.too_few_ == 1 and r.points_in == 100
     assert tr.step(few).status == "lost"  # still a start
-    r = HandTracker(right, settings.replace(start_min_points=0), synergies=bundle).step(few)
+    r = HandTracker(right, settings.replace(start_min_pixels=0), synergies=bundle).step(few)
     assert r.status == "reinit"  # fitted, as before the test
     r = tr.step(ob.points, normals=ob.normals)
     assert r.status == "reinit" and not tr.lost  # a hand found: a tracked frame is no start
     r = tr.step(few)
     assert tr.no_hand_ == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
-    with pytest.raises(TrackerError, match="start_min_points"):
-        HandTracker(right, TrackerSettings(start_min_points=-1))
+    with pytest.raises(TrackerError, match="start_min_pixels"):
+        HandTracker(right, TrackerSettings(start_min_pixels=-1))
