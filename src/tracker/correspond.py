@@ -60,6 +60,11 @@ class Correspondences:
     def used(self) -> int:
         return int(self.valid.sum())
 
+    @property
+    def rejected_share(self) -> float:
+        """The share of the points without a valid pair (1 when there are none)."""
+        return 1.0 - float(self.valid.mean()) if len(self.valid) else 1.0
+
     def fit_error_mm(self) -> float:
         return float(np.mean(self.distance[self.valid]) * 1000.0) if self.valid.any() else float("inf")
 

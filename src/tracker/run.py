@@ -384,7 +384,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         if overlay is not None and ob is not None and frame.index % max(job.overlay_every, 1) == 0:
             # the title says which frame and how well it fits, so an overlay is judged on its own
             fit = f", fit {r.fit_mm:.1f} mm" if np.isfinite(r.fit_mm) else ""
-            overlay_png(overlay / f"overlay_{frame.index:06d}.png", frame.depth, cam, tracker.hand, r.theta,
+            overlay_png(overlay / overlay_name(frame.index), frame.depth, cam, tracker.hand, r.theta,
                         f"frame {frame.index} ({frame.time_s:.2f} s): {r.status}{fit}", mask=ob.mask)
             written.append(frame.index)
         if viewer is not None:
@@ -421,12 +421,17 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable)
 
 
+def overlay_name(index: int) -> str:
+    """The file name of frame ``index``'s overlay PNG."""
+    return f"overlay_{index:06d}.png"
+
+
 def stale_overlays(folder, written) -> list[Path]:
-    """Remove the overlay PNGs (``overlay_NNNNNN.png``) in ``folder`` of frames not in ``written`` (an
+    """Remove the overlay PNGs (:func:`overlay_name`) in ``folder`` of frames not in ``written`` (an
     earlier run's, left by ``--overwrite``); returns them. Other files are left alone."""
-    keep = {f"overlay_{i:06d}.png" for i in written}
+    keep = {overlay_name(i) for i in written}
     gone = [p for p in sorted(Path(folder).glob("overlay_*.png"))
-            if p.name not in keep and p.stem[8:].isdigit() and len(p.stem) == 14 and p.is_file()]
+            if p.name not in keep and p.stem[8:].isdigit() and p.name == overlay_name(int(p.stem[8:])) and p.is_file()]
     for p in gone:
         p.unlink()
     return gone

@@ -312,6 +312,14 @@ class FrameResult:
     net: str = ""               # the safety net on this frame: "" (not run), "kept" or "replaced"
 
 
+def _output_theta(theta) -> np.ndarray:
+    """A copy of θ as a frame's result gives it: the global rotation in [−π, π) (the tracker's own θ
+    keeps its turns: its fits start from it)."""
+    out = np.array(theta, float)
+    out[3:6] = wrapped_angles(out[3:6])
+    return out
+
+
 def fit_context(hand, settings: TrackerSettings, synergies=None):
     """The parts of every fit of ``hand`` (:class:`tracker.init.FitContext`) and the number of PCs."""
     lim = np.array(hand.limits, float)
@@ -459,8 +467,7 @@ class HandTracker:
                                          scale_range=st.scale_range)
         if self._found_nothing(corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
-            keep = 1.0 if self.scale_ is None else round(float(self.scale_), 5)
-            self._contexts = {k: v for k, v in self._contexts.items() if k == keep}
+            self._keep_contexts(1.0 if self.scale_ is None else self.scale_)
             return theta, corr, False
         q = size_score(self.context_for(s), theta, corr, sil)
         self._calibrations.append((q, s))
@@ -475,14 +482,23 @@ class HandTracker:
             theta, corr = self.context.fit(rescaled(old, self.hand, theta), pts, "full", 1, st.init.icp_iterations,
                                            silhouette=sil, normals=nrm)
         # the sizes the search probed are not needed again
-        self._contexts = {k: v for k, v in self._contexts.items() if k == round(best, 5)}
+        self._keep_contexts(best)
         return theta, corr, True
+
+    def _keep_contexts(self, *sizes):
+        """Drop the contexts (:meth:`context_for`) of every size but ``sizes``."""
+        keep = {round(float(x), 5) for x in sizes}
+        self._contexts = {k: v for k, v in self._contexts.items() if k in keep}
+
+    def _calibrating(self) -> bool:
+        """Whether the next frame calibrates the size (``hand_scale="auto"`` not settled yet)."""
+        return self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open)
 
     def _found_nothing(self, corr) -> bool:
         """Whether a start's fit (its correspondences ``corr``) rejects more than ``no_hand_rejected``
         of its points: what it fitted is no hand."""
         limit = self.settings.no_hand_rejected
-        return bool(limit) and len(corr.valid) > 0 and 1.0 - float(corr.valid.mean()) > limit
+        return bool(limit) and len(corr.valid) > 0 and corr.rejected_share > limit
 
     def _no_hand(self, corr, n_in, t0) -> FrameResult:
         """A frame whose start found no hand (``corr``: its fit's pairs, None when it had too few points
@@ -490,9 +506,8 @@ class HandTracker:
         self.lost = True
         self.no_hand_ += 1
         self.too_few_ += corr is None
-        rejected = 1.0 if corr is None else 1.0 - float(corr.valid.mean())
         return FrameResult(np.full(self.hand.n_dofs, np.nan), "lost", float("nan"), 0, n_in,
-                           (time.perf_counter() - t0) * 1e3, rejected)
+                           (time.perf_counter() - t0) * 1e3, 1.0 if corr is None else corr.rejected_share)
 
     def _refine_scale(self, pts, nrm, sil):
         """One more frame's size estimate; the size becomes the median of the estimates so far, θ
@@ -516,7 +531,7 @@ class HandTracker:
         est = float(np.clip(est, *st.scale_range))
         keep_key = round(float(np.median(self.scale_estimates_ + [est])), 5)
         # the sizes the search probed are not needed again
-        self._contexts = {k: v for k, v in self._contexts.items() if k in (keep_key, round(s, 5))}
+        self._keep_contexts(keep_key, s)
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
         if st.finger_lengths:
@@ -589,7 +604,7 @@ class HandTracker:
         self._calibrations, self._scale_open = [], False
         self.scale_, self.scale_estimates_ = s, [float(e) for e in est]
         self._use_scale(s)
-        self._contexts = {k: v for k, v in self._contexts.items() if k == round(s, 5)}
+        self._keep_contexts(s)
         if st.finger_lengths:
             self._size_frames = [(p, n, sil, self.fit_single_frame(p, silhouette=sil, normals=n)[0], self.hand)
                                  for p, n, sil in frames]
@@ -630,17 +645,16 @@ class HandTracker:
         net, recentred = "", False
         if n_in < st.min_points:
             self.lost = True
-            th = np.array(self.theta, float) if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
-            th[3:6] = wrapped_angles(th[3:6])
-            return FrameResult(th, "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
-        starting = (st.hand_scale == "auto" and (self.scale_ is None or self._scale_open)) or self.lost or self.theta is None
+            th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
+            return FrameResult(_output_theta(th), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
+        starting = self._calibrating() or self.lost or self.theta is None
         if starting and st.start_min_pixels:
             # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything.
             # The region's pixels, not its points: a coarse stride (Fig. 9's 1/36) samples a whole hand sparsely
             region = n_in if sil is None or sil.empty else int(np.count_nonzero(sil.mask))
             if region < st.start_min_pixels:
                 return self._no_hand(None, n_in, t0)
-        if self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open):
+        if self._calibrating():
             self._add_wrist(sil)
             theta, corr, found = self._calibrate(pts, nrm, sil)
             if not found:
@@ -700,7 +714,7 @@ class HandTracker:
         if st.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
-        rejected = 1.0 - corr.valid.mean() if len(pts) else 1.0
+        rejected = corr.rejected_share
         if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
             if recentred and self.prev is not None:
@@ -714,18 +728,14 @@ class HandTracker:
                 self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
-        # the output's global rotation in [−π, π) (the tracker's own θ keeps its turns: its fits start from it)
-        out = np.array(theta, float)
-        out[3:6] = wrapped_angles(out[3:6])
-        return FrameResult(out, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+        return FrameResult(_output_theta(theta), status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
 
     def segment_window(self, camera):
         """Where to segment the next frame (``observe(..., window=...)``): :func:`tracker.observe.hand_window`
         of the hand predicted for it, grown by ``observe.window_m``; None — the whole frame — when no
         hand is tracked (not started, lost, its size still being calibrated) or windows are off."""
         st = self.settings
-        if (not st.observe.window_m or self.lost or self.theta is None
-                or (st.hand_scale == "auto" and (self.scale_ is None or self._scale_open))):
+        if not st.observe.window_m or self.lost or self.theta is None or self._calibrating():
             return None
         P, _ = posed_samples(self.hand, self.context.score_samples, self.predict())
         return hand_window(P, camera, st.observe.window_m)
