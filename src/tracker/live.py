@@ -4,25 +4,29 @@ as a recording-like source for :func:`tracker.run.track_recording` (``tracker li
 A :class:`RealSenseSource` has what the tracking loop reads from a recording (``camera``,
 ``fps``, ``handedness``, iteration over :class:`tracker.recording.Frame` objects with depth in
 metres, NaN for no data), so a camera runs through the same code as ``tracker track``; a ``.bag``
-played back through the same librealsense pipeline is how this path is tested without a camera.
-Playback is not real time: every recorded frame is delivered, however slow the tracker.
+played back by librealsense is how this path is tested without a camera. Playback is not real time:
+every recorded frame is delivered, in order, however slow the tracker (:class:`_Playback`).
 
 Intrinsics and the depth scale come from the device (or the file); lens distortion is ignored
-(RealSense depth streams report none). Colour, when asked for, is aligned to the depth image by
-librealsense, so it serves skin segmentation as a recording's ``color/`` frames do.
+(RealSense depth streams report none). Colour, when asked for, is aligned to the depth image (by
+librealsense for a camera, by :func:`tracker.images.register_color` for a playback), so it serves skin
+segmentation as a recording's ``color/`` frames do.
 
 Needs the optional extra ``realsense`` (pyrealsense2, which needs the system libusb); without it a
 :class:`RealSenseSource` is a :class:`tracker.errors.TrackerError` naming what to install.
 """
 from __future__ import annotations
 
+import queue
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 
 from .cameras import Camera
 from .errors import TrackerError
-from .images import units_to_metres
+from .images import register_color, units_to_metres
 from .recording import Frame
 
 try:  # an optional extra: RealSenseSource names what to install when it is missing
@@ -43,6 +47,137 @@ def _require():
 TIMEOUT_S = 5.0
 
 
+#: Depth frames a playback may read ahead of the tracker (librealsense waits while they wait).
+_AHEAD = 8
+#: Seconds a finished playback is still waited on for frames on their way to the callbacks.
+_END_GRACE_S = 0.3
+
+
+class _Playback:
+    """Every frame of a ``.bag``, in order, through librealsense's playback device.
+
+    Not through a pipeline: a pipeline starts its playback in real time and keeps one frameset, so
+    frames read before ``set_real_time(False)`` took effect were lost when the process stalled for
+    one frame period (seen under CI load: 4 of 5 frames). Here real time is off before the sensors
+    start, and the depth callback waits for room in a bounded queue, which holds the file's reader.
+    Colour (optional) is the recorded frame nearest in time, registered onto the depth image with the
+    file's depth→colour extrinsics by :class:`RealSenseSource`.
+    """
+
+    def __init__(self, path: Path, color: bool):
+        self.path = path
+        self._depth = queue.Queue(maxsize=_AHEAD)
+        self._colors = []  # (stamp_s, rgb) in arrival order, pruned as depth frames take theirs
+        self._lock = threading.Lock()
+        self._closing = False
+        self._failure = None
+        self._sensors = []
+        self.color_fmt = None
+        try:
+            self._dev = rs.context().load_device(str(path))
+            self._pb = self._dev.as_playback()
+            self._pb.set_real_time(False)
+            found = self._profile(rs.stream.depth)
+            if found is None:
+                raise RuntimeError("no depth stream in the file")
+            self.depth_profile, depth_sensor = found
+            self.scale = float(depth_sensor.as_depth_sensor().get_depth_scale())
+            starts = [(depth_sensor, self.depth_profile, self._on_depth)]
+            found = self._profile(rs.stream.color) if color else None
+            if found is not None:
+                cprof, csensor = found
+                self.color_fmt = cprof.format()
+                k = cprof.as_video_stream_profile().get_intrinsics()
+                self.color_K = np.array([[k.fx, 0, k.ppx], [0, k.fy, k.ppy], [0, 0, 1.0]])
+                ex = self.depth_profile.get_extrinsics_to(cprof)
+                self.color_R = np.asarray(ex.rotation, float).reshape(3, 3).T  # librealsense: column-major
+                self.color_t = np.asarray(ex.translation, float)
+                starts.append((csensor, cprof, self._on_color))
+            for sensor, prof, callback in starts:
+                sensor.open(prof)
+                self._sensors.append(sensor)
+                sensor.start(callback)
+        except RuntimeError as exc:
+            self.close()
+            raise TrackerError(path, f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
+
+    def _profile(self, stream):
+        for sensor in self._dev.query_sensors():
+            for prof in sensor.get_stream_profiles():
+                if prof.stream_type() == stream:
+                    return prof, sensor
+        return None
+
+    def _on_depth(self, f) -> None:
+        try:
+            item = (f.get_timestamp() / 1000.0, np.asanyarray(f.get_data()).copy())
+        except Exception as exc:  # noqa: BLE001 - librealsense's thread: next() raises it
+            self._failure = self._failure or exc
+            return
+        while not self._closing:
+            try:
+                self._depth.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def _on_color(self, f) -> None:
+        try:
+            rgb = np.asanyarray(f.get_data())
+            if self.color_fmt in (rs.format.bgr8, rs.format.bgra8):
+                rgb = rgb[..., 2::-1]
+            item = (f.get_timestamp() / 1000.0, np.ascontiguousarray(rgb[..., :3]))
+        except Exception as exc:  # noqa: BLE001 - librealsense's thread: next() raises it
+            self._failure = self._failure or exc
+            return
+        with self._lock:
+            self._colors.append(item)
+
+    def _stopped(self) -> bool:
+        return self._pb.current_status() == rs.playback_status.stopped
+
+    def next(self, timeout_s: float):
+        """``(stamp_s, depth units, rgb or None)`` of the next depth frame; None at the end."""
+        waited, step, stopped_for = 0.0, 0.05, 0.0
+        while True:
+            if self._failure is not None:
+                raise TrackerError(self.path, f"unreadable frame ({' '.join(str(self._failure).split())})")
+            try:
+                stamp, units = self._depth.get(timeout=step)
+                break
+            except queue.Empty:
+                waited += step
+            # the end: stopped, and nothing came while frames could still be on their way
+            stopped_for = stopped_for + step if self._stopped() else 0.0
+            if stopped_for >= _END_GRACE_S or waited >= timeout_s:
+                return None
+        return stamp, units, (self._color_at(stamp) if self.color_fmt is not None else None)
+
+    def _color_at(self, stamp):
+        """The colour frame nearest ``stamp``, once one at or after it has come (or the file ended)."""
+        waited, step = 0.0, 0.01
+        while True:
+            with self._lock:
+                done = (any(t >= stamp for t, _ in self._colors) or waited >= TIMEOUT_S
+                        or (waited >= _END_GRACE_S and self._stopped()))
+                if done:
+                    if not self._colors:
+                        return None
+                    i = int(np.argmin([abs(t - stamp) for t, _ in self._colors]))
+                    del self._colors[:i]  # later depth frames are nearer to this one or later ones
+                    return self._colors[0][1]
+            time.sleep(step)
+            waited += step
+
+    def close(self) -> None:
+        self._closing = True  # a callback waiting for room in the queue gives up
+        for sensor in self._sensors:
+            for call in (sensor.stop, sensor.close):
+                try:
+                    call()
+                except RuntimeError:
+                    pass  # already stopped at the end of the file
+        self._sensors = []
 class RealSenseSource:
     """Depth (and optionally aligned colour) frames from a RealSense camera or a ``.bag`` file.
 
@@ -74,51 +209,49 @@ class RealSenseSource:
         self.frames_ = 0
         self._stop = False
         self._color = bool(color)
-        where = self.playback if self.playback is not None else "camera"
-        cfg = rs.config()
+        self._reader = self._pipe = self._align = None
+        self._t0 = None
         if self.playback is not None:
             if not self.playback.is_file():
                 raise TrackerError(self.playback, "no such file to play back")
-            cfg.enable_device_from_file(str(self.playback), repeat_playback=False)
-            # the file's own streams: depth, and colour if asked for (the syncer would drop depth
-            # frames waiting for colour partners the file does not hold)
-            cfg.enable_stream(rs.stream.depth)
-            if color:
-                cfg.enable_stream(rs.stream.color)
-        else:
-            devices = rs.context().query_devices()
-            if len(devices) == 0:
-                raise TrackerError("camera", "no RealSense camera connected (connect one, or play a recording "
-                                             "back with --playback FILE.bag)")
-            if serial:
-                cfg.enable_device(str(serial))
-            cfg.enable_stream(rs.stream.depth, int(width), int(height), rs.format.z16, int(fps))
-            if color:
-                cfg.enable_stream(rs.stream.color, int(width), int(height), rs.format.rgb8, int(fps))
+            self._reader = _Playback(self.playback, color)
+            try:
+                self._describe(self._reader.depth_profile.as_video_stream_profile(), self._reader.scale,
+                               self.playback.name)
+            except RuntimeError as exc:
+                self.close()
+                raise TrackerError(self.playback, f"unusable depth stream ({' '.join(str(exc).split())})") from None
+            return
+        if len(rs.context().query_devices()) == 0:
+            raise TrackerError("camera", "no RealSense camera connected (connect one, or play a recording "
+                                         "back with --playback FILE.bag)")
+        cfg = rs.config()
+        if serial:
+            cfg.enable_device(str(serial))
+        cfg.enable_stream(rs.stream.depth, int(width), int(height), rs.format.z16, int(fps))
+        if color:
+            cfg.enable_stream(rs.stream.color, int(width), int(height), rs.format.rgb8, int(fps))
         self._pipe = rs.pipeline()
         try:
             profile = self._pipe.start(cfg)
         except RuntimeError as exc:
-            raise TrackerError(where, f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
+            raise TrackerError("camera", f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
         try:
             dev = profile.get_device()
-            self._playback = None
-            if self.playback is not None:
-                self._playback = dev.as_playback()
-                self._playback.set_real_time(False)  # every frame, however slow the tracker
-            self.name = (self.playback.name if self.playback is not None
-                         else f"{dev.get_info(rs.camera_info.name)} {dev.get_info(rs.camera_info.serial_number)}")
-            scale = float(dev.first_depth_sensor().get_depth_scale())
-            vp = profile.get_stream(rs.stream.depth).as_video_stream_profile()
-            k = vp.get_intrinsics()
-            self.fps = float(vp.fps())
-            self.camera = Camera(int(k.width), int(k.height), float(k.fx), float(k.fy), float(k.ppx), float(k.ppy),
-                                 scale, "uint16", f"realsense {self.name}")
+            self._describe(profile.get_stream(rs.stream.depth).as_video_stream_profile(),
+                           float(dev.first_depth_sensor().get_depth_scale()),
+                           f"{dev.get_info(rs.camera_info.name)} {dev.get_info(rs.camera_info.serial_number)}")
             self._align = rs.align(rs.stream.depth) if color else None
-        except (RuntimeError, TrackerError) as exc:
+        except RuntimeError as exc:
             self.close()
-            raise TrackerError(where, f"unusable depth stream ({' '.join(str(exc).split())})") from None
-        self._t0 = None
+            raise TrackerError("camera", f"unusable depth stream ({' '.join(str(exc).split())})") from None
+
+    def _describe(self, vp, scale: float, name: str) -> None:
+        k = vp.get_intrinsics()
+        self.name = name
+        self.fps = float(vp.fps())
+        self.camera = Camera(int(k.width), int(k.height), float(k.fx), float(k.fy), float(k.ppx), float(k.ppy),
+                             scale, "uint16", f"realsense {name}")
 
     def stop(self) -> None:
         """End the iteration after the frame in hand (safe to call from a signal handler)."""
@@ -129,51 +262,54 @@ class RealSenseSource:
                 or (self.max_seconds is not None and t is not None and t >= self.max_seconds))
 
     def _next(self):
-        """The next frameset, or None at the end of a playback."""
-        # short waits, so the end of a file is seen at once and not after the whole timeout
+        """``(stamp_s, depth units, colour or None)`` of the next frame, or None at the end of a playback."""
+        if self._reader is not None:
+            return self._reader.next(self.timeout_s)
+        # a camera: librealsense's pipeline keeps the newest frameset, which is what live tracking wants
         waited, step = 0.0, 0.1
         while True:
             ok, fs = self._pipe.try_wait_for_frames(int(step * 1000))
             if ok:
-                return fs
-            if self._playback is not None and self._playback.current_status() == rs.playback_status.stopped:
-                return None
+                if self._align is not None:
+                    fs = self._align.process(fs)
+                d = fs.get_depth_frame()
+                if d:
+                    break
             waited += step
             if waited >= self.timeout_s:
-                if self._playback is not None:
-                    return None
                 raise TrackerError("camera", f"no frame from {self.name} for {self.timeout_s:g} s")
+        color = None
+        if self._color:
+            c = fs.get_color_frame()
+            color = np.asanyarray(c.get_data()).copy() if c else None
+        return d.get_timestamp() / 1000.0, np.asanyarray(d.get_data()).copy(), color
 
     def __iter__(self):
         while not self._limit_reached(None):
-            fs = self._next()
-            if fs is None:
+            item = self._next()
+            if item is None:
                 return
-            if self._align is not None:
-                fs = self._align.process(fs)
-            d = fs.get_depth_frame()
-            if not d:
-                continue
-            stamp = d.get_timestamp() / 1000.0
+            stamp, units, color = item
             if self._t0 is None:
                 self._t0 = stamp
             t = stamp - self._t0
             if self._limit_reached(t):
                 return
-            units = np.asanyarray(d.get_data()).copy()
             depth = units_to_metres(units, self.camera)
-            color = None
-            if self._color:
-                c = fs.get_color_frame()
-                color = np.asanyarray(c.get_data()).copy() if c else None
-                if color is not None and color.shape != self.camera.shape + (3,):
-                    color = None
+            if color is not None and self._reader is not None:
+                r = self._reader
+                color = register_color(depth, self.camera, color, r.color_K, r.color_R, r.color_t)
+            if color is not None and color.shape != self.camera.shape + (3,):
+                color = None
             frame = Frame(self.frames_, t, depth, color)
             self.frames_ += 1
             yield frame
 
     def close(self) -> None:
         """Stop the stream (idempotent)."""
+        reader, self._reader = getattr(self, "_reader", None), None
+        if reader is not None:
+            reader.close()
         pipe, self._pipe = getattr(self, "_pipe", None), None
         if pipe is not None:
             try:
