@@ -305,6 +305,34 @@ class HandModel:
         back = 0.0 if seg is None else (seg.half_thickness if seg.shape == "slab" else seg.radius[0])
         return self.points(theta, [root], [[0.0, -back, 0.0]])[..., 0, :]
 
+    def fingertip_ends(self, theta) -> np.ndarray:
+        """Where each finger's surface ends, ``(..., 5, 3)`` metres, in :attr:`tip_indices` order.
+
+        Where a fingertip label (the outermost point of the finger along its axis, on its centre line)
+        belongs on this model: the last segment's rounded end, its end radius past the tip keypoint
+        along the last bone (~5 mm on the default hand). The tip keypoint is the end of the bone, the
+        centre of that rounded end.
+
+        >>> hand = HandModel.load()
+        >>> k, e = hand.keypoints(np.zeros(26)), hand.fingertip_ends(np.zeros(26))
+        >>> np.round(np.linalg.norm(e - k[hand.tip_indices], axis=-1) * 1000, 2)  # each tip's end radius
+        array([5.19, 5.19, 5.19, 5.19, 5.19])
+        """
+        k = self.keypoints(theta)
+        tips = self.tip_indices
+        base = self.parents[tips]
+        radius = np.array([next(s.radius[1] for s in self.segments if s.joint == b) for b in base])
+        bone = k[..., tips, :] - k[..., base, :]
+        unit = bone / np.linalg.norm(bone, axis=-1, keepdims=True)
+        return k[..., tips, :] + radius[:, None] * unit
+
+    @cached_property
+    def tip_indices(self) -> np.ndarray:
+        """The keypoints without children (the fingertips, thumb first): ``[4, 8, 12, 16, 20]``."""
+        has_child = np.zeros(self.n_nodes, bool)
+        has_child[self.parents[self.parents >= 0]] = True
+        return _ro(np.flatnonzero(~has_child))
+
     def points(self, theta, nodes, local) -> np.ndarray:
         """World positions of points rigidly attached to nodes (``local`` in the node frames)."""
         G = self.node_frames(theta)

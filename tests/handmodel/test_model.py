@@ -214,3 +214,27 @@ def test_reordered_file_gives_same_model(tmp_path, hand):
 def test_bad_theta(hand, bad):
     with pytest.raises(HandModelError, match="theta"):
         hand.keypoints(bad)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3), st.floats(0.7, 1.6), st.sampled_from([0, 1]))
+def test_fingertip_ends_are_where_the_model_surface_ends(rot, scale, right):
+    """Each finger's end lies on the model's surface (the capsule closest points, an independent
+    kernel), and 1 mm further along the last bone is 1 mm off the surface at that finger's last
+    segment: the outermost point of the finger on its axis, in any global pose and at any size."""
+    from tracker.correspond import CapsuleModel
+
+    hand = HandModel.load(right=bool(right)).scaled(scale)
+    theta = np.zeros(hand.n_dofs)
+    theta[3:6] = rot
+    theta[:3] = [0.02, -0.01, 0.5]
+    k, ends = hand.keypoints(theta), hand.fingertip_ends(theta)
+    tips = hand.tip_indices
+    axis = k[tips] - k[hand.parents[tips]]
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    model = CapsuleModel(hand)
+    on = model(theta, ends, facing_only=False, reject=1.0)
+    assert np.allclose(on.distance, 0.0, atol=1e-6)  # a micrometre: the kernel works in float64 steps
+    past = model(theta, ends + 0.001 * axis, facing_only=False, reject=1.0)
+    np.testing.assert_allclose(past.distance, 0.001, atol=1e-6)
+    assert np.array_equal(past.nodes, hand.parents[tips])

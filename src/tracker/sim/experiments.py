@@ -457,7 +457,9 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     each recording's first labelled frame (``hand_scale="auto"``) and reused for its other frames.
 
     Returns one dict per frame: ``name``, ``scale``, ``uv`` (projected keypoints, px), ``names``
-    (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip),
+    (keypoint names), ``labels``, ``mask`` (the labelled hand), ``tips_px`` (labelled tip → model tip
+    keypoint), ``tip_ends_px`` (→ the model finger's end, :meth:`HandModel.fingertip_ends`, projected at
+    ``ends_uv``),
     ``wrist_px`` (the labelled crease → the model hand's end, :meth:`HandModel.wrist_crease`, projected
     at ``crease_uv``), ``wrist_joint_px`` (→ the wrist joint), ``in_mask`` (share of keypoints inside the mask dilated by
     :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
@@ -508,6 +510,10 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
         kn = list(tr.hand.keypoint_names)
         lab = labels[name]
         tips = {t: float(np.hypot(*(uv[kn.index(t + "_tip")] - lab[t]))) for t in REAL_TIPS if t in lab}
+        # the label is the finger's outermost point by its definition: the model finger's end
+        # (HandModel.fingertip_ends) measured beside the tip keypoint, which the floors use
+        ends = cam.project(tr.hand.fingertip_ends(res.theta))
+        tip_ends = {t: float(np.hypot(*(ends[i] - lab[t]))) for i, t in enumerate(REAL_TIPS) if t in lab}
         # the label is the crease, the hand mask's end: compared with the model hand's end there
         # (HandModel.wrist_crease), the joint's own distance kept beside it
         crease = cam.project(tr.hand.wrist_crease(res.theta))
@@ -518,8 +524,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
         inside = float(near[ui[:, 1], ui[:, 0]].mean())
         rows.append({"name": name, "scale": float(tr.scale_), "fingers": dict(tr.finger_scales_ or {}),
                      "uv": uv, "names": kn, "labels": lab, "mask": mask,
-                     "tips_px": tips, "wrist_px": wrist, "wrist_joint_px": wrist_joint,
-                     "crease_uv": crease, "in_mask": inside,
+                     "tips_px": tips, "tip_ends_px": tip_ends, "ends_uv": ends, "wrist_px": wrist,
+                     "wrist_joint_px": wrist_joint, "crease_uv": crease, "in_mask": inside,
                      "ok": bool(max(tips.values()) <= REAL_TIP_PX and wrist <= REAL_WRIST_PX
                                 and inside >= REAL_MASK_SHARE)})
         if overlay_dir is not None:

@@ -158,6 +158,19 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
           f"keypoint files) lies a median {np.median(joints):.0f} px from the label, on the palm side of the crease in "
           f"{palmward} of {len(rows)} frames: the difference of definition. The overlays draw the labelled wrist as "
           "a cyan cross beside the tips.", ""]
+    keys, ends = _past_label(rows, "uv"), _past_label(rows, "ends_uv")
+    if keys.size:
+        end_tips = np.array([v for r in rows for v in r["tip_ends_px"].values()])
+        L += ["A tip is labelled as the finger's outermost point on its centre line. The model finger's surface ends "
+              "past its tip keypoint by the last segment's end radius (`HandModel.fingertip_ends`, 6.5 mm at size "
+              f"1.25). Along the last bone, over the {keys.size} tips not pointing at the camera, the tip keypoint "
+              f"lies a median {np.median(keys):+.1f} px past the label (quartiles {np.percentile(keys, 25):+.1f} / "
+              f"{np.percentile(keys, 75):+.1f}) and the finger's end {np.median(ends):+.1f} px "
+              f"({np.percentile(ends, 25):+.1f} / {np.percentile(ends, 75):+.1f}): the fitted fingers reach past "
+              "the fingers seen, as a model finger longer than the hand's would (the calibrated stills below find "
+              "this hand's index and little finger ~0.9× the model's). Measured at the ends, tips within "
+              f"{REAL_TIP_PX:g} px: {int(np.sum(end_tips <= REAL_TIP_PX))} of {end_tips.size} (median "
+              f"{np.median(end_tips):.1f} px). The floors above are measured at the tip keypoints.", ""]
     if each:
         L += _each_lines(each)
     return L
@@ -183,6 +196,24 @@ def _each_lines(rows) -> list:
             "frames, each fitted from its own start (`tracker calibrate --each`: the size their median, each "
             f"finger's length from all of them; {told}): frames meeting {_floor_counts(rows)}; frames off a floor: "
             + (", ".join(r["name"] for r in rows if not r["ok"]) or "none") + ".", ""]
+
+
+def _past_label(rows, key) -> np.ndarray:
+    """How far (px) each model tip (``key``: ``"uv"`` keypoints, ``"ends_uv"`` finger ends) lies past its
+    label along the finger's projected last bone; fingers pointing at the camera (a last bone under
+    8 px in the image) left out."""
+    out = []
+    for r in rows:
+        uv, names = np.asarray(r["uv"], float), r["names"]
+        for i, t in enumerate(REAL_TIPS):
+            if t not in r["labels"]:
+                continue
+            bone = uv[names.index(t + "_tip")] - uv[names.index(t + "3")]
+            n = np.linalg.norm(bone)
+            if n >= 8.0:
+                tip = np.asarray(r[key], float)[names.index(t + "_tip") if key == "uv" else i]
+                out.append(float((tip - np.asarray(r["labels"][t], float)) @ bone / n))
+    return np.array(out)
 
 
 def _toward_palm(row) -> float:
