@@ -26,6 +26,32 @@ def surface_past_outline(dist, frame, v0, u0, reach_px):
 
 
 @njit(cache=True)
+def arm_entry(dist, iv, iu, frame, v0, u0, reach_px, step_m):
+    """``(count, v, u)``: the ``frame`` pixels within ``reach_px`` of a silhouette's mask, outside it,
+    whose depth goes on from their nearest mask pixel's (within ``step_m``: a surface such as the arm
+    continuing past the outline, as :func:`tracker.wrist.wrist_cue` reads it), and their mean pixel in
+    frame coordinates (NaN when none); ``dist``, ``iv``, ``iu``: the silhouette window's distance
+    transform and nearest mask pixels at ``(v0, u0)`` in the frame. One pass, ~20 µs: where the arm
+    enters, without the cue's line work."""
+    h, w = dist.shape
+    H, W = frame.shape
+    n, sv, su = 0, 0.0, 0.0
+    for v in range(min(h, H - v0)):
+        for u in range(min(w, W - u0)):
+            d = dist[v, u]
+            if d > 0.0 and d <= reach_px:
+                z = frame[v0 + v, u0 + u]
+                zm = frame[v0 + iv[v, u], u0 + iu[v, u]]
+                if np.isfinite(z) and np.isfinite(zm) and abs(z - zm) < step_m:
+                    n += 1
+                    sv += v0 + v
+                    su += u0 + u
+    if n == 0:
+        return 0, np.nan, np.nan
+    return n, sv / n, su / n
+
+
+@njit(cache=True)
 def _within_two(a, v, u):
     """Whether ``a`` is set within city-block distance 2 of (v, u): what two 4-connected dilations reach."""
     H, W = a.shape

@@ -206,3 +206,30 @@ def test_the_nets_shared_distances_decide_as_the_full_test(hand):
                 assert tr._doubtful(th, truth[f], s, None, ob.points, near_mm=near) == full
                 verdicts.add(full)
     assert {"", "far", "score"} <= verdicts, verdicts
+
+
+def test_the_wrist_test_runs_in_full_only_when_its_inputs_changed(hand, jump_scene):
+    """The wrist test is rerun in full when the hand's pose or the place where the arm enters has
+    changed since it last passed (``net_wrist_moved``), or every ``net_wrist_every`` frames: on the jump
+    scene every frame's θ is the same as with the full test on every frame (``net_wrist_every=1``), the
+    jump is still caught on its frame, and the full test ran on fewer frames (measured 5 of 15; ~0.9 ms
+    saved on each frame skipped with an arm in view)."""
+    truth, obs = jump_scene
+    every, tr_every = _track(hand, obs, net_wrist_every=1)
+    cached, tr = _track(hand, obs)
+    for a, b in zip(every, cached):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert a.status == b.status
+    assert (cached[JUMP].status, cached[JUMP].net) == ("reinit", "replaced")
+    # every frame after the first is tested (the jump frame too: it was tracked, then replaced)
+    assert tr_every.wrist_tests_ == len(obs) - 1
+    # in full: the first after each start (frames 1 and 7), then at least every net_wrist_every-th
+    assert len(obs) / tr.settings.net_wrist_every <= tr.wrist_tests_ < tr_every.wrist_tests_
+
+
+def test_a_wrist_test_setting_out_of_range_is_refused():
+    from tracker.errors import TrackerError
+
+    for bad in ({"net_wrist_every": 0}, {"net_wrist_moved": (15.0,)}, {"net_wrist_moved": (-1.0, 15.0)}):
+        with pytest.raises(TrackerError, match="net_wrist_every"):
+            TrackerSettings().replace(**bad).check()

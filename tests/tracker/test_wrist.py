@@ -15,6 +15,7 @@ from scipy import ndimage
 from tests.conftest import shared
 from tracker._icp_kernels import feature_transform
 from tracker._wrist_kernels import (
+    arm_entry,
     count_near,
     longest_line,
     near_line,
@@ -157,6 +158,35 @@ def test_surface_past_outline_is_the_ring_test(win, v0, u0):
     feature_transform(np.ascontiguousarray(sub), dist, np.empty((h, w), np.int32), np.empty((h, w), np.int32))
     ring = (dist > 0) & (dist <= 2.0)
     assert surface_past_outline(dist, frame, v0, u0, 2.0) == bool(np.isfinite(frame[v0:v0 + h, u0:u0 + w][ring]).any())
+
+
+@given(_window(), st.integers(0, 3), st.integers(0, 3))
+@settings(max_examples=200, deadline=None)
+def test_arm_entry_is_the_continuing_ring_by_scipy(win, v0, u0):
+    """The pixels past the outline whose depth goes on from their nearest mask pixel's, by scipy's
+    distance transform and its indices: their count and mean pixel."""
+    m, frame = win
+    h, w = max(m.shape[0] - v0, 1), max(m.shape[1] - u0, 1)
+    sub = m[v0:v0 + h, u0:u0 + w]
+    if not sub.any():
+        return
+    dist, iv, iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
+    feature_transform(np.ascontiguousarray(sub), dist, iv, iu)
+    d_ref, (jv, ju) = ndimage.distance_transform_edt(~sub, return_indices=True)
+    np.testing.assert_allclose(dist, d_ref)
+    yy, xx = np.mgrid[:h, :w]  # each pixel's named mask pixel is a mask pixel at that distance
+    assert sub[iv, iu].all() and np.allclose(np.hypot(yy - iv, xx - iu), dist)
+    f = frame[v0:v0 + h, u0:u0 + w]
+    with np.errstate(invalid="ignore"):
+        # the nearest mask pixel of a tie may differ between the two: compare at the kernel's own
+        goes_on = (dist > 0) & (dist <= 2.0) & (np.abs(f - f[iv, iu]) < 0.015)
+    n, v, u = arm_entry(dist, iv, iu, frame, v0, u0, 2.0, 0.015)
+    assert n == goes_on.sum()
+    if n:
+        yy, xx = np.nonzero(goes_on)
+        assert v == pytest.approx(yy.mean() + v0) and u == pytest.approx(xx.mean() + u0)
+    else:
+        assert np.isnan(v) and np.isnan(u)
 
 
 @given(_window(), st.floats(-3, 16), st.floats(-3, 16), st.floats(0, 9), st.sampled_from([0.5, 0.52, 0.6]))
