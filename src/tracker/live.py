@@ -53,6 +53,9 @@ _AHEAD = 8
 _END_GRACE_S = 0.3
 
 
+_RGB_FORMATS = () if rs is None else (rs.format.rgb8, rs.format.bgr8, rs.format.rgba8, rs.format.bgra8)
+
+
 class _Playback:
     """Every frame of a ``.bag``, in order, through librealsense's playback device.
 
@@ -84,7 +87,8 @@ class _Playback:
             self.scale = float(depth_sensor.as_depth_sensor().get_depth_scale())
             starts = [(depth_sensor, self.depth_profile, self._on_depth)]
             found = self._profile(rs.stream.color) if color else None
-            if found is not None:
+            # colour in another format (YUYV, raw) is left out, as frames of the wrong shape were before
+            if found is not None and found[0].format() in _RGB_FORMATS:
                 cprof, csensor = found
                 self.color_fmt = cprof.format()
                 k = cprof.as_video_stream_profile().get_intrinsics()
@@ -158,7 +162,9 @@ class _Playback:
         waited, step = 0.0, 0.01
         while True:
             with self._lock:
-                done = (any(t >= stamp for t, _ in self._colors) or waited >= TIMEOUT_S
+                # nothing more comes while the reader waits for room for depth frames (a colour
+                # stream slower than the queue), or once the file has ended
+                done = (any(t >= stamp for t, _ in self._colors) or waited >= TIMEOUT_S or self._depth.full()
                         or (waited >= _END_GRACE_S and self._stopped()))
                 if done:
                     if not self._colors:
