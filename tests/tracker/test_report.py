@@ -37,7 +37,8 @@ def test_real_lines_count_the_floors():
     # the labelled hand lies above its wrist (rows 0-9); model wrist "a" sits 4 px into it, "b" 5 px below
     mask = np.zeros((20, 20), bool)
     mask[:10, 5:15] = True
-    common = {"mask": mask, "labels": {"wrist": [10, 10]}}
+    common = {"mask": mask, "labels": {"wrist": [10, 10]}, "names": ["wrist"], "ends_uv": np.zeros((5, 2)),
+              "tip_ends_px": {}}
     good = {"name": "a", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 14.9}, "wrist_px": 19.0, "wrist_joint_px": 4.0, "in_mask": 0.95,
             "ok": True, "uv": np.array([[10.0, 6.0]]), **common}
     bad = {"name": "b", "scale": 1.2, "tips_px": {"thumb": 3.0, "index": 15.1}, "wrist_px": 5.0, "wrist_joint_px": 5.0, "in_mask": 1.0,
@@ -57,7 +58,7 @@ def test_real_lines_sum_up_the_calibrated_protocol():
     mask = np.zeros((20, 20), bool)
     mask[:10, 5:15] = True
     row = {"mask": mask, "labels": {"wrist": [10, 10]}, "uv": np.array([[10.0, 6.0]]), "in_mask": 1.0,
-           "wrist_joint_px": 4.0,
+           "wrist_joint_px": 4.0, "names": ["wrist"], "ends_uv": np.zeros((5, 2)), "tip_ends_px": {},
            "fingers": {"thumb": 1.06, "pinky": 0.91}}
     rows = [{**row, "name": "r1_30", "scale": 1.263, "tips_px": {"thumb": 3.0}, "wrist_px": 5.0, "ok": True},
             {**row, "name": "r1_50", "scale": 1.263, "tips_px": {"thumb": 39.0}, "wrist_px": 5.0, "ok": False},
@@ -69,6 +70,30 @@ def test_real_lines_sum_up_the_calibrated_protocol():
     assert "r1: size 1.263, thumb 1.06, pinky 0.91; r2: size 1.238" in extra
     assert "every floor: 1 of 3" in extra and "tips within 15 px: 2 of 3" in extra and "worst 39 px" in extra
     assert "wrist within 20 px: 2 of 3" in extra and "off a floor: r1_50, r2_0." in extra
+
+
+def test_real_lines_measure_the_tips_along_the_last_bone():
+    """The finger-end sentence: along each labelled finger's projected last bone, how far past its label
+    the tip keypoint and the finger's end lie (signed, px); a finger pointing at the camera (its last
+    bone under 8 px in the image) is left out."""
+    from handmodel import HandModel
+    from tracker.sim.report import real_lines
+
+    names = HandModel.load().keypoint_names
+    mask = np.zeros((40, 40), bool)
+    mask[5:30, 5:30] = True
+    uv = np.full((len(names), 2), 20.0)
+    uv[names.index("thumb3")], uv[names.index("thumb_tip")] = (0.0, 0.0), (10.0, 0.0)  # the bone along +u
+    uv[names.index("index3")], uv[names.index("index_tip")] = (0.0, 30.0), (3.0, 34.0)  # 5 px: at the camera
+    ends = np.zeros((5, 2))
+    ends[0], ends[1] = (15.0, 0.0), (4.0, 35.0)
+    row = {"name": "r_0", "scale": 1.2, "mask": mask, "uv": uv, "names": names, "ends_uv": ends, "in_mask": 1.0,
+           "labels": {"wrist": [20, 30], "thumb": [8, 3], "index": [40, 40]}, "tips_px": {"thumb": 3.6, "index": 7.2},
+           "tip_ends_px": {"thumb": 7.6, "index": 6.0}, "wrist_px": 5.0, "wrist_joint_px": 5.0, "ok": True}
+    text = "\n".join(real_lines([row]))
+    assert "over the 1 tip not pointing at the camera" in text
+    assert "the tip keypoint lies a median +2.0 px past the label" in text and "the finger's end +7.0 px" in text
+    assert "tips within 15 px: 2 of 2 (median 6.8 px)" in text
 
 
 def test_report_never_replaces_a_report_or_goes_into_the_real_data(tmp_path):

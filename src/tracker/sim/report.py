@@ -163,7 +163,7 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
         end_tips = np.array([v for r in rows for v in r["tip_ends_px"].values()])
         L += ["A tip is labelled as the finger's outermost point on its centre line. The model finger's surface ends "
               "past its tip keypoint by the last segment's end radius (`HandModel.fingertip_ends`, 6.5 mm at size "
-              f"1.25). Along the last bone, over the {keys.size} tips not pointing at the camera, the tip keypoint "
+              f"1.25). Along the last bone, over the {keys.size} tip{'s' * (keys.size != 1)} not pointing at the camera, the tip keypoint "
               f"lies a median {np.median(keys):+.1f} px past the label (quartiles {np.percentile(keys, 25):+.1f} / "
               f"{np.percentile(keys, 75):+.1f}) and the finger's end {np.median(ends):+.1f} px "
               f"({np.percentile(ends, 25):+.1f} / {np.percentile(ends, 75):+.1f}): the fitted fingers reach past "
