@@ -66,8 +66,9 @@ def _recording_rows(rec) -> list:
     c = rec.camera
     n = len(rec)
     times = getattr(rec, "times_s", None)  # a recording file keeps its own frame times
-    span = (f"{times[-1] - times[0]:.2f} s of file time, {rec.fps:g} fps nominal" if times is not None and n
-            else f"{n / rec.fps:.2f} s at {rec.fps:g} fps")
+    # first frame to last in both, so that a file and its import (frames at its nominal rate) agree
+    span = (f"{times[-1] - times[0]:.2f} s first to last in file time, {rec.fps:g} fps nominal" if times is not None and n
+            else f"{max(n - 1, 0) / rec.fps:.2f} s first to last, {rec.fps:g} fps")
     source = rec.source if times is not None else rec.meta.get("source", "")
     rows = [("source", source)] if source else []
     return rows + [("frames", f"{n} ({span})"),

@@ -555,7 +555,7 @@ def test_cli_reads_bags_in_place(tmp_path):
     _write_realsense_ros1(src, frames)
     r = _cli("info", src)
     assert r.exit_code == 0, r.output
-    assert "6 (0.17 s of file time, 30 fps nominal)" in r.output and "0.125 mm per unit" in r.output
+    assert "6 (0.17 s first to last in file time, 30 fps nominal)" in r.output and "0.125 mm per unit" in r.output
     assert "6 (all readable)" in r.output
     r = _cli("info", src, "--every", "4")
     assert r.exit_code == 0 and "2 (all readable)" in r.output, r.output

@@ -475,7 +475,7 @@ def test_cli_import_info_show(tmp_path):
     r = _cli("import", src, "-o", rec, "--fx", 30, "--fy", 30, "--cx", 15.5, "--cy", 11.5, "--width", 32,
              "--height", 24, "--fps", 15, "--hand", "right")
     assert r.exit_code == 0, r.output
-    assert "12 (0.80 s at 15 fps)" in r.stdout and "fps assumed" not in r.stdout
+    assert "12 (0.73 s first to last, 15 fps)" in r.stdout and "fps assumed" not in r.stdout
     R = Recording.open(rec)
     assert len(R) == 12 and R.handedness == "right" and int(R.depth_units(11)[10, 10]) >= 710  # natural order
     r = _cli("info", rec)
