@@ -47,7 +47,7 @@ def _require():
 TIMEOUT_S = 5.0
 
 
-#: Depth frames a playback may read ahead of the tracker (librealsense waits while they wait).
+#: Frames (depth; colour) a playback may read ahead of the tracker (librealsense waits while they wait).
 _AHEAD = 8
 #: Seconds a finished playback is still waited on for frames on their way to the callbacks (they pass
 #: librealsense's dispatcher threads, which a loaded machine holds back: at 0.3 s CI saw a frame's colour
@@ -64,42 +64,53 @@ class _Playback:
 
     Not through a pipeline: a pipeline starts its playback in real time and keeps one frameset, so
     frames read before ``set_real_time(False)`` took effect were lost when the process stalled for
-    one frame period (seen under CI load: 4 of 5 frames). Here real time is off before the sensors
-    start, and the depth callback waits for room in a bounded queue, which holds the file's reader.
-    Colour (optional) is the recorded frame nearest in time, registered onto the depth image with the
-    file's depth→colour extrinsics by :class:`RealSenseSource`.
+    one frame period (seen under CI load: 4 of 5 frames). Here real time is off before the sensor
+    starts, and the depth callback waits for room in a bounded queue, which holds the file's reader.
+
+    Colour (optional) is read by a second playback device of the same file: a device starts reading at
+    its first sensor's start, so a second sensor started after it misses what was read before (the
+    D435 file's one colour frame, under load: then the device read the file again when the second
+    sensor started). It is the recorded frame nearest in time, registered onto the depth image with
+    the file's depth→colour extrinsics by :class:`RealSenseSource`; its reader waits while
+    ``_AHEAD`` colour frames lie ahead of the depth frames taken.
     """
 
     def __init__(self, path: Path, color: bool):
         self.path = path
         self._depth = queue.Queue(maxsize=_AHEAD)
-        self._colors = []  # (stamp_s, rgb) in arrival order, pruned as depth frames take theirs
-        self._lock = threading.Lock()
+        self._colors = []  # (stamp_s, rgb) in time order, pruned as depth frames take theirs
+        self._lock = threading.Condition()
         self._closing = False
         self._failure = None
         self._sensors = []
         self.color_fmt = None
+        self._cpb = None
         try:
             self._dev = rs.context().load_device(str(path))
             self._pb = self._dev.as_playback()
             self._pb.set_real_time(False)
-            found = self._profile(rs.stream.depth)
+            found = self._profile(self._dev, rs.stream.depth)
             if found is None:
                 raise RuntimeError("no depth stream in the file")
             self.depth_profile, depth_sensor = found
             self.scale = float(depth_sensor.as_depth_sensor().get_depth_scale())
             starts = [(depth_sensor, self.depth_profile, self._on_depth)]
-            found = self._profile(rs.stream.color) if color else None
+            found = self._profile(self._dev, rs.stream.color) if color else None
             # colour in another format (YUYV, raw) is left out, as frames of the wrong shape were before
             if found is not None and found[0].format() in _RGB_FORMATS:
-                cprof, csensor = found
+                cprof = found[0]
                 self.color_fmt = cprof.format()
                 k = cprof.as_video_stream_profile().get_intrinsics()
                 self.color_K = np.array([[k.fx, 0, k.ppx], [0, k.fy, k.ppy], [0, 0, 1.0]])
                 ex = self.depth_profile.get_extrinsics_to(cprof)
                 self.color_R = np.asarray(ex.rotation, float).reshape(3, 3).T  # librealsense: column-major
                 self.color_t = np.asarray(ex.translation, float)
-                starts.append((csensor, cprof, self._on_color))
+                cdev = rs.context().load_device(str(path))
+                self._cpb = cdev.as_playback()
+                self._cpb.set_real_time(False)
+                cprof2, csensor = self._profile(cdev, rs.stream.color)
+                self._cdev = cdev
+                starts.append((csensor, cprof2, self._on_color))
             for sensor, prof, callback in starts:
                 sensor.open(prof)
                 self._sensors.append(sensor)
@@ -108,8 +119,9 @@ class _Playback:
             self.close()
             raise TrackerError(path, f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
 
-    def _profile(self, stream):
-        for sensor in self._dev.query_sensors():
+    @staticmethod
+    def _profile(dev, stream):
+        for sensor in dev.query_sensors():
             for prof in sensor.get_stream_profiles():
                 if prof.stream_type() == stream:
                     return prof, sensor
@@ -138,10 +150,15 @@ class _Playback:
             self._failure = self._failure or exc
             return
         with self._lock:
+            # the colour reader runs at most _AHEAD frames ahead of the depth frames taken
+            while len(self._colors) >= _AHEAD and not self._closing:
+                self._lock.wait(0.1)
             self._colors.append(item)
+            self._lock.notify_all()
 
-    def _stopped(self) -> bool:
-        return self._pb.current_status() == rs.playback_status.stopped
+    @staticmethod
+    def _stopped(pb) -> bool:
+        return pb.current_status() == rs.playback_status.stopped
 
     def next(self, timeout_s: float):
         """``(stamp_s, depth units, rgb or None)`` of the next depth frame; None at the end."""
@@ -155,31 +172,36 @@ class _Playback:
             except queue.Empty:
                 waited += step
             # the end: stopped, and nothing came while frames could still be on their way
-            stopped_for = stopped_for + step if self._stopped() else 0.0
+            stopped_for = stopped_for + step if self._stopped(self._pb) else 0.0
             if stopped_for >= _END_GRACE_S or waited >= timeout_s:
                 return None
-        return stamp, units, (self._color_at(stamp) if self.color_fmt is not None else None)
+        return stamp, units, (self._color_at(stamp) if self._cpb is not None else None)
 
     def _color_at(self, stamp):
-        """The colour frame nearest ``stamp``, once one at or after it has come (or the file ended)."""
-        waited, step = 0.0, 0.01
-        while True:
-            with self._lock:
-                # nothing more comes while the reader waits for room for depth frames (a colour
-                # stream slower than the queue), or once the file has ended
-                done = (any(t >= stamp for t, _ in self._colors) or waited >= TIMEOUT_S or self._depth.full()
-                        or (waited >= _END_GRACE_S and self._stopped()))
+        """The colour frame nearest ``stamp``, once one at or after it has come (or the colour ended)."""
+        t0 = time.monotonic()
+        stopped_since = None
+        with self._lock:
+            while True:
+                # frames before the last one at or before stamp are nearer to no later depth frame
+                while len(self._colors) > 1 and self._colors[1][0] <= stamp:
+                    del self._colors[0]
+                self._lock.notify_all()
+                now = time.monotonic()
+                if self._stopped(self._cpb):
+                    stopped_since = now if stopped_since is None else stopped_since
+                else:
+                    stopped_since = None
+                done = (any(t >= stamp for t, _ in self._colors) or now - t0 >= TIMEOUT_S
+                        or (stopped_since is not None and now - stopped_since >= _END_GRACE_S))
                 if done:
                     if not self._colors:
                         return None
-                    i = int(np.argmin([abs(t - stamp) for t, _ in self._colors]))
-                    del self._colors[:i]  # later depth frames are nearer to this one or later ones
-                    return self._colors[0][1]
-            time.sleep(step)
-            waited += step
+                    return min(self._colors, key=lambda c: abs(c[0] - stamp))[1]
+                self._lock.wait(0.05)
 
     def close(self) -> None:
-        self._closing = True  # a callback waiting for room in the queue gives up
+        self._closing = True  # a callback waiting for room gives up
         for sensor in self._sensors:
             for call in (sensor.stop, sensor.close):
                 try:
@@ -187,6 +209,8 @@ class _Playback:
                 except RuntimeError:
                     pass  # already stopped at the end of the file
         self._sensors = []
+
+
 class RealSenseSource:
     """Depth (and optionally aligned colour) frames from a RealSense camera or a ``.bag`` file.
 
