@@ -221,10 +221,15 @@ class HandModel:
         return list(self.node_names)
 
     @cached_property
-    def joint_indices(self) -> np.ndarray:
+    def _has_child(self) -> np.ndarray:
+        """True for the nodes that are some node's parent (the joints; the others are the tips)."""
         has_child = np.zeros(self.n_nodes, bool)
         has_child[self.parents[self.parents >= 0]] = True
-        return _ro(np.flatnonzero(has_child))
+        return _ro(has_child)
+
+    @cached_property
+    def joint_indices(self) -> np.ndarray:
+        return _ro(np.flatnonzero(self._has_child))
 
     @property
     def joint_names(self) -> list:
@@ -329,9 +334,7 @@ class HandModel:
     @cached_property
     def tip_indices(self) -> np.ndarray:
         """The keypoints without children (the fingertips, thumb first): ``[4, 8, 12, 16, 20]``."""
-        has_child = np.zeros(self.n_nodes, bool)
-        has_child[self.parents[self.parents >= 0]] = True
-        return _ro(np.flatnonzero(~has_child))
+        return _ro(np.flatnonzero(~self._has_child))
 
     def points(self, theta, nodes, local) -> np.ndarray:
         """World positions of points rigidly attached to nodes (``local`` in the node frames)."""

@@ -43,6 +43,11 @@ def _require():
                                            "(pip install 'synergistic-hand-tracking[realsense]')")
 
 
+def _one_line(exc) -> str:
+    """librealsense's message of ``exc`` on one line (its messages can hold line breaks)."""
+    return " ".join(str(exc).split())
+
+
 #: Seconds without a frame after which a camera counts as stalled (playback: as finished).
 TIMEOUT_S = 5.0
 
@@ -109,7 +114,7 @@ class _Playback:
                 self._cpb = cdev.as_playback()
                 self._cpb.set_real_time(False)
                 cprof2, csensor = self._profile(cdev, rs.stream.color)
-                self._cdev = cdev
+                self._cdev = cdev  # held while its sensor streams
                 starts.append((csensor, cprof2, self._on_color))
             for sensor, prof, callback in starts:
                 sensor.open(prof)
@@ -117,7 +122,7 @@ class _Playback:
                 sensor.start(callback)
         except RuntimeError as exc:
             self.close()
-            raise TrackerError(path, f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
+            raise TrackerError(path, f"librealsense cannot start the stream ({_one_line(exc)})") from None
 
     @staticmethod
     def _profile(dev, stream):
@@ -165,7 +170,7 @@ class _Playback:
         waited, step, stopped_for = 0.0, 0.05, 0.0
         while True:
             if self._failure is not None:
-                raise TrackerError(self.path, f"unreadable frame ({' '.join(str(self._failure).split())})")
+                raise TrackerError(self.path, f"unreadable frame ({_one_line(self._failure)})")
             try:
                 stamp, units = self._depth.get(timeout=step)
                 break
@@ -253,7 +258,7 @@ class RealSenseSource:
                                self.playback.name)
             except RuntimeError as exc:
                 self.close()
-                raise TrackerError(self.playback, f"unusable depth stream ({' '.join(str(exc).split())})") from None
+                raise TrackerError(self.playback, f"unusable depth stream ({_one_line(exc)})") from None
             return
         if len(rs.context().query_devices()) == 0:
             raise TrackerError("camera", "no RealSense camera connected (connect one, or play a recording "
@@ -268,7 +273,7 @@ class RealSenseSource:
         try:
             profile = self._pipe.start(cfg)
         except RuntimeError as exc:
-            raise TrackerError("camera", f"librealsense cannot start the stream ({' '.join(str(exc).split())})") from None
+            raise TrackerError("camera", f"librealsense cannot start the stream ({_one_line(exc)})") from None
         try:
             dev = profile.get_device()
             self._describe(profile.get_stream(rs.stream.depth).as_video_stream_profile(),
@@ -277,7 +282,7 @@ class RealSenseSource:
             self._align = rs.align(rs.stream.depth) if color else None
         except RuntimeError as exc:
             self.close()
-            raise TrackerError("camera", f"unusable depth stream ({' '.join(str(exc).split())})") from None
+            raise TrackerError("camera", f"unusable depth stream ({_one_line(exc)})") from None
 
     def _describe(self, vp, scale: float, name: str) -> None:
         k = vp.get_intrinsics()
