@@ -618,3 +618,123 @@ def fronts_of_surfaces(lab, n, d, focal, min_pixels, min_area):
         fronts[j] = zs[int(0.01 * count[ids[j]])]
     o = np.argsort(fronts, kind="mergesort")
     return ids[o], fronts[o]
+
+
+@njit(cache=True)
+def _plane_weight(P, w, n, dn, tol, every):
+    total = 0.0
+    for i in range(0, P.shape[0], every):
+        r = n[0] * P[i, 0] + n[1] * P[i, 1] + n[2] * P[i, 2] - dn
+        if -tol <= r <= tol:
+            total += w[i]
+    return total * every
+
+
+@njit(cache=True)
+def plane_ransac(P, w, tries, tol, every, keep):
+    """The plane ``n·x = dn`` (``n`` a unit normal) through three of the points ``P (N, 3)`` that
+    collects the largest weight ``w`` of points within ``tol`` of it, among the triplets ``tries
+    (K, 3)`` (indices into ``P``): each triplet's plane is weighed on every ``every``-th point, the
+    best ``keep`` on all of them (preemptive RANSAC). Returns ``(n, dn, weight)``; weight 0 when
+    every triplet is degenerate (collinear within 1e-9 m²)."""
+    K = tries.shape[0]
+    N = np.zeros((K, 3))
+    D = np.zeros(K)
+    S = np.full(K, -1.0)
+    for k in range(K):
+        a, b, c = P[tries[k, 0]], P[tries[k, 1]], P[tries[k, 2]]
+        e1, e2 = b - a, c - a
+        n = np.array([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]])
+        s = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if s < 1e-9:
+            continue
+        n /= s
+        N[k] = n
+        D[k] = n[0] * a[0] + n[1] * a[1] + n[2] * a[2]
+        S[k] = _plane_weight(P, w, n, D[k], tol, every)
+    order = np.argsort(-S, kind="mergesort")
+    best_n, best_d, best_w = np.zeros(3), 0.0, 0.0
+    for j in range(min(keep, K)):
+        k = order[j]
+        if S[k] < 0.0:
+            break
+        total = _plane_weight(P, w, N[k], D[k], tol, 1)
+        if total > best_w:
+            best_n, best_d, best_w = N[k].copy(), D[k], total
+    return best_n, best_d, best_w
+
+
+@njit(cache=True)
+def plane_pixels(d, nx, ny, nz, dn, focal, cy, cx, band):
+    """Boolean ``(H, W)``: the pixels of the depth image ``d`` (NaN = none) whose back-projection
+    (:func:`back_points` with ``focal``, ``cy``, ``cx``) lies within ``band`` of the plane
+    ``n·x = dn``."""
+    H, W = d.shape
+    out = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        gy = ny * (v - cy) / focal
+        for u in range(W):
+            z = d[v, u]
+            if np.isfinite(z):
+                r = (nx * (u - cx) / focal + gy + nz) * z - dn
+                out[v, u] = -band <= r <= band
+    return out
+
+
+@njit(cache=True)
+def plane_samples(d, step, focal, cy, cx, z_min, z_max):
+    """The back-projections ``(N, 3)`` (:func:`back_points`) of every ``step``-th pixel each way of
+    ``d`` with a depth in ``(z_min, z_max)``, and each one's fronto-parallel area ``(z · step /
+    focal)²``."""
+    H, W = d.shape
+    n = 0
+    P = np.empty((((H + step - 1) // step) * ((W + step - 1) // step), 3))
+    w = np.empty(P.shape[0])
+    for v in range(0, H, step):
+        for u in range(0, W, step):
+            z = d[v, u]
+            if z > z_min and z < z_max:  # False for NaN
+                P[n, 0] = (u - cx) * z / focal
+                P[n, 1] = (v - cy) * z / focal
+                P[n, 2] = z
+                w[n] = (z * step / focal) ** 2
+                n += 1
+    return P[:n], w[:n]
+
+
+@njit(cache=True)
+def plane_refit(P, w, n, dn, tol):
+    """The least-squares plane ``(n, dn)`` of the points of ``P`` within ``tol`` of the plane ``n·x =
+    dn`` (their centroid, and the direction of their least spread), then the points within ``tol`` of
+    it: ``(n, dn, their weight w summed, the median absolute deviation of their distances)``."""
+    c = np.zeros(3)
+    m = 0
+    for i in range(P.shape[0]):
+        if abs(n[0] * P[i, 0] + n[1] * P[i, 1] + n[2] * P[i, 2] - dn) <= tol:
+            for a in range(3):
+                c[a] += P[i, a]
+            m += 1
+    if m < 3:
+        return n, dn, 0.0, 0.0
+    c /= m
+    C = np.zeros((3, 3))
+    for i in range(P.shape[0]):
+        if abs(n[0] * P[i, 0] + n[1] * P[i, 1] + n[2] * P[i, 2] - dn) <= tol:
+            for a in range(3):
+                for b in range(3):
+                    C[a, b] += (P[i, a] - c[a]) * (P[i, b] - c[b])
+    n2 = np.linalg.eigh(C)[1][:, 0].copy()
+    d2 = n2[0] * c[0] + n2[1] * c[1] + n2[2] * c[2]
+    r = np.empty(P.shape[0])
+    k = 0
+    area = 0.0
+    for i in range(P.shape[0]):
+        x = n2[0] * P[i, 0] + n2[1] * P[i, 1] + n2[2] * P[i, 2] - d2
+        if abs(x) <= tol:
+            r[k] = x
+            k += 1
+            area += w[i]
+    if k == 0:
+        return n2, d2, 0.0, 0.0
+    r = r[:k]
+    return n2, d2, area, np.median(np.abs(r - np.median(r)))

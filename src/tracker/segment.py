@@ -24,7 +24,10 @@ No wristband is needed. The steps, each a small function over arrays:
    reach, or into another object met at its own depth: a table, the body); the cut goes across
    the arm where the width profile along the arm stops narrowing (the wrist);
 6. with a colour frame (``use_color``), only skin-coloured pixels (HSV range of htrack's
-   detector) are kept, when enough of them are.
+   detector) are kept, when enough of them are;
+7. without one (``plane="auto"``), the pixels of the frame's largest plane (a table, a floor, a
+   wall: :func:`support_plane`) are left out as the skin test leaves them out: an arm resting on a
+   table is then no longer one surface with it.
 
 The body-sized surface of a person standing behind the hand is never picked over the hand
 because its nearest part lies behind the hand; a surface that merely touches the hand in the
@@ -47,6 +50,10 @@ from scipy import ndimage
 from ._icp_kernels import feature_transform
 from ._segment_kernels import (
     back_points,
+    plane_pixels,
+    plane_ransac,
+    plane_refit,
+    plane_samples,
     city_block,
     closed_filled,
     component_labels,
@@ -67,6 +74,13 @@ from ._segment_kernels import (
 # HSV skin range of htrack's Detector (OpenCV scale: H 0–179, S and V 0–255)
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
+PLANE_CHOICES = ("auto", "cut", "keep")
+PLANE_SAMPLES = 5000  # pixels of the frame the plane search samples (every 8th pixel each way of 640 x 480)
+PLANE_TRIES = 96  # planes through three sampled points tried (a table on a third of the samples: missed 1 in 10^16)
+PLANE_PREEMPT, PLANE_KEEP = 8, 6  # each tried plane weighed on every 8th sample, the best 6 on all
+PLANE_TOL_M = 0.012  # a sample this close to a tried plane is on it (Kinect v1 noise and steps at 1.5 m: ~7 mm)
+PLANE_MIN_AREA_M2 = 0.1  # a plane is a support surface when it covers this much (a 1.5x hand: 0.027 m²)
+PLANE_BAND_M = (0.008, 0.02)  # the band left out around it: 3 robust SDs of its points, within these
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
@@ -110,6 +124,8 @@ class Segmenter:
     reach : how far (m, 3-D) the hand may extend from its nearest part's centre (None: no limit)
     forearm : ``"cut"`` (remove the forearm beyond the wrist) or ``"keep"``
     use_color : keep only skin-coloured pixels when a colour frame is given
+    plane : ``"auto"`` (leave out the frame's largest plane, :func:`support_plane`, when no colour
+        frame is used), ``"cut"`` (always) or ``"keep"`` (never)
     coarse : search on every ``coarse``-th pixel in x and y, then refine the edges at full
         resolution (1: search at full resolution; used only for images of at least 40·coarse
         pixels each way)
@@ -129,10 +145,13 @@ class Segmenter:
     forearm: str = "cut"
     use_color: bool = True
     coarse: int = 2
+    plane: str = "auto"
 
     def __post_init__(self):
         if self.forearm not in FOREARM_CHOICES:
             raise ValueError(f"forearm must be one of {', '.join(FOREARM_CHOICES)}, got {self.forearm!r}")
+        if self.plane not in PLANE_CHOICES:
+            raise ValueError(f"plane must be one of {', '.join(PLANE_CHOICES)}, got {self.plane!r}")
         if not self.z_max > self.z_min:
             raise ValueError(f"depth range must have far > near, got {self.z_min}, {self.z_max}")
 
@@ -143,7 +162,13 @@ class Segmenter:
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
         :data:`DEFAULT_FOCAL_PX`)."""
         d, f = self._inputs(depth, points, focal)
-        return self._run(d, color, points, f)
+        return self._run(d, color, points, f, plane=self._plane(d, color, f))
+
+    def _plane(self, d, color, focal):
+        """The whole frame's :func:`support_plane` when it is to be left out, else None."""
+        if self.plane == "keep" or (self.plane == "auto" and color is not None and self.use_color):
+            return None
+        return support_plane(d, focal, z_min=self.z_min, z_max=self.z_max)
 
     def _inputs(self, depth, points, focal):
         """``(depth as float, focal length)``, refusing a box without the points it is tested on."""
@@ -174,7 +199,8 @@ class Segmenter:
             return None
         win = (slice(y0, y1), slice(x0, x1))
         sub = self._run(d[win], None if color is None else np.asarray(color)[win],
-                        None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W))
+                        None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
+                        plane=self._plane(d, color, f))
         if not sub.any():
             return None
         (ya, yb), (xa, xb) = bounds(sub)
@@ -192,30 +218,33 @@ class Segmenter:
         out[win] = sub
         return out
 
-    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None):
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None):
         """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
         first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
-        principal point)."""
+        principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None."""
         c = int(self.coarse)
         H, W = whole_shape or d.shape
         (y0, x0) = origin
         if c <= 1 or min(H, W) < 40 * c:
-            return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0))
+            return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane)
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
         dc = d[sub]
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
-                           centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c))
+                           centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane)
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
         out[win] &= self._valid(d[win], None if color is None else np.asarray(color)[win],
-                                None if points is None else np.asarray(points)[win], skin_only=False)
+                                None if points is None else np.asarray(points)[win], skin_only=False, plane=plane,
+                                at=(f, (H - 1) / 2 - y0 - win[0].start, (W - 1) / 2 - x0 - win[1].start))
         return out
 
-    def _valid(self, d, color, points, skin_only=True):
+    def _valid(self, d, color, points, skin_only=True, plane=None, at=None):
+        """The working volume's pixels of ``d``, skin-coloured ones only with a colour frame, those off
+        ``plane`` (a :class:`SupportPlane`) when given; ``at``: ``(focal, cy, cx)`` of ``d``'s pixels."""
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
         if self.box_min is not None or self.box_max is not None:
@@ -224,17 +253,24 @@ class Segmenter:
             skin = skin_mask(color) & valid
             if skin.sum() >= (self.min_pixels if skin_only else 1):
                 valid = skin
+        if plane is not None:
+            valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None):
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None):
         """The search on an image subsampled by ``step`` (pixel counts and distances scale);
-        ``centre``: the principal point in its pixel coordinates (None: the image's centre)."""
-        valid = self._valid(d, color, points)
+        ``centre``: the principal point in its pixel coordinates (None: the image's centre);
+        ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out."""
+        if centre is None:
+            centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
+        valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
         if not valid.any():
             return valid
         dv = np.where(valid, d, np.nan)
-        # the frame before the skin filter: where a table or the body meets the hand, the arm goes on
-        d_all = np.where(self._valid(d, None, points), d, np.nan) if color is not None and self.use_color else dv
+        # the frame before the skin filter (and the plane): where a table or the body meets the hand,
+        # the arm goes on
+        filtered = (color is not None and self.use_color) or plane is not None
+        d_all = np.where(self._valid(d, None, points), d, np.nan) if filtered else dv
         mask, beyond = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
@@ -267,6 +303,67 @@ def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
                              np.ascontiguousarray(coarse_depth, dtype=np.float64),
                              np.ascontiguousarray(depth, dtype=np.float64), y0, y1, x0, x1, int(step), float(jump))
     return out, win
+
+
+@dataclass(frozen=True)
+class SupportPlane:
+    """A plane ``normal · x = offset`` (camera frame, metres; ``normal`` unit) that covers ``area`` m²
+    of the frame, and the ``band`` (m) around it whose pixels :meth:`pixels` gives."""
+
+    normal: tuple
+    offset: float
+    band: float
+    area: float
+
+    def pixels(self, depth, focal, cy, cx) -> np.ndarray:
+        """Boolean ``(H, W)``: the pixels of ``depth`` (metres, NaN = none; principal point ``cy, cx``
+        in its pixels) within ``band`` of the plane."""
+        nx, ny, nz = self.normal
+        return plane_pixels(np.ascontiguousarray(depth, dtype=np.float64), float(nx), float(ny), float(nz),
+                            float(self.offset), float(focal), float(cy), float(cx), float(self.band))
+
+
+def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA_M2, seed=0):
+    """The largest plane of the depth frame (metres, NaN = none), as a :class:`SupportPlane`, or None
+    when none covers ``min_area`` m² (fronto-parallel pixel areas, so a tilted table counts low).
+
+    RANSAC on about :data:`PLANE_SAMPLES` pixels of a grid over the frame (principal point at the
+    image centre, as the segmenter's back-projection): :data:`PLANE_TRIES` planes through three
+    samples (drawn with ``seed``: the same frame gives the same plane), each weighed by the area of
+    the samples within :data:`PLANE_TOL_M`; the best one is refitted to its samples by least squares
+    (twice), and its band is 3 robust standard deviations of their distances, within
+    :data:`PLANE_BAND_M`. A hand is never the plane: 0.01–0.03 m².
+
+    >>> v, u = np.mgrid[0:240, 0:320]
+    >>> table = 0.6 / (0.6 * (v - 119.5) / 300.0 + 0.8) + 0 * u   # the plane (0, 0.6, 0.8) · x = 0.6
+    >>> table[100:140, 150:180] = 0.45                               # something standing in front of it
+    >>> p = support_plane(table, 300.0)
+    >>> (np.round(p.normal, 3) + 0.0).tolist(), round(p.offset, 3), p.band
+    ([0.0, 0.6, 0.8], 0.6, 0.008)
+    >>> on = p.pixels(table, 300.0, 119.5, 159.5)
+    >>> int(on.sum()), bool(on[120, 160])
+    (75600, False)
+    """
+    d = np.ascontiguousarray(depth, dtype=np.float64)
+    H, W = d.shape
+    step = max(int(round(np.sqrt(H * W / PLANE_SAMPLES))), 1)
+    # compiled: the segmenter runs it on every frame without colour
+    P, w = plane_samples(d, step, float(focal), (H - 1) / 2, (W - 1) / 2, float(z_min), float(z_max))
+    if len(P) < 3 or w.sum() < min_area:
+        return None
+    tries = np.random.default_rng(seed).integers(0, len(P), size=(PLANE_TRIES, 3))
+    n, dn, got = plane_ransac(P, w, tries, PLANE_TOL_M, PLANE_PREEMPT, PLANE_KEEP)
+    if got < min_area:
+        return None
+    for _ in range(2):
+        n, dn, area, mad = plane_refit(P, w, n, dn, PLANE_TOL_M)
+    if area < min_area:
+        return None
+    sd = 1.4826 * mad
+    band = float(np.clip(3.0 * sd, *PLANE_BAND_M))
+    if dn < 0:  # the camera on the normal's negative side: what stands in front has normal · x < offset
+        n, dn = -n, -dn
+    return SupportPlane(tuple(float(x) + 0.0 for x in n), float(dn), band, float(area))
 
 
 def in_box(points, box_min=None, box_max=None) -> np.ndarray:
