@@ -631,12 +631,13 @@ def _plane_weight(P, w, n, dn, tol, every):
 
 
 @njit(cache=True)
-def plane_ransac(P, w, tries, tol, every, keep):
+def plane_ransac(P, w, tries, tol, every, keep, max_cos):
     """The plane ``n·x = dn`` (``n`` a unit normal) through three of the points ``P (N, 3)`` that
     collects the largest weight ``w`` of points within ``tol`` of it, among the triplets ``tries
-    (K, 3)`` (indices into ``P``): each triplet's plane is weighed on every ``every``-th point, the
+    (K, 3)`` (indices into ``P``) whose plane is seen obliquely (``|n · the direction to the three
+    points' centroid| ≤ max_cos``): each triplet's plane is weighed on every ``every``-th point, the
     best ``keep`` on all of them (preemptive RANSAC). Returns ``(n, dn, weight)``; weight 0 when
-    every triplet is degenerate (collinear within 1e-9 m²)."""
+    no triplet qualifies (collinear within 1e-9 m², or facing the camera)."""
     K = tries.shape[0]
     N = np.zeros((K, 3))
     D = np.zeros(K)
@@ -649,6 +650,9 @@ def plane_ransac(P, w, tries, tol, every, keep):
         if s < 1e-9:
             continue
         n /= s
+        m = a + b + c
+        if abs(n[0] * m[0] + n[1] * m[1] + n[2] * m[2]) > max_cos * np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]):
+            continue
         N[k] = n
         D[k] = n[0] * a[0] + n[1] * a[1] + n[2] * a[2]
         S[k] = _plane_weight(P, w, n, D[k], tol, every)

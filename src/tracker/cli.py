@@ -323,6 +323,7 @@ def show(
     depth_range: Optional[str] = typer.Option(None, "--depth-range", help="NEAR,FAR (m) for the mask, as in tracker track."),
     box: Optional[str] = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m) for the mask, as in tracker track."),
     forearm: str = typer.Option("cut", "--forearm", help="cut or keep, for the mask, as in tracker track."),
+    plane: str = typer.Option("auto", "--plane", help="auto, cut or keep, for the mask, as in tracker track."),
     frame: Optional[int] = typer.Option(None, "--frame", help="Only this frame (a Rerun .rrd: the logged frame "
                                                               "to draw; default its last frame with a hand)."),
     keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Keypoints CSV of tracker track "
@@ -349,7 +350,8 @@ def show(
     check_output(output, overwrite=overwrite)  # before the frames are read
     if recording.suffix.lower() == ".rrd":
         given = [o for o, v in (("--topic", topic), ("--every", every or None), ("--near", near), ("--far", far),
-                                ("--depth-range", depth_range), ("--box", box), ("--keypoints", keypoints))
+                                ("--depth-range", depth_range), ("--box", box), ("--keypoints", keypoints),
+                                ("--plane", None if plane == "auto" else plane))
                  if v is not None]
         if given:
             raise TrackerError(recording, f"{', '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to a "
@@ -369,7 +371,7 @@ def show(
         raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
     from .track_cli import _segmenter
 
-    segmenter = _segmenter(depth_range, box, forearm) if mask else None
+    segmenter = _segmenter(depth_range, box, forearm, plane) if mask else None
     rec = Recording.open(recording, topic=topic)
     n = len(rec)
     if n == 0:

@@ -79,7 +79,10 @@ PLANE_SAMPLES = 5000  # pixels of the frame the plane search samples (every 8th 
 PLANE_TRIES = 96  # planes through three sampled points tried (a table on a third of the samples: missed 1 in 10^16)
 PLANE_PREEMPT, PLANE_KEEP = 8, 6  # each tried plane weighed on every 8th sample, the best 6 on all
 PLANE_TOL_M = 0.012  # a sample this close to a tried plane is on it (Kinect v1 noise and steps at 1.5 m: ~7 mm)
-PLANE_MIN_AREA_M2 = 0.1  # a plane is a support surface when it covers this much (a 1.5x hand: 0.027 m²)
+PLANE_MIN_AREA_M2 = 0.1  # a plane is a support surface when it covers this much (a 1.5x hand: 0.027 m²) …
+# … and is seen this far off face-on (the rendered table: 42°). A surface facing the camera behind the
+# hand is left to the layer rule (_in_front): leaving out a flat torso 4 cm behind lost the SR305 hands
+PLANE_MIN_TILT_DEG = 30.0
 PLANE_BAND_M = (0.008, 0.02)  # the band left out around it: 3 robust SDs of its points, within these
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
@@ -323,9 +326,11 @@ class SupportPlane:
                             float(self.offset), float(focal), float(cy), float(cx), float(self.band))
 
 
-def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA_M2, seed=0):
-    """The largest plane of the depth frame (metres, NaN = none), as a :class:`SupportPlane`, or None
-    when none covers ``min_area`` m² (fronto-parallel pixel areas, so a tilted table counts low).
+def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA_M2, min_tilt_deg=PLANE_MIN_TILT_DEG,
+                  seed=0):
+    """The largest plane of the depth frame (metres, NaN = none) seen at least ``min_tilt_deg`` off
+    face-on (a table or floor; not a wall or torso facing the camera), as a :class:`SupportPlane`, or
+    None when none covers ``min_area`` m² (fronto-parallel pixel areas, so a tilted table counts low).
 
     RANSAC on about :data:`PLANE_SAMPLES` pixels of a grid over the frame (principal point at the
     image centre, as the segmenter's back-projection): :data:`PLANE_TRIES` planes through three
@@ -352,12 +357,14 @@ def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA
     if len(P) < 3 or w.sum() < min_area:
         return None
     tries = np.random.default_rng(seed).integers(0, len(P), size=(PLANE_TRIES, 3))
-    n, dn, got = plane_ransac(P, w, tries, PLANE_TOL_M, PLANE_PREEMPT, PLANE_KEEP)
+    max_cos = float(np.cos(np.radians(min_tilt_deg)))
+    n, dn, got = plane_ransac(P, w, tries, PLANE_TOL_M, PLANE_PREEMPT, PLANE_KEEP, max_cos)
     if got < min_area:
         return None
     for _ in range(2):
         n, dn, area, mad = plane_refit(P, w, n, dn, PLANE_TOL_M)
-    if area < min_area:
+    on = np.abs(P @ n - dn) <= PLANE_TOL_M
+    if area < min_area or abs(float(n @ P[on].mean(axis=0))) > max_cos * float(np.linalg.norm(P[on].mean(axis=0))):
         return None
     sd = 1.4826 * mad
     band = float(np.clip(3.0 * sd, *PLANE_BAND_M))

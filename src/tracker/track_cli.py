@@ -17,6 +17,7 @@ import typer
 DEPTH_RANGE = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5].")
 BOX = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box.")
 FOREARM = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut].")
+PLANE = typer.Option("auto", "--plane", help="The frame's largest plane (a table, floor or wall): auto (left out of the hand's search when no colour frame is used; the skin test does it otherwise), cut (always) or keep [auto].")
 HAND = typer.Option(None, "--hand", help="left or right: the hand tracked, overriding the recording's (a recording file does not say; then left).")
 TOPIC = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file].")
 COLOR_TOPIC = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file].")
@@ -61,6 +62,7 @@ def track(
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
+    plane: str = PLANE,
     hand: Optional[str] = HAND,
     topic: Optional[str] = TOPIC,
     color_topic: Optional[str] = COLOR_TOPIC,
@@ -91,7 +93,7 @@ def track(
         _check_outputs(output, None, None, None, overwrite, folder=True)
     else:
         _check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
-    segmenter = _segmenter(depth_range, box, forearm)
+    segmenter = _segmenter(depth_range, box, forearm, plane)
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
     settings.rgb_seed = rgb_seed
@@ -430,10 +432,10 @@ def middle_cut(name: str, width: int) -> str:
     return name[:head] + "…" + name[len(name) - (width - 1 - head):]
 
 
-def _segmenter(depth_range, box, forearm):
-    """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box`` and ``--forearm``."""
+def _segmenter(depth_range, box, forearm, plane):
+    """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box``, ``--forearm`` and ``--plane``."""
     from .errors import TrackerError
-    from .segment import FOREARM_CHOICES, Segmenter
+    from .segment import FOREARM_CHOICES, PLANE_CHOICES, Segmenter
 
     kw = {}
     if depth_range is not None:
@@ -448,7 +450,9 @@ def _segmenter(depth_range, box, forearm):
         kw.update(box_min=tuple(b[:3]), box_max=tuple(b[3:]))
     if forearm not in FOREARM_CHOICES:
         raise TrackerError("--forearm", f"must be {' or '.join(FOREARM_CHOICES)}, got {forearm!r}")
-    return Segmenter(forearm=forearm, **kw)
+    if plane not in PLANE_CHOICES:
+        raise TrackerError("--plane", f"must be {', '.join(PLANE_CHOICES[:-1])} or {PLANE_CHOICES[-1]}, got {plane!r}")
+    return Segmenter(forearm=forearm, plane=plane, **kw)
 
 
 def _floats(text, option, n, example):
@@ -580,6 +584,7 @@ def live(
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
+    plane: str = PLANE,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand live from a RealSense camera (extra [realsense]) with the pipeline of tracker
@@ -600,7 +605,7 @@ def live(
         check_output(save, folder=True)
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
-    segmenter = _segmenter(depth_range, box, forearm)
+    segmenter = _segmenter(depth_range, box, forearm, plane)
     settings = _settings(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
                          None, None, hand_scale, check_hand)
 
@@ -680,6 +685,7 @@ def calibrate(
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
+    plane: str = PLANE,
     hand: Optional[str] = HAND,
     topic: Optional[str] = TOPIC,
     color_topic: Optional[str] = COLOR_TOPIC,
@@ -703,7 +709,7 @@ def calibrate(
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)
-    segmenter = _segmenter(depth_range, box, forearm)
+    segmenter = _segmenter(depth_range, box, forearm, plane)
     settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
                          None, None, "auto", False)
     if finger_lengths is not None:
