@@ -402,3 +402,22 @@ def test_realistic_scene_tracked_with_the_size_calibrated(hand, sensor, scale):
     assert ke[0] <= 20.0 and np.mean(ke) <= 10.0, ke
     assert not (r["status"] == "lost").any()
     assert abs(r["scale"][-1] / scale - 1.0) <= 0.03, r["scale"] / scale
+
+
+def test_realistic_lines_put_the_depth_only_runs_in_their_own_table():
+    """Rows observed without colour go under their own heading, after the colour runs, with their own
+    summaries; a colour row never appears in the depth-only table."""
+    from tracker.sim.report import realistic_lines
+
+    def row(scene, k, color):
+        return {"scene": scene, "clutter": "none", "sensor": "kinect1", "scale": 1.0, "frames": 5, "keypoint_mm": k,
+                "posture_deg": 2.0, "first_frame_mm": k, "first_ok": k <= 20, "lost": 0.0, "fps": 20.0,
+                "scale_found": 1.0, "color": color}
+
+    L = realistic_lines([row("+table", 3.0, True), row("+table", 4.5, False)], 5)
+    cut = L.index("## Realistic scenes without colour (depth only)")
+    assert L.index("## Realistic scenes (clutter × sensor noise × hand size)") < cut
+    assert "| +table | kinect1 | 1 | 3.0 | 2.0 | yes | 3.0 | 0 % | 20.0 | 1.000 |" in L[:cut]
+    assert "| +table | kinect1 | 1 | 4.5 | 2.0 | yes | 4.5 | 0 % | 20.0 | 1.000 |" in L[cut:]
+    assert not any("| 3.0 |" in line for line in L[cut:])
+    assert sum(line.startswith("Against the acceptance") for line in L) == 2

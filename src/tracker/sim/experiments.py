@@ -383,14 +383,15 @@ def realistic_fingers(scale, seed=0, spread=REALISTIC_FINGER_SPREAD) -> dict:
 
 def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REALISTIC_SCALES, frames=30,
                          motion="open-close", settings=None, seed=0, finger_spread=REALISTIC_FINGER_SPREAD,
-                         progress=None):
+                         progress=None, color=True):
     """Realistic scenes: each scene (:data:`REALISTIC_SCENES`) × sensor (:data:`REALISTIC_SENSORS`) ×
     rendered hand scale, tracked from its first frame by a fresh tracker of the model ``hand``
     (``settings``: :class:`TrackerSettings` changes; default: :data:`REALISTIC_SETTINGS`, today's
     defaults with the size calibrated). The rendered hand's fingers are lengthened or shortened by
-    :func:`realistic_fingers` (``finger_spread`` 0: the model's proportions).
+    :func:`realistic_fingers` (``finger_spread`` 0: the model's proportions). ``color``: observed with
+    the rendered colour frame (skin segmentation), else depth only.
 
-    Returns one dict per run: ``scene``, ``sensor``, ``scale``, ``frames``, ``keypoint_mm`` (mean over
+    Returns one dict per run: ``scene``, ``sensor``, ``scale``, ``color``, ``frames``, ``keypoint_mm`` (mean over
     the frames with a θ), ``posture_deg``, ``first_frame_mm``, ``first_ok`` (≤ :data:`FIRST_FRAME_MM`),
     ``lost`` (share of frames), ``fingers`` (the rendered finger factors), ``fps`` (1000 / median tracker ms over the frames with a θ) and ``scale_found`` (the tracker's
     final hand size relative to the rendered one, 1 = exact; NaN when the tracker does not estimate it)."""
@@ -409,12 +410,13 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
                                                                         else settings)), synergies=bundle)
                 # the noise's seed follows the scene's name, so a subset of scenes reproduces the full run's rows
                 j = list(REALISTIC_SCENES).index(scene) if scene in REALISTIC_SCENES else k
-                r = run_scene(hand, shown, truth, cam, tracker, clutter=spec, noise=nm, seed=seed + j)
+                r = run_scene(hand, shown, truth, cam, tracker, clutter=spec, noise=nm, seed=seed + j, color=color)
                 ke = r["keypoint_mm"]
                 fitted = np.isfinite(ke)
                 auto = tracker.settings.hand_scale == "auto"
                 rows.append({
                     "scene": scene, "clutter": spec or "none", "sensor": sensor, "scale": float(scale),
+                    "color": bool(color),
                     "fingers": fingers,
                     "frames": len(truth),
                     "keypoint_mm": float(np.nanmean(ke)) if np.isfinite(ke).any() else float("nan"),

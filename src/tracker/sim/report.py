@@ -87,7 +87,23 @@ def realistic_frames(quick: bool) -> int:
 
 
 def realistic_lines(rows, frames) -> list:
-    """The "realistic scenes" section of the report (markdown lines)."""
+    """The "realistic scenes" sections of the report (markdown lines): the runs with the colour frame, then
+    those without it (rows whose ``color`` is False), each under its own heading."""
+    seen = [r for r in rows if r.get("color", True)]
+    blind = [r for r in rows if not r.get("color", True)]
+    L = _realistic_table(seen, frames) if seen else []
+    if blind:
+        L += ["## Realistic scenes without colour (depth only)", "",
+              "The same runs observed without the colour frame, as from a depth-only recording: the segmentation "
+              "has no skin test and leaves out the frame's support plane instead (a table or floor seen at least "
+              "30° off face-on, `Segmenter(plane=\"auto\")`, `tracker.segment.support_plane`). Before the plane, "
+              "every frame of the `+table` runs was lost.", "",
+              *_realistic_table(blind, frames)[4:]]
+    return L
+
+
+def _realistic_table(rows, frames) -> list:
+    """One realistic-scenes table with its summaries (markdown lines)."""
     L = ["## Realistic scenes (clutter × sensor noise × hand size)", "",
          f"Motion open-close, {frames} frames per sequence, tracked from the first frame by today's default tracker "
          "with the hand size calibrated (`TrackerSettings(hand_scale=\"auto\")`: the first frame, refined over the "
@@ -238,6 +254,12 @@ STEPS = {
                                                         sensors={"kinect1": REALISTIC_SENSORS["kinect1"]}),
     "realistic realsense": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
                                                           sensors={"realsense": REALISTIC_SENSORS["realsense"]}),
+    "realistic kinect1, depth only": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+                                                                    sensors={"kinect1": REALISTIC_SENSORS["kinect1"]},
+                                                                    color=False),
+    "realistic realsense, depth only": lambda c: experiment_realistic(
+        c.hand, c.bundle, frames=realistic_frames(c.quick), sensors={"realsense": REALISTIC_SENSORS["realsense"]},
+        color=False),
     "scenarios, Kinect v1 noise": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen, noise=c.kinect),
     "scenarios": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen),
     "single": lambda c: experiment_single_frame(c.hand, c.bundle, c.cam, n=4 if c.quick else 24),
