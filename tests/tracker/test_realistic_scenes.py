@@ -421,3 +421,19 @@ def test_realistic_lines_put_the_depth_only_runs_in_their_own_table():
     assert "| +table | kinect1 | 1 | 4.5 | 2.0 | yes | 4.5 | 0 % | 20.0 | 1.000 |" in L[cut:]
     assert not any("| 3.0 |" in line for line in L[cut:])
     assert sum(line.startswith("Against the acceptance") for line in L) == 2
+
+
+def test_experiments_terminal_summary_is_one_line_a_scene(capsys, tmp_path):
+    """`tracker experiments` ends the realistic part with one line a scene: the mean keypoint error, the
+    runs within 10 mm and the lost share, with colour and depth only side by side (72 runs in 6 lines)."""
+    from tracker.sim.cli import _print_realistic
+
+    def row(scene, k, lost, color):
+        return {"scene": scene, "sensor": "kinect1", "scale": 1.0, "keypoint_mm": k, "lost": lost, "color": color}
+
+    rows = [row("+table", 3.0, 0.0, True), row("+table", 5.0, 0.0, True), row("+table", float("nan"), 1.0, False),
+            row("+table", 30.0, 0.5, False), row("hand", 1.0, 0.0, True), row("hand", 2.0, 0.0, False)]
+    _print_realistic(rows, tmp_path)
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│")]
+    cells = [[c.strip() for c in ln.strip("│").split("│")] for ln in lines]
+    assert cells == [["+table", "4.0", "2/2", "0 %", "30.0", "0/2", "75 %"], ["hand", "1.0", "1/1", "0 %", "2.0", "1/1", "0 %"]]
