@@ -710,7 +710,8 @@ def plane_samples(d, step, focal, cy, cx, z_min, z_max):
 def plane_refit(P, w, n, dn, tol):
     """The least-squares plane ``(n, dn)`` of the points of ``P`` within ``tol`` of the plane ``n·x =
     dn`` (their centroid, and the direction of their least spread), then the points within ``tol`` of
-    it: ``(n, dn, their weight w summed, the median absolute deviation of their distances)``."""
+    it: ``(n, dn, their weight w summed, the median absolute deviation of their distances, their
+    centroid)``."""
     c = np.zeros(3)
     m = 0
     for i in range(P.shape[0]):
@@ -719,7 +720,7 @@ def plane_refit(P, w, n, dn, tol):
                 c[a] += P[i, a]
             m += 1
     if m < 3:
-        return n, dn, 0.0, 0.0
+        return n, dn, 0.0, 0.0, c
     c /= m
     C = np.zeros((3, 3))
     for i in range(P.shape[0]):
@@ -732,13 +733,16 @@ def plane_refit(P, w, n, dn, tol):
     r = np.empty(P.shape[0])
     k = 0
     area = 0.0
+    c2 = np.zeros(3)
     for i in range(P.shape[0]):
         x = n2[0] * P[i, 0] + n2[1] * P[i, 1] + n2[2] * P[i, 2] - d2
         if abs(x) <= tol:
             r[k] = x
             k += 1
             area += w[i]
+            for a in range(3):
+                c2[a] += P[i, a]
     if k == 0:
-        return n2, d2, 0.0, 0.0
+        return n2, d2, 0.0, 0.0, c2
     r = r[:k]
-    return n2, d2, area, np.median(np.abs(r - np.median(r)))
+    return n2, d2, area, np.median(np.abs(r - np.median(r))), c2 / k

@@ -76,7 +76,7 @@ SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 PLANE_CHOICES = ("auto", "cut", "keep")
 PLANE_SAMPLES = 5000  # pixels of the frame the plane search samples (every 8th pixel each way of 640 x 480)
-PLANE_TRIES = 96  # planes through three sampled points tried (a table on a third of the samples: missed 1 in 10^16)
+PLANE_TRIES = 256  # planes through three sampled points tried (a table on a third of the samples: no triplet of it in 1 of 16,000 frames)
 PLANE_PREEMPT, PLANE_KEEP = 8, 6  # each tried plane weighed on every 8th sample, the best 6 on all
 PLANE_TOL_M = 0.012  # a sample this close to a tried plane is on it (Kinect v1 noise and steps at 1.5 m: ~7 mm)
 PLANE_MIN_AREA_M2 = 0.1  # a plane is a support surface when it covers this much (a 1.5x hand: 0.027 m²) …
@@ -362,9 +362,9 @@ def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA
     if got < min_area:
         return None
     for _ in range(2):
-        n, dn, area, mad = plane_refit(P, w, n, dn, PLANE_TOL_M)
-    on = np.abs(P @ n - dn) <= PLANE_TOL_M
-    if area < min_area or abs(float(n @ P[on].mean(axis=0))) > max_cos * float(np.linalg.norm(P[on].mean(axis=0))):
+        n, dn, area, mad, c = plane_refit(P, w, n, dn, PLANE_TOL_M)
+    # seen obliquely from the camera (the triplets were; the refitted plane must be too)
+    if area < min_area or abs(float(n @ c)) > max_cos * float(np.linalg.norm(c)):
         return None
     sd = 1.4826 * mad
     band = float(np.clip(3.0 * sd, *PLANE_BAND_M))
