@@ -407,6 +407,9 @@ class FileRecording(Recording):
         for name, v in (("--start", start_s), ("--end", end_s)):
             if v is not None and not np.isfinite(v):
                 raise RecordingError(self.path, f"{name} must be a finite number of seconds, got {v!r}")
+            if v is not None and v < 0:
+                # the file's time starts at 0 (its first depth frame): a negative time is a typo, not "from the start"
+                raise RecordingError(self.path, f"{name} must be ≥ 0 s (seconds from the first depth frame), got {v:g}")
         t = self.times_s
         keep = np.ones(len(t), bool)
         if start_s is not None:

@@ -402,6 +402,10 @@ def test_select_and_import(tmp_path):
         assert np.array_equal(out.depth_units(i), frames[k])
     with pytest.raises(RecordingError, match="exists and is not empty"):
         import_recording_file(src, tmp_path / "rec")
+    # a negative time is refused, not read as "from the first frame" (it was)
+    for kw in ({"start_s": -1.0}, {"end_s": -0.1}):
+        with pytest.raises(RecordingError, match="must be ≥ 0 s"):
+            Recording.open(src).select(**kw)
 
 
 def test_recording_pickles_without_its_open_reader(tmp_path):
