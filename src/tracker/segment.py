@@ -278,7 +278,7 @@ class Segmenter:
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
-                           with_beyond=True, centre=centre)
+                           with_beyond=True, centre=centre, fingers_first=not (color is not None and self.use_color))
         beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
@@ -571,7 +571,8 @@ def _touches_border(mask, px=None):
 
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None):
+                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
+                fingers_first=False):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -584,7 +585,10 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed, behind))``:
     also the pixels of the hand's surface left out by the band or the reach (where an arm leaves
     the region), the seed's pixels, and the pixels of a body close behind the hand along its
-    outline (:func:`_in_front`; empty when there is none)."""
+    outline (:func:`_in_front`; empty when there is none). ``fingers_first`` (depth only, where no skin
+    test removed objects): when that whole surface has no fingers (:func:`_has_fingers`: a box or a mug
+    nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
+    farther one is the hand."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -622,6 +626,16 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             if end_front < front and _has_fingers(lab == kk, d, end, focal, reach):
                 k, front, seed = kk, end_front, end
                 break
+    if fingers_first and ids.size > 1 and not _touches_border(seed, border_px) and not _has_fingers(
+            lab == k, d, seed, focal, reach):
+        if X is None:
+            X = _points(d, focal, centre) if points is None else np.asarray(points, float)
+        for kk, ff in zip(ids, fronts):
+            if kk != k:
+                end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach)
+                if end is not None:
+                    k, front, seed = int(kk), end_front, end
+                    break
     if not _touches_border(seed, border_px):
         seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
     if _touches_border(seed, border_px):
@@ -804,6 +818,19 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     big[0] = False
     out[win] = close & big[lab]
     return out
+
+
+def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22):
+    """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`), else
+    ``(None, nan)``: its far end from the border when its nearest part is cut off by it
+    (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`)."""
+    with np.errstate(invalid="ignore"):
+        seed = _largest_in_window(surface & (d <= front + 0.015))
+    if _touches_border(seed, border_px):
+        seed, front = _far_end(surface, d, X, focal, border_px, reach)
+    else:
+        seed, front = _hand_end(surface, d, front, band, seed, focal, border_px)
+    return (seed, front) if _has_fingers(surface, d, seed, focal, reach) else (None, float("nan"))
 
 
 def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
