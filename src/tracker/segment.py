@@ -105,6 +105,7 @@ FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this c
 FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
 FRONT_OUTLINE_SHARE = 0.3  # … the region lies behind it across that step over this share of its outline (hand and arm alone, or the table scenes: ≤ 0.22 with colour; a torso 3-5 cm behind: 0.27-0.95)
 FRONT_BEHIND_AREA_M2 = 0.035  # … and the region behind it is bigger than any hand (1.5x: 0.027 m²; a torso within reach: 0.04-0.1)
+FINGERS_FIRST_M, FINGERS_FIRST_TRIES = 0.3, 4  # depth only: the surfaces tried for fingers when the nearest has none
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -167,9 +168,13 @@ class Segmenter:
         d, f = self._inputs(depth, points, focal)
         return self._run(d, color, points, f, plane=self._plane(d, color, f))
 
+    def _skin(self, color) -> bool:
+        """Whether the skin test runs (a colour frame given and ``use_color``)."""
+        return color is not None and self.use_color
+
     def _plane(self, d, color, focal):
         """The whole frame's :func:`support_plane` when it is to be left out, else None."""
-        if self.plane == "keep" or (self.plane == "auto" and color is not None and self.use_color):
+        if self.plane == "keep" or (self.plane == "auto" and self._skin(color)):
             return None
         return support_plane(d, focal, z_min=self.z_min, z_max=self.z_max)
 
@@ -252,7 +257,7 @@ class Segmenter:
             valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
         if self.box_min is not None or self.box_max is not None:
             valid &= in_box(points, self.box_min, self.box_max)
-        if color is not None and self.use_color:
+        if self._skin(color):
             skin = skin_mask(color) & valid
             if skin.sum() >= (self.min_pixels if skin_only else 1):
                 valid = skin
@@ -272,13 +277,13 @@ class Segmenter:
         dv = np.where(valid, d, np.nan)
         # the frame before the skin filter (and the plane): where a table or the body meets the hand,
         # the arm goes on
-        filtered = (color is not None and self.use_color) or plane is not None
+        filtered = self._skin(color) or plane is not None
         d_all = np.where(self._valid(d, None, points), d, np.nan) if filtered else dv
         mask, beyond = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
-                           with_beyond=True, centre=centre, fingers_first=not (color is not None and self.use_color))
+                           with_beyond=True, centre=centre, fingers_first=not self._skin(color))
         beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
@@ -630,12 +635,14 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             lab == k, d, seed, focal, reach):
         if X is None:
             X = _points(d, focal, centre) if points is None else np.asarray(points, float)
-        for kk, ff in zip(ids, fronts):
-            if kk != k:
-                end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach)
-                if end is not None:
-                    k, front, seed = int(kk), end_front, end
-                    break
+        # the few surfaces nearest after it, within reach of a hand beside an object (each test costs
+        # ~1 ms: a cluttered frame has dozens of surfaces)
+        others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= FINGERS_FIRST_M]
+        for kk, ff in others[:FINGERS_FIRST_TRIES]:
+            end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach)
+            if end is not None:
+                k, front, seed = int(kk), end_front, end
+                break
     if not _touches_border(seed, border_px):
         seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
     if _touches_border(seed, border_px):
