@@ -105,7 +105,11 @@ FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this c
 FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
 FRONT_OUTLINE_SHARE = 0.3  # … the region lies behind it across that step over this share of its outline (hand and arm alone, or the table scenes: ≤ 0.22 with colour; a torso 3-5 cm behind: 0.27-0.95)
 FRONT_BEHIND_AREA_M2 = 0.035  # … and the region behind it is bigger than any hand (1.5x: 0.027 m²; a torso within reach: 0.04-0.1)
-FINGERS_FIRST_M, FINGERS_FIRST_TRIES = 0.3, 4  # depth only: the surfaces tried for fingers when the nearest has none
+# depth only, when the nearest whole surface has no fingers: the surfaces tried instead, at most this many,
+# whose nearest part lies within this depth of its own (the rendered boxes: 5 mm; a torso 18 cm behind a
+# fist, split by the arm's shadow into finger-like strips, was taken) and no bigger than a hand with its
+# forearm (rendered 1x: 0.02 m²; that torso's visible part 0.09)
+FINGERS_FIRST_TRIES, FINGERS_FIRST_M, FINGERS_FIRST_MAX_AREA_M2 = 4, 0.1, 0.06
 BORDER_PX = 12  # a seed this close to the image border counts as cut off by it (sensors leave the last pixels empty)
 
 
@@ -828,9 +832,11 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
 
 
 def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22):
-    """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`), else
-    ``(None, nan)``: its far end from the border when its nearest part is cut off by it
+    """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`) and the
+    surface is no bigger than :data:`FINGERS_FIRST_MAX_AREA_M2`, else ``(None, nan)``: its far end from the border when its nearest part is cut off by it
     (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`)."""
+    if float(pixel_area(d[surface], focal).sum()) > FINGERS_FIRST_MAX_AREA_M2:
+        return None, float("nan")
     with np.errstate(invalid="ignore"):
         seed = _largest_in_window(surface & (d <= front + 0.015))
     if _touches_border(seed, border_px):

@@ -109,3 +109,20 @@ def test_a_hand_beside_a_nearer_box_is_tracked_without_colour(hand):
     r = E.run_scene(hand, shown, truth, cam, tr, clutter=E.REALISTIC_SCENES["+object"], noise=nm,
                     seed=list(E.REALISTIC_SCENES).index("+object"), color=False)
     assert np.all(r["keypoint_mm"] <= 10.0), r["keypoint_mm"]
+
+
+@pytest.mark.parametrize("sensor, frame", [("kinect1", 18), ("sr305", 18), ("sr305", 24)])
+def test_a_fist_before_the_body_stays_the_hand(hand, sensor, frame):
+    """Depth only, a closing hand with its forearm and a torso behind (placed at the motion's mean hand
+    position): the fist has no fingers, and the torso's visible part, split by the arm's shadow into
+    finger-like strips, has — the first fingers-first rule took the torso (recall 0 on these frames).
+    The torso is too far behind the fist and too big to be a hand: the mask stays the hand."""
+    from tracker.sim.render import Clutter as C
+
+    cam, nm = preset(sensor), NoiseModel.preset(sensor)
+    truth = make_motion("open-close", hand=hand, frames=30).theta
+    r = DepthRenderer(hand, cam).render(truth[frame], labels=True, clutter=C.parse("forearm,torso").fixed(
+        truth[:, :3].mean(axis=0)), incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
+    depth = nm.apply(r.depth, cam, np.random.default_rng([0, frame]), r.cos_incidence, r.reflectance)
+    recall, precision = _scores(observe(depth, cam).mask, depth, r.labels)
+    assert recall >= 0.9 and precision >= 0.8, (recall, precision)

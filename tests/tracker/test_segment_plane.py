@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from handmodel.rigid import euler_to_matrix
@@ -36,10 +36,10 @@ def _plane_depth(n, dn, noise_sd, rng):
 
 
 @settings(max_examples=40, deadline=None)
-@given(tilt=st.floats(35.0, 60.0), turn=st.floats(0.0, 360.0), dn=st.floats(0.6, 1.0),
+@given(tilt=st.floats(35.0, 60.0), turn=st.floats(0.0, 360.0), dn=st.floats(0.5, 0.9),
        noise_mm=st.floats(0.0, 3.0), seed=st.integers(0, 1000))
 def test_a_plane_is_found_under_a_hand_sized_object_and_noise(tilt, turn, dn, noise_mm, seed):
-    """Any plane seen 35–60° off face-on (a table), with up to 3 mm of depth noise and a hand-sized
+    """Any plane seen 35–60° off face-on (a table) over most of the frame, with up to 3 mm of depth noise and a hand-sized
     object standing 10 cm in front of it: its normal within 1°, its offset within 3 mm, the band 3 SDs
     of the noise within PLANE_BAND_M; the object's pixels are not on it, the plane's are (but for
     noise beyond the band)."""
@@ -47,6 +47,9 @@ def test_a_plane_is_found_under_a_hand_sized_object_and_noise(tilt, turn, dn, no
     a, b = np.radians(tilt), np.radians(turn)
     n = np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)])
     d = _plane_depth(n, dn, noise_mm / 1000.0, rng)
+    # a plane steep enough runs out of the working range over most of the image (tilt 60°, 1 m away:
+    # 16 % of it left, 0.1 m², no support surface): such frames are not this test's
+    assume(np.isfinite(d).mean() > 0.4)
     obj = (slice(100, 150), slice(140, 175))
     d[obj] = np.where(np.isfinite(d[obj]), d[obj] - 0.1 / max(n[2], 0.3), np.nan)
     p = support_plane(d, F)
