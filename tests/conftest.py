@@ -26,3 +26,38 @@ def hand():
 def fingerfist():
     """The 6000×26 fingerfist postures (global translation in mm as in the file)."""
     return np.loadtxt(shared("htrack_schroeder", "fingerfist.txt"))
+
+
+def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0):
+    """``(camera, depth, colour, labels)``: frame ``frame`` of a realistic scene as
+    :func:`tracker.sim.experiments.run_scene` renders it — open/close (30 frames), the model ``hand`` ×
+    ``scale`` with :func:`~tracker.sim.experiments.realistic_fingers`, ``spec``'s clutter sized with it
+    and placed from the motion's mean hand centre, ``sensor``'s camera and noise (seeded
+    ``[noise_seed, frame]``)."""
+    from handmodel.rigid import euler_to_matrix
+    from tracker.cameras import preset
+    from tracker.sim import experiments as E
+    from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
+    from tracker.sim.motions import make_motion
+    from tracker.sim.noise import NoiseModel
+    from tracker.sim.render import Clutter, DepthRenderer
+
+    cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
+    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
+    shown = HandShape(scale, E.realistic_fingers(scale)).apply(hand)
+    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
+    R = euler_to_matrix(truth[:, 3:6])
+    clutter = Clutter.parse(spec).sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
+        (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
+    r = DepthRenderer(shown, cam).render(truth[frame], labels=True, color=True, clutter=clutter,
+                                         incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
+    depth = nm.apply(r.depth, cam, np.random.default_rng([noise_seed, frame]), r.cos_incidence, r.reflectance)
+    return cam, depth, r.color, r.labels
+
+
+def mask_scores(mask, depth, labels):
+    """``(recall, precision)`` of a hand ``mask`` against the rendered hand's seen pixels (``labels`` ≥ 0
+    with depth)."""
+    seen = (labels >= 0) & np.isfinite(depth)
+    both = (mask & seen).sum()
+    return both / seen.sum(), both / max(mask.sum(), 1)

@@ -7,38 +7,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from handmodel.rigid import euler_to_matrix
+from tests.conftest import mask_scores, realistic_frame
 from tracker.cameras import preset
 from tracker.observe import observe
 from tracker.segment import hand_region
 from tracker.sim import experiments as E
-from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
+from tracker.sim.hands import HandShape
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
 
 
 def _object_scene(hand, sensor, scale, frame):
-    """``(camera, depth, colour, labels)``: frame ``frame`` of the realistic ``+object`` scene as the
-    experiments render it (open/close, a box beside the hand, its noise seeded as there)."""
-    cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
-    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
-    shown = HandShape(scale, E.realistic_fingers(scale)).apply(hand)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    clutter = Clutter.parse("forearm,box").sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
-        (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
-    r = DepthRenderer(shown, cam).render(truth[frame], labels=True, color=True, clutter=clutter,
-                                         incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
-    seed = list(E.REALISTIC_SCENES).index("+object")
-    depth = nm.apply(r.depth, cam, np.random.default_rng([seed, frame]), r.cos_incidence, r.reflectance)
-    return cam, depth, r.color, r.labels
-
-
-def _scores(mask, depth, labels):
-    seen = (labels >= 0) & np.isfinite(depth)
-    both = (mask & seen).sum()
-    return both / seen.sum(), both / max(mask.sum(), 1)
+    return realistic_frame(hand, sensor, scale, "forearm,box", frame, list(E.REALISTIC_SCENES).index("+object"))
 
 
 @pytest.mark.parametrize("sensor, scale, frame", [("kinect1", 1.0, 0), ("kinect1", 1.0, 9), ("realsense", 1.0, 3),
@@ -49,7 +30,7 @@ def test_an_open_hand_beside_a_nearer_box_is_found_without_colour(hand, sensor, 
     import tracker.segment as S
 
     cam, depth, _, labels = _object_scene(hand, sensor, scale, frame)
-    recall, precision = _scores(observe(depth, cam).mask, depth, labels)
+    recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
     rule = S.hand_region
 
@@ -57,7 +38,7 @@ def test_an_open_hand_beside_a_nearer_box_is_found_without_colour(hand, sensor, 
         return rule(*a, **{**k, "fingers_first": False})
 
     monkeypatch.setattr(S, "hand_region", nearest_first)
-    recall, _ = _scores(observe(depth, cam).mask, depth, labels)
+    recall, _ = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall < 0.1, recall
 
 
@@ -91,7 +72,7 @@ def test_fingers_first_takes_the_fingered_hand_and_leaves_a_fist_to_the_nearest(
 def test_with_colour_the_nearest_rule_is_unchanged(hand):
     """The skin test removes objects: with a colour frame the segmenter's choice is the earlier one."""
     cam, depth, color, labels = _object_scene(hand, "kinect1", 1.0, 0)
-    recall, precision = _scores(observe(depth, cam, color=color).mask, depth, labels)
+    recall, precision = mask_scores(observe(depth, cam, color=color).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
@@ -117,12 +98,10 @@ def test_a_fist_before_the_body_stays_the_hand(hand, sensor, frame):
     position): the fist has no fingers, and the torso's visible part, split by the arm's shadow into
     finger-like strips, has — the first fingers-first rule took the torso (recall 0 on these frames).
     The torso is too far behind the fist and too big to be a hand: the mask stays the hand."""
-    from tracker.sim.render import Clutter as C
-
     cam, nm = preset(sensor), NoiseModel.preset(sensor)
     truth = make_motion("open-close", hand=hand, frames=30).theta
-    r = DepthRenderer(hand, cam).render(truth[frame], labels=True, clutter=C.parse("forearm,torso").fixed(
+    r = DepthRenderer(hand, cam).render(truth[frame], labels=True, clutter=Clutter.parse("forearm,torso").fixed(
         truth[:, :3].mean(axis=0)), incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
     depth = nm.apply(r.depth, cam, np.random.default_rng([0, frame]), r.cos_incidence, r.reflectance)
-    recall, precision = _scores(observe(depth, cam).mask, depth, r.labels)
+    recall, precision = mask_scores(observe(depth, cam).mask, depth, r.labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)

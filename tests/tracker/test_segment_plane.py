@@ -9,7 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from handmodel.rigid import euler_to_matrix
+from tests.conftest import mask_scores, realistic_frame
 from tracker._segment_kernels import back_points
 from tracker.cameras import preset
 from tracker.observe import hand_window, observe
@@ -18,7 +18,6 @@ from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
-from tracker.sim.render import Clutter, DepthRenderer
 
 F, H, W = 475.0, 240, 320
 CY, CX = (H - 1) / 2, (W - 1) / 2
@@ -101,24 +100,7 @@ def test_plane_pixels_is_its_numpy_definition(seed, band):
 
 
 def _table_scene(hand, sensor, scale, frame):
-    """``(camera, depth, colour, labels)``: frame ``frame`` of the realistic ``+table`` scene (open/close,
-    30 frames, forearm resting on a table seen from 45°)."""
-    cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
-    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
-    shown = HandShape(scale, E.realistic_fingers(scale)).apply(hand)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    clutter = Clutter.parse("forearm,table").sized(scale).fixed((truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
-    r = DepthRenderer(shown, cam).render(truth[frame], labels=True, color=True, clutter=clutter,
-                                         incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
-    depth = nm.apply(r.depth, cam, np.random.default_rng([0, frame]), r.cos_incidence, r.reflectance)
-    return cam, depth, r.color, r.labels
-
-
-def _scores(mask, depth, labels):
-    seen = (labels >= 0) & np.isfinite(depth)
-    both = (mask & seen).sum()
-    return both / seen.sum(), both / max(mask.sum(), 1)
+    return realistic_frame(hand, sensor, scale, "forearm,table", frame, 0)
 
 
 @pytest.mark.parametrize("sensor, scale, frame", [("kinect1", 1.0, 0), ("kinect1", 1.5, 20), ("realsense", 0.8, 28),
@@ -128,9 +110,9 @@ def test_a_hand_above_a_table_is_found_without_colour(hand, sensor, scale, frame
     (recall ≥ 0.9, precision ≥ 0.8); with the plane kept (the earlier segmenter) it was a patch of the
     table (precision < 0.2), which this test also checks, so that it cannot pass with the plane kept."""
     cam, depth, _, labels = _table_scene(hand, sensor, scale, frame)
-    recall, precision = _scores(observe(depth, cam).mask, depth, labels)
+    recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
-    _, kept = _scores(observe(depth, cam, segmenter=Segmenter(plane="keep")).mask, depth, labels)
+    _, kept = mask_scores(observe(depth, cam, segmenter=Segmenter(plane="keep")).mask, depth, labels)
     assert kept < 0.2, kept
 
 
@@ -140,7 +122,7 @@ def test_with_colour_auto_leaves_the_plane_to_the_skin_test(hand):
     cam, depth, color, labels = _table_scene(hand, "kinect1", 1.0, 5)
     auto = observe(depth, cam, color=color).mask
     assert np.array_equal(auto, observe(depth, cam, color=color, segmenter=Segmenter(plane="keep")).mask)
-    recall, precision = _scores(observe(depth, cam, color=color, segmenter=Segmenter(plane="cut")).mask, depth, labels)
+    recall, precision = mask_scores(observe(depth, cam, color=color, segmenter=Segmenter(plane="cut")).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
@@ -153,7 +135,7 @@ def test_the_window_segmenter_leaves_the_whole_frames_plane_out(hand):
     win = hand_window(whole.points, cam, 0.08)
     ob = observe(depth, cam, window=win)
     assert ob.window is not None
-    recall, precision = _scores(ob.mask, depth, labels)
+    recall, precision = mask_scores(ob.mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
