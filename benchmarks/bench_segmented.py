@@ -12,7 +12,11 @@ the tracker is deterministic) and each frame's stages are timed at the fastest p
 advises on a shared machine: the other passes only add what other processes took. The mean over the
 passes is printed beside it.
 
-Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30] [--repeat 3]
+``--depth-only``: the same frames observed without their colour frames, as from a depth-only
+recording (no skin test: the segmenter leaves out the table's plane and prefers the surface with
+fingers, :mod:`tracker.segment`).
+
+Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30] [--repeat 3] [--depth-only]
 """
 from __future__ import annotations
 
@@ -43,7 +47,7 @@ SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsens
 SKIP = 6  # the start and the size's refinement (scale_frames) are not the tracking rate
 
 
-def frames_of(hand, sensor, spec, n):
+def frames_of(hand, sensor, spec, n, color=True):
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(1.0, E.realistic_fingers(1.0)).apply(hand)
@@ -56,7 +60,8 @@ def frames_of(hand, sensor, spec, n):
     for f in range(n):
         r = ren.render(truth[f], labels=False, color=True, clutter=clutter, incidence=nm.needs_incidence,
                        reflectance=nm.needs_reflectance)
-        out.append((nm.apply(r.depth, cam, np.random.default_rng([0, f]), r.cos_incidence, r.reflectance), r.color))
+        out.append((nm.apply(r.depth, cam, np.random.default_rng([0, f]), r.cos_incidence, r.reflectance),
+                    r.color if color else None))
     return cam, out
 
 
@@ -83,6 +88,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--repeat", type=int, default=3, help="passes per scene; each frame timed at the fastest")
+    ap.add_argument("--depth-only", action="store_true", help="observe without the colour frames")
     a = ap.parse_args()
     hand, bundle = HandModel.load(), load_bundle("fingerfist")
     print(f"{'sensor':9s} {'scene':15s} {'observe ms':>10s} {'windowed':>8s} {'track ms':>9s} "
@@ -97,7 +103,7 @@ def main():
               f"{1e3 / (w + t):15.0f} {1e3 / t:26.0f}")
 
     for sensor, spec in SCENES:
-        cam, frames = frames_of(hand, sensor, spec, a.frames)
+        cam, frames = frames_of(hand, sensor, spec, a.frames, color=not a.depth_only)
         passes = np.stack([track_pass(hand, bundle, cam, frames) for _ in range(max(a.repeat, 1))])
         best, mean = passes.min(axis=0), passes.mean(axis=0)
         best_all.append(best)
