@@ -227,10 +227,14 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     boxed = seg.box_min is not None or seg.box_max is not None
     P = backproject(d, camera) if boxed else None
     focal = 0.5 * (camera.fx + camera.fy)
-    mask = None if window is None else seg.in_window(d, window[0], color, P, focal=focal, expected=window[1])
-    used = None if mask is None else window[0]
+    mask, used, found = None, None, {}
+    if window is not None:
+        # the whole frame's plane once: a window refused falls back to the whole frame
+        found["plane"] = seg.frame_plane(d, color, focal=focal)
+        mask = seg.in_window(d, window[0], color, P, focal=focal, expected=window[1], **found)
+        used = None if mask is None else window[0]
     if mask is None:
-        mask = seg(d, color, P, focal=focal)
+        mask = seg(d, color, P, focal=focal, **found)
     if not mask.any():
         return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride), d)
     (ya, yb), (xa, xb) = bounds(mask)

@@ -75,6 +75,7 @@ from ._segment_kernels import (
 SKIN_HSV = ((0, 56, 113), (179, 174, 255))
 FOREARM_CHOICES = ("cut", "keep")
 PLANE_CHOICES = ("auto", "cut", "keep")
+FIND = object()  # Segmenter's ``plane`` argument when the frame's plane is to be found there
 PLANE_SAMPLES = 5000  # pixels of the frame the plane search samples (every 8th pixel each way of 640 x 480)
 PLANE_TRIES = 256  # planes through three sampled points tried (a table on a third of the samples: no triplet of it in 1 of 16,000 frames)
 PLANE_PREEMPT, PLANE_KEEP = 8, 6  # each tried plane weighed on every 8th sample, the best 6 on all
@@ -163,24 +164,25 @@ class Segmenter:
         if not self.z_max > self.z_min:
             raise ValueError(f"depth range must have far > near, got {self.z_min}, {self.z_max}")
 
-    def __call__(self, depth, color=None, points=None, *, focal=None):
+    def __call__(self, depth, color=None, points=None, *, focal=None, plane=FIND):
         """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data).
 
         ``points``: the back-projected ``(H, W, 3)`` image (needed for ``box``); ``focal``: the
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
-        :data:`DEFAULT_FOCAL_PX`)."""
+        :data:`DEFAULT_FOCAL_PX`); ``plane``: this frame's :meth:`frame_plane` when the caller has it
+        already (found here otherwise)."""
         d, f = self._inputs(depth, points, focal)
-        return self._run(d, color, points, f, plane=self._plane(d, color, f))
+        return self._run(d, color, points, f, plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane)
 
     def _skin(self, color) -> bool:
         """Whether the skin test runs (a colour frame given and ``use_color``)."""
         return color is not None and self.use_color
 
-    def _plane(self, d, color, focal):
-        """The whole frame's :func:`support_plane` when it is to be left out, else None."""
+    def frame_plane(self, depth, color=None, *, focal):
+        """The whole frame's :func:`support_plane` when it is to be left out (``plane``), else None."""
         if self.plane == "keep" or (self.plane == "auto" and self._skin(color)):
             return None
-        return support_plane(d, focal, z_min=self.z_min, z_max=self.z_max)
+        return support_plane(depth, focal, z_min=self.z_min, z_max=self.z_max)
 
     def _inputs(self, depth, points, focal):
         """``(depth as float, focal length)``, refusing a box without the points it is tested on."""
@@ -188,7 +190,7 @@ class Segmenter:
             raise ValueError("a segmentation box needs the back-projected points")
         return np.asarray(depth, float), (float(focal) if focal else focal_from_points(points))
 
-    def in_window(self, depth, window, color=None, points=None, *, focal=None, expected=None):
+    def in_window(self, depth, window, color=None, points=None, *, focal=None, expected=None, plane=FIND):
         """The hand mask ``(H, W)`` found in ``window`` alone (a ``(rows, cols)`` slice pair, e.g.
         :func:`tracker.observe.hand_window` of the hand predicted while tracking), or None when that result
         cannot be trusted and the whole frame must be segmented (:meth:`__call__`).
@@ -199,7 +201,7 @@ class Segmenter:
         result is refused when the mask is empty, when it comes within :data:`BORDER_PX` of a window
         edge that is not an image edge (the hand, or an uncut arm, runs out of the window), or when
         its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
-        tested) — something else than the hand was found there."""
+        tested) — something else than the hand was found there. ``plane``: as for :meth:`__call__`."""
         d, f = self._inputs(depth, points, focal)
         H, W = d.shape
         # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
@@ -212,7 +214,7 @@ class Segmenter:
         win = (slice(y0, y1), slice(x0, x1))
         sub = self._run(d[win], None if color is None else np.asarray(color)[win],
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
-                        plane=self._plane(d, color, f))
+                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane)
         if not sub.any():
             return None
         (ya, yb), (xa, xb) = bounds(sub)

@@ -91,20 +91,20 @@ def realistic_lines(rows, frames) -> list:
     those without it (rows whose ``color`` is False), each under its own heading."""
     seen = [r for r in rows if r.get("color", True)]
     blind = [r for r in rows if not r.get("color", True)]
-    L = _realistic_table(seen, frames) if seen else []
+    L = (["## Realistic scenes (clutter × sensor noise × hand size)", "", *_realistic_intro(frames),
+          *_realistic_table(seen)] if seen else [])
     if blind:
         L += ["## Realistic scenes without colour (depth only)", "",
               "The same runs observed without the colour frame, as from a depth-only recording: the segmentation "
               "has no skin test and leaves out the frame's support plane instead (a table or floor seen at least "
               "30° off face-on, `Segmenter(plane=\"auto\")`, `tracker.segment.support_plane`). Before the plane, "
-              "every frame of the `+table` runs was lost.", "",
-              *_realistic_table(blind, frames)[4:]]
+              "every frame of the `+table` runs was lost.", "", *_realistic_table(blind)]
     return L
 
 
-def _realistic_table(rows, frames) -> list:
-    """One realistic-scenes table with its summaries (markdown lines)."""
-    L = ["## Realistic scenes (clutter × sensor noise × hand size)", "",
+def _realistic_intro(frames) -> list:
+    """The realistic scenes' protocol (markdown lines)."""
+    return [
          f"Motion open-close, {frames} frames per sequence, tracked from the first frame by today's default tracker "
          "with the hand size calibrated (`TrackerSettings(hand_scale=\"auto\")`: the first frame, refined over the "
          "next two), fingerfist bundle, default segmentation with the colour frame, gating by the predicted hand. "
@@ -114,9 +114,14 @@ def _realistic_table(rows, frames) -> list:
          "(Kinect v1 preset), realsense (sr305 camera and noise). Scenes: " +
          "; ".join(f"{k}: `{v or 'none'}`" for k, v in REALISTIC_SCENES.items()) +
          f". First frame found: keypoint error ≤ {FIRST_FRAME_MM:g} mm. Acceptance target of the issue: "
-         "keypoints ≤ 10 mm, first frame ≥ 95 %, scale within 3 %.", "",
-         "| scene | sensor | hand scale | keypoint error mm | posture error ° | first frame found | first frame mm | "
+         "keypoints ≤ 10 mm, first frame ≥ 95 %, scale within 3 %.", ""]
+
+
+def _realistic_table(rows) -> list:
+    """One realistic-scenes table with its summaries (markdown lines)."""
+    L = ["| scene | sensor | hand scale | keypoint error mm | posture error ° | first frame found | first frame mm | "
          "lost frames | fps | scale found / true |", "|---|---|---|---|---|---|---|---|---|---|"]
+
     def num(x, fmt=".1f"):
         return "—" if not np.isfinite(x) else format(x, fmt)
 
