@@ -33,12 +33,15 @@ demo: $(STAMP)
 	done
 	@echo "== done: see $(DEMO) (figs/, overlay-*/, track-*.csv, synergies/)"
 
-# two workers, a test file each at a time (module fixtures such as the real frames' fits are made once)
+# two workers, a test file each at a time (module fixtures such as the real frames' fits are made once);
+# a crashed worker is not replaced: xdist's loadfile scheduler can hang on its replacement, and a run that
+# fails at once beats one that hangs until CI's time runs out
+XDIST = -n 2 --dist loadfile --max-worker-restart 0
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --doctest-modules src tests
+	$(BIN)/python -m pytest -q $(XDIST) --doctest-modules src tests
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules src tests
+	$(BIN)/python -m pytest -q $(XDIST) -m "not slow" --doctest-modules src tests
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -1,3 +1,7 @@
+import os
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -5,6 +9,52 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
+
+#: Set in the child process of an ``isolated`` test, which then runs as any other.
+_ISOLATED_CHILD = "SHT_ISOLATED_CHILD"
+#: Seconds an isolated test may take before its process is killed and the test fails.
+ISOLATED_TIMEOUT_S = 300
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "isolated: run in a process of its own, killed after ISOLATED_TIMEOUT_S (native code that "
+                   "may crash or hang: librealsense's threads)")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_pyfunc_call(pyfuncitem):
+    """An ``isolated`` test runs in a child pytest: a crash or hang in native code fails that test with its
+    output instead of taking down the xdist worker (CI once lost a worker to a segfault during a librealsense
+    test, and xdist's loadfile scheduler then hung until CI's time ran out)."""
+    if pyfuncitem.get_closest_marker("isolated") is None or os.environ.get(_ISOLATED_CHILD):
+        return None
+    env = dict(os.environ, **{_ISOLATED_CHILD: "1"})
+    with tempfile.TemporaryDirectory(prefix="isolated-") as base:
+        # faulthandler prints every thread's stack shortly before the kill: where it hung
+        cmd = [sys.executable, "-X", "faulthandler", "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
+               "-o", f"faulthandler_timeout={ISOLATED_TIMEOUT_S * 0.9:g}", "--basetemp", str(Path(base) / "t"),
+               pyfuncitem.nodeid]
+        try:
+            run = subprocess.run(cmd, cwd=pyfuncitem.config.rootpath, env=env, capture_output=True, text=True,
+                                 timeout=ISOLATED_TIMEOUT_S)
+        except subprocess.TimeoutExpired as exc:
+            run = exc
+    if isinstance(run, subprocess.TimeoutExpired):
+        out = "".join(x.decode(errors="replace") if isinstance(x, bytes) else x
+                      for x in (run.stdout or "", run.stderr or ""))
+        pytest.fail(f"isolated run killed after {ISOLATED_TIMEOUT_S} s\n{_tail(out)}", pytrace=False)
+    out = run.stdout + run.stderr
+    if run.returncode == 0 and " passed" not in out.splitlines()[-1]:
+        reasons = [ln.split(": ", 1)[-1] for ln in out.splitlines() if ln.startswith("SKIPPED")]
+        pytest.skip(reasons[0] if reasons else "skipped in its isolated run")
+    if run.returncode != 0:
+        pytest.fail(f"isolated run ended with exit code {run.returncode}\n{_tail(out)}", pytrace=False)
+    return True
+
+
+def _tail(text: str, lines: int = 80) -> str:
+    return "\n".join(text.splitlines()[-lines:])
 
 
 def shared(*parts) -> Path:

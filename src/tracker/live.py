@@ -214,6 +214,9 @@ class _Playback:
                 except RuntimeError:
                     pass  # already stopped at the end of the file
         self._sensors = []
+        # the devices go here, in the caller's thread once their sensors stopped, not whenever the garbage
+        # collector next runs in whatever code comes after (CI once crashed in a later command's start-up)
+        self._pb = self._cpb = self._dev = self._cdev = None
 
 
 class RealSenseSource:

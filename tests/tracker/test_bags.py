@@ -214,6 +214,7 @@ def _quantise(metres, depth_max=10.0, z0=100.0):
 
 
 # ----------------------------------------------------------------------------- the real bag
+@pytest.mark.isolated  # librealsense (conftest)
 def test_real_realsense_bag_matches_pyrealsense2():
     path = _rs_bag()
     rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (extra [realsense]) is not installed; "
@@ -247,6 +248,7 @@ def test_real_realsense_bag_matches_pyrealsense2():
     np.testing.assert_allclose(rec._color_t, ext.translation, atol=1e-7)
 
 
+@pytest.mark.isolated  # librealsense (conftest)
 def test_written_realsense_bag_reads_the_same_in_pyrealsense2(tmp_path):
     """Our RealSense layout is the one librealsense plays back: same intrinsics, unit and frames."""
     rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (extra [realsense]) is not installed; "

@@ -21,6 +21,9 @@ pytest.importorskip("pyrealsense2", exc_type=ImportError)
 rosbag1 = pytest.importorskip("rosbags.rosbag1")
 typesys = pytest.importorskip("rosbags.typesys")
 
+# librealsense's threads are native code: each test runs in a process of its own (conftest: isolated)
+pytestmark = pytest.mark.isolated
+
 BAG = ("sensor_recordings", "librealsense_single_depth_color_640x480.bag")
 
 
@@ -168,21 +171,8 @@ def test_playback_delivers_every_frame_in_order_however_slow_the_reader(tmp_path
         assert np.array_equal(units, rec.depth_units(f.index))
 
 
-def test_playback_colour_is_librealsense_aligned_colour():
-    """``--color`` on the real D435 file: colour on the depth grid agrees with librealsense's own
-    ``rs.align`` (an independent implementation: it maps pixel footprints, we take the nearest colour
-    pixel) within 20 levels on 95 % of the depth pixels, and is black exactly where align's is, give
-    or take the footprint's edge."""
-    import pyrealsense2 as rs
-
-    from tracker.images import units_to_metres
-    from tracker.live import RealSenseSource
-
-    bag = shared(*BAG)
-    with RealSenseSource(bag, color=True) as source:
-        ours = [(f.depth, f.color) for f in source]
-        camera = source.camera
-    assert len(ours) == 2 and all(c is not None and c.shape == (480, 640, 3) for _, c in ours)
+def _aligned_by_librealsense(rs, bag):
+    """``(depth units, colour)`` of the framesets with both streams, through a pipeline and ``rs.align``."""
     pipe, cfg = rs.pipeline(), rs.config()
     cfg.enable_device_from_file(str(bag), repeat_playback=False)
     cfg.enable_stream(rs.stream.depth)
@@ -202,6 +192,31 @@ def test_playback_colour_is_librealsense_aligned_colour():
                 theirs.append((np.asanyarray(d.get_data()).copy(), np.asanyarray(c.get_data()).copy()))
     finally:
         pipe.stop()
+    return theirs
+
+
+def test_playback_colour_is_librealsense_aligned_colour():
+    """``--color`` on the real D435 file: colour on the depth grid agrees with librealsense's own
+    ``rs.align`` (an independent implementation: it maps pixel footprints, we take the nearest colour
+    pixel) within 20 levels on 95 % of the depth pixels, and is black exactly where align's is, give
+    or take the footprint's edge."""
+    import pyrealsense2 as rs
+
+    from tracker.images import units_to_metres
+    from tracker.live import RealSenseSource
+
+    bag = shared(*BAG)
+    with RealSenseSource(bag, color=True) as source:
+        ours = [(f.depth, f.color) for f in source]
+        camera = source.camera
+    assert len(ours) == 2 and all(c is not None and c.shape == (480, 640, 3) for _, c in ours)
+    theirs = []
+    # the reference's pipeline plays in real time until set_real_time(False) takes effect, and a loaded
+    # machine can lose every frameset with both streams that way (seen once in 12 runs): it gets 3 tries
+    for _ in range(3):
+        theirs = _aligned_by_librealsense(rs, bag)
+        if theirs:
+            break
     assert theirs, "librealsense delivered no frameset with both streams"
     for units, color in theirs:  # the pipeline may skip a frame: match ours by the depth itself
         depth = units_to_metres(units, camera)
