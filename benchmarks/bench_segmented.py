@@ -44,7 +44,7 @@ from tracker.track import HandTracker, TrackerSettings
 
 SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
           ("realsense", "forearm,box"))
-SKIP = 6  # the start and the size's refinement (scale_frames) are not the tracking rate
+SKIP = TrackerSettings().scale_frames + 1  # the start and the size's refinement are not the tracking rate
 
 
 def frames_of(hand, sensor, spec, n, color=True):
