@@ -107,17 +107,22 @@ class InitSettings:
             raise TrackerError("settings", f"init threads must be ≥ 0 (0 = the cores available), got {self.threads!r}")
 
 
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity; the machine's count where that is unknown)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def search_threads(threads: int = 0) -> int:
     """The threads a start search's batches of fits use: ``threads``, or for 0 the cores this process
-    may run on (its CPU affinity), at most 4 (the batches hold 10–60 fits of ~1 ms; more threads gain
-    little once the Python around each fit, which holds the GIL, is a third of the work)."""
-    if threads:
-        return int(threads)
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        n = os.cpu_count() or 1
-    return max(1, min(n, 4))
+    may run on (:func:`available_cores`), at most 4 (the batches hold 10–60 fits of ~1 ms; more threads
+    gain little once the Python around each fit, which holds the GIL, is a third of the work). Never
+    more than the cores: more threads would only take turns on them (``--threads 100`` on 2 cores
+    started 100)."""
+    n = available_cores()
+    return max(1, min(int(threads), n)) if threads else min(n, 4)
 
 
 _POOLS: dict = {}

@@ -70,7 +70,7 @@ def track(
     end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=0, help="Threads for the fits of a start search (the first frame, a lost frame, the safety net); the result is the same for any count [0 = the cores, at most 4; 1 per recording with --dask]."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=0, help="Threads for the fits of a start search (the first frame, a lost frame, the safety net); the result is the same for any count [0 = the cores, at most 4; never more than the cores; 1 per recording with --dask]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand through one or many recordings; writes per-frame hand parameters and a summary."""
