@@ -102,6 +102,7 @@ TOUCH_AREA_M2 = 0.0015  # … when it is this big near the hand (a table, the bo
 TOUCH_WINDOW_M = 0.06  # how far around the hand that size is measured
 FINGER_ELONGATION = 2.5  # … at least this many times longer than wide (rendered and real fingers: 3.4-7) …
 FINGER_MIN_LENGTH_M = 0.025  # … and this long (4 standard deviations along it)
+FINE_FINGER_M = 0.015  # a full-resolution pixel belongs to its coarse pixel's surface within this depth (_has_fingers)
 FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this close (> half a 1.5x hand's palm width)
 FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
 FRONT_OUTLINE_SHARE = 0.3  # … the region lies behind it across that step over this share of its outline (hand and arm alone, or the table scenes: ≤ 0.22 with colour; a torso 3-5 cm behind: 0.27-0.95)
@@ -247,7 +248,8 @@ class Segmenter:
         dc = d[sub]
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
-                           centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane)
+                           centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane,
+                           full=d)
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
@@ -271,10 +273,12 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None, plane=None):
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None):
         """The search on an image subsampled by ``step`` (pixel counts and distances scale);
         ``centre``: the principal point in its pixel coordinates (None: the image's centre);
-        ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out."""
+        ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out; ``full``: the
+        full-resolution depth ``d`` was sampled from (a farther surface's fingers are looked for there
+        too, :func:`_has_fingers`)."""
         if centre is None:
             centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
         valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
@@ -289,7 +293,8 @@ class Segmenter:
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
-                           with_beyond=True, centre=centre, fingers_first=not self._skin(color))
+                           with_beyond=True, centre=centre, fingers_first=not self._skin(color),
+                           fine=None if full is None or step <= 1 else (full, step))
         beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
@@ -583,7 +588,7 @@ def _touches_border(mask, px=None):
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
                 blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
-                fingers_first=False):
+                fingers_first=False, fine=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -599,7 +604,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     outline (:func:`_in_front`; empty when there is none). ``fingers_first`` (depth only, where no skin
     test removed objects): when that whole surface has no fingers (:func:`_has_fingers`: a box or a mug
     nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
-    farther one is the hand."""
+    farther one is the hand; ``fine``: ``(depth, step)``, the full-resolution image ``depth`` was sampled
+    from every ``step``-th pixel, where that farther surface's fingers are looked for too."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -645,7 +651,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         # ~1 ms: a cluttered frame has dozens of surfaces)
         others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= FINGERS_FIRST_M]
         for kk, ff in others[:FINGERS_FIRST_TRIES]:
-            end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach)
+            end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach, fine=fine)
             if end is not None:
                 k, front, seed = int(kk), end_front, end
                 break
@@ -833,10 +839,11 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     return out
 
 
-def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22):
+def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22, fine=None):
     """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`) and the
     surface is no bigger than :data:`FINGERS_FIRST_MAX_AREA_M2`, else ``(None, nan)``: its far end from the border when its nearest part is cut off by it
-    (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`)."""
+    (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`); ``fine``: as for
+    :func:`_has_fingers`."""
     if float(pixel_area(d[surface], focal).sum()) > FINGERS_FIRST_MAX_AREA_M2:
         return None, float("nan")
     with np.errstate(invalid="ignore"):
@@ -845,7 +852,7 @@ def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22)
         seed, front = _far_end(surface, d, X, focal, border_px, reach)
     else:
         seed, front = _hand_end(surface, d, front, band, seed, focal, border_px)
-    return (seed, front) if _has_fingers(surface, d, seed, focal, reach) else (None, float("nan"))
+    return (seed, front) if _has_fingers(surface, d, seed, focal, reach, fine) else (None, float("nan"))
 
 
 def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
@@ -950,10 +957,14 @@ def _finger_pieces(o, px_m):
     return lab_t, size, big
 
 
-def _has_fingers(surface, d, seed, focal, reach=0.22):
+def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     """Whether the part of ``surface`` within ``reach`` metres (in the image, at the seed's depth)
     of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
-    :data:`FINGER_MIN_AREA_M2` in all."""
+    :data:`FINGER_MIN_AREA_M2` in all. ``fine``: ``(depth, step)``, the full-resolution image ``d``
+    was sampled from every ``step``-th pixel; when the part has no fingers in ``d`` they are looked for
+    there too, in the part's pixels within :data:`FINE_FINGER_M` of the pixel they were sampled with
+    (a 0.8× hand's spread fingers lie 1-2 px apart in a Kinect v1 frame's half-resolution image, and
+    its noise joins them into pieces too stubby to be fingers)."""
     if not seed.any():
         return False
     z = _nanmedian(d[seed])
@@ -968,7 +979,20 @@ def _has_fingers(surface, d, seed, focal, reach=0.22):
         return False
     o = closed_filled(np.ascontiguousarray(part, dtype=np.bool_))
     _, size, big = _finger_pieces(o, px_m)
-    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
+    if size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2:
+        return True
+    if fine is None:
+        return False
+    full, c = fine
+    fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
+    h, w = fz.shape
+    up = np.repeat(np.repeat(part, c, 0), c, 1)[:h, :w]
+    zc = np.repeat(np.repeat(d[y0:y1, x0:x1], c, 0), c, 1)[:h, :w]
+    with np.errstate(invalid="ignore"):
+        fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
+    # holes filled but gaps not closed: closing would join the fingers again
+    _, size, big = _finger_pieces(ndimage.binary_fill_holes(fpart), px_m * c)
+    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * (px_m * c) ** 2)
 
 
 def _sq_dist(X, c):
