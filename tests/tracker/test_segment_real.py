@@ -367,9 +367,10 @@ def test_compiled_surfaces_equal_the_numpy_ones_on_a_real_frame():
        st.integers(0, 4))
 def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
     """The segmenter's compiled morphology gives scipy's results exactly: dilation by the cross
-    ``k`` times, closing-and-filling, the distance transform, square max / min filters (masks and
-    depths with ±inf, every border mode that cannot win) and the per-label maximum."""
-    from tracker.segment import _dilate, _edt, _window_max, _window_min
+    ``k`` times, closing-and-filling, the distance transform, the opening with a disk (radius ``k`` + 1
+    and 3 × that: the finger widths of half- and full-resolution images), square max / min filters
+    (masks and depths with ±inf, every border mode that cannot win) and the per-label maximum."""
+    from tracker.segment import _dilate, _disk_opening, _edt, _window_max, _window_min
     from tracker._segment_kernels import closed_filled, label_max
 
     rng = np.random.default_rng(seed)
@@ -378,6 +379,9 @@ def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
     np.testing.assert_array_equal(closed_filled(m), ndimage.binary_fill_holes(ndimage.binary_closing(m) | m))
     if m.any():
         np.testing.assert_array_equal(_edt(m), ndimage.distance_transform_edt(~m))
+    for rad in (k + 1, 3 * (k + 1)):
+        disk = np.hypot(*np.mgrid[-rad:rad + 1, -rad:rad + 1]) <= rad
+        np.testing.assert_array_equal(_disk_opening(m, rad), ndimage.binary_opening(m, structure=disk))
     size = 2 * k + 1
     np.testing.assert_array_equal(_window_max(m, size), ndimage.maximum_filter(m, size=size, mode="constant"))
     np.testing.assert_array_equal(_window_max(m, size), ndimage.maximum_filter(m, size=size))
