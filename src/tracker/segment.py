@@ -489,8 +489,6 @@ def _disk_opening(mask, rad):
     m = np.asarray(mask, bool)
     p = int(rad) + 1
     padded = np.pad(m, p)
-    if not padded.any():
-        return np.zeros(m.shape, bool)
     eroded = _edt(~padded) > rad
     if not eroded.any():
         return np.zeros(m.shape, bool)
@@ -976,6 +974,13 @@ def _finger_pieces(o, px_m):
     return lab_t, size, big
 
 
+def _enough_fingers(o, px_m) -> bool:
+    """Whether the solid mask ``o`` (``px_m`` pixels per metre) has finger-like pieces
+    (:func:`_finger_pieces`) of at least twice :data:`FINGER_MIN_AREA_M2` in all."""
+    _, size, big = _finger_pieces(o, px_m)
+    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
+
+
 def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     """Whether the part of ``surface`` within ``reach`` metres (in the image, at the seed's depth)
     of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
@@ -996,9 +1001,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
     if not part.any():
         return False
-    o = closed_filled(np.ascontiguousarray(part, dtype=np.bool_))
-    _, size, big = _finger_pieces(o, px_m)
-    if size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2:
+    if _enough_fingers(closed_filled(np.ascontiguousarray(part, dtype=np.bool_)), px_m):
         return True
     if fine is None:
         return False
@@ -1010,8 +1013,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     with np.errstate(invalid="ignore"):
         fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
     # holes filled but gaps not closed: closing would join the fingers again
-    _, size, big = _finger_pieces(ndimage.binary_fill_holes(fpart), px_m * c)
-    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * (px_m * c) ** 2)
+    return _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c)
 
 
 def _sq_dist(X, c):
