@@ -86,6 +86,7 @@ PLANE_MIN_AREA_M2 = 0.1  # a plane is a support surface when it covers this much
 PLANE_MIN_TILT_DEG = 30.0
 PLANE_BAND_M = (0.008, 0.02)  # the band left out around it: 3 robust SDs of its points, within these
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
+EDGE_GAP_PX = 2  # a small piece this close to another hand-sized surface at its depth is a piece of it (_edge_pieces)
 PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
 NO_NARROWING_WRIST = 1.3  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
 TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist
@@ -200,9 +201,13 @@ class Segmenter:
         window's edges count as image borders: an object the window cuts off is cut off, and the
         forearm goes on past them. That changes nothing for a hand well inside the window; so the
         result is refused when the mask is empty, when it comes within :data:`BORDER_PX` of a window
-        edge that is not an image edge (the hand, or an uncut arm, runs out of the window), or when
+        edge that is not an image edge (the hand, or an uncut arm, runs out of the window), when
         its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
-        tested) — something else than the hand was found there. ``plane``: as for :meth:`__call__`."""
+        tested) — something else than the hand was found there —, or when the hand was taken as the
+        layer in front of a body close behind it (:func:`_in_front`): that layer's background is read
+        around it, and the window's edges cut that short (the realistic Kinect v1 1.5× scene with a
+        torso 4 cm behind: in the window the torso on 2 of its first 11 frames, the palm's lower half
+        missing on others; in the whole frame the hand on all of them). ``plane``: as for :meth:`__call__`."""
         d, f = self._inputs(depth, points, focal)
         H, W = d.shape
         # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
@@ -213,10 +218,11 @@ class Segmenter:
         if y1 - y0 < 2 or x1 - x0 < 2:
             return None
         win = (slice(y0, y1), slice(x0, x1))
+        notes = {}
         sub = self._run(d[win], None if color is None else np.asarray(color)[win],
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
-                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane)
-        if not sub.any():
+                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane, notes=notes)
+        if not sub.any() or notes.get("layered"):
             return None
         (ya, yb), (xa, xb) = bounds(sub)
         h, w = sub.shape
@@ -233,15 +239,17 @@ class Segmenter:
         out[win] = sub
         return out
 
-    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None):
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None):
         """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
         first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
-        principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None."""
+        principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None;
+        ``notes``: a dict :meth:`_segment` fills in."""
         c = int(self.coarse)
         H, W = whole_shape or d.shape
         (y0, x0) = origin
         if c <= 1 or min(H, W) < 40 * c:
-            return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane)
+            return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane,
+                                 notes=notes)
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
@@ -249,7 +257,7 @@ class Segmenter:
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
                            centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane,
-                           full=d)
+                           full=d, notes=notes)
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
@@ -273,12 +281,13 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None):
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None):
         """The search on an image subsampled by ``step`` (pixel counts and distances scale);
         ``centre``: the principal point in its pixel coordinates (None: the image's centre);
         ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out; ``full``: the
         full-resolution depth ``d`` was sampled from (a farther surface's fingers are looked for there
-        too, :func:`_has_fingers`)."""
+        too, :func:`_has_fingers`); ``notes``: a dict that gets ``"layered"`` when the region stands in
+        front of a surface close behind it (:func:`_in_front`)."""
         if centre is None:
             centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
         valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
@@ -294,7 +303,7 @@ class Segmenter:
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
                            with_beyond=True, centre=centre, fingers_first=not self._skin(color),
-                           fine=None if full is None or step <= 1 else (full, step))
+                           fine=None if full is None or step <= 1 else (full, step), notes=notes)
         beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
@@ -607,7 +616,7 @@ def _touches_border(mask, px=None):
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
                 blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
-                fingers_first=False, fine=None):
+                fingers_first=False, fine=None, notes=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -624,7 +633,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     test removed objects): when that whole surface has no fingers (:func:`_has_fingers`: a box or a mug
     nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
     farther one is the hand; ``fine``: ``(depth, step)``, the full-resolution image ``depth`` was sampled
-    from every ``step``-th pixel, where that farther surface's fingers are looked for too."""
+    from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``notes``: a
+    dict that gets ``"layered"`` from :func:`_in_front`."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -693,7 +703,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     core = (lab == k) & near
     core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
-    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px)
+    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px, notes)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -707,6 +717,9 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
                            minlength=lab.max() + 1)
         small = np.unique(lab[win][cand])
         small = small[area[small] < blob_area]
+        others = ids[ids != k]
+        if small.size and others.size:
+            small = small[~np.isin(small, _edge_pieces(lab[win], d[win], small, others, jump))]
         if small.size:
             out[win] |= np.isin(lab[win], small) & near[win]
     if with_beyond:
@@ -715,7 +728,30 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     return out
 
 
-def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None):
+def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):
+    """The labels among ``small`` that are pieces of a surface in ``others`` (hand-sized surfaces
+    other than the hand's): within ``gap_px`` of it at its depth (within ``jump``), split off by a
+    seam of no data, not by a depth step — an object's face the sensor's edge dropouts cut off
+    (a box's side face beside the hand, at the hand's depth: the realistic SR305 1.5× ``+object``
+    scene took a 145-pixel strip of it for a fingertip and fitted the hand 12 % too large). A
+    fingertip blob is cut off from its finger or stands in front of the palm or the body, a depth
+    step from any surface it borders.
+
+    >>> lab = np.array([[1, 1, 0, 2, 0, 0, 3]])
+    >>> d = np.array([[0.5, 0.5, np.nan, 0.5, np.nan, np.nan, 0.7]])
+    >>> _edge_pieces(lab, d, np.array([2, 3]), np.array([1]), 0.02).tolist()
+    [2]
+    """
+    big = np.isin(lab, others)
+    size = 2 * int(gap_px) + 1
+    with np.errstate(invalid="ignore"):
+        lo = _window_min(np.where(big, d, np.inf), size)
+        hi = _window_max(np.where(big, d, -np.inf), size)
+        touch = np.isin(lab, small) & (d >= lo - jump) & (d <= hi + jump)
+    return np.unique(lab[touch])
+
+
+def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None, notes=None):
     """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
 
     Each pixel's local background is the grey closing of the region's depth (the farthest depth
@@ -734,7 +770,8 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     leaning back to within the step of the body does not go on, nor does a part beside it); ``seed``:
     the layer's part of the seed, or its nearest 15 mm, moved to the fingers' end when the layer is the
     hand with its whole forearm (:func:`_hand_end`, ``border_px`` as there; the arm then goes on at its
-    other end)."""
+    other end). ``notes``: a dict whose ``"layered"`` is set True when the region stands in front of a
+    surface over enough of its outline, whether or not that surface was big enough to be a body."""
     none = np.zeros(region.shape, bool)
     if not (region & seed).any():
         return region, none, seed
@@ -773,6 +810,8 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
     with np.errstate(invalid="ignore"):
         step = rw & ring & (dw - layer_far > FRONT_STEP_M)
+    if step.sum() >= FRONT_OUTLINE_SHARE * ring.sum() and notes is not None:
+        notes["layered"] = True
     if (step.sum() < FRONT_OUTLINE_SHARE * ring.sum()
             or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2):
         return region, none, seed

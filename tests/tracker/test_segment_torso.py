@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from handmodel.rigid import euler_to_matrix
+from tests.conftest import mask_scores, realistic_frame
 from tracker.cameras import preset
 from tracker.observe import observe
 from tracker.segment import Segmenter, _in_front
@@ -112,3 +113,27 @@ def test_plane_behind_a_patch_is_left_out_of_the_mask():
     """The whole segmenter on the constructed body: the hand is found without the plane behind it."""
     m = Segmenter(coarse=1)(_hand_and_arm(True), focal=500.0)
     assert m[105:135, 125:155].all() and not m[:95].any() and not m[:, :115].any(), m.sum()
+
+
+def _hand_window(cam, depth, labels):
+    """The tracker's window (:func:`tracker.observe.hand_window`) around the rendered hand's seen pixels."""
+    from tracker.observe import hand_window
+
+    vv, uu = np.nonzero((labels >= 0) & np.isfinite(depth))
+    z = depth[vv, uu]
+    P = np.stack([(uu - cam.cx) * z / cam.fx, (vv - cam.cy) * z / cam.fy, z], axis=1)
+    return hand_window(P, cam)
+
+
+@pytest.mark.parametrize("frame", [0, 5])
+def test_a_big_hand_before_a_close_torso_is_segmented_whole_frame_not_in_its_window(hand, frame):
+    """Kinect v1, a 1.5× hand with a torso 4 cm behind, depth only (the realistic scene's noise seed):
+    in the tracker's window the layer rule saw too little of the torso to call it a body and kept the
+    torso as the hand (precision 0.3); the window's result is refused and the whole frame segmented."""
+    cam, depth, _, labels = realistic_frame(hand, "kinect1", 1.5, "forearm,torso=0.04", frame, noise_seed=5)
+    window = _hand_window(cam, depth, labels)
+    assert Segmenter().in_window(depth, window[0], focal=cam.fx, expected=window[1]) is None
+    ob = observe(depth, cam, window=window)
+    assert ob.window is None  # the whole frame was segmented
+    recall, precision = mask_scores(ob.mask, depth, labels)
+    assert recall >= 0.85 and precision >= 0.9, (recall, precision)
