@@ -361,6 +361,9 @@ def test_track_summary_when_no_frame_has_a_hand(inp, tmp_path):
     r = _ok([BIN / "tracker", "track", inp.rec, "-o", tmp_path / "t.csv", "--depth-range", "3,4", "--hand-scale", "1"])
     out = " ".join(r.stdout.split())
     assert "warning: no hand found in any frame" in out, r.stdout
+    # what to check names the options given first; no size to reuse from a run that found no hand
+    assert "check the --depth-range 3,4 m given, the hand size 1 given" in out, r.stdout
+    assert "reuse it with" not in out, r.stdout
     row = next(line for line in r.stdout.splitlines() if re.match(r"^\W*3\W", line))
     cells = [c.strip() for c in re.split(r"[│┃|]", row) if c.strip()]
     assert cells[:3] == ["3", "0", "3"] and cells[5:7] == ["-", "-"], cells

@@ -36,7 +36,7 @@ from .cameras import Camera
 from .errors import RecordingError, TrackerError
 from .images import (COMPRESSED_DEPTH_HEADER, decode_png_units, decode_rvl, inverse_depth_to_metres,
                      register_color)
-from .recording import MAX_FRAME_SIDE, FileRecording, Frame, check_frame_size
+from .recording import MAX_FRAME_SIDE, FileRecording, Frame, check_frame_size, looks_like
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -122,8 +122,12 @@ def check_ros1_complete(path: Path) -> None:
     was cut short (a copy or download that stopped). The reader's own error ("Bag index looks
     damaged: Header could not be read") does not tell a user either."""
     head, size = _head_and_size(path, 4096)
-    if not head.startswith(ROS1_MAGIC) or len(head) < len(ROS1_MAGIC) + 4:
-        return  # not a ROS1 bag, or too short to tell: the reader says so
+    if not head.startswith(ROS1_MAGIC):
+        # the reader's error is its decoder's (a PNG renamed .bag: "'utf-8' codec can't decode byte 0x89")
+        raise RecordingError(path, f"not a ROS1 bag: it does not start with {ROS1_MAGIC.strip().decode()!r} "
+                                   f"({looks_like(head)})")
+    if len(head) < len(ROS1_MAGIC) + 4:
+        return  # too short to tell: the reader says so
     k = len(ROS1_MAGIC)
     hlen = struct.unpack("<I", head[k:k + 4])[0]
     header, pos, fields = head[k + 4:k + 4 + hlen], 0, {}
@@ -141,6 +145,7 @@ def check_ros1_complete(path: Path) -> None:
     if index_pos >= size:
         raise RecordingError(path, f"cut short: the bag's index starts at byte {index_pos}, the file ends at "
                                    f"{size} (copy it again, or rebuild the index with `rosbag reindex`)")
+    return index_pos
 
 
 class _Bag:
@@ -150,13 +155,19 @@ class _Bag:
         self.path = path
         for db in ([path] if path.suffix.lower() == ".db3" else sorted(path.glob("*.db3")) if path.is_dir() else []):
             check_sqlite_complete(db)
+        index_pos = None
         if path.is_file() and path.suffix.lower() == ".bag":
-            check_ros1_complete(path)
+            index_pos = check_ros1_complete(path)
         try:
             # bags without embedded message definitions (older ROS2 sqlite) use the Humble types
             self.reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self.reader.open()
         except Exception as exc:  # rosbags raises many types for damaged files
+            if index_pos is not None and "index" in str(exc).lower():
+                # the index is the file's last part: a copy that stopped inside it ("Bag index looks damaged")
+                raise RecordingError(path, f"damaged or cut short inside its index (from byte {index_pos} to the "
+                                           f"file's end at {path.stat().st_size}): copy it again, or rebuild the "
+                                           "index with `rosbag reindex`") from None
             raise _wrap(path, "not a readable ROS bag", exc) from None
         if not self.reader.is2:
             for r in self.reader.readers:

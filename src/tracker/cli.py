@@ -264,7 +264,8 @@ def _imported_each(src, output, recs, seconds):
     warning = depth_unit_warning(v, first.camera.depth_scale_m)
     if warning:
         _print(warning)
-    _print(f"track each from its own first frame: tracker track {Path(output) / '*'} -o RESULTS/")
+    # with the bundle that ships (synergy list shows the others): without -s there are no synergies
+    _print(f"track each from its own first frame: tracker track {Path(output) / '*'} -s fingerfist -o RESULTS/")
 
 
 def _depth_rows(v, note=""):

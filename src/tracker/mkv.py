@@ -21,7 +21,7 @@ import numpy as np
 
 from .cameras import Camera
 from .errors import RecordingError, TrackerError
-from .recording import FileRecording, check_frame_size
+from .recording import FileRecording, check_frame_size, looks_like
 
 #: Depth modes: (binned calibration resolution, crop offset, output size), per the Azure Kinect SDK.
 DEPTH_MODES = {
@@ -85,6 +85,9 @@ def _vint(data: bytes, i: int, keep_marker: bool = False):
     return v, n
 
 
+EBML_MAGIC = b"\x1a\x45\xdf\xa3"  # every Matroska file starts with its EBML header's ID
+
+
 def cut_short(path: Path):
     """``(declared, size)`` when the file's Matroska segment declares more bytes than the file holds
     (a recording copied or downloaded only in part), else None (complete, a segment of unknown size as
@@ -96,7 +99,7 @@ def cut_short(path: Path):
     except OSError:
         return None
     ebml = _vint(head, 0, keep_marker=True)
-    if ebml is None or ebml[0] != 0x1A45DFA3:
+    if ebml is None or ebml[0] != int.from_bytes(EBML_MAGIC, "big"):
         return None
     hs = _vint(head, ebml[1])
     i = ebml[1] + hs[1] + hs[0] if hs else len(head)
@@ -122,6 +125,14 @@ def _cut_note(path: Path) -> str:
 
 
 def _open_container(path: Path):
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+    if not head.startswith(EBML_MAGIC):
+        # PyAV's own error is an errno ("[Errno 1094995529] Invalid data found when processing input")
+        raise RecordingError(path, f"not a Matroska file: it does not start with an EBML header ({looks_like(head)})")
     try:
         return av.open(str(path), "r")
     except Exception as exc:  # PyAV raises many types for damaged files

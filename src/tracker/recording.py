@@ -233,7 +233,7 @@ class Recording:
             inner = [d for d in path.iterdir() if (d / "recording.yaml").is_file()]
             if inner:  # a folder of recordings (tracker import --each): a command takes them one by one
                 raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give one of them, "
-                                        f"or all of them to tracker track ({path / '*'} -o RESULTS/); tracker "
+                                        f"or all of them to tracker track ({path / '*'} -s fingerfist -o RESULTS/); tracker "
                                         "calibrate --each takes stills imported as one recording (tracker import "
                                         "without --each)")
             raise RecordingError(y, "missing (not a recording folder)")
@@ -314,6 +314,34 @@ class Recording:
 
 # ----------------------------------------------------------------------------- recording files
 #: Suffixes of the recording files read in place (a ROS2 bag may also be its folder with metadata.yaml).
+# the first bytes of formats a recording file is confused with (a file renamed, a download saved as
+# an HTML page): what an error names instead of a reader's decoding error
+FILE_SIGNATURES = ((b"#ROSBAG V2.0", "a ROS1 bag"), (b"\x1a\x45\xdf\xa3", "a Matroska/WebM file"),
+                   (b"SQLite format 3\0", "an SQLite database (a ROS2 .db3)"), (b"\x89MCAP", "an MCAP file"),
+                   (b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"), (b"PK\x03\x04", "a zip archive"),
+                   (b"\x1f\x8b", "a gzip file"), (b"BZh", "a bzip2 file"), (b"%PDF", "a PDF"),
+                   (b"RIFF", "a RIFF file (AVI/WAV)"), (b"<!DOCTYPE", "an HTML page"), (b"<html", "an HTML page"))
+
+
+def looks_like(head: bytes) -> str:
+    """What a file whose first bytes are ``head`` looks like, for an error line: a known format's name,
+    "empty", "text" or "unknown binary data".
+
+    >>> looks_like(bytes.fromhex("89504e470d0a1a0a")), looks_like(b"frame,x 1,2"), looks_like(b"")
+    ('a PNG image', 'text', 'empty')
+    """
+    for magic, name in FILE_SIGNATURES:
+        if head[:len(magic)].lower() == magic.lower():
+            return name
+    if not head:
+        return "empty"
+    try:
+        head[:512].decode("utf-8")
+        return "text"
+    except UnicodeDecodeError:
+        return "unknown binary data"
+
+
 RECORDING_FILE_SUFFIXES = (".bag", ".db3", ".mcap", ".mkv")
 RECORDINGS_EXTRA = "pip install 'synergistic-hand-tracking[recordings]'"
 

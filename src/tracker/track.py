@@ -431,7 +431,7 @@ class HandTracker:
         # the synergy model's joint covariance and which parts each posture DoF moves (unseen_prior)
         self._unseen = _unseen_parts(hand, synergies)
         self.unseen_frames_ = 0
-        self.no_hand_, self.too_few_ = 0, 0
+        self.no_hand_, self.too_few_, self.size_out_ = 0, 0, 0
         self.reset()
 
     def context_for(self, scale):
@@ -490,11 +490,13 @@ class HandTracker:
         calibrated so far. The calibration is settled when that score is at most ``scale_trust_mm``
         or after ``scale_frames`` frames; until then the next frame is calibrated again (a first frame
         whose segmentation kept the arm or the object instead of the hand gives the size of whatever
-        was fitted: rendered scenes scored 7–24 there, ≤ 6 where the hand was found)."""
+        was fitted: rendered scenes scored 7–24 there, ≤ 6 where the hand was found). A size at an end
+        of ``scale_range`` (:meth:`_size_out`) found no hand either."""
         st = self.settings
         s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                          scale_range=st.scale_range)
-        if self._found_nothing(corr):
+        if self._size_out(s) or self._found_nothing(corr):
+            self.size_out_ += self._size_out(s)
             # the sizes the search probed are not needed again (a long stretch without a hand)
             self._keep_contexts(1.0 if self.scale_ is None else self.scale_)
             return theta, corr, False
@@ -528,6 +530,15 @@ class HandTracker:
         of its points: what it fitted is no hand."""
         limit = self.settings.no_hand_rejected
         return bool(limit) and len(corr.valid) > 0 and corr.rejected_share > limit
+
+    def _size_out(self, s) -> bool:
+        """Whether a calibrated size ``s`` lies at an end of ``scale_range`` (within 1 %): the best size
+        of what was fitted lies beyond the sizes of hands, so it is no hand (a person's shoulder, left
+        in by a ``--box`` that cut the hand out, fitted at 2.0× the model, the range's end, with 23 % of
+        its points rejected; the 19 SR305 stills: 1.21–1.31×). A test of the no-hand tests: off with
+        ``no_hand_rejected`` 0."""
+        lo, hi = self.settings.scale_range
+        return bool(self.settings.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
 
     def _no_hand(self, corr, n_in, t0) -> FrameResult:
         """A frame whose start found no hand (``corr``: its fit's pairs, None when it had too few points
@@ -619,8 +630,9 @@ class HandTracker:
             self._add_wrist(sil)
             size, _, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                             scale_range=st.scale_range)
-            if self._found_nothing(corr):
+            if self._found_nothing(corr) or self._size_out(size):
                 self.no_hand_ += 1
+                self.size_out_ += self._size_out(size)
                 continue
             est.append(size)
             frames.append((pts, nrm, sil))
@@ -673,9 +685,11 @@ class HandTracker:
         n_in = len(pts)
         net, recentred = "", False
         if n_in < st.min_points:
+            # nothing seen: no θ is output (an unreadable frame's row repeated the frame before it, which
+            # a user of the rows cannot tell from a measurement); the next start may still begin there
             self.lost = True
-            th = self.theta if self.theta is not None else np.full(self.hand.n_dofs, np.nan)
-            return FrameResult(_output_theta(th), "lost", float("nan"), 0, n_in, (time.perf_counter() - t0) * 1e3, 1.0)
+            return FrameResult(np.full(self.hand.n_dofs, np.nan), "lost", float("nan"), 0, n_in,
+                               (time.perf_counter() - t0) * 1e3, 1.0)
         starting = self._calibrating() or self.lost or self.theta is None
         if starting and st.start_min_pixels:
             # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything.

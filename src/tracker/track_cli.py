@@ -303,24 +303,34 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     if tracker.no_hand_:
         # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
         # (TrackerSettings.start_min_pixels, no_hand_rejected)
-        st, few = tracker.settings, tracker.too_few_
+        st, few, out = tracker.settings, tracker.too_few_, tracker.size_out_
         why = [f"{few} with fewer than {st.start_min_pixels} pixels to start from"] if few else []
-        if tracker.no_hand_ > few:
-            why.append(f"{tracker.no_hand_ - few} whose fit rejected more than {st.no_hand_rejected:.0%} of the points")
+        if tracker.no_hand_ > few + out:
+            why.append(f"{tracker.no_hand_ - few - out} whose fit rejected more than {st.no_hand_rejected:.0%} of the points")
+        if out:
+            lo, hi = st.scale_range
+            why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
         console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
     if len(df) and not found.any():
         why = ("nothing segmented looks like a hand" if tracker.no_hand_
                else "nothing segmented where a hand can be")
-        console.print(f"warning: no hand found in any frame of {recording}: {why} "
-                      "(check the camera preset and depth unit with tracker info, or give --depth-range / --box)")
+        console.print(f"warning: no hand found in any frame of {recording}: {why} ({_no_hand_hints(job, tracker)})")
     if tracker.base_hand.calibration and tracker.settings.hand_scale != "auto":
         console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
                       " in the file), not estimated again")
-    elif tracker.scale_ is not None:
-        # the size a later run takes back with --hand-scale (it is in the output header too)
-        reuse = f"--hand-model {job.save_hand}" if job.save_hand else f"--hand-scale {tracker.scale_:.4f} or --save-hand FILE"
+    elif tracker.scale_ is not None and tracker.settings.hand_scale == "auto" and found.any():
+        # the size a later run takes back with --hand-scale (it is in the output header too); on a
+        # calibrated hand file a number is refused (it would scale that hand twice): the file it saves
+        if job.save_hand:
+            reuse = f"--hand-model {job.save_hand}"
+        elif tracker.base_hand.calibration:
+            reuse = "--save-hand FILE, then --hand-model FILE"
+        else:
+            reuse = f"--hand-scale {tracker.scale_:.4f} or --save-hand FILE"
         console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")
+    elif tracker.scale_ is not None and found.any():
+        console.print(f"hand size: {run.meta['hand_scale']}")
     if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
@@ -432,6 +442,26 @@ def middle_cut(name: str, width: int) -> str:
     return name[:head] + "…" + name[len(name) - (width - 1 - head):]
 
 
+def _no_hand_hints(job, tracker) -> str:
+    """What to check when no frame had a hand: the options given that can leave the hand out or
+    misfit it first, then the camera preset and depth unit."""
+    from .segment import Segmenter
+
+    seg, default, st = job.segmenter or Segmenter(), Segmenter(), tracker.settings
+    hints = []
+    if (seg.z_min, seg.z_max) != (default.z_min, default.z_max):
+        hints.append(f"the --depth-range {seg.z_min:g},{seg.z_max:g} m given")
+    if seg.box_min is not None or seg.box_max is not None:
+        hints.append("the --box given")
+    if seg.forearm == "keep":
+        hints.append("--forearm keep (the arm is fitted with the hand)")
+    if st.hand_scale != "auto" and not getattr(tracker.base_hand, "calibration", None):
+        hints.append(f"the hand size {float(st.hand_scale):g} given (--hand-scale auto estimates it)")
+    hints.append("the camera preset and depth unit (tracker info)" if hints
+                 else "check the camera preset and depth unit with tracker info, or give --depth-range / --box")
+    return ("check " + ", ".join(hints[:-1]) + " and " + hints[-1]) if len(hints) > 1 else hints[0]
+
+
 def _segmenter(depth_range, box, forearm, plane):
     """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box``, ``--forearm`` and ``--plane``."""
     from .errors import TrackerError
@@ -442,17 +472,36 @@ def _segmenter(depth_range, box, forearm, plane):
         near_far = _floats(depth_range, "--depth-range", 2, "NEAR,FAR in metres, e.g. 0.3,0.9")
         if None in near_far or not 0 <= near_far[0] < near_far[1]:
             raise TrackerError("--depth-range", f"needs 0 ≤ NEAR < FAR (metres), got {depth_range!r}")
+        _metres("--depth-range", depth_range, near_far)
         kw.update(z_min=near_far[0], z_max=near_far[1])
     if box is not None:
         b = _floats(box, "--box", 6, "X0,Y0,Z0,X1,Y1,Z1 in metres, e.g. -0.3,-0.3,0.3,0.3,0.3,0.9")
         if any(lo is not None and hi is not None and not lo < hi for lo, hi in zip(b[:3], b[3:])):
             raise TrackerError("--box", f"each lower bound must be below its upper bound, got {box!r}")
+        _metres("--box", box, b)
         kw.update(box_min=tuple(b[:3]), box_max=tuple(b[3:]))
     if forearm not in FOREARM_CHOICES:
         raise TrackerError("--forearm", f"must be {' or '.join(FOREARM_CHOICES)}, got {forearm!r}")
     if plane not in PLANE_CHOICES:
         raise TrackerError("--plane", f"must be {', '.join(PLANE_CHOICES[:-1])} or {PLANE_CHOICES[-1]}, got {plane!r}")
     return Segmenter(forearm=forearm, plane=plane, **kw)
+
+
+# no depth camera sees a hand this far (m): a larger value is millimetres typed for metres
+FARTHEST_M = 20.0
+
+
+def _metres(option, text, values):
+    """Refuse ``values`` (metres, None = open) beyond :data:`FARTHEST_M`: millimetres typed for metres
+    (``--depth-range 300,1000``) would look for the hand where no camera sees, and every frame would
+    then be lost as if there were no hand."""
+    from .errors import TrackerError
+
+    far = [v for v in values if v is not None and abs(v) > FARTHEST_M]
+    if far:
+        mm = ",".join("" if v is None else f"{v / 1000:g}" for v in values)
+        raise TrackerError(option, f"values are in metres: {text!r} reaches {max(abs(v) for v in far):g} m, beyond "
+                                   f"any depth camera (if you meant millimetres: {mm})")
 
 
 def _floats(text, option, n, example):

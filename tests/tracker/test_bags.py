@@ -490,8 +490,9 @@ def _bad_bags(tmp_path):
 def test_damaged_bags_are_one_line_errors(tmp_path):
     good, bad = _bad_bags(tmp_path)
     expect = {"truncated": "cut short: the bag's index starts at byte", "unfinished": "unfinished: the recorder "
-              "never wrote the bag's index", "garbage": "not a readable ROS bag", "garbage_db3": "not a readable ROS bag",
-              "garbage_mcap": "not a readable ROS bag", "empty": "not a readable ROS bag",
+              "never wrote the bag's index", "garbage": "not a ROS1 bag: it does not start with '#ROSBAG V2.0' (unknown binary data)",
+              "garbage_db3": "not a readable ROS bag", "garbage_mcap": "not a readable ROS bag",
+              "empty": "not a ROS1 bag: it does not start with '#ROSBAG V2.0' (empty)",
               "no_camera_info": "missing camera_info", "wrong_size": "camera info says 41×30",
               "huge": "larger than the supported", "no_depth_topic": "no depth image topic found"}
     for name, path in bad.items():
@@ -628,3 +629,19 @@ def test_mcap_chunk_bound(tmp_path, monkeypatch):
     monkeypatch.setattr(tracker.bags, "MAX_CHUNK_BYTES", 1000)
     with pytest.raises(RecordingError, match=r"\.mcap: an MCAP chunk declares \d+ bytes expanded, more than"):
         Recording.open(path)
+
+
+def test_a_renamed_file_or_a_bag_cut_inside_its_index_says_so(tmp_path):
+    """The reader's own errors named its decoder ("'utf-8' codec can't decode byte 0x89") or "Bag index
+    looks damaged"; a user needs what the file is, or that the copy stopped inside the index."""
+    from PIL import Image
+
+    good, _ = _bad_bags(tmp_path)
+    png = tmp_path / "photo.bag"
+    Image.fromarray(np.zeros((4, 4), np.uint16)).save(png, format="PNG")
+    assert "not a ROS1 bag: it does not start with '#ROSBAG V2.0' (a PNG image)" in _one_error_line(_cli("info", png), png)
+    data = good.read_bytes()
+    cut = tmp_path / "cut_in_index.bag"
+    cut.write_bytes(data[:-60])  # the index (connection and chunk records) is the file's last part
+    line = _one_error_line(_cli("info", cut), cut)
+    assert "damaged or cut short inside its index" in line and f"file's end at {len(data) - 60}" in line, line

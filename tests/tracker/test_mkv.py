@@ -119,7 +119,8 @@ def test_damaged_mkv_is_a_one_line_error_or_reads(tmp_path):
     assert "error" in outcomes
     bad.write_bytes(np.random.default_rng(0).integers(0, 256, 20000, dtype=np.uint8).tobytes())
     r = _cli("info", bad)
-    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith(f"error: {bad}: not a readable")
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith(
+        f"error: {bad}: not a Matroska file: it does not start with an EBML header (unknown binary data)")
     r = _cli("info", bad, "--topic", "/x")
     assert r.exit_code == 2 and "apply to ROS bags, not to .mkv files" in r.stderr
 

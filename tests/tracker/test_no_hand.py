@@ -158,3 +158,22 @@ def test_a_start_needs_enough_points(right, bundle):
     assert tr.no_hand_ == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
     with pytest.raises(TrackerError, match="start_min_pixels"):
         HandTracker(right, TrackerSettings(start_min_pixels=-1))
+
+
+def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):
+    """A real SR305 still whose --box leaves the hand out keeps the person's shoulder, which the start
+    fitted as a hand 2.0× the model — the end of the sizes searched — with 23 % of its points rejected,
+    under the 25 % that says "no hand". A size at an end of the range is no hand's: lost, no θ, the size
+    left unset. The same frame without the box is the hand at 1.2–1.35×."""
+    from tracker.images import read_depth_units, units_to_metres
+
+    cam = preset("sr305")
+    depth = units_to_metres(read_depth_units(shared("realsense_sr305_lada", "20210326-230536_30.png"), cam), cam)
+    boxed = Segmenter(box_min=(0.1, None, None), box_max=(0.5, None, None))
+    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    r = tr.track(observe(depth, cam, SETTINGS.observe, segmenter=boxed), cam)
+    assert r.status == "lost" and np.isnan(r.theta).all()
+    assert tr.no_hand_ == tr.size_out_ == 1 and tr.scale_ is None
+    r = tr.track(observe(depth, cam, SETTINGS.observe), cam)
+    assert r.status == "reinit" and 1.2 <= tr.scale_ <= 1.35 and tr.size_out_ == 1
+    assert not tr._size_out(1.3) and tr._size_out(0.6) and tr._size_out(1.99) and not tr._size_out(1.97)

@@ -256,7 +256,12 @@ def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
     assert "000001.png: unreadable PNG" in r.stderr and "1 of 3 frames unreadable, tracked as lost" in r.stderr
     df, _ = read_tracking(tmp_path / "t.csv")
     assert df["status"].tolist()[1] == "lost" and df["status"].tolist()[2] != "lost" and len(df) == 3
-    assert (tmp_path / "k.csv").is_file()
+    # the unreadable frame has no θ and no keypoints (they repeated the frame before it)
+    dofs = [c for c in df.columns if c.endswith(("_flex", "_abd")) or c in ("tx", "ty", "tz", "rx", "ry", "rz")]
+    assert dofs and df.loc[1, dofs].isna().all() and df.loc[0, dofs].notna().all()
+    kp = pd.read_csv(tmp_path / "k.csv", comment="#")
+    xyz = [c for c in kp.columns if c.endswith(("_x_mm", "_y_mm", "_z_mm"))]
+    assert xyz and kp.loc[kp["frame"] == 1, xyz].isna().all().all() and kp.loc[kp["frame"] == 0, xyz].notna().all().all()
     other = tmp_path / "other"
     shutil.copytree(rec, other)
     r = _cli("track", rec, other, "-o", tmp_path / "many", *args)
@@ -264,3 +269,14 @@ def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
     summary = pd.read_csv(tmp_path / "many" / "summary.csv")
     assert summary["error"].str.contains("1 of 3 frames unreadable").all()
     assert (tmp_path / "many" / "rec.csv").is_file() and (tmp_path / "many" / "other.csv").is_file()
+
+
+@pytest.mark.parametrize("option, value, said", [("--depth-range", "300,1000", "0.3,1"),
+                                                 ("--box", "-100,,,500,,", "-0.1,,,0.5,,")])
+def test_millimetres_for_metres_are_refused(rec, tmp_path, option, value, said):
+    """A depth range or box in millimetres looked for the hand hundreds of metres away: every frame was
+    lost as if there were no hand, with the camera preset blamed. Now one line says the unit."""
+    r = _cli("track", rec, "-o", tmp_path / "t.csv", f"{option}={value}")
+    assert r.exit_code == 2, r.output
+    assert f"{option}: values are in metres" in r.stderr and f"if you meant millimetres: {said})" in r.stderr
+    assert "Traceback" not in r.output and not (tmp_path / "t.csv").exists()
