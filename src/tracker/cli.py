@@ -406,8 +406,9 @@ def show(
 
                 masks.append(observe(frame.depth, rec.camera, segmenter=segmenter, color=frame.color).mask)
             p.advance(bar)
-    key = ["grey = no depth", "white = segmented hand"] if fitted is None else \
-        ["white = no depth", "green = segmented hand", "fitted skeletons: thumb orange, wrist blue"]
+    # what the segmenter kept, before any fit tests it is a hand (a mug, a door's edge: tracker track says so)
+    key = ["grey = no depth", "white = segmented"] if fitted is None else \
+        ["white = no depth", "green = segmented", "fitted skeletons: thumb orange, wrist blue"]
     if segmenter is None:
         key.remove(key[1])
     skeletons = None if fitted is None else \
@@ -427,6 +428,9 @@ def show(
     warning = depth_unit_warning(np.concatenate([np.ravel(d) for d in depths]) / 1000.0, rec.camera.depth_scale_m)
     if warning:
         _print(warning)
+    if segmenter is not None and fitted is None:
+        _print("the outline is what the segmenter kept, not yet tested to be a hand: tracker track says when "
+               "a frame has none (a mug, a wall)")
 
 
 def _keypoints_by_frame(path, names, n_frames):

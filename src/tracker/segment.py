@@ -733,9 +733,9 @@ def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):
     other than the hand's): within ``gap_px`` of it at its depth (within ``jump``), split off by a
     seam of no data, not by a depth step — an object's face the sensor's edge dropouts cut off
     (a box's side face beside the hand, at the hand's depth: the realistic SR305 1.5× ``+object``
-    scene took a 145-pixel strip of it for a fingertip and fitted the hand 12 % too large). A
-    fingertip blob is cut off from its finger or stands in front of the palm or the body, a depth
-    step from any surface it borders.
+    scene took a strip of it, 145 pixels at the half-resolution search, for a fingertip and fitted
+    the hand 12 % too large). A fingertip blob is cut off from its finger or stands in front of the
+    palm or the body, a depth step from any surface it borders.
 
     >>> lab = np.array([[1, 1, 0, 2, 0, 0, 3]])
     >>> d = np.array([[0.5, 0.5, np.nan, 0.5, np.nan, np.nan, 0.7]])

@@ -568,7 +568,10 @@ def test_cli_reads_bags_in_place(tmp_path):
     assert r.exit_code == 0 and "2 (all readable)" in r.output, r.output
     r = _cli("show", src, "-o", tmp_path / "sheet.png", "--no-mask")
     assert r.exit_code == 0, r.output
-    assert iio.imread(tmp_path / "sheet.png").ndim == 3
+    assert iio.imread(tmp_path / "sheet.png").ndim == 3 and "not yet tested to be a hand" not in r.output
+    # with the mask drawn, the sheet says the outline is no hand yet (a mug was shown as "segmented hand")
+    r = _cli("show", src, "-o", tmp_path / "masked.png")
+    assert r.exit_code == 0 and "not yet tested to be a hand" in " ".join(r.output.split()), r.output
     r = _cli("import", src, "-o", tmp_path / "rec", "--every", "2", "--end", "0.1", "--hand", "right")
     assert r.exit_code == 0, r.output
     rec = Recording.open(tmp_path / "rec")

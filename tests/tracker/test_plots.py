@@ -87,7 +87,7 @@ def test_contact_sheet_title_fits_one_panel(tmp_path):
     """A sheet of one or two frames was narrower than its title, which was cut off on both sides."""
     depths = [np.full((576, 640), 800.0)]
     title = "azure_kinect_recording.mkv: 1 frames, azure_kinect_nfov_unbinned 640×576; grey = no depth; " \
-            "white = segmented hand"
+            "white = segmented"
     fig, _ = contact_sheet_figure(depths, ["#0  0.00 s"], title)
     fig.canvas.draw()
     box = fig._suptitle.get_window_extent()

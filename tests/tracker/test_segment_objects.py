@@ -130,7 +130,7 @@ def test_a_fist_before_the_body_stays_the_hand(hand, sensor, frame):
 def test_a_strip_of_the_box_cut_off_by_dropouts_is_no_fingertip(hand, frame, monkeypatch):
     """SR305, a 1.5× hand beside the box, depth only: the box's side face, split from its front by the
     sensor's edge dropouts and at the hand's depth, was added as a fingertip blob (a 145-pixel strip
-    ~3 cm off the hand: precision 0.86–0.88, and the hand fitted 12 % too large). A small piece at the
+    ~2.5 cm off the hand: precision 0.86–0.88, and the hand fitted 12 % too large). A small piece at the
     depth of another hand-sized surface it nearly touches is that surface's (tracker.segment._edge_pieces)."""
     import tracker.segment as S
 
