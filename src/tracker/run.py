@@ -559,7 +559,8 @@ def run_job_row(job: TrackJob) -> dict:
 
 def batch_jobs(recordings, outdir, template: TrackJob) -> list[TrackJob]:
     """One job per recording, its output ``OUTDIR/<name>.csv`` (``<name>`` the folder's name or the
-    file's stem); two recordings with the same name are refused (their outputs would collide)."""
+    file's stem), with the template's ``keypoints`` and ``overlay`` as folders: ``<keypoints>/<name>.csv``
+    and ``<overlay>/<name>/``; two recordings with the same name are refused (their outputs would collide)."""
     outdir = Path(outdir)
     jobs, seen = [], {}
     for r in recordings:
@@ -568,7 +569,9 @@ def batch_jobs(recordings, outdir, template: TrackJob) -> list[TrackJob]:
         if name in seen:
             raise TrackerError(r, f"has the same name as {seen[name]}: both would write {outdir / (name + '.csv')}")
         seen[name] = r
-        jobs.append(replace(template, recording=str(r), output=str(outdir / f"{name}.csv")))
+        jobs.append(replace(template, recording=str(r), output=str(outdir / f"{name}.csv"),
+                            keypoints=template.keypoints and str(Path(template.keypoints) / f"{name}.csv"),
+                            overlay=template.overlay and str(Path(template.overlay) / name)))
     return jobs
 
 

@@ -32,8 +32,8 @@ def track(
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
     variance: Optional[float] = typer.Option(None, "--variance", help="…or the variance the PCs must explain [0.99]."),
     output: Path = typer.Option(..., "-o", "--output", help="Output CSV (one row per frame); with several recordings (or --dask) a folder: NAME.csv per recording and summary.csv."),
-    keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Also write the 21 keypoints per frame (CSV, mm)."),
-    overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth."),
+    keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="Also write the 21 keypoints per frame (CSV, mm); with several recordings a folder: NAME.csv per recording."),
+    overlay: Optional[Path] = typer.Option(None, "--overlay", help="Folder for overlay PNGs of the fit on the depth; with several recordings NAME/ in it per recording."),
     overlay_every: int = typer.Option(10, "--overlay-every", help="Overlay every N-th frame."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Write a Rerun recording (.rrd) of the depth, segmentation, points used, fitted hand, fit error and fps per frame (extra [viz])."),
     rerun_spawn: bool = typer.Option(False, "--rerun-spawn", help="Stream the same to a Rerun viewer started now (needs a screen; extra [viz])."),
@@ -85,14 +85,20 @@ def track(
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                        ("--save-hand", save_hand)])
     if len(recordings) > 1 or dask is not None:
-        per_file = [n for n, v in (("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
-                                   ("--rerun-spawn", rerun_spawn), ("--save-hand", save_hand)) if v]
+        per_file = [n for n, v in (("--rerun", rerun), ("--rerun-spawn", rerun_spawn), ("--save-hand", save_hand)) if v]
         if per_file:
             raise TrackerError(per_file[0], "is for one recording; with several, -o is a folder of NAME.csv "
-                                            "and summary.csv (track a recording alone for its other outputs)")
+                                            "and summary.csv, --keypoints and --overlay folders of NAME.csv and "
+                                            "NAME/ (track a recording alone for its other outputs)")
         _check_outputs(output, None, None, None, overwrite, folder=True)
+        for name, folder in (("--keypoints", keypoints), ("--overlay", overlay)):
+            if folder is not None:
+                if folder.resolve() == output.resolve():
+                    raise TrackerError(name, f"needs a folder of its own, not -o's ({folder})")
+                _check_outputs(folder, None, None, None, overwrite, folder=True)
     else:
         _check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
+    _check_every(overlay_every)
     segmenter = _segmenter(depth_range, box, forearm, plane)
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
@@ -385,12 +391,15 @@ def _track_many(recordings, outdir, template, dask, overwrite):
 
     jobs = batch_jobs(recordings, outdir, template)
     summary = Path(outdir) / "summary.csv"
-    outputs = [Path(j.output) for j in jobs] + [summary]
+    outputs = [Path(j.output) for j in jobs] + [summary] + [Path(j.keypoints) for j in jobs if j.keypoints]
     _check_not_inputs(recordings, [("-o", p) for p in outputs])
     for p in outputs:
         if p.exists() and not overwrite:
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         check_output(p, overwrite=overwrite)
+    for j in jobs:
+        if j.overlay and not overwrite and Path(j.overlay).is_dir() and any(Path(j.overlay).glob("overlay_*.png")):
+            raise TrackerError(j.overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
     with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
         bar = progress.add_task("recordings", total=len(jobs))
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
@@ -421,7 +430,9 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     for row in table.to_dict("records"):
         if row["other_hand_better"] in (True, "True"):
             console.print(f"warning: {Path(row['recording']).name}: {row['hand_check']}")
-    console.print(f"wrote {summary} (the outputs beside it: NAME.csv)")
+    also = "".join(f", {what} in {folder}" for what, folder in (("NAME.csv keypoints", template.keypoints),
+                                                                 ("NAME/ overlays", template.overlay)) if folder)
+    console.print(f"wrote {summary} (the outputs beside it: NAME.csv{also})")
     failed = table[table["error"] != ""]
     for err in failed["error"]:  # after the table, one line each, nothing printed after them
         print_error(err)
@@ -440,6 +451,14 @@ def middle_cut(name: str, width: int) -> str:
         return name
     head = max((width - 1) // 3, 1)
     return name[:head] + "…" + name[len(name) - (width - 1 - head):]
+
+
+def _check_every(overlay_every):
+    """Refuse an ``--overlay-every`` below 1 (0 drew every frame, as 1 does, without a word)."""
+    from .errors import TrackerError
+
+    if overlay_every < 1:
+        raise TrackerError("--overlay-every", f"must be ≥ 1 (1 = every frame), got {overlay_every}")
 
 
 def _no_hand_hints(job, tracker) -> str:
@@ -654,6 +673,7 @@ def live(
         check_output(save, folder=True)
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
+    _check_every(overlay_every)
     segmenter = _segmenter(depth_range, box, forearm, plane)
     settings = _settings(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
                          None, None, hand_scale, check_hand)

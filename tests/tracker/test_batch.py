@@ -56,6 +56,29 @@ def test_many_recordings_as_one_by_one(recs, tmp_path, dask):
     assert not (out / "broken.csv").exists()
 
 
+def test_many_recordings_write_keypoints_and_overlays_per_recording(recs, tmp_path):
+    """--keypoints and --overlay with several recordings are folders: NAME.csv and NAME/ each, the same
+    keypoints as tracking each alone (they were refused, so the stills of `import --each` needed a loop)."""
+    out, kps, ovs = tmp_path / "out", tmp_path / "kps", tmp_path / "ovs"
+    r = _run(["track", recs / "a", recs / "b", "-o", out, "--keypoints", kps, "--overlay", ovs,
+              "--overlay-every", "1", "--no-check-hand"])
+    assert r.exit_code == 0, r.output
+    for name in ("a", "b"):
+        _same_tracking(out / f"{name}.csv", recs / f"{name}-alone.csv")
+        alone = tmp_path / f"{name}-kp.csv"
+        assert _run(["track", recs / name, "-o", tmp_path / f"{name}.csv", "--keypoints", alone,
+                     "--no-check-hand"]).exit_code == 0
+        got, want = pd.read_csv(kps / f"{name}.csv", comment="#"), pd.read_csv(alone, comment="#")
+        pd.testing.assert_frame_equal(got, want)
+        assert sorted(p.name for p in (ovs / name).iterdir()) == [f"overlay_{i:06d}.png" for i in range(3)]
+    # run again: every per-recording output exists and is never overwritten
+    r = _run(["track", recs / "a", recs / "b", "-o", tmp_path / "out2", "--keypoints", kps, "--no-check-hand"])
+    assert r.exit_code == 2 and "a.csv: exists and is never overwritten" in r.stderr, r.output
+    r = _run(["track", recs / "a", recs / "b", "-o", tmp_path / "out3", "--overlay", ovs, "--no-check-hand"])
+    assert r.exit_code == 2 and "holds overlay PNGs already" in r.stderr, r.output
+    assert not (tmp_path / "out2" / "a.csv").exists() and not (tmp_path / "out3" / "a.csv").exists()
+
+
 def test_batch_refusals(recs, tmp_path):
     """Outputs that would collide or be overwritten, and the per-recording options, are refused
     before anything is tracked."""

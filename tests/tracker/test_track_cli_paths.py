@@ -280,3 +280,9 @@ def test_millimetres_for_metres_are_refused(rec, tmp_path, option, value, said):
     assert r.exit_code == 2, r.output
     assert f"{option}: values are in metres" in r.stderr and f"if you meant millimetres: {said})" in r.stderr
     assert "Traceback" not in r.output and not (tmp_path / "t.csv").exists()
+
+
+def test_an_overlay_step_below_one_is_refused(rec, tmp_path):
+    r = _cli("track", rec, "-o", tmp_path / "t.csv", "--overlay", tmp_path / "ov", "--overlay-every", "0")
+    assert r.exit_code == 2 and "--overlay-every: must be ≥ 1 (1 = every frame), got 0" in r.stderr, r.output
+    assert not (tmp_path / "t.csv").exists() and not (tmp_path / "ov").exists()
