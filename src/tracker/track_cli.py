@@ -412,15 +412,15 @@ def _track_many(recordings, outdir, template, dask, overwrite):
         ok = not row["error"]
         fps = row["frames"] / row["wall_s"] if ok and row["wall_s"] else None
         rows.append((Path(row["recording"]).name, *(str(row[k]) if ok else "-" for k in ("frames", "tracked", "lost", "reinit")),
-                     f"{row['median_fit_mm']:.2f}" if ok else "-", f"{row['median_ms']:.1f}" if ok else "-",
-                     "-" if fps is None else f"{fps:.1f}",
+                     f"{row['median_fit_mm']:.2f}" if ok else "-", _short(row["median_ms"]) if ok else "-",
+                     "-" if fps is None else _short(fps),
                      "failed" if not ok else "other hand?" if row["other_hand_better"] in (True, "True") else "ok"))
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     # the name takes what the numbers leave (each column 3 more for padding and its rule), one line cut
     # with …: folded or squeezed by rich, a 100-column terminal left 9 characters a line of it
     numbers = sum(max(len(h), *(len(r[k + 1]) for r in rows)) for k, h in enumerate(heads))
     t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
-    width = max(12, console.width - numbers - 3 * len(heads) - 4)
+    width = max(10, console.width - numbers - 3 * len(heads) - 4)
     t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=width)
     for c in heads:
         t.add_column(c, justify="left" if c == "result" else "right", no_wrap=True)
@@ -438,6 +438,12 @@ def _track_many(recordings, outdir, template, dask, overwrite):
         print_error(err)
     if len(failed):
         raise typer.Exit(2)
+
+
+def _short(x: float) -> str:
+    """A time or a rate in at most 5 characters: one decimal below 100, none above (a still's start
+    search, 3008.4 ms, was cut to "3008…" at 80 columns)."""
+    return f"{x:.1f}" if abs(x) < 100 else f"{x:.0f}"
 
 
 def middle_cut(name: str, width: int) -> str:

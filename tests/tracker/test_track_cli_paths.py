@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from handmodel.dofs import DOF_NAMES
 from tracker.cli import app
+from tracker.track_cli import _short
 from tracker.run import FRAME_COLUMNS, tracking_csv
 
 
@@ -204,6 +205,11 @@ def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path):
     _, lines = _many_names_table(tmp_path, 80)
     firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
     assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
+    # only the names are cut: every header and number is whole (the ms column was cut to "3008…")
+    head = next(line for line in lines if "name" in line)
+    assert "…" not in head and {"frames", "tracked", "reinit", "ms", "fps", "result"} <= set(head.strip("┃ ").replace("┃", " ").split())
+    assert all("…" not in cell for line in lines if "│" in line for cell in line.strip("│ ").split("│")[1:])
+    assert [_short(x) for x in (8.25, 99.94, 3008.4, 123456.0)] == ["8.2", "99.9", "3008", "123456"]
 
 
 def test_threads_change_the_time_not_the_result(rec, tmp_path):
