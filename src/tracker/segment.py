@@ -203,11 +203,12 @@ class Segmenter:
         result is refused when the mask is empty, when it comes within :data:`BORDER_PX` of a window
         edge that is not an image edge (the hand, or an uncut arm, runs out of the window), when
         its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
-        tested) — something else than the hand was found there —, or when the hand was taken as the
-        layer in front of a body close behind it (:func:`_in_front`): that layer's background is read
-        around it, and the window's edges cut that short (the realistic Kinect v1 1.5× scene with a
-        torso 4 cm behind: in the window the torso on 2 of its first 11 frames, the palm's lower half
-        missing on others; in the whole frame the hand on all of them). ``plane``: as for :meth:`__call__`."""
+        tested) — something else than the hand was found there —, or when the region stands in front of
+        a surface close behind it (:func:`_in_front`'s outline test, whether or not the layer is then
+        taken): the layer rule reads the body around the hand, and the window's edges cut that short
+        (the realistic Kinect v1 1.5× scene with a torso 4 cm behind: in windows around the hand the
+        torso was kept as the hand on 7 of 12 frames, in the whole frame the hand on all of them).
+        ``plane``: as for :meth:`__call__`."""
         d, f = self._inputs(depth, points, focal)
         H, W = d.shape
         # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
