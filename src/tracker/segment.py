@@ -811,10 +811,10 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
     with np.errstate(invalid="ignore"):
         step = rw & ring & (dw - layer_far > FRONT_STEP_M)
-    if step.sum() >= FRONT_OUTLINE_SHARE * ring.sum() and notes is not None:
+    stands_out = step.sum() >= FRONT_OUTLINE_SHARE * ring.sum()
+    if stands_out and notes is not None:
         notes["layered"] = True
-    if (step.sum() < FRONT_OUTLINE_SHARE * ring.sum()
-            or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2):
+    if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2:
         return region, none, seed
     out, goes_on = none.copy(), none.copy()
     out[win] = layer

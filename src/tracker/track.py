@@ -495,8 +495,7 @@ class HandTracker:
         st = self.settings
         s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                          scale_range=st.scale_range)
-        if self._size_out(s) or self._found_nothing(corr):
-            self.size_out_ += self._size_out(s)
+        if self._no_hand_sized(s, corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
             self._keep_contexts(1.0 if self.scale_ is None else self.scale_)
             return theta, corr, False
@@ -539,6 +538,14 @@ class HandTracker:
         ``no_hand_rejected`` 0."""
         lo, hi = self.settings.scale_range
         return bool(self.settings.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
+
+    def _no_hand_sized(self, s, corr) -> bool:
+        """Whether a calibrating start (size ``s``, pairs ``corr``) found no hand: its size at an end of
+        the range (:meth:`_size_out`, counted in ``size_out_``) or its fit's rejections
+        (:meth:`_found_nothing`)."""
+        out = self._size_out(s)
+        self.size_out_ += out
+        return out or self._found_nothing(corr)
 
     def _no_hand(self, corr, n_in, t0) -> FrameResult:
         """A frame whose start found no hand (``corr``: its fit's pairs, None when it had too few points
@@ -630,9 +637,8 @@ class HandTracker:
             self._add_wrist(sil)
             size, _, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                             scale_range=st.scale_range)
-            if self._found_nothing(corr) or self._size_out(size):
+            if self._no_hand_sized(size, corr):
                 self.no_hand_ += 1
-                self.size_out_ += self._size_out(size)
                 continue
             est.append(size)
             frames.append((pts, nrm, sil))

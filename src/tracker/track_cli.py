@@ -398,8 +398,8 @@ def _track_many(recordings, outdir, template, dask, overwrite):
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
         check_output(p, overwrite=overwrite)
     for j in jobs:
-        if j.overlay and not overwrite and Path(j.overlay).is_dir() and any(Path(j.overlay).glob("overlay_*.png")):
-            raise TrackerError(j.overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
+        if j.overlay:
+            _check_outputs(None, None, Path(j.overlay), None, overwrite)
     with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
         bar = progress.add_task("recordings", total=len(jobs))
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
