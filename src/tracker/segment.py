@@ -103,6 +103,7 @@ TOUCH_AREA_M2 = 0.0015  # … when it is this big near the hand (a table, the bo
 TOUCH_WINDOW_M = 0.06  # how far around the hand that size is measured
 FINGER_ELONGATION = 2.5  # … at least this many times longer than wide (rendered and real fingers: 3.4-7) …
 FINGER_MIN_LENGTH_M = 0.025  # … and this long (4 standard deviations along it)
+FINGER_RIM_M = 0.003  # … counted from this far off the rest of the shape (_finger_pieces)
 FINE_FINGER_M = 0.015  # a full-resolution pixel belongs to its coarse pixel's surface within this depth (_has_fingers)
 FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this close (> half a 1.5x hand's palm width)
 FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
@@ -992,10 +993,18 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
 def _finger_pieces(o, px_m):
     """``(labels, sizes, big)``: the pieces of the solid mask ``o`` narrower than
     :data:`FINGER_MAX_M` (a morphological opening with a disk that wide removes them; ``px_m``:
-    pixels per metre at the mask's depth), their sizes (pixels, index 0 = none) and which are
+    pixels per metre at the mask's depth) and farther than :data:`FINGER_RIM_M` from what the opening
+    keeps (measured: a 0.8× open hand beside a box, depth only, whose fingers the opening's rim joined
+    into one U-shaped piece), their sizes (pixels, index 0 = none) and which are
     finger-sized (:data:`FINGER_MIN_AREA_M2`; noise at the outline leaves slivers a few pixels big)."""
     rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
-    thin = o & ~_disk_opening(o, rad)
+    rim = int(round(FINGER_RIM_M * px_m))
+    # the pixels farther than the rim from the opened shape: the opening rounds off the palm's corners
+    # and leaves a sliver along its edge that joins every finger into one U-shaped piece, no finger
+    opened = _disk_opening(o, rad)
+    thin = o & ~opened
+    if rim > 0 and opened.any():
+        thin &= _edt(opened) > rim
     lab_t, n = _label(thin)
     size = np.bincount(lab_t.ravel(), minlength=n + 1)
     # a finger is long and thin; clothing that the skin filter leaves in patches is not

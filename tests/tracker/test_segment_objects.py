@@ -72,6 +72,23 @@ def _blocks(hand_fingers):
     return d
 
 
+@pytest.mark.parametrize("sensor, frame", [("realsense", 0), ("kinect1", 9)])
+def test_fingers_joined_by_the_openings_rim_are_still_fingers(hand, sensor, frame, monkeypatch):
+    """0.8× hand beside the nearer box, depth only: the opening that finds finger-like parts rounds off
+    the palm's corners and left a sliver along its edge joining all five fingers into one U-shaped
+    piece, no finger, so the box was kept (the SR305 run's first frame: 155 mm, the whole run lost).
+    Pieces are now counted from 3 mm off the opened shape: the mask is the hand (recall ≥ 0.9,
+    precision ≥ 0.8); counted from its edge (FINGER_RIM_M 0), the box (recall < 0.1)."""
+    import tracker.segment as S
+
+    cam, depth, _, labels = _object_scene(hand, sensor, 0.8, frame)
+    recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
+    assert recall >= 0.9 and precision >= 0.8, (recall, precision)
+    monkeypatch.setattr(S, "FINGER_RIM_M", 0.0)
+    recall, _ = mask_scores(observe(depth, cam).mask, depth, labels)
+    assert recall < 0.1, recall
+
+
 def test_fingers_first_takes_the_fingered_hand_and_leaves_a_fist_to_the_nearest():
     """Constructed: the box is the nearest whole surface. With fingers, the arm's hand end wins under
     ``fingers_first`` (and the box without it); a fist has no fingers, so the box stays (depth alone
