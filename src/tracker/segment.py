@@ -87,7 +87,9 @@ PLANE_MIN_TILT_DEG = 30.0
 PLANE_BAND_M = (0.008, 0.02)  # the band left out around it: 3 robust SDs of its points, within these
 DEFAULT_FOCAL_PX = 500.0  # pixel size for physical areas when the camera is not given
 EDGE_GAP_PX = 2  # a small piece this close to another hand-sized surface at its depth is a piece of it (_edge_pieces)
-PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates
+PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as palm candidates …
+PALM_FILL_SLACK = 0.1  # … when the mask fills their disk within this share of the best-filled one …
+PALM_FILL_MIN = 0.85  # … or at least this share of it (_filled_places)
 NO_NARROWING_WRIST = 1.3  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
 TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
@@ -1085,7 +1087,8 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     """The hand mask without the forearm beyond the wrist.
 
     The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
-    nearly as large, the one farthest from where the region goes on. Outside 1.6 r, the
+    nearly as large that the mask before closing fills nearly as well as the best-filled one
+    (:func:`_filled_places`), the one farthest from where the region goes on. Outside 1.6 r, the
     parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
     and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
     surface left out of the region), where fingers end in an edge (fingers held together are as
@@ -1123,7 +1126,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     go_on &= solid
     # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
     # forearm) the one farthest from where the region goes on
-    cand = dt >= PALM_WIDTH_SHARE * dt.max()
+    cand = _filled_places(dt >= PALM_WIDTH_SHARE * dt.max(), sub, float(dt.max()))
     if go_on.any():
         far = _edt(go_on)
         cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
@@ -1255,6 +1258,34 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     out[y0:y1, x0:x1] &= ~cut
     return out
 
+
+
+def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK):
+    """The places of ``cand`` whose disk of radius ``rad`` the ``raw`` mask (before closing) fills
+    within ``slack`` of the best-filled one or at least :data:`PALM_FILL_MIN`. A 0.8× hand's spread
+    fingers lie a pixel or two apart at the search's resolution, and the closing that mends no-data
+    cracks joins their bases into a blob as wide as the palm; the raw mask leaves the gaps between them
+    (Kinect v1, torso 4 cm behind, frame 0: that blob's places filled 0.66–0.77, the palm's 0.99; the
+    palm placed there cut the hand mid-palm). Curled fingers leave gaps at a right palm's edge too
+    (0.88 on a 1.0× hand's half-closed frame, where the relative test alone moved the palm and the cut
+    kept 2 cm of forearm), hence the absolute floor.
+
+    >>> raw = np.ones((9, 20), bool); raw[:, 2:7:2] = False        # the left part "fingers" with gaps
+    >>> cand = np.zeros_like(raw); cand[4, 4] = cand[4, 14] = True
+    >>> np.argwhere(_filled_places(cand, raw, 3.0)).tolist()
+    [[4, 14]]
+    """
+    ys, xs = np.nonzero(cand)
+    if ys.size < 2:
+        return cand
+    k = int(np.ceil(rad))
+    dy, dx = np.nonzero(np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad)
+    padded = np.pad(np.asarray(raw, bool), k)
+    fill = padded[ys[:, None] + dy[None, :], xs[:, None] + dx[None, :]].mean(axis=1)
+    keep = fill >= min(fill.max() - slack, PALM_FILL_MIN)
+    out = np.zeros_like(cand)
+    out[ys[keep], xs[keep]] = True
+    return out
 
 
 def _outside_pieces(pieces, solid, rad):
