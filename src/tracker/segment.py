@@ -1125,7 +1125,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     go_on[-1:, :] |= y1 == H
     go_on &= solid
     # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
-    # forearm) the one farthest from where the region goes on
+    # forearm) and filled by the mask before closing, the one farthest from where the region goes on
     cand = _filled_places(dt >= PALM_WIDTH_SHARE * dt.max(), sub, float(dt.max()))
     if go_on.any():
         far = _edt(go_on)
@@ -1260,9 +1260,9 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
 
 
 
-def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK):
+def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK, least=PALM_FILL_MIN):
     """The places of ``cand`` whose disk of radius ``rad`` the ``raw`` mask (before closing) fills
-    within ``slack`` of the best-filled one or at least :data:`PALM_FILL_MIN`. A 0.8× hand's spread
+    within ``slack`` of the best-filled one or at least ``least``. A 0.8× hand's spread
     fingers lie a pixel or two apart at the search's resolution, and the closing that mends no-data
     cracks joins their bases into a blob as wide as the palm; the raw mask leaves the gaps between them
     (Kinect v1, torso 4 cm behind, frame 0: that blob's places filled 0.66–0.77, the palm's 0.99; the
@@ -1282,7 +1282,7 @@ def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK):
     dy, dx = np.nonzero(np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad)
     padded = np.pad(np.asarray(raw, bool), k)
     fill = padded[ys[:, None] + dy[None, :], xs[:, None] + dx[None, :]].mean(axis=1)
-    keep = fill >= min(fill.max() - slack, PALM_FILL_MIN)
+    keep = fill >= min(fill.max() - slack, least)
     out = np.zeros_like(cand)
     out[ys[keep], xs[keep]] = True
     return out
