@@ -91,7 +91,8 @@ PALM_WIDTH_SHARE = 0.93  # places at least this share of the widest count as pal
 PALM_FILL_SLACK = 0.1  # … when the mask fills their disk within this share of the best-filled one …
 PALM_FILL_MIN = 0.85  # … or at least this share of it (_filled_places)
 NO_NARROWING_WRIST = 1.3  # least wrist distance (palm radii) from the palm centre when nothing narrows sharply
-TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist
+TAPER_WINDOW_R = 0.4  # … and how far (palm radii) a slow taper must stop falling for its end to be the wrist …
+TAPER_MIN_SAMPLES = 4  # … and over at least this many samples (_end_of_taper's window)
 ARM_REACH_R = 4.5  # a part leaving the palm farther than this many palm radii from its centre is no finger
 SURE_ARM_REACH_R = 8.0  # a part leaving the palm farther than this is an arm even when it crosses the finger ring in pieces
 OPPOSITE_ARM_REACH_R = 2.6  # a wide part opposite the fingers is an arm when it reaches at least this far
@@ -1097,7 +1098,8 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     :data:`ARM_BEND_DEG` off (a wrist bent sideways puts c off the arm's axis). The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
     smallest at the wrist: the cut goes where it stops narrowing — where a slow taper ends when it
-    narrows only slowly, and at least :data:`NO_NARROWING_WRIST` r out then — and everything beyond it
+    narrows only slowly (over at least :data:`TAPER_MIN_SAMPLES` samples), and at least
+    :data:`NO_NARROWING_WRIST` r out then — and everything beyond it
     in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
     ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
@@ -1251,7 +1253,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # NO_NARROWING_WRIST r from the palm's centre (an arm as wide as the palm in the image, e.g. a
         # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
         # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
-        taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), 2))
+        taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), TAPER_MIN_SAMPLES))
         t_w = max(lo + taper, int(round(NO_NARROWING_WRIST * r)))
     cut = strip & (t > t_w)
     out = m.copy()
