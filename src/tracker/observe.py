@@ -234,7 +234,8 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
         mask = seg.in_window(d, window[0], color, P, focal=focal, expected=window[1], **found)
         used = None if mask is None else window[0]
     if mask is None:
-        mask = seg(d, color, P, focal=focal, **found)
+        # while tracking, the whole frame is told where the hand was predicted (Segmenter's prefer)
+        mask = seg(d, color, P, focal=focal, prefer=None if window is None else window[1], **found)
     if not mask.any():
         return Observation(np.zeros((0, 3)), np.zeros((0, 3)), mask, np.full((H, W), np.nan), 0.0, int(st.stride), d)
     (ya, yb), (xa, xb) = bounds(mask)

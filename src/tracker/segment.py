@@ -170,15 +170,20 @@ class Segmenter:
         if not self.z_max > self.z_min:
             raise ValueError(f"depth range must have far > near, got {self.z_min}, {self.z_max}")
 
-    def __call__(self, depth, color=None, points=None, *, focal=None, plane=FIND):
+    def __call__(self, depth, color=None, points=None, *, focal=None, plane=FIND, prefer=None):
         """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data).
 
         ``points``: the back-projected ``(H, W, 3)`` image (needed for ``box``); ``focal``: the
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
         :data:`DEFAULT_FOCAL_PX`); ``plane``: this frame's :meth:`frame_plane` when the caller has it
-        already (found here otherwise)."""
+        already (found here otherwise); ``prefer``: a ``(rows, cols)`` slice pair where the hand is
+        expected (the tracker's prediction): the wrist cut's palm is looked for there first
+        (:func:`cut_forearm`; an arm stub as wide as a half-closed hand's palm, farther from where the
+        region goes on, took the palm and the hand was cut off as the arm: the realistic Kinect v1 1.0×
+        table scene, noise seed 2, frame 22, lost for the rest of its run)."""
         d, f = self._inputs(depth, points, focal)
-        return self._run(d, color, points, f, plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane)
+        return self._run(d, color, points, f, plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane,
+                         prefer=prefer)
 
     def _skin(self, color) -> bool:
         """Whether the skin test runs (a colour frame given and ``use_color``)."""
@@ -226,7 +231,8 @@ class Segmenter:
         notes = {}
         sub = self._run(d[win], None if color is None else np.asarray(color)[win],
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
-                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane, notes=notes)
+                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane, notes=notes,
+                        prefer=expected)
         if not sub.any() or notes.get("layered"):
             return None
         (ya, yb), (xa, xb) = bounds(sub)
@@ -244,17 +250,18 @@ class Segmenter:
         out[win] = sub
         return out
 
-    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None):
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None, prefer=None):
         """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
         first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
         principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None;
-        ``notes``: a dict :meth:`_segment` fills in."""
+        ``notes``: a dict :meth:`_segment` fills in; ``prefer``: as for :meth:`__call__` (the whole
+        frame's pixels)."""
         c = int(self.coarse)
         H, W = whole_shape or d.shape
         (y0, x0) = origin
         if c <= 1 or min(H, W) < 40 * c:
             return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane,
-                                 notes=notes)
+                                 notes=notes, prefer=_sampled(prefer, origin, 1))
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
@@ -262,7 +269,7 @@ class Segmenter:
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
                            centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane,
-                           full=d, notes=notes)
+                           full=d, notes=notes, prefer=_sampled(prefer, origin, c))
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
@@ -286,7 +293,7 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None):
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None, prefer=None):
         """The search on an image subsampled by ``step`` (pixel counts and distances scale);
         ``centre``: the principal point in its pixel coordinates (None: the image's centre);
         ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out; ``full``: the
@@ -313,8 +320,24 @@ class Segmenter:
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
             joins = _joins(mask, dv, mask | beyond | behind, d_all, f, jump=self.jump)
-            mask = cut_forearm(mask, dv, f, beyond, seed=seed, joins=joins)
+            mask = cut_forearm(mask, dv, f, beyond, seed=seed, joins=joins, prefer=prefer)
         return mask
+
+
+def _sampled(prefer, origin, step):
+    """``prefer`` (a ``(rows, cols)`` slice pair of the whole frame's pixels, or None) in the pixels of
+    an image sampled every ``step`` pixels from ``origin``.
+
+    >>> _sampled((slice(10, 20), slice(5, 9)), (4, 0), 2)
+    (slice(3, 8, None), slice(3, 5, None))
+    """
+    if prefer is None:
+        return None
+    def first(v, o):  # the first sample at or after full-frame pixel v
+        return max(-(-(v - o) // step), 0)
+
+    return tuple(slice(first(s.start or 0, o), first(1 << 30 if s.stop is None else s.stop, o))
+                 for s, o in zip(prefer, origin))
 
 
 def refine(coarse_mask, coarse_depth, depth, step, jump=0.02):
@@ -1084,7 +1107,7 @@ def _points(depth, focal, centre=None):
 
 
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
-                joins=None):
+                joins=None, prefer=None):
     """The hand mask without the forearm beyond the wrist.
 
     The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
@@ -1104,7 +1127,8 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
     ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
     they touch goes on too (an arm entering a table the sensor's shadow separates from it), but
-    they do not move the palm (fingertips touch the body as well)."""
+    they do not move the palm (fingertips touch the body as well). ``prefer``: a ``(rows, cols)`` slice
+    pair where the hand is expected (the tracker's prediction): palm places inside it come first."""
     m = np.asarray(mask, bool)
     (ya, yb), (xa, xb) = bounds(m)
     pad = 2
@@ -1129,6 +1153,14 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
     # forearm) and filled by the mask before closing, the one farthest from where the region goes on
     cand = _filled_places(dt >= PALM_WIDTH_SHARE * dt.max(), sub, float(dt.max()))
+    if prefer is not None:
+        # while tracking: an arm stub as wide as the palm, farther from where the region goes on, is no
+        # palm when the hand was predicted elsewhere
+        there = np.zeros(m.shape, bool)
+        there[prefer] = True
+        there = there[y0:y1, x0:x1] & cand
+        if there.any():
+            cand = there
     if go_on.any():
         far = _edt(go_on)
         cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
