@@ -36,7 +36,8 @@ from .cameras import Camera
 from .errors import RecordingError, TrackerError
 from .images import (COMPRESSED_DEPTH_HEADER, decode_png_units, decode_rvl, inverse_depth_to_metres,
                      register_color)
-from .recording import MAX_FRAME_SIDE, FileRecording, Frame, check_frame_size, looks_like
+from .recording import (MAX_FRAME_SIDE, ROS1_MAGIC, SQLITE_MAGIC, FileRecording, Frame, check_frame_size,
+                        looks_like)
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -104,7 +105,7 @@ def check_sqlite_complete(path: Path) -> None:
     pages missing past the end of a truncated file as zeros (depth frames would silently end in
     zeros)."""
     head, size = _head_and_size(path, 100)
-    if len(head) < 100 or not head.startswith(b"SQLite format 3\0"):
+    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
         return  # not SQLite at all: the reader says so
     page = struct.unpack(">H", head[16:18])[0]
     page = 65536 if page == 1 else page
@@ -113,14 +114,12 @@ def check_sqlite_complete(path: Path) -> None:
         raise RecordingError(path, f"truncated: the SQLite header says {pages * page} bytes, the file has {size}")
 
 
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
-
-
-def check_ros1_complete(path: Path) -> None:
+def check_ros1_complete(path: Path) -> int | None:
     """Refuse a ROS1 bag whose index is missing, naming why: its file header says where the index
     starts (``index_pos``), 0 while the recorder has not closed the file, past the end when the file
     was cut short (a copy or download that stopped). The reader's own error ("Bag index looks
-    damaged: Header could not be read") does not tell a user either."""
+    damaged: Header could not be read") does not tell a user either. Returns ``index_pos`` (None when
+    the file is too short to tell or its header is damaged: the reader then says so)."""
     head, size = _head_and_size(path, 4096)
     if not head.startswith(ROS1_MAGIC):
         # the reader's error is its decoder's (a PNG renamed .bag: "'utf-8' codec can't decode byte 0x89")

@@ -21,7 +21,7 @@ import numpy as np
 
 from .cameras import Camera
 from .errors import RecordingError, TrackerError
-from .recording import FileRecording, check_frame_size, looks_like
+from .recording import EBML_MAGIC, FileRecording, check_frame_size, looks_like
 
 #: Depth modes: (binned calibration resolution, crop offset, output size), per the Azure Kinect SDK.
 DEPTH_MODES = {
@@ -83,9 +83,6 @@ def _vint(data: bytes, i: int, keep_marker: bool = False):
     for b in data[i + 1:i + n]:
         v = (v << 8) | b
     return v, n
-
-
-EBML_MAGIC = b"\x1a\x45\xdf\xa3"  # every Matroska file starts with its EBML header's ID
 
 
 def cut_short(path: Path):

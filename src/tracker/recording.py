@@ -313,11 +313,15 @@ class Recording:
 
 
 # ----------------------------------------------------------------------------- recording files
-#: Suffixes of the recording files read in place (a ROS2 bag may also be its folder with metadata.yaml).
-# the first bytes of formats a recording file is confused with (a file renamed, a download saved as
-# an HTML page): what an error names instead of a reader's decoding error
-FILE_SIGNATURES = ((b"#ROSBAG V2.0", "a ROS1 bag"), (b"\x1a\x45\xdf\xa3", "a Matroska/WebM file"),
-                   (b"SQLite format 3\0", "an SQLite database (a ROS2 .db3)"), (b"\x89MCAP", "an MCAP file"),
+#: The first bytes of a ROS1 bag, of a Matroska file (its EBML header's ID: Azure Kinect .mkv) and of an
+#: SQLite database (a ROS2 .db3): what the readers test a file for (tracker.bags, tracker.mkv).
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+EBML_MAGIC = b"\x1a\x45\xdf\xa3"
+SQLITE_MAGIC = b"SQLite format 3\0"
+#: The first bytes of formats a recording file is confused with (a file renamed, a download saved as
+#: an HTML page): what an error names instead of a reader's decoding error (:func:`looks_like`).
+FILE_SIGNATURES = ((ROS1_MAGIC.rstrip(b"\n"), "a ROS1 bag"), (EBML_MAGIC, "a Matroska/WebM file"),
+                   (SQLITE_MAGIC, "an SQLite database (a ROS2 .db3)"), (b"\x89MCAP", "an MCAP file"),
                    (b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"), (b"PK\x03\x04", "a zip archive"),
                    (b"\x1f\x8b", "a gzip file"), (b"BZh", "a bzip2 file"), (b"%PDF", "a PDF"),
                    (b"RIFF", "a RIFF file (AVI/WAV)"), (b"<!DOCTYPE", "an HTML page"), (b"<html", "an HTML page"))
@@ -342,6 +346,7 @@ def looks_like(head: bytes) -> str:
         return "unknown binary data"
 
 
+#: Suffixes of the recording files read in place (a ROS2 bag may also be its folder with metadata.yaml).
 RECORDING_FILE_SUFFIXES = (".bag", ".db3", ".mcap", ".mkv")
 RECORDINGS_EXTRA = "pip install 'synergistic-hand-tracking[recordings]'"
 
