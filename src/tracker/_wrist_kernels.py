@@ -132,6 +132,36 @@ def near_line(inner, line):
 
 
 @njit(cache=True)
+def surface_depth(m, d, y, x, r):
+    """At each pixel ``(y[i], x[i])``: ``np.nanmedian`` of ``np.where(m, d, nan)`` over the square
+    window of half-width ``r`` around it, clipped at the image's edges (NaN where it holds no depth) —
+    the hand's surface depth behind an outline pixel (:func:`tracker.wrist.wrist_cue`)."""
+    H, W = m.shape
+    out = np.empty(y.shape[0])
+    buf = np.empty((2 * r + 1) * (2 * r + 1))
+    for i in range(y.shape[0]):
+        n = 0
+        for v in range(max(y[i] - r, 0), min(y[i] + r + 1, H)):
+            for u in range(max(x[i] - r, 0), min(x[i] + r + 1, W)):
+                if m[v, u] and np.isfinite(d[v, u]):
+                    # insertion into the sorted buffer (at most (2r + 1)² values)
+                    z = d[v, u]
+                    k = n
+                    while k > 0 and buf[k - 1] > z:
+                        buf[k] = buf[k - 1]
+                        k -= 1
+                    buf[k] = z
+                    n += 1
+        if n == 0:
+            out[i] = np.nan
+            continue
+        h = n // 2
+        # numpy's median of an even count: the mean of the two middle values
+        out[i] = buf[h] if n % 2 else (buf[h - 1] + buf[h]) / 2.0
+    return out
+
+
+@njit(cache=True)
 def seeded_surfaces(d, seed, jump, within, dist):
     """The pixels of the surfaces of ``d`` (:func:`tracker.segment.surfaces` with ``jump``: 4-connected,
     split at depth steps, a step's far-side pixel given to its nearest-in-depth neighbour's surface)

@@ -14,6 +14,7 @@ paper's method (§VI, FORMAT.md §5), the defaults are ours.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from collections import deque
@@ -104,6 +105,12 @@ class TrackerSettings:
     the labels' floors); with the test every wrist is within 40 px and 5–6 frames meet them. Such a
     frame's comparison scores with the cue: without it the search's hand turned round wins again
     (the stills: 1 frame, wrists up to 131 px; a rendered jump: 156–168° off on every frame).
+    ``net_wrist_fit_mm``: such a frame's search result replaces the tracked one only when it also
+    scores within this of it without the cue (:func:`_without_cue`). A cue can be wrong where
+    the wrist cut kept some forearm (a fist no wider than its arm: the cue sits at the mask's end);
+    a hand turned over fits the depth about as well as the right one, a hand stretched down the arm
+    to reach that cue does not (a rendered fist: 4.1 against 8.4 mm without the cue; 43 mm after
+    the replacement).
     ``net_wrist_every``, ``net_wrist_moved``: the test's answer depends on the hand's pose and on where
     the arm enters the frame (:func:`tracker._wrist_kernels.arm_entry`, ~20 µs), so it is rerun in full
     only when the pose has turned or moved more than ``net_wrist_moved`` (degrees, mm) or the arm's
@@ -176,6 +183,7 @@ class TrackerSettings:
     recentre: bool = True
     net_wrist_cue: bool = False
     net_wrist_mm: float = 20.0
+    net_wrist_fit_mm: float = 1.0
     net_arm_m: float = 0.12
     net_wrist_every: int = 6
     net_wrist_moved: tuple = (15.0, 15.0)
@@ -248,6 +256,8 @@ class TrackerSettings:
             raise TrackerError("settings", f"start_min_pixels must be ≥ 0 (0 = off), got {self.start_min_pixels!r}")
         if not 0.0 <= self.no_hand_rejected < 1.0:
             raise TrackerError("settings", f"no_hand_rejected must be in [0, 1), got {self.no_hand_rejected!r}")
+        if not self.net_wrist_fit_mm >= 0:
+            raise TrackerError("settings", f"net_wrist_fit_mm must be ≥ 0, got {self.net_wrist_fit_mm!r}")
         if int(self.net_wrist_every) < 1 or len(self.net_wrist_moved) != 2 or min(self.net_wrist_moved) < 0:
             raise TrackerError("settings", "net_wrist_every must be ≥ 1 and net_wrist_moved two limits ≥ 0 "
                                            f"(degrees, mm), got {self.net_wrist_every!r} and {self.net_wrist_moved!r}")
@@ -1006,12 +1016,23 @@ class HandTracker:
             self.net_placed_ += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
         self.net_ms_ += (time.perf_counter() - t0) * 1e3
-        if best[1] is not None and best[0] < s_track - st.net_margin_mm:
+        if (best[1] is not None and best[0] < s_track - st.net_margin_mm
+                and (why != "wrist" or _without_cue(ctx, best[1], best[2], sil)
+                     <= _without_cue(ctx, theta, c_all, sil) + st.net_wrist_fit_mm)):
             self.net_replaced_ += 1
             self.prev = None
             self._wrist_passed = None
             return best[1], best[2], all_pts, all_nrm, "replaced"
         return theta, corr, pts, nrm, "kept"
+
+
+def _without_cue(ctx, theta, corr, sil) -> float:
+    """:func:`tracker.init.score` of θ without the frame's wrist cue (both directions' terms only)."""
+    if getattr(sil, "wrist", None) is None:
+        return score(ctx, theta, corr, sil)
+    bare = copy.copy(sil)
+    bare.wrist = None
+    return score(ctx, theta, corr, bare)
 
 
 def _unseen_parts(hand, synergies):

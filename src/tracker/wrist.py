@@ -29,11 +29,15 @@ from ._wrist_kernels import (
     near_line,
     outline_and_ring,
     seeded_surfaces,
+    surface_depth,
 )
 from .segment import _nearest, surfaces
 
 WRIST_REACH_MM = 50.0
 WRIST_TURN_MM = 30.0
+#: Half-width (px) of the window whose masked depths give an outline pixel's surface depth
+#: (:func:`tracker._wrist_kernels.surface_depth`): wider than a 1–2 px fringe of the body.
+OUTLINE_SURFACE_PX = 3
 
 
 @dataclass(frozen=True)
@@ -75,7 +79,14 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     _, near_y, near_x = _nearest(inner)
     iy, ix = near_y[ring], near_x[ring]
     ry, rx = np.nonzero(ring)
-    dz = np.abs(d[ry, rx] - d[iy, ix])
+    # against the hand's surface behind the outline, the masked median around it: an outline pixel's
+    # own depth can be the background's — flying pixels at a depth step bridge the segmentation's
+    # band, and a fringe of a body close behind the hand joins the mask, whose outline then "goes
+    # on" into the body (a cue at a notch of the hand; compiled, OUTLINE_SURFACE_PX)
+    surface = np.full(m.shape, np.nan)
+    oy, ox = np.nonzero(inner)
+    surface[oy, ox] = surface_depth(m, d, oy, ox, OUTLINE_SURFACE_PX)
+    dz = np.abs(d[ry, rx] - surface[iy, ix])
     goes_on = np.zeros_like(m)
     ok = dz < step_m
     goes_on[ry[ok], rx[ok]] = True

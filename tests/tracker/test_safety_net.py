@@ -135,11 +135,14 @@ def test_wrist_cue_needs_an_arm_behind_it():
         assert arm_behind(cue, mask, depth, cam) is has_arm
 
 
-def test_no_wrist_cue_on_a_rendered_hand_without_arm(hand):
+def test_no_wrist_cue_on_a_rendered_hand_without_arm(hand, monkeypatch):
     """A grasp seen from the back, rendered without an arm: the segmentation leaves a few hand pixels
-    outside the mask and `wrist_cue` reads them as a wrist that costs the true pose 20–40 mm of score
-    (measured), which sent the net's search to turned-over hands. The tracker drops such cues: the
+    outside the mask and `wrist_cue`, comparing them with the outline pixel's own depth, read them as
+    a wrist that costs the true pose 20–40 mm of score (measured), which sent the net's search to
+    turned-over hands. The tracker drops such cues (``arm_behind``), and `wrist_cue`, comparing with
+    the hand's surface behind the outline (``OUTLINE_SURFACE_PX``), finds none or a harmless one: the
     true pose scores as without a cue (≤ 1 mm) on every frame."""
+    import tracker.wrist as W
     from tracker.correspond import Silhouette
     from tracker.init import score
     from tracker.observe import observe
@@ -153,13 +156,17 @@ def test_no_wrist_cue_on_a_rendered_hand_without_arm(hand):
     for f in range(40, 70, 5):
         ob = observe(ren.render(truth[f], labels=False).depth, CAM, tr.settings.observe)
         cue = wrist_cue(ob.mask, ob.frame_depth, CAM)
+        assert cue is None or wrist_cost_mm(cue, hand, truth[f]) <= 1.0
+        with monkeypatch.context() as mp:
+            mp.setattr(W, "OUTLINE_SURFACE_PX", 0)  # the outline pixel's own depth, as before
+            cue = wrist_cue(ob.mask, ob.frame_depth, CAM)
         raw.append(np.nan if cue is None else wrist_cost_mm(cue, hand, truth[f]))
         sil = Silhouette(ob.mask, ob.depth, CAM)
         sil.frame_depth = ob.frame_depth
         tr._add_wrist(sil)
         assert sil.wrist is None
         assert score(tr.context, truth[f], tr.context.matcher(truth[f], ob.points, ob.normals), sil) <= 1.0
-    assert np.nanmax(raw) > 10.0, raw  # the raw cue is wrong on some of these frames
+    assert np.nanmax(raw) > 10.0, raw  # the cue as before is wrong on some of these frames
 
 
 def test_net_searches_postures_from_the_tracked_pose_first(hand):
@@ -274,3 +281,33 @@ def test_track_unseen_prior_option(tmp_path):
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--unseen-prior", "0", "--no-check-hand",
                                  "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
+
+
+def test_a_cue_at_the_end_of_a_kept_forearm_does_not_replace_a_right_fist(hand):
+    """The realistic scene's seed 2, SR305 1.5x, the torso 4 cm behind, depth only: closed into a fist
+    (frames 24-27) the hand is no wider than its forearm, the wrist cut keeps ~7 cm of arm, and the
+    wrist cue sits at the mask's end, 62-65 px from the real wrist. The tracked fist (4-7 mm, its
+    score without the cue 4.1-4.7 mm) was doubtful by the cue, and the net's search, stretched down
+    the arm (8.4 and 5.9 mm without the cue), won by the cue alone: 39 and 43 mm. A wrist-doubtful
+    frame is replaced only by a fit that also scores within ``net_wrist_fit_mm`` of the tracked one
+    without the cue — a hand turned over fits the depth as well as the right one, a fist stretched
+    along an arm does not: every frame from 24 on within 20 mm (measured 4.0-13.9)."""
+    from tracker.cameras import preset as cam_preset
+    from tracker.sim.hands import HandShape
+    from tracker.sim.noise import NoiseModel
+    from synergy.bundle import load_bundle
+
+    bundle = load_bundle("fingerfist")
+    shown = HandShape(1.5, E.realistic_fingers(1.5, 2)).apply(hand)
+    truth = make_motion("open-close", hand=shown, frames=30, seed=2).theta
+    scene = E.REALISTIC_SCENES["+torso 4 cm"]
+    seed = 2 + list(E.REALISTIC_SCENES).index("+torso 4 cm")
+
+    def run(**kw):
+        tr = HandTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS, **kw), synergies=bundle)
+        return E.run_scene(hand, shown, truth, cam_preset("sr305"), tr, clutter=scene,
+                           noise=NoiseModel.preset("sr305"), seed=seed, color=False)["keypoint_mm"]
+
+    on, off = run(), run(net_wrist_fit_mm=np.inf)
+    assert np.max(on[24:]) <= 20.0, np.round(on, 1)
+    assert np.max(off[24:]) > 30.0, np.round(off, 1)  # the scene still shows what the rule is for

@@ -234,3 +234,6 @@ def test_a_wrist_test_setting_out_of_range_is_refused():
     for bad in ({"net_wrist_every": 0}, {"net_wrist_moved": (15.0,)}, {"net_wrist_moved": (-1.0, 15.0)}):
         with pytest.raises(TrackerError, match="net_wrist_every"):
             TrackerSettings().replace(**bad).check()
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(TrackerError, match="net_wrist_fit_mm"):
+            TrackerSettings().replace(net_wrist_fit_mm=bad).check()
