@@ -1120,6 +1120,25 @@ def _points(depth, focal, centre=None):
     return back_points(np.ascontiguousarray(depth, dtype=np.float64), float(focal), float(cy), float(cx))
 
 
+def _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, m_px, width, cy_p, cx_p, fingers) -> bool:
+    """Whether part ``j`` of :func:`cut_forearm`, which crosses the ring around the palm in several
+    pieces and goes on past the region, is an arm that a finger (the thumb) touches outside the palm
+    circle rather than spread fingers: its widest piece on the ring is wider than a finger
+    (:data:`FINGER_MAX_M`; ``m_px``: metres per pixel) and lies opposite the parts that end in the
+    region (``fingers``, weighted by ``width``, at least 0.3 ``r`` of them; ``cy_p``/``cx_p``: each
+    part's mean offset from the palm's centre where it leaves the circle)."""
+    mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
+    if mine.size < 2 or width[fingers].sum() < 0.3 * r:
+        return False
+    k = mine[np.argmax(piece_size[mine])]
+    # the ring is 0.4 r thick: a piece's area over that is its chord across the ring
+    if piece_size[k] / (0.4 * r) * m_px <= FINGER_MAX_M:
+        return False
+    py, px = vy[ring_lab == k].mean(), vx[ring_lab == k].mean()
+    fy, fx = np.sum(width[fingers] * cy_p[fingers]), np.sum(width[fingers] * cx_p[fingers])
+    return (py * fy + px * fx) / (np.hypot(py, px) * np.hypot(fy, fx) + 1e-12) < -0.5
+
+
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
                 joins=None, prefer=None):
     """The hand mask without the forearm beyond the wrist.
@@ -1228,7 +1247,11 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     owner = np.zeros(piece_size.size, int)
     owner[ring_lab[on]] = lab[on]
     pieces = np.bincount(owner[big[big > 0]], minlength=n + 1)[1:]
-    continues[1:] &= pieces < 2
+    several = pieces >= 2
+    for j in np.flatnonzero(several & continues[1:]):
+        several[j] = not _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, zc / focal, width,
+                                               cy_p, cx_p, ~continues[1:] & ~several)
+    continues[1:] &= ~several
     ends = ~continues[1:]
     for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= OPPOSITE_ARM_REACH_R * r)):
         # the other parts that end here, weighted by their width: the fingers' side of the palm
@@ -1244,7 +1267,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
     # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
     # crosses the ring in pieces too
-    continues[1:] &= (pieces < 2) | (reach_r > SURE_ARM_REACH_R * r)
+    continues[1:] &= ~several | (reach_r > SURE_ARM_REACH_R * r)
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:

@@ -271,21 +271,31 @@ def test_the_predicted_hand_keeps_the_palm_off_an_arm_stub(hand):
     whole frame and the window are told where the hand was predicted (``Segmenter(prefer=…)``) and the
     palm is looked for there first: recall ≥ 0.85 with the hand's box as the prediction, < 0.1 without."""
     seed, scene = 2, "+table"
-    cam, nm = preset("kinect1"), NoiseModel.preset("kinect1")
-    shown = HandShape(1.0, E.realistic_fingers(1.0, seed)).apply(hand)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=seed).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    # as run_scene places it: sized with the rendered hand's length, at the motion's mean hand centre
-    clutter = Clutter.parse(E.REALISTIC_SCENES[scene]).sized(
-        wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed((truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
-    r = DepthRenderer(shown, cam).render(truth[22], labels=True, color=True, clutter=clutter,
-                                         incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
     j = list(E.REALISTIC_SCENES).index(scene)
-    depth = nm.apply(r.depth, cam, np.random.default_rng([seed + j, 22]), r.cos_incidence, r.reflectance)
-    ys, xs = np.nonzero(r.labels >= 0)
+    cam, depth, color, labels = realistic_frame(hand, "kinect1", 1.0, E.REALISTIC_SCENES[scene], 22, seed + j, seed=seed)
+    ys, xs = np.nonzero(labels >= 0)
     predicted = (slice(ys.min() - 4, ys.max() + 5), slice(xs.min() - 4, xs.max() + 5))
     seg = Segmenter()
-    recall, _ = mask_scores(seg(depth, r.color, focal=cam.fx), depth, r.labels)
+    recall, _ = mask_scores(seg(depth, color, focal=cam.fx), depth, labels)
     assert recall < 0.1, recall
-    recall, precision = mask_scores(seg(depth, r.color, focal=cam.fx, prefer=predicted), depth, r.labels)
+    recall, precision = mask_scores(seg(depth, color, focal=cam.fx, prefer=predicted), depth, labels)
     assert recall >= 0.85 and precision >= 0.7, (recall, precision)
+
+
+def test_an_arm_the_thumb_touches_is_still_the_arm(hand, monkeypatch):
+    """The realistic SR305 0.8x `+table` scene drawn with seed 2, depth only, frame 4: the thumb touches
+    the forearm outside the palm circle, so the arm's part crosses the ring around the palm in two
+    pieces, the rule for spread fingers, and nothing was cut: precision 0.50, the whole forearm kept
+    (the tracked run: the net's search fitted the hand down the arm, 30 mm to the end). The part is the
+    arm when its widest piece is wider than a finger and lies opposite the fingers that end in the
+    region (``_arm_a_finger_touches``): precision ≥ 0.9 (measured 0.98; the run 3.6 mm)."""
+    import tracker.segment as S
+
+    seed, scene = 2, "+table"
+    j = list(E.REALISTIC_SCENES).index(scene)
+    cam, depth, _, labels = realistic_frame(hand, "realsense", 0.8, E.REALISTIC_SCENES[scene], 4, seed + j, seed=seed)
+    recall, precision = mask_scores(Segmenter()(depth, None, focal=cam.fx), depth, labels)
+    assert recall >= 0.9 and precision >= 0.9, (recall, precision)
+    monkeypatch.setattr(S, "_arm_a_finger_touches", lambda *a, **k: False)
+    _, precision = mask_scores(Segmenter()(depth, None, focal=cam.fx), depth, labels)
+    assert precision < 0.6, precision
