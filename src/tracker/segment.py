@@ -108,6 +108,7 @@ FINGER_ELONGATION = 2.5  # … at least this many times longer than wide (render
 FINGER_MIN_LENGTH_M = 0.025  # … and this long (4 standard deviations along it)
 FINGER_RIM_M = 0.003  # … counted from this far off the rest of the shape (_finger_pieces)
 FINE_FINGER_M = 0.015  # a full-resolution pixel belongs to its coarse pixel's surface within this depth (_has_fingers)
+FINE_FINGER_GROW = 1  # … and, when none are found there, this many coarse pixels beyond the surface too (fragments)
 FRONT_WINDOW_M = 0.08  # a pixel's local background is the farthest depth this close (> half a 1.5x hand's palm width)
 FRONT_STEP_M = 0.01  # the hand's layer is nearer than its local background by more than this
 FRONT_OUTLINE_SHARE = 0.3  # … the region lies behind it across that step over this share of its outline (hand and arm alone, or the table scenes: ≤ 0.22 with colour; a torso 3-5 cm behind: 0.27-0.95)
@@ -1075,9 +1076,11 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
     :data:`FINGER_MIN_AREA_M2` in all. ``fine``: ``(depth, step)``, the full-resolution image ``d``
     was sampled from every ``step``-th pixel; when the part has no fingers in ``d`` they are looked for
-    there too, in the part's pixels within :data:`FINE_FINGER_M` of the pixel they were sampled with
-    (a 0.8× hand's spread fingers lie 1-2 px apart in a Kinect v1 frame's half-resolution image, and
-    its noise joins them into pieces too stubby to be fingers)."""
+    there too, in the part's pixels within :data:`FINE_FINGER_M` of the pixel they were sampled with,
+    and then in the part grown by :data:`FINE_FINGER_GROW` coarse pixels, each within that of its
+    nearest part pixel (a 0.8× hand's spread fingers lie 1-2 px apart in a Kinect v1 frame's
+    half-resolution image, and its noise joins them into pieces too stubby to be fingers, or breaks
+    them off the hand's surface)."""
     if not seed.any():
         return False
     z = _nanmedian(d[seed])
@@ -1097,12 +1100,21 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     full, c = fine
     fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
     h, w = fz.shape
-    up = np.repeat(np.repeat(part, c, 0), c, 1)[:h, :w]
     zc = np.repeat(np.repeat(d[y0:y1, x0:x1], c, 0), c, 1)[:h, :w]
-    with np.errstate(invalid="ignore"):
-        fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
-    # holes filled but gaps not closed: closing would join the fingers again
-    return _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c)
+    for grow in dict.fromkeys((0, FINE_FINGER_GROW)):
+        if grow:
+            # the part grown by coarse pixels, each at its nearest part pixel's depth: the sensor's
+            # dropouts break a small hand's fingers into fragments the part's surface does not hold.
+            # Only when the part alone has none: growing can also bridge two fingers (seed 1's frame)
+            _, ny, nx = _nearest(part)
+            zc = np.repeat(np.repeat(d[y0:y1, x0:x1][ny, nx], c, 0), c, 1)[:h, :w]
+        up = np.repeat(np.repeat(_dilate(part, grow) if grow else part, c, 0), c, 1)[:h, :w]
+        with np.errstate(invalid="ignore"):
+            fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
+        # holes filled but gaps not closed: closing would join the fingers again
+        if _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c):
+            return True
+    return False
 
 
 def _sq_dist(X, c):
