@@ -56,7 +56,8 @@ def wrist_cue(mask, depth, camera, *, step_m=0.015, arm_reach_m=0.06, width_rang
     """The wrist of a hand ``mask`` in a ``depth`` image (metres, NaN = none), or None.
 
     Outline pixels of the mask whose outside neighbours continue the surface (depth within
-    ``step_m``) form candidate lines; the longest is the wrist when it is wrist-wide
+    ``step_m`` of the hand's surface there, the masked median within :data:`OUTLINE_SURFACE_PX`) form
+    candidate lines; the longest is the wrist when it is wrist-wide
     (``width_range_m``) and holds at least ``min_arm_share`` of all such outline — a hand lying on a
     table or touching the body continues everywhere and gives no cue. The arm's direction is the
     mean of the continuing surface within ``arm_reach_m`` beyond the line, from the line's centre.
