@@ -106,11 +106,12 @@ class TrackerSettings:
     frame's comparison scores with the cue: without it the search's hand turned round wins again
     (the stills: 1 frame, wrists up to 131 px; a rendered jump: 156–168° off on every frame).
     ``net_wrist_fit_mm``: such a frame's search result replaces the tracked one only when it also
-    scores within this of it without the cue (:func:`_without_cue`). A cue can be wrong where
-    the wrist cut kept some forearm (a fist no wider than its arm: the cue sits at the mask's end);
-    a hand turned over fits the depth about as well as the right one, a hand stretched down the arm
-    to reach that cue does not (a rendered fist: 4.1 against 8.4 mm without the cue; 43 mm after
-    the replacement).
+    scores within this of it without the cue (:func:`_without_cue`; 0: no worse). A cue can be wrong
+    where the wrist cut kept some forearm (a fist no wider than its arm: the cue sits at the mask's
+    end), and a hand stretched down the arm to reach it fits the depth worse than the tracked fist
+    (rendered fists: 4.1 against 8.4 mm and 4.6 against 5.6 mm without the cue; 40-43 mm after the
+    replacement), while the right hand fits it better than a tracked hand turned round (the rendered
+    jump and the stills tracked as one recording: 1.7-4.5 against 5.9-9.3 mm).
     ``net_wrist_every``, ``net_wrist_moved``: the test's answer depends on the hand's pose and on where
     the arm enters the frame (:func:`tracker._wrist_kernels.arm_entry`, ~20 µs), so it is rerun in full
     only when the pose has turned or moved more than ``net_wrist_moved`` (degrees, mm) or the arm's
@@ -183,7 +184,7 @@ class TrackerSettings:
     recentre: bool = True
     net_wrist_cue: bool = False
     net_wrist_mm: float = 20.0
-    net_wrist_fit_mm: float = 1.0
+    net_wrist_fit_mm: float = 0.0
     net_arm_m: float = 0.12
     net_wrist_every: int = 6
     net_wrist_moved: tuple = (15.0, 15.0)
