@@ -1132,23 +1132,37 @@ def _points(depth, focal, centre=None):
     return back_points(np.ascontiguousarray(depth, dtype=np.float64), float(focal), float(cy), float(cx))
 
 
+def _widest_piece(owner, piece_size, j, r):
+    """The label (on :func:`cut_forearm`'s ring around the palm) of part ``j``'s widest piece there,
+    among its pieces of at least 0.05 r² (``owner``: each ring piece's part; ``piece_size``: its
+    pixels), or None when it has fewer than two."""
+    mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
+    return None if mine.size < 2 else int(mine[np.argmax(piece_size[mine])])
+
+
+def _opposite_fingers(py, px, width, cy_p, cx_p, fingers, r) -> bool:
+    """Whether the direction ``(py, px)`` from the palm's centre lies opposite (cos < −0.5) the parts
+    ``fingers`` of :func:`cut_forearm`, weighted by their ``width`` (``cy_p``/``cx_p``: each part's mean
+    offset where it leaves the palm circle); False when they are less than 0.3 ``r`` wide in all
+    (noise specks at the outline are no fingers)."""
+    if width[fingers].sum() < 0.3 * r:
+        return False
+    fy, fx = np.sum(width[fingers] * cy_p[fingers]), np.sum(width[fingers] * cx_p[fingers])
+    return (py * fy + px * fx) / (np.hypot(py, px) * np.hypot(fy, fx) + 1e-12) < -0.5
+
+
 def _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, m_px, width, cy_p, cx_p, fingers) -> bool:
     """Whether part ``j`` of :func:`cut_forearm`, which crosses the ring around the palm in several
     pieces and goes on past the region, is an arm that a finger (the thumb) touches outside the palm
-    circle rather than spread fingers: its widest piece on the ring is wider than a finger
-    (:data:`FINGER_MAX_M`; ``m_px``: metres per pixel) and lies opposite the parts that end in the
-    region (``fingers``, weighted by ``width``, at least 0.3 ``r`` of them; ``cy_p``/``cx_p``: each
-    part's mean offset from the palm's centre where it leaves the circle)."""
-    mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
-    if mine.size < 2 or width[fingers].sum() < 0.3 * r:
-        return False
-    k = mine[np.argmax(piece_size[mine])]
+    circle rather than spread fingers: its widest piece on the ring (:func:`_widest_piece`) is wider
+    than a finger (:data:`FINGER_MAX_M`; ``m_px``: metres per pixel) and lies opposite the parts
+    ``fingers`` that end in the region (:func:`_opposite_fingers`)."""
+    k = _widest_piece(owner, piece_size, j, r)
     # the ring is 0.4 r thick: a piece's area over that is its chord across the ring
-    if piece_size[k] / (0.4 * r) * m_px <= FINGER_MAX_M:
+    if k is None or piece_size[k] / (0.4 * r) * m_px <= FINGER_MAX_M:
         return False
-    py, px = vy[ring_lab == k].mean(), vx[ring_lab == k].mean()
-    fy, fx = np.sum(width[fingers] * cy_p[fingers]), np.sum(width[fingers] * cx_p[fingers])
-    return (py * fy + px * fx) / (np.hypot(py, px) * np.hypot(fy, fx) + 1e-12) < -0.5
+    on_k = ring_lab == k
+    return _opposite_fingers(vy[on_k].mean(), vx[on_k].mean(), width, cy_p, cx_p, fingers, r)
 
 
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
@@ -1271,11 +1285,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
         others = ends.copy()
         others[j] = False
-        if width[others].sum() < 0.3 * r:
-            continue
-        fy, fx = np.sum(width[others] * cy_p[others]), np.sum(width[others] * cx_p[others])
-        cosang = (cy_p[j] * fy + cx_p[j] * fx) / (np.hypot(cy_p[j], cx_p[j]) * np.hypot(fy, fx) + 1e-12)
-        continues[j + 1] |= cosang < -0.5
+        continues[j + 1] |= _opposite_fingers(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
     # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
     # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
     # crosses the ring in pieces too
@@ -1288,8 +1298,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     ring = arm & (rho < 2.6 * r)
     if pieces[j] >= 2:
         # an arm with a finger touching it: its direction is that of its widest piece on the ring
-        mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
-        ring = ring & _dilate(ring_lab == mine[np.argmax(piece_size[mine])], 2)
+        ring = ring & _dilate(ring_lab == _widest_piece(owner, piece_size, j, r), 2)
     if not ring.any():
         ring = arm
     ay, ax = vy[ring].mean(), vx[ring].mean()
