@@ -233,7 +233,7 @@ class Segmenter:
         sub = self._run(d[win], None if color is None else np.asarray(color)[win],
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
                         plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane, notes=notes,
-                        prefer=expected)
+                        prefer=expected, in_window=True)
         if not sub.any() or notes.get("layered"):
             return None
         (ya, yb), (xa, xb) = bounds(sub)
@@ -251,18 +251,20 @@ class Segmenter:
         out[win] = sub
         return out
 
-    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None, prefer=None):
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None, prefer=None,
+             in_window=False):
         """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
         first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
         principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None;
         ``notes``: a dict :meth:`_segment` fills in; ``prefer``: as for :meth:`__call__` (the whole
-        frame's pixels)."""
+        frame's pixels); ``in_window``: ``d`` is :meth:`in_window`'s window and ``prefer`` the hand
+        predicted in it (:func:`hand_region`'s ``expected``)."""
         c = int(self.coarse)
         H, W = whole_shape or d.shape
         (y0, x0) = origin
         if c <= 1 or min(H, W) < 40 * c:
             return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane,
-                                 notes=notes, prefer=_sampled(prefer, origin, 1))
+                                 notes=notes, prefer=_sampled(prefer, origin, 1), in_window=in_window)
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
@@ -270,7 +272,7 @@ class Segmenter:
         mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
                            centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane,
-                           full=d, notes=notes, prefer=_sampled(prefer, origin, c))
+                           full=d, notes=notes, prefer=_sampled(prefer, origin, c), in_window=in_window)
         if not mc.any():
             return np.zeros(d.shape, bool)
         out, win = refine(mc, dc, d, c, self.jump)
@@ -294,13 +296,15 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None, prefer=None):
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None, prefer=None,
+                 in_window=False):
         """The search on an image subsampled by ``step`` (pixel counts and distances scale);
         ``centre``: the principal point in its pixel coordinates (None: the image's centre);
         ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out; ``full``: the
         full-resolution depth ``d`` was sampled from (a farther surface's fingers are looked for there
         too, :func:`_has_fingers`); ``notes``: a dict that gets ``"layered"`` when the region stands in
-        front of a surface close behind it (:func:`_in_front`)."""
+        front of a surface close behind it (:func:`_in_front`); ``in_window``: ``d`` is a window and
+        ``prefer`` the hand predicted in it (:func:`hand_region`'s ``expected``)."""
         if centre is None:
             centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
         valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
@@ -316,7 +320,8 @@ class Segmenter:
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
                            with_beyond=True, centre=centre, fingers_first=not self._skin(color),
-                           fine=None if full is None or step <= 1 else (full, step), notes=notes)
+                           fine=None if full is None or step <= 1 else (full, step), notes=notes,
+                           expected=prefer if in_window else None)
         beyond, seed, behind = beyond
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
@@ -652,6 +657,12 @@ def _surface_fronts_numpy(lab, n, depth, focal, min_pixels=30, min_area=0.004):
     return ids[o], fronts[o]
 
 
+def _reaches(pixels, box) -> bool:
+    """Whether any of the ``pixels`` (boolean image) lies in ``box`` (a ``(rows, cols)`` slice pair;
+    None: no box, always true)."""
+    return box is None or bool(pixels[box].any())
+
+
 def _touches_border(mask, px=None):
     px = BORDER_PX if px is None else px
     return bool(mask[:px].any() or mask[-px:].any() or mask[:, :px].any() or mask[:, -px:].any())
@@ -659,7 +670,7 @@ def _touches_border(mask, px=None):
 
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
                 blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
-                fingers_first=False, fine=None, notes=None):
+                fingers_first=False, fine=None, notes=None, expected=None):
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -677,7 +688,15 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
     farther one is the hand; ``fine``: ``(depth, step)``, the full-resolution image ``depth`` was sampled
     from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``notes``: a
-    dict that gets ``"layered"`` from :func:`_in_front`."""
+    dict that gets ``"layered"`` from :func:`_in_front`. ``expected``: a ``(rows, cols)`` slice pair
+    where the hand is predicted, when ``depth`` is a window round it (:meth:`Segmenter.in_window`,
+    whose edges count as the border): when every candidate's nearest part is cut off, the first
+    one whose nearest part reaches into that box is taken, not the nearest, and a surface taken
+    over the seed for its fingers (an arm reaching in, ``fingers_first``) must reach into it too —
+    an object beside the hand that the window's edge cuts to a strip has a finger-wide end, and a
+    hand and its forearm at one depth run out of the window together (the realistic SR305
+    ``forearm,box`` scene, depth only: the box's strip was taken on 9 of 30 frames, each of which
+    then went to the whole frame)."""
     d = np.asarray(depth, float)
     lab, n = surfaces(d, jump)
     ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
@@ -698,7 +717,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         with np.errstate(invalid="ignore"):
             s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
         inside = not _touches_border(s, border_px)
-        if seed is None or inside:
+        if seed is None or inside or (not _reaches(seed, expected) and _reaches(s, expected)):
             k, front, seed = int(kk), float(ff), s
             if inside:
                 break
@@ -712,7 +731,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         X = _points(d, focal, centre) if points is None else np.asarray(points, float)
         for kk in cut_off:
             end, end_front = _far_end(lab == kk, d, X, focal, border_px, reach)
-            if end_front < front and _has_fingers(lab == kk, d, end, focal, reach):
+            if end_front < front and _reaches(end, expected) and _has_fingers(lab == kk, d, end, focal, reach):
                 k, front, seed = kk, end_front, end
                 break
     if fingers_first and ids.size > 1 and not _touches_border(seed, border_px) and not _has_fingers(
@@ -724,7 +743,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= FINGERS_FIRST_M]
         for kk, ff in others[:FINGERS_FIRST_TRIES]:
             end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach, fine=fine)
-            if end is not None:
+            if end is not None and _reaches(end, expected):
                 k, front, seed = int(kk), end_front, end
                 break
     if not _touches_border(seed, border_px):
