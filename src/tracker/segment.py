@@ -690,8 +690,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``notes``: a
     dict that gets ``"layered"`` from :func:`_in_front`. ``expected``: a ``(rows, cols)`` slice pair
     where the hand is predicted, when ``depth`` is a window round it (:meth:`Segmenter.in_window`,
-    whose edges count as the border): when every candidate's nearest part is cut off, the first
-    one whose nearest part reaches into that box is taken, not the nearest, and a surface taken
+    whose edges count as the border): when every candidate's nearest part is cut off, the nearest
+    surface that reaches into that box is taken, not the nearest of all, and a surface's end taken
     over the seed for its fingers (an arm reaching in, ``fingers_first``) must reach into it too —
     an object beside the hand that the window's edge cuts to a strip has a finger-wide end, and a
     hand and its forearm at one depth run out of the window together (the realistic SR305
@@ -717,7 +717,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         with np.errstate(invalid="ignore"):
             s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
         inside = not _touches_border(s, border_px)
-        if seed is None or inside or (not _reaches(seed, expected) and _reaches(s, expected)):
+        if seed is None or inside or (not _reaches(lab == k, expected) and _reaches(lab == kk, expected)):
             k, front, seed = int(kk), float(ff), s
             if inside:
                 break
