@@ -30,6 +30,9 @@ import numpy as np
 #: ``+ b`` degrees (DIP from PIP; the thumb's IP from its MCP), least squares over the fingerfist
 #: postures (residual standard deviation 11, 15, 12, 16, 25°).
 COUPLING = np.array([[1.74, -19.6], [0.69, 7.0], [0.70, 6.8], [0.47, -2.1], [1.04, -3.6]])
+#: Degrees of hyperextension of a finger's last two joints together beyond which it is restarted bent
+#: the other way (:func:`bent_back`): over the fingerfist postures at most 24–33° (index to little finger).
+BENT_BACK_DEG = 40.0
 
 
 def _joints(hand):
@@ -68,7 +71,33 @@ def recoupled(hand, theta, fingers, limits) -> np.ndarray:
     return out
 
 
-def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg=50.0, gain_mm=0.05):
+def bent_back(hand, theta, max_deg=BENT_BACK_DEG) -> np.ndarray:
+    """``(5,)`` bool: the fingers (not the thumb) whose last two joints are hyperextended by more than
+    ``max_deg`` together (all False for a model without the default posture DoF, or ``max_deg`` None)."""
+    idx = _joints(hand)
+    if idx is None or max_deg is None:
+        return np.zeros(5, bool)
+    th = np.asarray(theta, float)
+    back = np.maximum(th[idx[0]], 0.0) + np.maximum(th[idx[1]], 0.0)
+    out = back > np.radians(max_deg)
+    out[0] = False
+    return out
+
+
+def unbent(hand, theta, fingers, limits) -> np.ndarray:
+    """θ with the hyperextended joints of the ``fingers`` (``(5,)`` bool; the knuckle and the last two
+    joints) bent as far the other way, within ``limits``: a finger pointing at the camera shows its
+    side alike bent either way."""
+    out = np.array(theta, float)
+    post = np.flatnonzero(~np.asarray(hand.pose_mask)).reshape(5, 4)
+    k = post[np.asarray(fingers, bool)][:, 1:].ravel()
+    lim = np.asarray(limits, float)
+    out[k] = np.clip(-np.abs(out[k]), lim[k, 0], lim[k, 1])
+    return out
+
+
+def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg=50.0, gain_mm=0.05,
+                      bent_back_deg=None):
     """``(θ, corr, restarted)``: when fingers of the fit ``θ`` break the coupling by more than
     ``tolerance_deg`` (:func:`uncoupled`), ``refit(θ0) -> (θ, corr)`` from :func:`recoupled` θ; its
     result replaces the fit when ``scorer(θ, corr)`` (lower is better, mm; the tracker's is
@@ -83,9 +112,10 @@ def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg
     got worse, 2.8°. A tie-breaking prior instead (the refit kept unless worse by 0.2 mm) made the
     random postures 4.4°."""
     fingers = uncoupled(hand, theta, tolerance_deg)
-    if not fingers.any():
+    back = bent_back(hand, theta, bent_back_deg)
+    if not (fingers.any() or back.any()):
         return theta, corr, False
-    th2, c2 = refit(recoupled(hand, theta, fingers, limits))
+    th2, c2 = refit(unbent(hand, recoupled(hand, theta, fingers, limits), back, limits))
     if np.all(np.isfinite(th2)) and scorer(th2, c2) < scorer(theta, corr) - gain_mm:
         return th2, c2, True
     return theta, corr, False

@@ -34,7 +34,7 @@ from .correspond import (
     Silhouette,
     data_to_model_mm,
 )
-from .coupling import restart_uncoupled
+from .coupling import BENT_BACK_DEG, restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, search_threads, thin
@@ -70,7 +70,8 @@ class TrackerSettings:
     refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``;
     while the calibrated frames' fits score above ``scale_trust_mm``, the next frame is calibrated
     again (at most ``scale_frames`` frames) and the best-scoring frame's size is used;
-    ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own) or
+    ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own; its
+    fit replaces the tracked one when it scores better, :meth:`HandTracker._take_better_start`) or
     ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`). ``finger_lengths``: with
     ``"auto"``, each finger's length factor is estimated too, from the frames that refined the size
     (:func:`tracker.scale.finger_scales`, each shrunk towards 1 by how much the frames disagree on it),
@@ -138,6 +139,11 @@ class TrackerSettings:
     degrees off its coupling with the joint before it is fitted once more from the coupled angle, and
     that fit is kept when it scores clearly better (:func:`tracker.coupling.restart_uncoupled`:
     fingertips at their limits after a fast close, under sensor noise); 0 = off; not in reduced mode.
+    ``finger_bent_back_deg``: in that refit, the fingers whose last two joints are hyperextended by
+    more than this many degrees together start bent as far the other way (:func:`tracker.coupling.bent_back`;
+    real fingers at most 24–33°): a finger curling towards the camera seen end-on fits the depth
+    bent backwards about as well (realistic Kinect v1 0.8× scene, torso 4 cm behind, depth only: the
+    index tip 71–84 mm off on 14 frames, the run 11.1 → 7.3 mm); 0 = off.
     ``no_hand_rejected``: a start — a frame fitted without one before it (the first, after a loss,
     each calibrating frame) — whose fit rejects more than this share of its points found no hand:
     the frame is lost with no θ, its size is not kept, and the next frame starts again (0 = off).
@@ -172,6 +178,7 @@ class TrackerSettings:
     scale_trust_mm: float = 6.0
     scale_refine: str = "search"
     finger_lengths: bool = True
+    finger_bent_back_deg: float = BENT_BACK_DEG
     scale_range: tuple = (0.6, 2.0)
     check_hand: bool = False
     safety_net: bool = True
@@ -405,6 +412,8 @@ class HandTracker:
         from the tracked pose and from placements
     recentred_ : how often the prediction was moved onto the cloud
     unseen_frames_ : the frames on which joints without data were pulled (``unseen_prior``)
+    size_starts_ : the frames whose size-refining search replaced the tracked fit
+        (:meth:`_take_better_start`)
     no_hand_ : the frames whose start found no hand (``no_hand_rejected``, ``start_min_pixels``);
         too_few_ : those of them with a region of fewer than ``start_min_pixels`` pixels
     rgb_ : the :class:`tracker.rgb.RgbSeed` with ``rgb_seed`` (``keypoint_detector``: its detector
@@ -443,6 +452,7 @@ class HandTracker:
         self._unseen = _unseen_parts(hand, synergies)
         self.unseen_frames_ = 0
         self.no_hand_, self.too_few_, self.size_out_ = 0, 0, 0
+        self.size_starts_ = 0  # size-refining searches whose fit replaced the tracked one
         self.reset()
 
     def context_for(self, scale):
@@ -575,10 +585,12 @@ class HandTracker:
         ``"local"``: :func:`tracker.scale.parabola_scale` around the current size from this frame's fit
         (~30 ms)."""
         s, st = self.scale_, self.settings
+        found = None
         if st.scale_refine == "search":
             self._add_wrist(sil)
-            est = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
-                                  scale_range=st.scale_range)[0]
+            est, th_est, _ = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
+                                             scale_range=st.scale_range)
+            found = (self.context_for(est).hand, th_est)
         else:
             # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
             keep = hand_side(pts, self.hand, self.theta)
@@ -592,8 +604,6 @@ class HandTracker:
         self._keep_contexts(keep_key, s)
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
-        if st.finger_lengths:
-            self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
         if round(new, 5) != round(s, 5):
             old = self.hand
             self.scale_ = new
@@ -601,8 +611,32 @@ class HandTracker:
             self.theta = rescaled(old, self.hand, self.theta)
             self.prev = None if self.prev is None else rescaled(old, self.hand, self.prev)
             self.last_good = self.theta
+        if found is not None:
+            self._take_better_start(pts, nrm, sil, *found)
+        if st.finger_lengths:
+            self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
         if st.finger_lengths and len(self.scale_estimates_) >= st.scale_frames:
             self._find_finger_lengths()
+
+    def _take_better_start(self, pts, nrm, sil, hand_est, theta_est):
+        """While the size is refined by searches, the tracked θ is replaced by this frame's search
+        (``theta_est`` on ``hand_est``) when that scores better by ``net_margin_mm``, both refitted at the
+        size now in use (:func:`tracker.init.score`, the frame's wrist cue included). The first frame
+        was searched at its own size: a size far off favours a wrong pose, which tracking then keeps
+        while the later frames' sizes outvote the size (realistic Kinect v1 0.8× scene, torso 4 cm
+        behind, depth only: the first frame sized 0.97, its hand turned 38 mm off; the next frame's own
+        search found 0.805 and a fit 1.8 mm off, and was thrown away). ``size_starts_`` counts them."""
+        st, ctx = self.settings, self.context
+        n = st.init.icp_iterations
+        cand, c_cand = ctx.fit(rescaled(hand_est, self.hand, theta_est), pts, "full", 1, n, silhouette=sil,
+                               normals=nrm)
+        here, c_here = ctx.fit(self.theta, pts, "full", 1, n, silhouette=sil, normals=nrm)
+        if (np.all(np.isfinite(cand))
+                and score(ctx, cand, c_cand, sil) < score(ctx, here, c_here, sil) - st.net_margin_mm):
+            self.theta = self.last_good = cand
+            self.prev = None
+            self._wrist_passed = None
+            self.size_starts_ += 1
 
     def _find_finger_lengths(self):
         """Each finger's length factor at the settled size, from the frames that refined it (their θ
@@ -766,7 +800,8 @@ class HandTracker:
             if st.finger_restart_deg and st.mode != "reduced":
                 theta, corr, _ = restart_uncoupled(self.hand, theta, corr, tracking_fit,
                                                    lambda t, c: score(ctx, t, c, sil), self.limits,
-                                                   tolerance_deg=st.finger_restart_deg)
+                                                   tolerance_deg=st.finger_restart_deg,
+                                                   bent_back_deg=st.finger_bent_back_deg or None)
             if st.safety_net and st.mode != "reduced":
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":

@@ -337,6 +337,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")
     elif tracker.scale_ is not None and found.any():
         console.print(f"hand size: {run.meta['hand_scale']}")
+    if tracker.size_starts_:
+        console.print(f"start: the fit replaced on {tracker.size_starts_} of the size-refining frames by their own "
+                      "search's, which scored better")
     if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""

@@ -103,3 +103,42 @@ def test_automatic_scale_recovered(bundle, scale, facing, posture):
     assert abs(tr.scale_ / scale - 1.0) <= 0.03
     assert kp_mm(hand, th, tr.hand, r.theta) <= 10.0
     assert tracking_metadata("rec", tr)["hand_scale"].startswith(f"{tr.scale_:.4f} (auto, median of ")
+
+
+def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit(bundle):
+    """While the size is refined (``scale_refine="search"``) each frame's own search is compared with
+    the tracked fit (:meth:`HandTracker._take_better_start`): a tracked hand turned round (180° in the
+    image about its centre, as a first frame searched at a wrong size can leave it) is replaced by the
+    search's right fit, and a right tracked hand is kept against that turned-round candidate. Realistic
+    SR305 frame (forearm, 1.0×), depth only."""
+    from tests.conftest import realistic_frame
+    from tracker.observe import observe
+    from tracker.sim import experiments as E
+    from tracker.sim.hands import HandShape
+    from tracker.sim.motions import make_motion
+    from tracker.track import _silhouette, _silhouette_mask, _usable
+    from test_upside_down import _turned
+
+    shown = HandShape(1.0, E.realistic_fingers(1.0, 0)).apply(BASE)
+    truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[2]
+    cam, depth, _, _ = realistic_frame(BASE, "realsense", 1.0, "forearm", 2)
+    ob = observe(depth, cam)
+    tr = HandTracker(BASE, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr.track(ob, cam)
+
+    def err(th):
+        return float(np.linalg.norm(tr.hand.keypoints(th) - shown.keypoints(truth), axis=-1).mean() * 1000)
+
+    right = tr.theta.copy()
+    wrong = _turned(tr.hand, right)
+    assert err(right) <= 10.0 and err(wrong) >= 50.0, (err(right), err(wrong))  # the scene's premise
+    sil = _silhouette(_silhouette_mask(ob), ob.depth, cam, ob.frame_depth)
+    tr._add_wrist(sil)
+    pts, nrm = _usable(ob.points, ob.normals, tr.settings.max_points)
+    tr.theta = wrong.copy()
+    tr._take_better_start(pts, nrm, sil, tr.hand, right)
+    assert tr.size_starts_ == 1 and err(tr.theta) <= 10.0, err(tr.theta)
+    assert tr.prev is None and np.array_equal(tr.last_good, tr.theta)
+    tr.theta = right.copy()
+    tr._take_better_start(pts, nrm, sil, tr.hand, wrong)
+    assert tr.size_starts_ == 1 and np.array_equal(tr.theta, right)

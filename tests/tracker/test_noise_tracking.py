@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as hst
 
 from tracker.cameras import preset
 from tracker.observe import observe
-from tracker.coupling import COUPLING, recoupled, restart_uncoupled, uncoupled
+from tracker.coupling import BENT_BACK_DEG, COUPLING, bent_back, recoupled, restart_uncoupled, unbent, uncoupled
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
@@ -109,6 +110,50 @@ def test_restart_keeps_only_a_clearly_better_fit(hand):
     n = len(starts)
     assert restart_uncoupled(hand, np.zeros(hand.n_dofs), "fit", refit, lambda t, c: 0.0, hand.limits)[2] is False
     assert len(starts) == n
+
+
+@settings(max_examples=60, deadline=None)
+@given(hst.lists(hst.floats(-2.3, 0.8), min_size=20, max_size=20))
+def test_bent_back_flags_fingers_past_the_real_hyperextension(hand, post_angles):
+    """bent_back flags exactly the fingers (never the thumb) whose last two joints' hyperextension
+    (their positive flexion) sums to more than BENT_BACK_DEG; unbent gives those fingers' knuckle and
+    last two joints their negative magnitude within the limits and leaves every other DoF alone."""
+    post = np.flatnonzero(~hand.pose_mask).reshape(5, 4)
+    th = np.zeros(hand.n_dofs)
+    th[post.ravel()] = post_angles
+    back = np.degrees(np.maximum(th[post[:, 2]], 0) + np.maximum(th[post[:, 3]], 0))
+    want = back > BENT_BACK_DEG
+    want[0] = False
+    flags = bent_back(hand, th)
+    np.testing.assert_array_equal(flags, want)
+    lim = np.array([[-3.0, 1.0]] * hand.n_dofs)
+    out = unbent(hand, th, flags, lim)
+    k = post[flags][:, 1:].ravel()
+    np.testing.assert_allclose(out[k], -np.abs(th[k]))
+    rest = np.setdiff1d(np.arange(hand.n_dofs), k)
+    np.testing.assert_array_equal(out[rest], th[rest])
+    assert not bent_back(hand, th, None).any()
+
+
+def test_restart_starts_a_bent_back_finger_bent_forward(hand):
+    """A coupled finger bent back at every joint (MCP 44°, PIP 23°, DIP 34°, as the Kinect v1 0.8×
+    fit of a curling index) is refitted only with bent_back_deg set, from its joints bent forward."""
+    th = np.zeros(hand.n_dofs)
+    idx = np.flatnonzero(~hand.pose_mask).reshape(5, 4)[1]
+    th[idx[1:]] = np.radians([44.0, 23.0, 34.0])
+    lim = np.array([[-3.0, 1.0]] * hand.n_dofs)
+    starts = []
+
+    def refit(t0):
+        starts.append(t0)
+        return t0, "refit"
+
+    assert uncoupled(hand, th, 50.0).sum() == 0
+    assert restart_uncoupled(hand, th, "fit", refit, lambda t, c: 0.0, lim)[2] is False and not starts
+    out, corr, restarted = restart_uncoupled(hand, th, "fit", refit, lambda t, c: 1.0 if c == "fit" else 0.5, lim,
+                                             bent_back_deg=BENT_BACK_DEG)
+    assert restarted and corr == "refit"
+    np.testing.assert_allclose(np.degrees(starts[-1][idx[1:]]), [-44.0, -23.0, -34.0])
 
 
 def test_paper_settings_have_neither_band_nor_restart():
