@@ -242,6 +242,26 @@ class HandModel:
         m[self.dof_idx[self.dof_ptr[0]:self.dof_ptr[1]]] = True
         return _ro(m)
 
+    @cached_property
+    def dof_moves(self) -> np.ndarray:
+        """``(n_dofs, n_nodes)`` bool: the nodes each DoF moves (the node it drives and every node below it).
+
+        >>> hand = HandModel.load()
+        >>> [hand.node_names[k] for k in np.flatnonzero(hand.dof_moves[hand.dof_index("index2_flex")])]
+        ['index2', 'index3', 'index_tip']
+        """
+        n = self.n_nodes
+        below = np.eye(n, dtype=bool)  # below[j, k]: node k is j or hangs from it
+        for k in range(n):
+            j = self.parents[k]
+            while j >= 0:
+                below[j, k] = True
+                j = self.parents[j]
+        out = np.zeros((self.n_dofs, n), bool)
+        for k in range(n):
+            out[self.dof_idx[self.dof_ptr[k]:self.dof_ptr[k + 1]]] = below[k]
+        return _ro(out)
+
     @property
     def posture_names(self) -> list:
         return [n for n, p in zip(self.dof_names, self.pose_mask) if not p]

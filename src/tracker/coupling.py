@@ -33,6 +33,12 @@ COUPLING = np.array([[1.74, -19.6], [0.69, 7.0], [0.70, 6.8], [0.47, -2.1], [1.0
 #: Degrees of hyperextension of a finger's last two joints together beyond which it is restarted bent
 #: the other way (:func:`bent_back`): over the fingerfist postures at most 24–33° (index to little finger).
 BENT_BACK_DEG = 40.0
+#: A bent-back finger's restart is kept only when at least this many of its fit's pairs lie on the
+#: finger's last two bones (:func:`last_bones_points`): a finger hidden behind the hand fits any bend,
+#: and the score then picks by small gains (a grasp seen from the back, hierarchical, Kinect v1 noise:
+#: 0–6 points on the restarted fingers, 5.7 → 11.6° with them kept; the Kinect v1 0.8× index bent
+#: forward: 34–61 points, from 4 bent back).
+BENT_BACK_MIN_POINTS = 15
 
 
 def _joints(hand):
@@ -84,6 +90,17 @@ def bent_back(hand, theta, max_deg=BENT_BACK_DEG) -> np.ndarray:
     return out
 
 
+def last_bones_points(hand, corr) -> np.ndarray:
+    """``(5,)`` int: the valid pairs of ``corr`` (:class:`tracker.correspond.Correspondences`) on each
+    finger's last two bones (the nodes its second-to-last flexion moves); zeros for a model without the
+    default posture DoF."""
+    idx = _joints(hand)
+    if idx is None:
+        return np.zeros(5, np.int64)
+    counts = np.bincount(np.asarray(corr.nodes)[np.asarray(corr.valid, bool)], minlength=hand.n_nodes)
+    return hand.dof_moves[idx[0]].astype(np.int64) @ counts
+
+
 def unbent(hand, theta, fingers, limits) -> np.ndarray:
     """θ with the hyperextended joints of the ``fingers`` (``(5,)`` bool; the knuckle and the last two
     joints) bent as far the other way, within ``limits``: a finger pointing at the camera shows its
@@ -97,7 +114,7 @@ def unbent(hand, theta, fingers, limits) -> np.ndarray:
 
 
 def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg=50.0, gain_mm=0.05,
-                      bent_back_deg=None):
+                      bent_back_deg=None, min_points=BENT_BACK_MIN_POINTS):
     """``(θ, corr, restarted)``: when fingers of the fit ``θ`` break the coupling by more than
     ``tolerance_deg`` (:func:`uncoupled`), ``refit(θ0) -> (θ, corr)`` from :func:`recoupled` θ; its
     result replaces the fit when ``scorer(θ, corr)`` (lower is better, mm; the tracker's is
@@ -110,12 +127,26 @@ def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg
     fingerfist postures break a 30° tolerance on 29 % of frames (7 % at 50°), each a refit that
     costs time; at 30° count was 2.8° and 4.8°, but random postures (joints drawn independently)
     got worse, 2.8°. A tie-breaking prior instead (the refit kept unless worse by 0.2 mm) made the
-    random postures 4.4°."""
+    random postures 4.4°.
+
+    ``bent_back_deg``: the fingers :func:`bent_back` flags (None: none) are refitted too, from their
+    joints bent as far forward (:func:`unbent`), and that fit is kept only when it scores clearly
+    better and at least ``min_points`` of its pairs lie on each such finger's last two bones
+    (:func:`last_bones_points`; 0: not asked): the finger bent forward must find data there — a
+    finger hidden behind the hand fits any bend; else the coupling's restart runs alone."""
     fingers = uncoupled(hand, theta, tolerance_deg)
     back = bent_back(hand, theta, bent_back_deg)
     if not (fingers.any() or back.any()):
         return theta, corr, False
-    th2, c2 = refit(unbent(hand, recoupled(hand, theta, fingers, limits), back, limits))
+    start = recoupled(hand, theta, fingers, limits)
+    if back.any():
+        th2, c2 = refit(unbent(hand, start, back, limits))
+        seen = not min_points or bool(np.all(last_bones_points(hand, c2)[back] >= min_points))
+        if seen and np.all(np.isfinite(th2)) and scorer(th2, c2) < scorer(theta, corr) - gain_mm:
+            return th2, c2, True
+        if not fingers.any():
+            return theta, corr, False
+    th2, c2 = refit(start)
     if np.all(np.isfinite(th2)) and scorer(th2, c2) < scorer(theta, corr) - gain_mm:
         return th2, c2, True
     return theta, corr, False

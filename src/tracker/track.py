@@ -143,7 +143,9 @@ class TrackerSettings:
     more than this many degrees together start bent as far the other way (:func:`tracker.coupling.bent_back`;
     real fingers at most 24–33°): a finger curling towards the camera seen end-on fits the depth
     bent backwards about as well (realistic Kinect v1 0.8× scene, torso 4 cm behind, depth only: the
-    index tip 71–84 mm off on 14 frames, the run 11.1 → 7.3 mm); 0 = off.
+    index tip 71–84 mm off on 14 frames, the run 11.1 → 7.3 mm); only a finger seen, with at least
+    :data:`tracker.coupling.BENT_BACK_MIN_POINTS` pairs on its last two bones (hidden fingers of a grasp
+    seen from the back fit any bend: 5.7 → 11.6° when they were restarted too); 0 = off.
     ``no_hand_rejected``: a start — a frame fitted without one before it (the first, after a loss,
     each calibrating frame) — whose fit rejects more than this share of its points found no hand:
     the frame is lost with no θ, its size is not kept, and the next frame starts again (0 = off).
@@ -611,7 +613,7 @@ class HandTracker:
             self.theta = rescaled(old, self.hand, self.theta)
             self.prev = None if self.prev is None else rescaled(old, self.hand, self.prev)
             self.last_good = self.theta
-        if found is not None:
+        if found is not None and abs(np.log(est / s)) > SIZE_RESTART_LOG:
             self._take_better_start(pts, nrm, sil, *found)
         if st.finger_lengths:
             self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
@@ -621,11 +623,15 @@ class HandTracker:
     def _take_better_start(self, pts, nrm, sil, hand_est, theta_est):
         """While the size is refined by searches, the tracked θ is replaced by this frame's search
         (``theta_est`` on ``hand_est``) when that scores better by ``net_margin_mm``, both refitted at the
-        size now in use (:func:`tracker.init.score`, the frame's wrist cue included). The first frame
-        was searched at its own size: a size far off favours a wrong pose, which tracking then keeps
-        while the later frames' sizes outvote the size (realistic Kinect v1 0.8× scene, torso 4 cm
-        behind, depth only: the first frame sized 0.97, its hand turned 38 mm off; the next frame's own
-        search found 0.805 and a fit 1.8 mm off, and was thrown away). ``size_starts_`` counts them."""
+        size now in use (:func:`tracker.init.score`, the frame's wrist cue included). Asked only when the
+        frame's size differs from the tracked fit's by more than :data:`SIZE_RESTART_LOG` (log): the
+        first frame was searched at its own size, a size far off favours a wrong pose, and tracking
+        then keeps that pose while the later frames' sizes outvote the size (realistic Kinect v1 0.8×
+        scene, torso 4 cm behind, depth only: the first frame sized 0.97, its hand turned 38 mm off; the
+        next frame's own search found 0.805 and a fit 1.8 mm off, and was thrown away). Not at sizes
+        that agree: there a search scoring better is no better fit more often than it is (the 19 real
+        stills tracked as one recording, each still a jump: every size frame replaced, the wrist of the
+        next frames 50–65 px off against 17–40). ``size_starts_`` counts the replacements."""
         st, ctx = self.settings, self.context
         n = st.init.icp_iterations
         cand, c_cand = ctx.fit(rescaled(hand_est, self.hand, theta_est), pts, "full", 1, n, silhouette=sil,
@@ -1062,6 +1068,12 @@ class HandTracker:
         return theta, corr, pts, nrm, "kept"
 
 
+#: A size-refining frame's search may replace the tracked fit (:meth:`HandTracker._take_better_start`)
+#: when its size differs from the tracked fit's by more than this (log; 6 %, as
+#: :func:`tracker.scale.calibrate_scale` searches again when the size moved so far).
+SIZE_RESTART_LOG = 0.06
+
+
 def _without_cue(ctx, theta, corr, sil) -> float:
     """:func:`tracker.init.score` of θ without the frame's wrist cue (both directions' terms only)."""
     if getattr(sil, "wrist", None) is None:
@@ -1078,17 +1090,7 @@ def _unseen_parts(hand, synergies):
     small ridge (1e-4 rad²) so that the seen joints' block is always invertible."""
     if synergies is None:
         return None
-    n = hand.n_nodes
-    node_of = np.empty(hand.n_dofs, np.int64)
-    for k in range(n):
-        node_of[hand.dof_idx[hand.dof_ptr[k]:hand.dof_ptr[k + 1]]] = k
-    below = np.eye(n, dtype=bool)  # below[j, k]: node k is j or hangs from it
-    for k in range(n):
-        j = hand.parents[k]
-        while j >= 0:
-            below[j, k] = True
-            j = hand.parents[j]
-    moves = below[node_of[~hand.pose_mask]].astype(float)
+    moves = hand.dof_moves[~hand.pose_mask].astype(float)
     m = synergies.model
     C, lam = np.asarray(m.all_components_, float), np.asarray(m.all_explained_variance_, float)
     S = C.T @ (lam[:, None] * C) + 1e-4 * np.eye(C.shape[1])

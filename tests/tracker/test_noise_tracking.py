@@ -8,7 +8,8 @@ from hypothesis import given, settings, strategies as hst
 
 from tracker.cameras import preset
 from tracker.observe import observe
-from tracker.coupling import BENT_BACK_DEG, COUPLING, bent_back, recoupled, restart_uncoupled, unbent, uncoupled
+from tracker.coupling import (BENT_BACK_DEG, COUPLING, bent_back, last_bones_points, recoupled, restart_uncoupled,
+                              unbent, uncoupled)
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
@@ -135,25 +136,51 @@ def test_bent_back_flags_fingers_past_the_real_hyperextension(hand, post_angles)
     assert not bent_back(hand, th, None).any()
 
 
-def test_restart_starts_a_bent_back_finger_bent_forward(hand):
+def test_restart_keeps_a_bent_back_finger_bent_forward_only_where_it_finds_data(hand):
     """A coupled finger bent back at every joint (MCP 44°, PIP 23°, DIP 34°, as the Kinect v1 0.8×
-    fit of a curling index) is refitted only with bent_back_deg set, from its joints bent forward."""
+    fit of a curling index) is refitted only with bent_back_deg set, from its joints bent forward; the
+    refit is kept when it scores better and at least BENT_BACK_MIN_POINTS of its pairs lie on the
+    finger's last two bones (20, not 5: a finger hidden behind the hand fits any bend). With an
+    uncoupled finger too, a refit rejected so is followed by the coupling's restart alone."""
+    from types import SimpleNamespace
+
     th = np.zeros(hand.n_dofs)
-    idx = np.flatnonzero(~hand.pose_mask).reshape(5, 4)[1]
+    rows = np.flatnonzero(~hand.pose_mask).reshape(5, 4)
+    idx = rows[1]
     th[idx[1:]] = np.radians([44.0, 23.0, 34.0])
     lim = np.array([[-3.0, 1.0]] * hand.n_dofs)
-    starts = []
+    last = np.flatnonzero(hand.dof_moves[idx[2]])          # the index's middle and distal phalanges' nodes
+    palm = hand.node_index("middle1")
 
-    def refit(t0):
-        starts.append(t0)
-        return t0, "refit"
+    def pairs(n_on_finger, tag):
+        nodes = np.r_[np.full(n_on_finger, last[0]), np.full(200, palm)]
+        return SimpleNamespace(nodes=nodes, valid=np.ones(nodes.size, bool), tag=tag)
 
-    assert uncoupled(hand, th, 50.0).sum() == 0
-    assert restart_uncoupled(hand, th, "fit", refit, lambda t, c: 0.0, lim)[2] is False and not starts
-    out, corr, restarted = restart_uncoupled(hand, th, "fit", refit, lambda t, c: 1.0 if c == "fit" else 0.5, lim,
-                                             bent_back_deg=BENT_BACK_DEG)
-    assert restarted and corr == "refit"
-    np.testing.assert_allclose(np.degrees(starts[-1][idx[1:]]), [-44.0, -23.0, -34.0])
+    fit = pairs(0, "fit")
+    for found, kept in ((20, True), (5, False)):
+        assert last_bones_points(hand, pairs(found, ""))[1] == found
+        starts = []
+
+        def refit(t0):
+            starts.append(t0)
+            return t0, pairs(found, "refit")
+
+        def scorer(t, c):
+            return 1.0 if c.tag == "fit" else 0.5
+
+        assert uncoupled(hand, th, 50.0).sum() == 0
+        assert restart_uncoupled(hand, th, fit, refit, scorer, lim)[2] is False and not starts
+        out, corr, restarted = restart_uncoupled(hand, th, fit, refit, scorer, lim, bent_back_deg=BENT_BACK_DEG)
+        assert restarted is kept and corr.tag == ("refit" if kept else "fit") and len(starts) == 1
+        np.testing.assert_allclose(np.degrees(starts[-1][idx[1:]]), [-44.0, -23.0, -34.0])
+        # the ring finger's DIP folded off its coupling too: rejected, the coupling's restart follows alone
+        both = th.copy()
+        both[rows[3, 2:]] = np.radians([-80.0, 30.0])
+        starts.clear()
+        restart_uncoupled(hand, both, fit, refit, scorer, lim, bent_back_deg=BENT_BACK_DEG)
+        assert len(starts) == (1 if kept else 2)
+        if not kept:
+            np.testing.assert_allclose(starts[-1], recoupled(hand, both, uncoupled(hand, both, 50.0), lim))
 
 
 def test_paper_settings_have_neither_band_nor_restart():
