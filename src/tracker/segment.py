@@ -713,11 +713,13 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         return (empty, (empty, empty, empty)) if with_beyond else empty
     k, front, seed = 0, np.nan, None
     cut_off = []
+    # the surfaces that reach into the predicted box (every one without a box)
+    there = None if expected is None else set(np.unique(lab[expected]).tolist())
     for kk, ff in zip(ids, fronts):
         with np.errstate(invalid="ignore"):
             s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
         inside = not _touches_border(s, border_px)
-        if seed is None or inside or (not _reaches(lab == k, expected) and _reaches(lab == kk, expected)):
+        if seed is None or inside or (there is not None and k not in there and int(kk) in there):
             k, front, seed = int(kk), float(ff), s
             if inside:
                 break

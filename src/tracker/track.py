@@ -592,7 +592,10 @@ class HandTracker:
             self._add_wrist(sil)
             est, th_est, _ = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                              scale_range=st.scale_range)
-            found = (self.context_for(est).hand, th_est)
+            if abs(np.log(est / s)) > SIZE_RESTART_LOG:
+                # a size far from the tracked fit's: its search may hold a better start (its hand taken
+                # before the probed sizes' contexts are dropped)
+                found = (self.context_for(est).hand, th_est)
         else:
             # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
             keep = hand_side(pts, self.hand, self.theta)
@@ -613,7 +616,7 @@ class HandTracker:
             self.theta = rescaled(old, self.hand, self.theta)
             self.prev = None if self.prev is None else rescaled(old, self.hand, self.prev)
             self.last_good = self.theta
-        if found is not None and abs(np.log(est / s)) > SIZE_RESTART_LOG:
+        if found is not None:
             self._take_better_start(pts, nrm, sil, *found)
         if st.finger_lengths:
             self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
