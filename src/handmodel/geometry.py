@@ -8,12 +8,14 @@ ends minus the thickness) swept by a sphere of ``half_thickness``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from . import libm
 from ._geometry_kernels import closest_local_many, closest_points as _closest_points_kernel
 from .errors import HandModelError
 from .fileio import atomic_write_bytes
@@ -98,8 +100,9 @@ def _revolve_profile(xs, rs, n_around):
 
 def _capsule_profile(L, ra, rb, cap_rings, per_m):
     d = ra - rb
-    nx = np.clip(d / L, -0.999, 0.999)
-    bt = np.arctan2(np.sqrt(1 - nx * nx), nx)  # angle of the tangent normal from +axis
+    nx = float(np.clip(d / L, -0.999, 0.999))
+    # the C library's (handmodel.libm): numpy's differs in the last bits by processor
+    bt = math.atan2(math.sqrt(1 - nx * nx), nx)  # angle of the tangent normal from +axis
     a_ang = np.linspace(np.pi, bt, cap_rings + 1)
     b_ang = np.linspace(bt, 0.0, cap_rings + 1)
     ax, ar = ra * np.cos(a_ang), ra * np.sin(a_ang)
@@ -140,9 +143,10 @@ def _slab_samples(L, w0, w1, th, n):
 
 
 def fibonacci_sphere(n):
-    """``n`` nearly uniform unit vectors."""
+    """``n`` nearly uniform unit vectors (the same bits on every processor: :mod:`handmodel.libm`; the
+    palm's mesh is their convex hull, which numpy's ``arccos`` changed by processor)."""
     i = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * i / n)
+    phi = libm.acos(1 - 2 * i / n)
     ga = np.pi * (3 - np.sqrt(5)) * i
     return np.stack([np.cos(ga) * np.sin(phi), np.sin(ga) * np.sin(phi), np.cos(phi)], 1)
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import libm
+
 
 def horn(src, dst, weights=None):
     """Rotation ``R`` and translation ``t`` minimising Σ w‖R·src + t − dst‖² (Horn's quaternion method).
@@ -87,7 +89,8 @@ def euler_to_matrix(angles):
 def matrix_to_euler(R):
     """Angles (a, b, c) with R = Rx(a)·Ry(b)·Rz(c), b in [−π/2, π/2]."""
     R = np.asarray(R, float)
-    b = np.arcsin(np.clip(R[..., 0, 2], -1.0, 1.0))
-    a = np.arctan2(-R[..., 1, 2], R[..., 2, 2])
-    c = np.arctan2(-R[..., 0, 1], R[..., 0, 0])
+    # the C library's inverse trigonometry (handmodel.libm): numpy's differs in the last bits by processor
+    b = libm.asin(np.clip(R[..., 0, 2], -1.0, 1.0))
+    a = libm.atan2(-R[..., 1, 2], R[..., 2, 2])
+    c = libm.atan2(-R[..., 0, 1], R[..., 0, 0])
     return np.stack([a, b, c], axis=-1)

@@ -11,6 +11,7 @@ Everything here works on a :class:`FitContext`, the parts of one hand's fits tha
 """
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -456,7 +457,7 @@ def diverse(scored, k, min_deg=60.0) -> list[np.ndarray]:
     picked, Rs = [], []
     for _, th in scored:
         R = euler_to_matrix(th[3:6])
-        if all(np.degrees(np.arccos(np.clip((np.trace(R @ Q.T) - 1) / 2, -1, 1))) >= min_deg for Q in Rs):
+        if all(math.degrees(math.acos(float(np.clip((np.trace(R @ Q.T) - 1) / 2, -1, 1)))) >= min_deg for Q in Rs):
             picked.append(th)
             Rs.append(R)
             if len(picked) == k:

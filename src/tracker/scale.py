@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import datetime
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -169,12 +170,13 @@ def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None,
     search on log scale, each probe an all-DoF fit: a wrong size leaves either data uncovered or model
     outside the silhouette). Returns ``(scale, θ, corr, score)``."""
     g = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = np.log(lo), np.log(hi)
+    # scalars by the C library (math): numpy's exp and log differ in the last bits by processor
+    a, b = math.log(lo), math.log(hi)
     seen = {}
 
     def f(x):
         if x not in seen:
-            seen[x] = scale_score(context_for, float(np.exp(x)), theta, hand_from, points, silhouette=silhouette,
+            seen[x] = scale_score(context_for, math.exp(x), theta, hand_from, points, silhouette=silhouette,
                                   normals=normals, n_icp=n_icp)
         return seen[x][0]
 
@@ -188,7 +190,7 @@ def fit_scale(context_for, theta, hand_from, points, lo, hi, *, silhouette=None,
             d = a + g * (b - a)
     x = min(seen, key=lambda k: seen[k][0])
     s_best, th, corr = seen[x]
-    return float(np.exp(x)), th, corr, s_best
+    return math.exp(x), th, corr, s_best
 
 
 def parabola_scale(context_for, theta, hand_from, points, centre, *, half_width=0.06, probes=7, silhouette=None,
@@ -199,15 +201,15 @@ def parabola_scale(context_for, theta, hand_from, points, centre, *, half_width=
     nearest it gives θ. Probe scores are noisy at the percent level (each short fit ends a little
     differently), so a golden-section search, which trusts every comparison, wanders by a few percent
     on a flat score; a parabola averages the noise over every probe. Returns ``(scale, θ, corr, score)``."""
-    x = np.log(centre) + np.linspace(-half_width, half_width, probes)
-    found = [scale_score(context_for, float(np.exp(v)), theta, hand_from, points, silhouette=silhouette,
+    x = math.log(centre) + np.linspace(-half_width, half_width, probes)
+    found = [scale_score(context_for, math.exp(v), theta, hand_from, points, silhouette=silhouette,
                          normals=normals, n_icp=n_icp) for v in x]
     y = np.array([f[0] for f in found])
     a, b, _ = np.polyfit(x - x.mean(), y, 2)
     best = int(np.argmin(y))
     v = x[best] if a <= 0 else float(np.clip(x.mean() - b / (2 * a), x[0], x[-1]))
     near = int(np.argmin(np.abs(x - v)))
-    return float(np.exp(v)), found[near][1], found[near][2], float(y[near])
+    return math.exp(v), found[near][1], found[near][2], float(y[near])
 
 
 def calibrate_scale_searched(context_for, points, settings: InitSettings | None = None, *, silhouette=None,
@@ -237,7 +239,7 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
     best = None
     for s0 in dict.fromkeys(float(np.clip(g * k, lo, hi)) for k in guesses):
         found = search(s0, 1.2)
-        if abs(np.log(found[2] / s0)) > 0.08:
+        if abs(math.log(found[2] / s0)) > 0.08:
             found = min(found, search(found[2], 1.1), key=lambda f: f[0])
         if best is None or found[0] < best[0]:
             best = found
@@ -285,7 +287,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     kw = {"silhouette": silhouette, "normals": nsub}
     s1, th1, _, _ = fit_scale(context_for, th0, context_for(s0).hand, points[sub], max(lo, s0 / width),
                               min(hi, s0 * width), **kw)
-    if abs(np.log(s1 / s0)) > research:
+    if abs(math.log(s1 / s0)) > research:
         ctx = context_for(s1)
         th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
                                   theta0=th1, extra=(th1,))
@@ -402,7 +404,7 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
                              if uncoupled(ctx.hand, theta, COUPLED_RESTART_DEG)[which].any() else [])
                   for _, _, _, theta in frames]
         for k, v in enumerate(x):
-            c = shaped_context(ctx, base, scale, {**found, f: float(np.exp(v))})
+            c = shaped_context(ctx, base, scale, {**found, f: math.exp(v)})
             for i, (points, normals, sil, _) in enumerate(frames):
                 lowest = np.inf
                 for theta in starts[i]:
@@ -413,8 +415,8 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
         per = [_vertex(x, row) for row in y]
         shrunk, se = trusted_log_factor(best, per, prior_sd)
         if spread is not None:
-            spread[f] = (float(np.exp(best)) if best is not None else float("nan"), se)
-        found[f] = float(np.clip(np.exp(shrunk), *limits))
+            spread[f] = (math.exp(best) if best is not None else float("nan"), se)
+        found[f] = float(np.clip(math.exp(shrunk), *limits))
     return found
 
 

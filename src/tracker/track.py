@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -354,7 +355,7 @@ def _same_entry(a, b, mm) -> bool:
 def _pose_change(a, b) -> tuple:
     """``(degrees, mm)``: how far the global pose of θ ``a`` is turned and moved from ``b``'s."""
     R = euler_to_matrix(a[3:6]) @ euler_to_matrix(b[3:6]).T
-    turn = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    turn = math.degrees(math.acos(float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
     return turn, float(np.linalg.norm(np.asarray(a[:3]) - np.asarray(b[:3])) * 1000.0)
 
 
@@ -592,7 +593,7 @@ class HandTracker:
             self._add_wrist(sil)
             est, th_est, _ = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
                                              scale_range=st.scale_range)
-            if abs(np.log(est / s)) > SIZE_RESTART_LOG:
+            if abs(math.log(est / s)) > SIZE_RESTART_LOG:
                 # a size far from the tracked fit's: its search may hold a better start (its hand taken
                 # before the probed sizes' contexts are dropped)
                 found = (self.context_for(est).hand, th_est)

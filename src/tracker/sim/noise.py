@@ -74,6 +74,8 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.ndimage import binary_dilation
 
+from handmodel import libm
+
 from ..errors import TrackerError
 from ._kernels import lateral_resample, projector_shadow
 
@@ -211,7 +213,7 @@ class NoiseModel:
         c = np.asarray(cos_incidence, float)
         if self.grazing_deg is None:
             return np.zeros_like(c)
-        th = np.degrees(np.arccos(np.clip(np.abs(np.nan_to_num(c, nan=1.0)), 0.0, 1.0)))
+        th = np.degrees(libm.acos(np.clip(np.abs(np.nan_to_num(c, nan=1.0)), 0.0, 1.0)))
         lo, hi = self.grazing_deg
         return np.clip((th - lo) / (hi - lo), 0.0, 1.0)
 
@@ -337,7 +339,7 @@ def _perturbed(nm, z, cosi, camera, rng):
 
 def _theta(cos_incidence) -> np.ndarray:
     c = np.clip(np.abs(np.nan_to_num(np.asarray(cos_incidence, float), nan=1.0)), 0.0, 1.0)
-    return np.minimum(np.arccos(c), _THETA_MAX)
+    return np.minimum(libm.acos(c), _THETA_MAX)  # the same bits on every processor
 
 
 def _lateral(d, cosi, sigma0, angle, reach, rng):

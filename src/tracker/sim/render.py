@@ -31,6 +31,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from handmodel import libm
+
 from ..cameras import as_camera
 from ..errors import TrackerError
 from ._kernels import lbs, plane_pass, raster, shade
@@ -294,7 +296,7 @@ def _superellipsoid(half, e, n_lat=28, n_lon=56):
     """Closed superellipsoid about the origin (half-extents ``half`` along x, y, z, exponent ``e``:
     1 an ellipsoid, towards 0 a box); y is the polar axis."""
     def spow(x, p):
-        return np.sign(x) * np.abs(x) ** p
+        return np.sign(x) * libm.power(np.abs(x), p)  # the same bits on every processor
     eta = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 2)[1:-1]
     om = np.linspace(-np.pi, np.pi, n_lon, endpoint=False)
     ce, se = spow(np.cos(eta), e)[:, None], spow(np.sin(eta), e)[:, None]
