@@ -41,14 +41,18 @@ BENT_BACK_DEG = 40.0
 BENT_BACK_MIN_POINTS = 15
 
 
+def _posture_rows(hand):
+    """``(5, 4)`` indices into θ of each finger's posture DoF (abduction, then the three flexions; thumb
+    first), or None for a model without the 20 posture DoF in that order."""
+    post = np.flatnonzero(~np.asarray(hand.pose_mask))
+    return post.reshape(5, 4) if len(post) == 20 else None
+
+
 def _joints(hand):
     """Indices into θ of each finger's second-to-last and last flexion, ``(5,)`` each, or None for a
     model without the 20 posture DoF in the default order (4 per finger, thumb first)."""
-    post = np.flatnonzero(~np.asarray(hand.pose_mask))
-    if len(post) != 20:
-        return None
-    rows = post.reshape(5, 4)
-    return rows[:, 2], rows[:, 3]
+    rows = _posture_rows(hand)
+    return None if rows is None else (rows[:, 2], rows[:, 3])
 
 
 def coupled_dip(hand, theta) -> np.ndarray:
@@ -106,8 +110,7 @@ def unbent(hand, theta, fingers, limits) -> np.ndarray:
     joints) bent as far the other way, within ``limits``: a finger pointing at the camera shows its
     side alike bent either way."""
     out = np.array(theta, float)
-    post = np.flatnonzero(~np.asarray(hand.pose_mask)).reshape(5, 4)
-    k = post[np.asarray(fingers, bool)][:, 1:].ravel()
+    k = _posture_rows(hand)[np.asarray(fingers, bool)][:, 1:].ravel()
     lim = np.asarray(limits, float)
     out[k] = np.clip(-np.abs(out[k]), lim[k, 0], lim[k, 1])
     return out
@@ -139,14 +142,19 @@ def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg
     if not (fingers.any() or back.any()):
         return theta, corr, False
     start = recoupled(hand, theta, fingers, limits)
+    own = scorer(theta, corr) - gain_mm  # what a refit must score below, once for both refits
     if back.any():
         th2, c2 = refit(unbent(hand, start, back, limits))
         seen = not min_points or bool(np.all(last_bones_points(hand, c2)[back] >= min_points))
-        if seen and np.all(np.isfinite(th2)) and scorer(th2, c2) < scorer(theta, corr) - gain_mm:
+        if seen and np.all(np.isfinite(th2)) and scorer(th2, c2) < own:
             return th2, c2, True
         if not fingers.any():
             return theta, corr, False
     th2, c2 = refit(start)
-    if np.all(np.isfinite(th2)) and scorer(th2, c2) < scorer(theta, corr) - gain_mm:
+    if np.all(np.isfinite(th2)) and scorer(th2, c2) < own:
+        return th2, c2, True
+    return theta, corr, False
+    th2, c2 = refit(start)
+    if better(th2, c2):
         return th2, c2, True
     return theta, corr, False
