@@ -33,6 +33,7 @@ from handmodel.fileio import atomic_write_text
 from handmodel.model import HandModel
 from synergy.bundle import load_bundle
 
+from . import TRACKING_HAND
 from .errors import TrackerError
 from .observe import observe
 from .plots import overlay_png
@@ -275,7 +276,8 @@ class TrackJob:
     output : the tracking output CSV
     settings : :class:`tracker.track.TrackerSettings`
     synergies, registries : the synergy bundle spec and extra registry folders (None: full mode only)
-    hand_model : hand model name or YAML path (mirrored for a right-handed recording)
+    hand_model : hand model name or YAML path (mirrored for a right-handed recording; :data:`tracker.TRACKING_HAND`
+        when not given)
     segmenter : :class:`tracker.segment.Segmenter` (None: its defaults)
     keypoints, overlay, overlay_every : the keypoints CSV, the overlay PNG folder and its frame step
     rerun, rerun_spawn : the Rerun ``.rrd`` to write, and whether to stream to a spawned viewer
@@ -297,7 +299,7 @@ class TrackJob:
     settings: TrackerSettings = field(default_factory=TrackerSettings)
     synergies: str | None = None
     registries: tuple = ()
-    hand_model: str = "default"
+    hand_model: str = TRACKING_HAND
     segmenter: object = None
     keypoints: str | None = None
     overlay: str | None = None

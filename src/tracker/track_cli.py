@@ -51,12 +51,12 @@ def track(
     robust: Optional[float] = typer.Option(None, "--robust", help="Cauchy scale (mm) weighting the data term [8; 0 = plain least squares, the paper's]."),
     finger_search: Optional[bool] = typer.Option(None, "--finger-search/--no-finger-search", help="Finger-wise restarts when (re)initialising [on; paper off]."),
     projected_steps: Optional[int] = typer.Option(None, "--projected-steps", help="Reduced mode: last ICP iterations with all DoF, projected onto the PCs [0, the paper's]."),
-    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path; a hand file written by tracker calibrate or --save-hand is tracked as it is (its size is in it; --hand-scale auto estimates again)."),
+    hand_model: Optional[str] = typer.Option(None, "--hand-model", help="Hand model name or YAML path; a hand file written by tracker calibrate or --save-hand is tracked as it is (its size is in it; --hand-scale auto estimates again) [human: the shipped hand with its finger bases on the human metacarpal arc; default, the paper's, with --paper]."),
     save_hand: Optional[Path] = typer.Option(None, "--save-hand", help="Also write the hand calibrated on the first frames (size, and finger lengths when estimated) as a YAML hand file for --hand-model."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="With --hand-scale auto, also estimate each finger's length once the size is settled [on; paper off]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (not in reduced mode) [on; paper off]."),
-    no_hand: Optional[float] = typer.Option(None, "--no-hand-rejected", help="A start (first frame, after a loss) whose fit rejects more than this share of its points found no hand: the frame is lost, without θ [0.25; 0 = off, as with --paper]."),
+    no_hand: Optional[float] = typer.Option(None, "--no-hand-rejected", help="A start (first frame, after a loss) whose fit rejects more than this share of its points found no hand: the frame is lost, without θ [0.2; 0 = off, as with --paper]."),
     unseen_prior: Optional[float] = typer.Option(None, "--unseen-prior", help="Share of the way per frame that joints no data point constrains (fingers curled away from the camera) move to their most likely values given the seen joints, by the synergy bundle (full and hierarchical modes; 0 = off) [0.5; paper 0]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="The user's hand size as a factor on the hand model, or 'auto': estimated from the first frames (written to the output header as hand_scale; pass it back to reuse it, or keep the hand with --save-hand) [auto; 1 with --paper or a calibrated --hand-model file]."),
     depth_range: Optional[str] = DEPTH_RANGE,
@@ -81,6 +81,7 @@ def track(
 
         require_mediapipe("--rgb-seed")
 
+    hand_model = _hand_model(hand_model, paper)
     _check_not_inputs([*recordings, _input_file(hand_model), _input_file(synergies)],
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                        ("--save-hand", save_hand)])
@@ -141,6 +142,14 @@ def _hand_side(hand):
     if hand is not None and hand not in ("left", "right"):
         raise TrackerError("--hand", f"must be left or right, got {hand!r}")
     return hand
+
+
+def _hand_model(name, paper) -> str:
+    """The ``--hand-model`` asked for, else the tracker's hand (:data:`tracker.TRACKING_HAND`), or the paper's
+    with ``--paper`` (:data:`tracker.PAPER_HAND`)."""
+    from . import PAPER_HAND, TRACKING_HAND
+
+    return name if name is not None else (PAPER_HAND if paper else TRACKING_HAND)
 
 
 def _input_file(spec):
@@ -655,7 +664,7 @@ def live(
     pcs: Optional[int] = typer.Option(None, "--pcs", help="Number of PCs (reduced/hierarchical)."),
     variance: Optional[float] = typer.Option(None, "--variance", help="…or the variance the PCs must explain [0.99]."),
     paper: bool = typer.Option(False, "--paper", help="The paper's method (as tracker track --paper)."),
-    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    hand_model: Optional[str] = typer.Option(None, "--hand-model", help="Hand model name or YAML path [human; default, the paper's, with --paper]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
     depth_range: Optional[str] = DEPTH_RANGE,
@@ -674,6 +683,7 @@ def live(
         raise TrackerError("--hand", f"must be left or right, got {hand!r}")
     if (frames is not None and frames < 1) or (seconds is not None and not seconds > 0):
         raise TrackerError("live", "--frames and --seconds must be positive")
+    hand_model = _hand_model(hand_model, paper)
     _check_not_inputs([playback, _input_file(hand_model), _input_file(synergies)],
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                        ("--save", save)])
@@ -756,7 +766,7 @@ def calibrate(
     output: Path = typer.Option(..., "-o", "--output", help="The hand file to write (.yaml): tracker track --hand-model takes it back."),
     synergies: Optional[str] = typer.Option(None, "--synergies", "-s", help="Synergy bundle NAME[@VERSION] or .npz path (the start search's postures, as tracker track)."),
     registry: List[Path] = typer.Option(None, "-r", "--registry", help="Extra bundle registry folder (repeatable)."),
-    hand_model: str = typer.Option("default", "--hand-model", help="The hand model calibrated: a name or YAML path."),
+    hand_model: Optional[str] = typer.Option(None, "--hand-model", help="The hand model calibrated: a name or YAML path [human, as tracker track]."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="Also estimate each finger's length factor [on]."),
     frames: Optional[int] = typer.Option(None, "--frames", help="Read at most this many frames [60; with --each 5]."),
     each: bool = typer.Option(False, "--each", help="The frames are stills or postures far apart (e.g. a folder of PNGs imported as one recording with tracker import DIR): fit each from its own start instead of tracking from frame to frame; the size is their median, the finger lengths come from all of them."),
@@ -783,6 +793,7 @@ def calibrate(
     if frames < 1:
         raise TrackerError("--frames", f"must be positive, got {frames}")
     _check_hand_file(output)
+    hand_model = _hand_model(hand_model, False)
     _check_not_inputs([recording, _input_file(hand_model), _input_file(synergies)], [("-o", output)])
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")

@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from handmodel import HandModel
+from tracker import TRACKING_HAND
 from tracker.cli import app
 from tracker.errors import TrackerError
 from tracker.recording import Recording
@@ -31,8 +32,9 @@ def big(tmp_path_factory):
 
 
 def _output(rec, path, shape):
-    """A tracking output whose θ are the truth's, as tracked on the default model resized by ``shape``."""
-    hand = HandModel.load()
+    """A tracking output whose θ are the truth's, as tracked on the tracker's hand (the one ``synth``
+    renders, :data:`tracker.TRACKING_HAND`) resized by ``shape``."""
+    hand = HandModel.load(TRACKING_HAND)
     truth = Recording.open(rec).truth
     df = truth[["frame", "time_s"]].assign(status="tracked", fit_mm=1.0, points_used=500, points=900, ms=5.0)
     meta = {"recording": str(rec), "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,

@@ -111,7 +111,7 @@ def test_the_setting_is_a_share(bad):
 
 
 def test_the_papers_method_has_no_such_test():
-    assert TrackerSettings.paper().no_hand_rejected == 0.0 and TrackerSettings().no_hand_rejected == 0.25
+    assert TrackerSettings.paper().no_hand_rejected == 0.0 and TrackerSettings().no_hand_rejected == 0.2
 
 
 def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
@@ -120,7 +120,7 @@ def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
                                  "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
-    assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 25% of the points)" in out
+    assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 20% of the points)" in out
     assert "nothing segmented looks like a hand" in out
     df, meta = read_tracking(tmp_path / "t.csv")
     assert (df["status"] == "lost").all() and df["tx"].isna().all()

@@ -615,9 +615,18 @@ def test_cli_synth_track_eval(tmp_path):
     assert r.exit_code == 0 and "posture_error_mean_deg" in r.output
     r = runner.invoke(app, ["track", str(rec), "-o", str(out)])
     assert r.exit_code == 2 and "never overwritten" in r.output
-    # the paper's method alone (no silhouette term, least squares, no finger search): another fit, also close
+    # synth renders the hand track fits (the human hand), --paper fits the paper's unless told otherwise
+    from tracker import PAPER_HAND, TRACKING_HAND
+    from tracker.run import read_tracking
+
+    assert read_tracking(out)[1]["hand_model"].split()[0] == TRACKING_HAND
+    paper_hand = tmp_path / "paper_hand.csv"
+    r = runner.invoke(app, ["track", str(rec), "--paper", "-o", str(paper_hand)])
+    assert r.exit_code == 0 and read_tracking(paper_hand)[1]["hand_model"].split()[0] == PAPER_HAND, r.output
+    # the paper's method alone (no silhouette term, least squares, no finger search) on the hand rendered:
+    # another fit, also close
     paper = tmp_path / "paper.csv"
-    r = runner.invoke(app, ["track", str(rec), "--paper", "-o", str(paper)])
+    r = runner.invoke(app, ["track", str(rec), "--paper", "--hand-model", TRACKING_HAND, "-o", str(paper)])
     assert r.exit_code == 0, r.output
     r = runner.invoke(app, ["eval", str(rec), str(paper)])
     assert r.exit_code == 0

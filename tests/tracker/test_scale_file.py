@@ -7,6 +7,7 @@ import yaml
 from typer.testing import CliRunner
 
 from handmodel import HandModel
+from tracker import TRACKING_HAND
 from tracker.cli import app
 from tracker.errors import TrackerError
 from tracker.run import read_tracking, settings_for_hand, tracking_metadata
@@ -132,7 +133,7 @@ def test_calibrate_then_track_on_the_file(rec, tmp_path):
     hand = tmp_path / "me.yaml"
     r = _cli("calibrate", rec / "rec", "-o", hand)
     assert r.exit_code == 0, r.output
-    assert "size (× default)" in r.output and f"wrote {hand}" in r.output
+    assert f"size (× {TRACKING_HAND})" in r.output and f"wrote {hand}" in r.output
     cal = yaml.safe_load(hand.read_text())["provenance"]["calibration"]
     assert abs(cal["hand_scale"] / 1.2 - 1) <= 0.03 and cal["frames"] == list(range(5))
     before = hand.read_bytes()

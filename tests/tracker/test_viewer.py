@@ -11,10 +11,9 @@ from typer.testing import CliRunner
 
 pytest.importorskip("rerun")
 
-from handmodel import HandModel  # noqa: E402
 from tracker.cli import app  # noqa: E402
 from tracker.recording import Recording  # noqa: E402
-from tracker.run import read_tracking  # noqa: E402
+from tracker.run import read_tracking, tracked_hand  # noqa: E402
 from tracker.viewer import FRAME_ENTITIES, HAND_ENTITIES, RerunLog, read_frame, read_frames, snapshot_png  # noqa: E402
 
 
@@ -43,8 +42,8 @@ def test_logged_data_is_what_was_tracked(tracked):
     """The depth image is the recording's (mm), the points as many as the tracker used, the mesh and
     the keypoints the hand at the θ written to the CSV, the fit error the CSV's."""
     rec = Recording.open(tracked / "rec")
-    df, _ = read_tracking(tracked / "t.csv")
-    hand = HandModel.load(right=rec.handedness == "right")
+    df, meta = read_tracking(tracked / "t.csv")
+    hand = tracked_hand(meta)  # the model, handedness and size the header says were tracked
     mesh = hand.mesh()
     for k in (0, 3):
         got = read_frame(tracked / "t.rrd", k)

@@ -13,6 +13,8 @@ from typing import Optional
 
 import typer
 
+from .. import TRACKING_HAND
+
 MOTION_HELP = "Scenario name (see --list) or a motion file: .csv joint-angle table, .txt/.dat schroeder26 postures."
 
 
@@ -31,7 +33,7 @@ def synth(
     finger_scale: Optional[str] = typer.Option(None, "--finger-scale", help="Finger length factors (0.7-1.3): one "
                                                "for all, five (thumb,index,middle,ring,pinky) or name=factor pairs."),
     color: bool = typer.Option(False, "--color/--no-color", help="Also write skin-coloured colour frames."),
-    hand_model: str = typer.Option("default", "--hand-model", help="Hand model name or YAML path."),
+    hand_model: str = typer.Option(TRACKING_HAND, "--hand-model", help="Hand model name or YAML path [human: the hand tracker track fits; default: the paper's]."),
     right: bool = typer.Option(False, "--right", help="Render the right hand (mirror image, same θ)."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Recording folder to write."),
     list_: bool = typer.Option(False, "--list", help="List the scenarios and noise presets and exit."),

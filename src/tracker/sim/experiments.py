@@ -22,6 +22,7 @@ from synergy import simulate
 from synergy.bundle import Bundle
 from synergy.pca import SynergyModel
 
+from .. import TRACKING_HAND
 from ..cameras import as_camera, preset
 from ..correspond import ModelSamples, Silhouette
 from ..evaluate import posture_error_deg
@@ -492,7 +493,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     if calibrate_each:
         for recording in dict.fromkeys(n.split("_")[0] for n in names):
             first = [n for n in names if n.split("_")[0] == recording][:calibrate_each]
-            tr = HandTracker(HandModel.load(right=True), TrackerSettings(), synergies=bundle)
+            tr = HandTracker(HandModel.load(TRACKING_HAND, right=True), TrackerSettings(), synergies=bundle)
             tr.calibrate_each([observe(depths[n], cam) for n in first], cam)
             calibrated[recording] = tr
     for k, name in enumerate(names):
@@ -503,7 +504,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             tr = calibrated[recording]
             tr.reset()
         else:
-            tr = HandTracker(HandModel.load(right=True),
+            tr = HandTracker(HandModel.load(TRACKING_HAND, right=True),
                              TrackerSettings().replace(hand_scale=sizes.get(recording, "auto")), synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)

@@ -24,6 +24,7 @@ from .experiments import (
     experiment_realistic,
     experiment_reduced_pcs, experiment_scenarios, experiment_single_frame, segments,
 )
+from .. import TRACKING_HAND
 from ..errors import TrackerError
 from .noise import NoiseModel
 
@@ -246,8 +247,9 @@ def _toward_palm(row) -> float:
 
 
 def _context(quick):
-    """What every part of the report shares: the hand, the bundle, the camera, the fingerfist segments."""
-    return SimpleNamespace(hand=HandModel.load(), bundle=load_bundle("fingerfist"), cam=default_camera(),
+    """What every part of the report shares: the hands (the paper's for its experiments, the tracker's for
+    the realistic scenes), the bundle, the camera, the fingerfist segments."""
+    return SimpleNamespace(hand=HandModel.load(), human=HandModel.load(TRACKING_HAND), bundle=load_bundle("fingerfist"), cam=default_camera(),
                            segs=segments(2 if quick else 4, 30 if quick else 60), quick=quick,
                            scen=("count", "grasp-back") if quick else SCENARIO_NAMES, kinect=NoiseModel.preset("kinect1"))
 
@@ -255,15 +257,15 @@ def _context(quick):
 NO_NET = {"safety_net": False}
 #: The report's parts, each a function of the shared context, the longest first (workers take them in order).
 STEPS = {
-    "realistic kinect1": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+    "realistic kinect1": lambda c: experiment_realistic(c.human, c.bundle, frames=realistic_frames(c.quick),
                                                         sensors={"kinect1": REALISTIC_SENSORS["kinect1"]}),
-    "realistic realsense": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+    "realistic realsense": lambda c: experiment_realistic(c.human, c.bundle, frames=realistic_frames(c.quick),
                                                           sensors={"realsense": REALISTIC_SENSORS["realsense"]}),
-    "realistic kinect1, depth only": lambda c: experiment_realistic(c.hand, c.bundle, frames=realistic_frames(c.quick),
+    "realistic kinect1, depth only": lambda c: experiment_realistic(c.human, c.bundle, frames=realistic_frames(c.quick),
                                                                     sensors={"kinect1": REALISTIC_SENSORS["kinect1"]},
                                                                     color=False),
     "realistic realsense, depth only": lambda c: experiment_realistic(
-        c.hand, c.bundle, frames=realistic_frames(c.quick), sensors={"realsense": REALISTIC_SENSORS["realsense"]},
+        c.human, c.bundle, frames=realistic_frames(c.quick), sensors={"realsense": REALISTIC_SENSORS["realsense"]},
         color=False),
     "scenarios, Kinect v1 noise": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen, noise=c.kinect),
     "scenarios": lambda c: experiment_scenarios(c.hand, c.bundle, c.cam, c.scen),
