@@ -31,6 +31,7 @@ import numpy as np
 from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
+from tracker import TRACKING_HAND
 from tracker.cameras import preset
 from tracker.correspond import Silhouette
 from tracker.images import read_depth_units, units_to_metres
@@ -113,7 +114,8 @@ def main(argv=None):
     if not real.is_file():
         print(f"bench_scale: {real}: no such depth frame (see ../shared/data/realsense_sr305_lada)", file=sys.stderr)
         return 2
-    hand, bundle = HandModel.load(), load_bundle("fingerfist")
+    # the realistic scenes and the real frame on the tracker's hand (tracker.TRACKING_HAND), as a user tracks
+    hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
     # one core: the search's fits one after the other (InitSettings.threads)
     settings = TrackerSettings(hand_scale="auto").replace(init_threads=1)
     frames = realistic_frames(hand, limit)
@@ -145,7 +147,7 @@ def main(argv=None):
     # the real frame: as `tracker track --hand-scale auto` runs it (observe, then the tracker's first step)
     cam = preset("sr305")
     depth = units_to_metres(read_depth_units(real, cam), cam)
-    right = HandModel.load(right=True)
+    right = HandModel.load(TRACKING_HAND, right=True)
     # one thread (CPU time) and the search's threads (wall time: what a user waits; the fits of a batch
     # run side by side, InitSettings.threads)
     n_thr = search_threads(0)
