@@ -109,7 +109,8 @@ def _realistic_intro(frames) -> list:
          f"Motion open-close, {frames} frames per sequence, tracked from the first frame by today's default tracker "
          "with the hand size calibrated (`TrackerSettings(hand_scale=\"auto\")`: the first frame, refined over the "
          "next two), fingerfist bundle, default segmentation with the colour frame, gating by the predicted hand. "
-         "The rendered hand is the model × scale with each finger's length × its own factor (drawn in 0.9–1.1, "
+         f"The rendered and the tracked hand are the tracker's (`{TRACKING_HAND}`: the paper's hand with its finger bases "
+         "on the human metacarpal arc); the rendered one is it × scale with each finger's length × its own factor (drawn in 0.9–1.1, "
          "listed below the table), its forearm sized with it (keypoints compared on the rendered "
          "hand, mm; scale found / true: the tracker's size over the rendered global scale); cameras and noise: kinect1 "
          "(Kinect v1 preset), realsense (sr305 camera and noise). Scenes: " +
@@ -156,8 +157,9 @@ def real_lines(rows, overlay_dir="real", each=None) -> list:
     """The "real labelled frames" section of the report (markdown lines; overlays in ``overlay_dir``);
     ``each``: the same frames' rows on the hand calibrated from each recording's first stills."""
     L = ["## Real labelled frames (Intel RealSense SR305, ../shared/data/realsense_sr305_lada)", "",
-         "Each labelled frame tracked as a user would: the `sr305` preset, the right hand, defaults, the hand size "
-         "calibrated on each recording's first labelled frame and reused for its other frames. Labels (wrist crease, "
+         "Each labelled frame tracked as a user would: the `sr305` preset, the right hand, defaults (the tracker's "
+         f"hand, `{TRACKING_HAND}`), the hand size calibrated on each recording's first labelled frame and reused for its "
+         "other frames. Labels (wrist crease, "
          "fingertips, hand mask) were made by eye: straight tips ~5 px, curled ~8 px; the depth frames are "
          "LadaOndris/hand-recognition's (MIT licence; the overlays draw them under our fit). Floors of the issue: every "
          f"labelled tip ≤ {REAL_TIP_PX:g} px from its model tip, wrist ≤ {REAL_WRIST_PX:g} px, ≥ "
