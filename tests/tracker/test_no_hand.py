@@ -122,6 +122,8 @@ def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
     out = " ".join(r.output.split())
     assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 20% of the points)" in out
     assert "nothing segmented looks like a hand" in out
+    # a fit of the wrong hand is rejected too (7 of the 19 right-hand stills tracked as left): the hint says so
+    assert "that the hand is the right one (--hand)" in out
     df, meta = read_tracking(tmp_path / "t.csv")
     assert (df["status"] == "lost").all() and df["tx"].isna().all()
 
