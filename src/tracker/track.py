@@ -153,12 +153,14 @@ class TrackerSettings:
     Depth alone cannot tell a hand from a hand-sized object, but most of what a segmenter finds in
     a frame without a hand is bigger than one: a wall, a table, a body, a door. Measured on first
     frames with the size calibrated: right fits reject at most 15 % (19 labelled SR305 stills,
-    2–15 %; 72 rendered realistic frames, ≤ 6 %; on the human hand, :data:`tracker.TRACKING_HAND`: the stills ≤ 14.7 %,
-    73 rendered starts of two seeds ≤ 7.5 %), fits to frames without a hand 25–36 % (the real RealSense D435 and Azure Kinect
-    recordings, three frames: 32–36 % on the paper's hand, but the D435's thin upright object 24.6 % on
-    the human hand, which 25 % let through) and 39–71 % (rendered torso or table alone); the default 20 %
-    lies midway between the hands' 15 % and the 25 %; a box the size of a hand is fitted (6–19 %). A start needs a segmented region of
-    ``start_min_pixels`` pixels too (its points when no mask is given; 0 = off; a tracked frame needs
+    2–15 %; 72 rendered realistic frames, ≤ 6 %; on the human hand, :data:`tracker.TRACKING_HAND`: the
+    stills ≤ 14.7 %, 73 rendered starts of two seeds ≤ 7.5 %), fits to frames without a hand 25–36 % (the
+    real RealSense D435 and Azure Kinect recordings, three frames: 32–36 % on the paper's hand, but the
+    D435's thin upright object 24.6 % on the human hand, which 25 % let through) and 39–71 % (rendered
+    torso or table alone); the default 20 % lies midway between the hands' 15 % and the 25 %; a box the
+    size of a hand is fitted (6–19 %). The mirror image of a real hand is often rejected too (the 19
+    right-hand stills tracked as the left hand: 7 found no hand; the CLI's warning then names ``--hand``).
+    A start needs a segmented region of ``start_min_pixels`` pixels too (its points when no mask is given; 0 = off; a tracked frame needs
     ``min_points``): right first frames have 1171–8270 mask pixels (rendered) and 6210–12550 (the
     stills); a hand the ``--box`` cut to 35 pixels was fitted at 0.47 mm, outside the box.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
