@@ -1306,6 +1306,10 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
         others = ends.copy()
         others[j] = False
+        # a part as wide as an arm that reaches less far than one is no finger to weigh: an arm stub the
+        # region's reach cut short (in front of a body 4 cm behind) outweighed the fingers and put a group of
+        # fingers "opposite the fingers"
+        others &= ~((width >= 0.45 * r) & (reach_r < OPPOSITE_ARM_REACH_R * r))
         continues[j + 1] |= _opposite_fingers(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
     # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
     # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
