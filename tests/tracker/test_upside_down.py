@@ -92,9 +92,11 @@ def test_a_jump_to_a_hand_turned_round_is_caught_on_its_frame(hand, jump_scene):
 
 def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
     """The rotate scenario (hand alone, turning from palm to back): `arm_behind` passes wrist cues
-    on a few edge-on frames (34, 41, 124, 125) that cost the true pose 30–36 mm, more than
+    on a few edge-on frames (34, 124, 125) that cost the true pose 30–36 mm, more than
     ``net_wrist_mm``; the surface beyond them is a piece of the hand the segmentation cut off, which
-    ends 4–6 cm from the cue (`arm_length_m`), short of ``net_arm_m``: the true pose is never "wrong way"."""
+    ends 4–6 cm from the cue (`arm_length_m`), short of ``net_arm_m``: the true pose is never "wrong way".
+    Since a36c12e the wrist cut keeps frames 124 and 125 whole (recall 0.91 → 1.00: a piece of the hand no
+    longer weighs as a finger there), so only frame 34's false cue is left to rule out."""
     from tracker.correspond import Silhouette
 
     truth = make_motion("rotate", hand=hand).theta
@@ -108,7 +110,7 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
         sil.frame_depth = ob.frame_depth
         cues += tr._frame_cue(sil) is not None
         assert not tr._wrong_way(truth[f], sil), f
-    assert cues >= 3, cues  # the false cues are there: the arm's length is what rules them out
+    assert cues >= 1, cues  # a false cue is there (frame 34): the arm's length is what rules it out
 
 
 def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
