@@ -154,7 +154,3 @@ def restart_uncoupled(hand, theta, corr, refit, scorer, limits, *, tolerance_deg
     if np.all(np.isfinite(th2)) and scorer(th2, c2) < own:
         return th2, c2, True
     return theta, corr, False
-    th2, c2 = refit(start)
-    if better(th2, c2):
-        return th2, c2, True
-    return theta, corr, False
