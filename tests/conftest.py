@@ -1,3 +1,4 @@
+import contextlib
 import os
 import subprocess
 import sys
@@ -63,6 +64,55 @@ def shared(*parts) -> Path:
     if not p.exists():
         pytest.skip(f"third-party test data not available: {p} (../shared/data is absent)")
     return p
+
+
+@contextlib.contextmanager
+def played_by_librealsense(rs, bag):
+    """Every frame of a ``.bag`` as librealsense plays it: ``({stream: [frame, …]}, depth scale in m)``,
+    valid inside the ``with`` (the device's extrinsics go when it is unloaded).
+
+    The file is played by its sensors, not a pipeline: a pipeline plays in real time until
+    ``set_real_time(False)`` takes effect, and a loaded machine loses frames that way (CI once got no
+    frameset with both streams three times in a row), whereas a device set to non-real-time before its
+    sensors start delivers every frame (each once here, in file order).
+    """
+    import time
+
+    ctx = rs.context()
+    dev = ctx.load_device(str(bag))
+    playback = dev.as_playback()
+    playback.set_real_time(False)
+    scale = dev.first_depth_sensor().get_depth_scale()
+    frames = {}
+
+    def keep(f):
+        got = frames.setdefault(f.get_profile().stream_type(), [])
+        # a device reads its file again when a second sensor starts after the first (seen under load)
+        if all(g.get_timestamp() != f.get_timestamp() for g in got):
+            f.keep()
+            got.append(f)
+
+    sensors = dev.query_sensors()
+    try:
+        for s in sensors:
+            s.open(s.get_stream_profiles()[0])
+            s.start(keep)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not (
+                len(frames) == len(sensors) and playback.current_status() == rs.playback_status.stopped):
+            time.sleep(0.05)
+        time.sleep(0.2)  # a frame in flight when the status changed
+        for s in sensors:
+            s.stop()
+        yield {k: sorted(v, key=lambda f: f.get_timestamp()) for k, v in frames.items()}, scale
+    finally:
+        for s in sensors:
+            try:
+                s.stop()
+            except RuntimeError:  # stopped already
+                pass
+            s.close()
+        ctx.unload_device(str(bag))
 
 
 @pytest.fixture(scope="session")

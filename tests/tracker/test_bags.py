@@ -4,7 +4,7 @@ and compressedDepth PNG and RVL), damaged and wrong bags as one-line errors, the
 import struct
 import sys
 
-from conftest import SHARED_DATA
+from conftest import SHARED_DATA, played_by_librealsense
 
 import imageio.v3 as iio
 import numpy as np
@@ -223,26 +223,20 @@ def test_real_realsense_bag_matches_pyrealsense2():
     assert isinstance(rec, BagRecording) and len(rec) == 2  # SOURCES.md §10: 2 depth frames
     assert rec.camera.shape == (480, 640) and rec.has_color
 
-    pipe, cfg = rs.pipeline(), rs.config()
-    cfg.enable_device_from_file(str(path), repeat_playback=False)
-    prof = pipe.start(cfg)
-    try:
-        dev = prof.get_device()
-        dev.as_playback().set_real_time(False)
-        scale = dev.first_depth_sensor().get_depth_scale()
-        dp = prof.get_stream(rs.stream.depth).as_video_stream_profile()
+    with played_by_librealsense(rs, path) as (frames, scale):
+        dp = frames[rs.stream.depth][0].get_profile().as_video_stream_profile()
         intr = dp.get_intrinsics()
-        ext = dp.get_extrinsics_to(prof.get_stream(rs.stream.color))
-        frame = np.asanyarray(pipe.wait_for_frames(5000).get_depth_frame().get_data()).copy()
-    finally:
-        pipe.stop()
+        ext = dp.get_extrinsics_to(frames[rs.stream.color][0].get_profile())
+        depth = [np.asanyarray(f.get_data()).copy() for f in frames[rs.stream.depth]]
+        width, height, fps = dp.width(), dp.height(), dp.fps()
+    assert len(depth) == len(rec)
     c = rec.camera
     assert c.depth_scale_m == pytest.approx(scale, rel=1e-7)
-    assert (c.width, c.height) == (intr.width, intr.height) == (dp.width(), dp.height())
+    assert (c.width, c.height) == (intr.width, intr.height) == (width, height)
     np.testing.assert_allclose([c.fx, c.fy, c.cx, c.cy], [intr.fx, intr.fy, intr.ppx, intr.ppy], rtol=1e-6)
-    assert rec.fps == dp.fps()
-    # the frame pyrealsense2 delivers is one of ours, unit for unit
-    assert any(np.array_equal(rec.depth_units(i), frame) for i in range(len(rec)))
+    assert rec.fps == fps
+    for i, f in enumerate(depth):  # the frames pyrealsense2 delivers are ours, unit for unit, in order
+        assert np.array_equal(rec.depth_units(i), f)
     # depth→colour extrinsics: the bag's quaternion is pyrealsense2's rotation (column-major)
     np.testing.assert_allclose(rec._color_R, np.array(ext.rotation).reshape(3, 3).T, atol=2e-6)
     np.testing.assert_allclose(rec._color_t, ext.translation, atol=1e-7)
@@ -256,29 +250,16 @@ def test_written_realsense_bag_reads_the_same_in_pyrealsense2(tmp_path):
     frames = _frames(5, seed=9)
     path = tmp_path / "written.bag"
     _write_realsense_ros1(path, frames)
-    pipe, cfg = rs.pipeline(), rs.config()
-    cfg.enable_device_from_file(str(path), repeat_playback=False)
-    prof = pipe.start(cfg)
-    got = []
-    try:
-        dev = prof.get_device()
-        dev.as_playback().set_real_time(False)
-        scale = dev.first_depth_sensor().get_depth_scale()
-        intr = prof.get_stream(rs.stream.depth).as_video_stream_profile().get_intrinsics()
-        while len(got) < len(frames):
-            ok, fs = pipe.try_wait_for_frames(3000)
-            if not ok:
-                break
-            got.append(np.asanyarray(fs.get_depth_frame().get_data()).copy())
-    finally:
-        pipe.stop()
+    with played_by_librealsense(rs, path) as (played, scale):
+        intr = played[rs.stream.depth][0].get_profile().as_video_stream_profile().get_intrinsics()
+        got = [np.asanyarray(f.get_data()).copy() for f in played[rs.stream.depth]]
     rec = Recording.open(path)
     assert rec.camera.depth_scale_m == pytest.approx(scale, rel=1e-6) == 0.000125
     np.testing.assert_allclose([rec.camera.fx, rec.camera.fy, rec.camera.cx, rec.camera.cy],
                                [intr.fx, intr.fy, intr.ppx, intr.ppy], rtol=1e-6)
-    assert got, "pyrealsense2 delivered no frame"
-    for a in got:  # playback may skip frames; each it delivers is ours, unit for unit
-        assert any(np.array_equal(a, rec.depth_units(i)) for i in range(len(rec)))
+    assert len(got) == len(frames) == len(rec)
+    for i, a in enumerate(got):  # every frame, in order, ours unit for unit
+        assert np.array_equal(a, rec.depth_units(i))
 
 
 def test_real_realsense_bag_times_and_colour():

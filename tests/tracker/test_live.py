@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import shared
+from conftest import played_by_librealsense, shared
 from typer.testing import CliRunner
 
 from tracker.cli import app
@@ -172,26 +172,23 @@ def test_playback_delivers_every_frame_in_order_however_slow_the_reader(tmp_path
 
 
 def _aligned_by_librealsense(rs, bag):
-    """``(depth units, colour)`` of the framesets with both streams, through a pipeline and ``rs.align``."""
-    pipe, cfg = rs.pipeline(), rs.config()
-    cfg.enable_device_from_file(str(bag), repeat_playback=False)
-    cfg.enable_stream(rs.stream.depth)
-    cfg.enable_stream(rs.stream.color)
-    prof = pipe.start(cfg)
-    theirs = []
-    try:
-        prof.get_device().as_playback().set_real_time(False)
+    """``(depth units, colour)`` for every depth frame of ``bag``, its colour put on the depth grid by
+    ``rs.align``, each depth frame with the colour frame nearest in time (composed into a frameset by a
+    processing block; the file is played without a pipeline: ``played_by_librealsense``)."""
+    with played_by_librealsense(rs, bag) as (frames, _):
+        pending = []
+        block = rs.processing_block(lambda f, source: source.frame_ready(source.allocate_composite_frame(pending)))
+        queue = rs.frame_queue(4)
+        block.start(queue)
         align = rs.align(rs.stream.depth)
-        while True:
-            ok, fs = pipe.try_wait_for_frames(2000)
-            if not ok:
-                break
-            fs = align.process(fs)
-            d, c = fs.get_depth_frame(), fs.get_color_frame()
-            if d and c:  # a real-time start may leave a frameset without its partner: not compared
-                theirs.append((np.asanyarray(d.get_data()).copy(), np.asanyarray(c.get_data()).copy()))
-    finally:
-        pipe.stop()
+        theirs = []
+        for d in frames[rs.stream.depth]:
+            c = min(frames[rs.stream.color], key=lambda c: abs(c.get_timestamp() - d.get_timestamp()))
+            pending[:] = [d, c]
+            block.invoke(d)
+            fs = align.process(queue.wait_for_frame().as_frameset())
+            theirs.append((np.asanyarray(fs.get_depth_frame().get_data()).copy(),
+                           np.asanyarray(fs.get_color_frame().get_data()).copy()))
     return theirs
 
 
@@ -210,15 +207,10 @@ def test_playback_colour_is_librealsense_aligned_colour():
         ours = [(f.depth, f.color) for f in source]
         camera = source.camera
     assert len(ours) == 2 and all(c is not None and c.shape == (480, 640, 3) for _, c in ours)
-    theirs = []
-    # the reference's pipeline plays in real time until set_real_time(False) takes effect, and a loaded
-    # machine can lose every frameset with both streams that way (seen once in 12 runs): it gets 3 tries
-    for _ in range(3):
-        theirs = _aligned_by_librealsense(rs, bag)
-        if theirs:
-            break
-    assert theirs, "librealsense delivered no frameset with both streams"
-    for units, color in theirs:  # the pipeline may skip a frame: match ours by the depth itself
+    theirs = _aligned_by_librealsense(rs, bag)
+    # the file holds two depth frames and one colour frame: both depth frames are compared
+    assert len(theirs) == len(ours) == 2
+    for units, color in theirs:  # matched to ours by the depth itself
         depth = units_to_metres(units, camera)
         (mine,) = [c for d, c in ours if np.array_equal(d, depth, equal_nan=True)]
         valid = np.isfinite(depth)
