@@ -36,7 +36,10 @@ class ObserveSettings:
     no normal is computed. ``gate_mm``: while tracking, points farther than this from the hand
     predicted for the frame are dropped before correspondence (:func:`gate`; 0 = off), unless less
     than ``gate_min_share`` of the predicted hand's surface has data that near (the prediction
-    missed a fast motion). ``edge_px``: pixels without depth this close to the hand (4-connected
+    missed a fast motion); ``arm_gate_mm``: when the gate trusts the prediction, points more than this
+    past the predicted hand's end at the wrist (toward the forearm) are left out of the fit too
+    (:func:`past_wrist`; None = off; :meth:`tracker.track.HandTracker.step` says why they stay in the
+    safety net's tests). ``edge_px``: pixels without depth this close to the hand (4-connected
     steps) count as hand in the silhouette the model→data terms see (:func:`dropout_band`; 0 = the
     segmented mask alone; 1 by measurement: 2 widened a noise-free render's mask all round, where the
     whole background has no depth, and cost fast sweeps 10.3 -> 8.9 deg and a grasp seen from the back
@@ -51,6 +54,7 @@ class ObserveSettings:
     normal_max_jump: float = 0.01
     gate_mm: float = 30.0
     gate_min_share: float = 0.5
+    arm_gate_mm: float | None = 2.0
     edge_px: int = 1
     window_m: float = 0.08
 
@@ -279,9 +283,10 @@ def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_poi
     fast motion that the prediction missed: the prediction is trusted only when at least
     ``min_share`` of its surface samples have a data point within ``radius`` (the hand is where
     it was predicted; clutter cannot fake this, it only adds points) and at least ``min_points``
-    points would remain; otherwise every point is kept. NaN points are never near. With the
-    samples' ``normals``, only samples facing the camera (at the origin) count: the camera sees
-    the hand's near side, and a body close behind the hand stays out of the gate.
+    points would remain; otherwise every point is kept (:func:`predicted_near` says which). NaN
+    points are never near. With the samples' ``normals``, only samples facing the camera (at the
+    origin) count: the camera sees the hand's near side, and a body close behind the hand stays out
+    of the gate.
 
     >>> model = np.array([[0.0, 0.0, 0.5], [0.02, 0.0, 0.5]])
     >>> data = np.array([[0.0, 0.01, 0.5], [0.02, 0.0, 0.52], [0.3, 0.0, 0.5]])
@@ -290,6 +295,17 @@ def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_poi
     >>> gate(data, model + 0.2, 0.03, min_points=1).tolist()   # prediction far off: keep everything
     [True, True, True]
     """
+    near = predicted_near(points, predicted, radius, normals=normals, min_share=min_share, min_points=min_points)
+    return np.ones(len(np.reshape(points, (-1, 3))), bool) if near is None else near
+
+
+def predicted_near(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30):
+    """:func:`gate`'s points near the predicted hand, or None when the prediction is not trusted.
+
+    >>> model = np.array([[0.0, 0.0, 0.5], [0.02, 0.0, 0.5]])
+    >>> predicted_near(np.array([[0.0, 0.01, 0.5]]), model + 0.2, 0.03, min_points=1) is None
+    True
+    """
     P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     M = np.ascontiguousarray(predicted, dtype=np.float64).reshape(-1, 3)
     Mn = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -297,7 +313,23 @@ def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_poi
     # compiled (a grid instead of two KD-trees): the gate runs on every tracked frame
     if gate_kernel(P, M, Mn, normals is not None, float(radius), float(min_share), int(min_points), near):
         return near
-    return np.ones(len(P), bool)
+    return None
+
+
+def past_wrist(points, end, axis, margin=0.002) -> np.ndarray:
+    """Boolean ``(N,)``: the ``points`` ``(N, 3)`` more than ``margin`` m past the hand's end toward
+    the forearm. ``end``: where the hand's surface ends at the wrist (:meth:`handmodel.HandModel.wrist_crease`),
+    ``axis``: the hand's direction from the wrist toward the fingers (the y axis of the root joint's
+    frame, :meth:`handmodel.HandModel.joint_frames` ``[0]``); nothing of the hand lies beyond the plane
+    through ``end`` normal to ``axis``. NaN points are never past.
+
+    >>> past_wrist(np.array([[0.0, 0.05, 0.5], [0.0, -0.001, 0.5], [0.01, -0.03, 0.5]]),
+    ...            end=np.array([0.0, 0.0, 0.5]), axis=np.array([0.0, 1.0, 0.0])).tolist()
+    [False, False, True]
+    """
+    with np.errstate(invalid="ignore"):
+        return (np.asarray(points, float).reshape(-1, 3) - np.asarray(end, float)) @ np.asarray(axis, float) \
+            < -float(margin)
 
 
 _NO_ROWS = np.zeros((0, 3))

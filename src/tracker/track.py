@@ -39,7 +39,7 @@ from .coupling import BENT_BACK_DEG, restart_uncoupled
 from .errors import TrackerError
 from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_schedule
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, search_threads, thin
-from .observe import ObserveSettings, gate, hand_window
+from .observe import ObserveSettings, hand_window, past_wrist, predicted_near
 from .rgb import RgbSeed
 from .scale import (
     calibrate_scale,
@@ -794,17 +794,23 @@ class HandTracker:
             all_pts, all_nrm = pts, nrm
             # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
             # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
-            keep = self._gate(pred, pts) if st.observe.gate_mm > 0 else None
+            keep, arm = self._gate(pred, pts) if st.observe.gate_mm > 0 else (None, None)
             if st.recentre and (keep is None or keep.all()):
                 moved = self._recentred(pred, pts)
                 recentred, pred = moved is not pred, moved
                 if recentred and keep is not None:
-                    keep = self._gate(pred, pts)
+                    keep, arm = self._gate(pred, pts)
             if keep is not None:
                 # the safety net searches the gated cloud too (a start search on the whole cloud would
                 # find the clutter); the gate keeps every point when it does not trust the prediction
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
                 all_pts, all_nrm = pts, nrm
+            if arm is not None:
+                # the arm left past the predicted wrist is out of the fit (a closing fist followed it down
+                # the arm) but not out of the net's tests and search: past a wrong prediction's wrist lies
+                # the hand itself, which only the points far from the fit then tell
+                fit_keep = ~arm[keep]
+                pts, nrm = all_pts[fit_keep], None if all_nrm is None else all_nrm[fit_keep]
             def tracking_fit(start):
                 return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
                            normals=nrm, samples=ctx.samples, silhouette=sil)
@@ -926,12 +932,23 @@ class HandTracker:
         return sil.arm_cue
 
     def _gate(self, pred, pts):
-        """:func:`tracker.observe.gate` of the points by the hand predicted at ``pred`` (all True when
-        the prediction is not trusted or nothing is far)."""
+        """``(keep, arm)``: :func:`tracker.observe.gate` of the points by the hand predicted at ``pred``
+        (all True when the prediction is not trusted or nothing is far), and those of the kept ones
+        past its wrist (:func:`tracker.observe.past_wrist`; None when off, the prediction is not
+        trusted, none is past or too few would remain)."""
         st = self.settings
         P, N = posed_samples(self.hand, self.context.score_samples, pred)
-        return gate(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
-                    min_points=st.min_points)
+        near = predicted_near(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
+                              min_points=st.min_points)
+        if near is None:
+            return np.ones(len(pts), bool), None
+        if st.observe.arm_gate_mm is None:
+            return near, None
+        axis = self.hand.joint_frames(pred)[0, :3, 1]
+        arm = near & past_wrist(pts, self.hand.wrist_crease(pred), axis, st.observe.arm_gate_mm / 1000.0)
+        if not arm.any() or np.count_nonzero(near & ~arm) < max(st.min_points, 1):
+            return near, None
+        return near, arm
 
     def _recentred(self, pred, pts):
         """The prediction moved onto the cloud when their centres are farther apart than the rejection

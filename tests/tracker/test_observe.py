@@ -14,6 +14,8 @@ from tracker.observe import (
     gate,
     kept_fraction,
     observe,
+    past_wrist,
+    predicted_near,
     stride_for_density,
 )
 from tracker.segment import Segmenter, in_box
@@ -172,6 +174,72 @@ def test_gate_falls_back_to_every_point_when_the_prediction_is_off(hand):
     keep = gate(pts, model, 0.03)
     assert not keep[:5].any() and keep[5:].all()
     assert gate(pts[:10], model, 0.03, min_points=30).all()  # too few would remain: no gating
+
+
+_HANDS = {}
+
+
+def _tracking_hand(left, scale):
+    from handmodel import HandModel
+    from tracker import TRACKING_HAND
+
+    key = (left, scale)
+    if key not in _HANDS:
+        hand = HandModel.load(TRACKING_HAND)
+        hand = hand.mirrored() if left else hand
+        _HANDS[key] = hand.scaled(scale)
+    return _HANDS[key]
+
+
+@given(st.booleans(), st.sampled_from([0.8, 1.0, 1.5]), st.integers(0, 2**32 - 1))
+@settings(max_examples=40, deadline=None)
+def test_nothing_of_the_hand_lies_past_its_wrist(left, scale, seed):
+    """Every surface sample of the tracking hand (right or left, 0.8–1.5×), posed anywhere within its
+    joint limits, lies on the hand's side of :func:`past_wrist`'s plane (a wrong axis, a mirrored
+    hand's axis flipped or the plane through the joint instead of the hand's end drop the hand's own
+    points), and a forearm straight on from the wrist is past it from 1 cm on."""
+    from tracker.correspond import ModelSamples
+
+    hand = _tracking_hand(left, scale)
+    rng = np.random.default_rng(seed)
+    bounded = np.isfinite(hand.limits).all(axis=1)
+    th = np.zeros(hand.n_dofs)
+    th[bounded] = rng.uniform(hand.limits[bounded, 0], hand.limits[bounded, 1])
+    th[:3] = rng.uniform([-0.2, -0.2, 0.3], [0.2, 0.2, 0.9])
+    th[3:6] = rng.uniform(-np.pi, np.pi, 3)
+    P = ModelSamples(hand, spacing=0.004).pose(th)[0]
+    end, axis = hand.wrist_crease(th), hand.joint_frames(th)[0, :3, 1]
+    assert not past_wrist(P, end, axis, 0.0005).any()
+    arm = end - np.outer(np.linspace(0.01, 0.1, 10), axis)
+    assert past_wrist(arm, end, axis, 0.002).all()
+    assert not past_wrist(np.full((2, 3), np.nan), end, axis).any()
+
+
+def test_the_arm_past_the_wrist_is_near_the_predicted_hand():
+    """A forearm running on from the predicted hand's wrist is within the gate's 3 cm of the palm for its
+    first centimetres (:func:`predicted_near` keeps it); :func:`past_wrist` marks every arm point more
+    than 5 mm past the hand's end and none of the hand's own; a prediction that missed the hand is not
+    trusted (None)."""
+    from tracker.correspond import ModelSamples
+
+    hand = _tracking_hand(False, 1.0)
+    th = np.zeros(hand.n_dofs)
+    th[2] = 0.6
+    model = ModelSamples(hand, spacing=0.006).pose(th)[0]
+    rng = np.random.default_rng(3)
+    on_hand = model[rng.choice(len(model), 400, replace=False)] + rng.normal(0, 0.0005, (400, 3))
+    end, axis = hand.wrist_crease(th), hand.joint_frames(th)[0, :3, 1]
+    # the arm's near half: a flattened cylinder (2.5 × 1.2 cm) along -axis from the hand's end, 8 cm long
+    t, a = rng.uniform(0.0, 0.08, 300), rng.uniform(0, 2 * np.pi, 300)
+    across = np.cross(axis, [0.0, 0.0, 1.0])
+    forearm = (end - np.outer(t, axis) + 0.025 * np.outer(np.cos(a), across)
+               + 0.012 * np.outer(np.sin(a), [0.0, 0.0, 1.0]))
+    pts = np.vstack([on_hand, forearm])
+    near = predicted_near(pts, model, 0.03)
+    assert near[:400].all() and (near[400:] & (t > 0.005)).sum() > 30
+    past = past_wrist(pts, end, axis, 0.002)
+    assert not past[:400].any() and past[400:][t > 0.005].all()
+    assert predicted_near(pts, model + np.array([0.12, 0.0, 0.0]), 0.03) is None
 
 
 def _gate_kdtree(points, predicted, radius, normals=None, min_share=0.5, min_points=30):
