@@ -38,8 +38,8 @@ class ObserveSettings:
     than ``gate_min_share`` of the predicted hand's surface has data that near (the prediction
     missed a fast motion); ``arm_gate_mm``: when the gate trusts the prediction, points more than this
     past the predicted hand's end at the wrist (toward the forearm) are left out of the fit too
-    (:func:`past_wrist`; None = off; :meth:`tracker.track.HandTracker.step` says why they stay in the
-    safety net's tests). ``edge_px``: pixels without depth this close to the hand (4-connected
+    (:func:`past_wrist`; None = off, and off without the tracker's safety net, whose far-points test
+    they stay in: :meth:`tracker.track.HandTracker.step` says why). ``edge_px``: pixels without depth this close to the hand (4-connected
     steps) count as hand in the silhouette the model→data terms see (:func:`dropout_band`; 0 = the
     segmented mask alone; 1 by measurement: 2 widened a noise-free render's mask all round, where the
     whole background has no depth, and cost fast sweeps 10.3 -> 8.9 deg and a grasp seen from the back
