@@ -432,7 +432,10 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     # with …: folded or squeezed by rich, a 100-column terminal left 9 characters a line of it
     numbers = sum(max(len(h), *(len(r[k + 1]) for r in rows)) for k, h in enumerate(heads))
     t = Table(title=f"tracked {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else ""))
-    width = max(10, console.width - numbers - 3 * len(heads) - 4)
+    # 7 keeps a name's start and its end (middle_cut: "20…_110") and leaves 45 columns of numbers at 80, as
+    # many as they take with 5-character times (a loaded machine's 1-frame start took 1000 ms or more, and
+    # at 10 the name pushed the header "result" off an 80-column table)
+    width = max(7, console.width - numbers - 3 * len(heads) - 4)
     t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=width)
     for c in heads:
         t.add_column(c, justify="left" if c == "result" else "right", no_wrap=True)
