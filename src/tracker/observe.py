@@ -39,11 +39,12 @@ class ObserveSettings:
     missed a fast motion); ``arm_gate_mm``: when the gate trusts the prediction, points more than this
     past the predicted hand's end at the wrist (toward the forearm) are left out of the fit too
     (:func:`past_wrist`; None = off, and off without the tracker's safety net, whose far-points test
-    they stay in: :meth:`tracker.track.HandTracker.step` says why). ``edge_px``: pixels without depth this close to the hand (4-connected
-    steps) count as hand in the silhouette the model→data terms see (:func:`dropout_band`; 0 = the
-    segmented mask alone; 1 by measurement: 2 widened a noise-free render's mask all round, where the
-    whole background has no depth, and cost fast sweeps 10.3 -> 8.9 deg and a grasp seen from the back
-    4.7 -> 3.4, while the Kinect-noise count and open/close stay 2.7 deg). ``window_m``: while
+    they stay in: :meth:`tracker.track.HandTracker.step` says why). ``edge_px``: pixels without depth
+    this close to the hand (4-connected steps) count as hand in the silhouette the model→data terms
+    see (:func:`dropout_band`; 0 = the segmented mask alone; 1 by measurement: 2 widened a noise-free
+    render's mask all round, where the whole background has no depth, and cost fast sweeps 10.3 -> 8.9
+    deg and a grasp seen from the back 4.7 -> 3.4, while the Kinect-noise count and open/close stay
+    2.7 deg). ``window_m``: while
     tracking, the frame is segmented only in the predicted hand's image box grown by this many metres
     (at the hand's nearest depth) on every side (:func:`hand_window`, which says why 8 cm; 0 = always
     the whole frame)."""
