@@ -1207,9 +1207,9 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
     ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
     they touch goes on too (an arm entering a table the sensor's shadow separates from it); where
-    nothing goes on past the region, a contact at least as long as the widest place's radius (the
-    table where the skin test ends the arm) keeps the palm away from it as the arm's side would, a
-    shorter one does not move the palm (fingertips touch the body as well). ``prefer``: a ``(rows, cols)`` slice
+    nothing goes on past the region, a contact about a palm wide (the table where the skin test ends
+    the arm) keeps the palm away from it as the arm's side would, a finger-wide one does not move the
+    palm (fingertips touch the body as well). ``prefer``: a ``(rows, cols)`` slice
     pair where the hand is expected (the tracker's prediction): palm places inside it come first."""
     m = np.asarray(mask, bool)
     (ya, yb), (xa, xb) = bounds(m)
@@ -1245,13 +1245,15 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
             cand = there
     away = go_on
     if not go_on.any() and joins is not None:
-        # nothing goes on past the region, but an object meets it along an arm's width (a sleeve, a
-        # table the arm enters): the palm is away from there too; a fingertip touching the body
-        # meets it along a finger's width only and does not move the palm
+        # nothing goes on past the region, but an object meets it along an arm's width (the table
+        # where the skin test ends the arm): the palm is away from there too; a fingertip touching the
+        # body meets it along a finger's width only and does not move the palm
         touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
         tl, tn = _label(touch, eight=True)
         if tn:
-            # a contact's length: its pixels over the band's width (the 2-px dilation: ~5 px)
+            # a contact's size: its pixels in the band (the contact dilated by 2 px, inside the region)
+            # over 5, against the widest place's radius: the band is 2-3 px deep, so this passes a
+            # contact about a palm wide (an arm's) and not a finger wide one (a fingertip's)
             wide = np.flatnonzero(np.bincount(tl[tl > 0], minlength=tn + 1)[1:] / 5.0 >= float(dt.max())) + 1
             away = np.isin(tl, wide)
     if away.any():

@@ -271,7 +271,7 @@ def test_the_predicted_hand_keeps_the_palm_off_an_arm_stub(hand, monkeypatch):
     whole frame and the window are told where the hand was predicted (``Segmenter(prefer=…)``) and the
     palm is looked for there first: recall ≥ 0.85 with the hand's box as the prediction, < 0.1 without.
     The stub's end meets the table, which now keeps the palm off it even without a prediction (the
-    contact is as long as a palm's radius, :func:`tracker.segment.cut_forearm`): recall ≥ 0.85 (0.91);
+    contact is about a palm wide, :func:`tracker.segment.cut_forearm`): recall ≥ 0.85 (0.91);
     the prediction's part is tested with that contact left out."""
     import tracker.segment as S
 
@@ -315,7 +315,7 @@ def test_an_arm_ending_at_the_table_keeps_the_palm_on_the_hand():
     the region goes on past it, and the palm was placed by the nearest-part rule on the arm's end — the
     open hand's palm and fingers were cut as the arm (recall 0.45, precision 0.57; a size-refining frame,
     segmented in the whole frame without a prediction; the run 10.9 mm, the report's one colour run over
-    10 mm at seed 1). An object meeting the region along at least a palm's radius (the table at the arm's
+    10 mm at seed 1). An object meeting the region along about a palm's width (the table at the arm's
     end; a fingertip touching the body meets it along a finger's width) now keeps the palm away from it as
     where the region goes on would: recall and precision ≥ 0.9 (measured 0.97 / 0.98)."""
     from handmodel import HandModel
