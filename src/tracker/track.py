@@ -134,8 +134,11 @@ class TrackerSettings:
     parts they move: the middle and end phalanges of fingers curled away from the camera) are pulled
     this share of the way per frame to their most likely values given the seen joints — the synergy
     model's Gaussian conditional mean (:meth:`HandTracker._unseen_pulled`); nothing else holds them,
-    and they drifted to the joint limits (grasp seen from the back, full DoF: 7.6° → 3.3°). Full and
-    hierarchical modes with a synergy bundle; 0 = off.
+    and they drifted to the joint limits (grasp seen from the back, full DoF: 7.6° → 3.3°). A start's
+    fit (no earlier frame to hold them: they are where the search's start left them) is pulled all the
+    way (a real SR305 still's thumb folded over the palm, its end phalanx without a point: bent back
+    21° as the search left it, 20.8 px from its labelled tip; 15.3 px pulled half the way, 10.3 px all
+    the way). Full and hierarchical modes with a synergy bundle; 0 = off.
     ``finger_restart_deg``: a tracked fit whose fingers bend their last joint more than this many
     degrees off its coupling with the joint before it is fitted once more from the coupled angle, and
     that fit is kept when it scores clearly better (:func:`tracker.coupling.restart_uncoupled`:
@@ -826,8 +829,9 @@ class HandTracker:
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
                     status = "reinit"
-        if status == "tracked" or net == "replaced":
-            theta = self._unseen_pulled(theta, corr)
+        # a start has no earlier frame that holds its unseen joints: all the way (the net's replacement
+        # follows tracked frames, half the way as they are)
+        theta = self._unseen_pulled(theta, corr, 1.0 if status == "reinit" and net != "replaced" else None)
         if st.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
@@ -857,11 +861,12 @@ class HandTracker:
         P, _ = posed_samples(self.hand, self.context.score_samples, self.predict())
         return hand_window(P, camera, st.observe.window_m)
 
-    def _unseen_pulled(self, theta, corr) -> np.ndarray:
-        """θ with the posture DoF that no data point constrains moved ``unseen_prior`` of the way to
-        the synergy model's Gaussian conditional mean given the other posture DoF (``corr``: the fit's
-        correspondences; a DoF is unseen when fewer than ``unseen_points`` valid pairs lie on the parts
-        it moves). Unchanged when every DoF, or none, is seen (nothing to condition on)."""
+    def _unseen_pulled(self, theta, corr, share=None) -> np.ndarray:
+        """θ with the posture DoF that no data point constrains moved ``unseen_prior`` (``share``
+        when given) of the way to the synergy model's Gaussian conditional mean given the other
+        posture DoF (``corr``: the fit's correspondences; a DoF is unseen when fewer than
+        ``unseen_points`` valid pairs lie on the parts it moves). Unchanged when every DoF, or none, is
+        seen (nothing to condition on), or when ``unseen_prior`` is 0 (off)."""
         st = self.settings
         if not st.unseen_prior or self._unseen is None or st.mode == "reduced":
             return theta
@@ -876,7 +881,8 @@ class HandTracker:
         cond = mu[hid] + S[np.ix_(hid, seen)] @ np.linalg.solve(S[np.ix_(seen, seen)], x[seen] - mu[seen])
         out = np.array(theta, float)
         idx = post[hid]
-        out[idx] = np.clip(x[hid] + st.unseen_prior * (cond - x[hid]), self.limits[idx, 0], self.limits[idx, 1])
+        share = st.unseen_prior if share is None else share
+        out[idx] = np.clip(x[hid] + share * (cond - x[hid]), self.limits[idx, 0], self.limits[idx, 1])
         self.unseen_frames_ += 1
         return out
 

@@ -266,6 +266,48 @@ def test_unseen_prior_moves_only_joints_without_data(hand):
     np.testing.assert_array_equal(tr._unseen_pulled(theta, everything), theta)
 
 
+def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
+    """The pull's target is the Gaussian conditional mean of the hidden posture DoF given the seen ones,
+    checked against the precision-matrix form (an independent formula: μ_h − P_hh⁻¹ P_hs (x_s − μ_s));
+    ``share`` 1 (a start's fit) puts them there, the tracked frames' ``unseen_prior`` (0.5) half-way.
+    A start fitted on a rendered grasp seen from the back (fingers curled away from the camera) is
+    pulled: the old rule left a start's unseen joints where the search's start had left them."""
+    from types import SimpleNamespace
+
+    from synergy.bundle import load_bundle
+    from tracker.sim.render import render
+    from tracker.observe import observe
+
+    bundle = load_bundle("fingerfist")
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    theta = hand.zero()
+    theta[2] = 0.6
+    post = np.flatnonzero(~hand.pose_mask)
+    rng = np.random.default_rng(3)
+    theta[post] = bundle.model.mean_ + 0.1 * rng.standard_normal(len(post))
+    hidden_nodes = ("middle2", "middle3", "middle_tip", "thumb3", "thumb_tip")
+    seen_nodes = [k for k, n in enumerate(hand.node_names) if n not in hidden_nodes]
+    corr = SimpleNamespace(nodes=np.repeat(seen_nodes, 5), valid=np.ones(5 * len(seen_nodes), bool))
+    names = [hand.dof_names[k] for k in post]
+    hid = np.isin(names, ["middle2_flex", "middle3_flex", "thumb3_flex"])
+    m = bundle.model
+    C, lam = np.asarray(m.all_components_), np.asarray(m.all_explained_variance_)
+    P = np.linalg.inv(C.T @ (lam[:, None] * C) + 1e-4 * np.eye(len(post)))
+    x, mu = theta[post], np.asarray(m.mean_)
+    want = mu[hid] - np.linalg.solve(P[np.ix_(hid, hid)], P[np.ix_(hid, ~hid)] @ (x[~hid] - mu[~hid]))
+    want = np.clip(want, tr.limits[post[hid], 0], tr.limits[post[hid], 1])
+    full = tr._unseen_pulled(theta, corr, 1.0)
+    np.testing.assert_allclose(full[post[hid]], want, atol=1e-9)
+    np.testing.assert_array_equal(np.delete(full, post[hid]), np.delete(theta, post[hid]))
+    np.testing.assert_allclose(tr._unseen_pulled(theta, corr)[post[hid]], (x[hid] + want) / 2, atol=1e-9)
+
+    truth = make_motion("grasp-back", hand=hand).theta[45]
+    frame = render(hand, truth, CAM)
+    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    assert tr.track(observe(frame.depth, CAM), CAM).status == "reinit"
+    assert tr.unseen_frames_ == 1
+
+
 def test_track_unseen_prior_option(tmp_path):
     """`--unseen-prior`: a share outside 0..1 is a one-line error naming the option (exit 2, nothing
     written); 0 (off) tracks."""
