@@ -4,21 +4,23 @@ size calibrated on each recording's first labelled frame in recording order (``h
 and reused for its other frames, everything else default — the tracker's hand is the human one
 (:data:`tracker.TRACKING_HAND`, the finger bases on the metacarpal arc, :mod:`handmodel.anthropometry`).
 The keypoint-in-mask floor is the issue's; the tip and wrist floors are what the tracker reaches today
-(the issue's: tips ≤ 15 px and wrist ≤ 20 px on every frame: 17 of the 19 frames meet them, on every
+(the issue's: tips ≤ 15 px and wrist ≤ 20 px on every frame: 18 of the 19 frames meet them, on every
 processor); they catch a fit on the body, an upside-down hand, a hand turned over (palm and back swapped,
 the thumb folded into the palm) or a lost wrist. The labelled wrist (the middle of the skin crease, where
 the labelled hand mask ends) is compared with where the model hand ends (:meth:`HandModel.wrist_crease`,
 ~11 mm past the wrist joint on the hand's axis at these sizes).
 
-Measured (every processor, sizes 1.254 and 1.290): 17 frames within every floor, 93 tips within 15 px,
-median 4.9 px, worst 20.8 px (231615_140's thumb lying across the palm, a tip labelled to ~8 px); the
-wrist within 20 px on 18 of 19 (230536_110: 21.1 px). On the paper's hand, whose four finger bases lie
+Measured (every processor, sizes 1.254 and 1.290): 18 frames within every floor, all 95 tips within 15 px,
+median 4.9 px, worst 13.5 px; the wrist within 20 px on 18 of 19 (230536_110: 21.1 px). (17 frames, 93 tips,
+worst 20.8 px — 231615_140's thumb lying across the palm, its end phalanx without a data point — until a
+start's unseen joints were pulled all the way to the synergies' conditional mean, ``unseen_prior``.) On the paper's hand, whose four finger bases lie
 on one line (``models/hands/default.yaml``), the same protocol gave 15 frames, 92 tips, median 5.0 px,
 worst 24.9 px (230536_30's little finger curled into the palm on an open hand: a little finger that
 starts 9 mm too far from the wrist is too long for the hand seen). The frames are chaotic in the size
 (one still decides between near-equal fits), so the two hands were also compared with both sizes × 0.98
 … 1.02 (9 factors): 16.4 frames within every floor on average (15–18) against 14.4 (12–17), 93.3 tips
-against 90.8.
+against 90.8. With a start's unseen joints pulled (same 9 factors, every frame's size fixed): 17.1 frames
+(16–18) against 16.4 (15–18), 94.0 tips against 93.3, median 5.1 px against 4.9.
 
 The fits are the same on every processor (:func:`test_the_fits_are_the_same_on_every_processor`). They were not
 until :mod:`handmodel.libm`: on AVX-512 numpy runs its own ``exp``, ``log``, ``arccos``, ``arctan2``..., which
@@ -159,11 +161,12 @@ def test_no_open_hand_is_fitted_turned_over(fits):
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 16 of the 19 frames have every labelled tip within 15 px of its model tip
+    """Fingertips: at least 17 of the 19 frames have every labelled tip within 15 px of its model tip
     and the model hand's end within 20 px of the labelled wrist crease (the issue's floor for every frame), at least
-    92 of the 95 labelled tips are within 15 px, the median tip error over all frames is ≤ 5.5 px, and no tip is more
-    than 45 px off on any frame. Measured (module note): 17 frames, 93 tips, median 4.9 px, worst 20.8 px; off a
-    floor 231615_140 (thumb across the palm 20.8 px, index 16.0) and 230536_110 (wrist 21.1 px). The 45 px bound
+    93 of the 95 labelled tips are within 15 px, the median tip error over all frames is ≤ 5.5 px, and no tip is more
+    than 45 px off on any frame. Measured (module note): 18 frames, 95 tips, median 4.9 px, worst 13.5 px; off a
+    floor 230536_110 (wrist 21.1 px). 231615_140 (thumb across the palm) was 20.8 px until a start's unseen joints
+    were pulled all the way (its thumb's end phalanx has no data point; the search left it bent back 21°). The 45 px bound
     is for 231615_100's middle finger, pointing at the camera: at other sizes (× 0.995) the wrong fit wins there
     (41 px; it scores better, the search finds one or the other).
 
@@ -184,6 +187,6 @@ def test_real_frames_fingertips(fits):
         ok += max(e) <= 15 and np.hypot(*(crease - lab["wrist"])) <= 20
     print(f"\nframes within every floor {ok}/19, tips within 15 px {np.sum(np.asarray(tip_errs) <= 15)}/95, "
           f"median {np.median(tip_errs):.1f} px, worst {worst:.1f} px")
-    assert ok >= 16, ok
-    assert np.sum(np.asarray(tip_errs) <= 15) >= 92, np.sum(np.asarray(tip_errs) <= 15)
+    assert ok >= 17, ok
+    assert np.sum(np.asarray(tip_errs) <= 15) >= 93, np.sum(np.asarray(tip_errs) <= 15)
     assert np.median(tip_errs) <= 5.5, np.median(tip_errs)
