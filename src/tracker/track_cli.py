@@ -341,6 +341,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
             reuse = f"--hand-model {job.save_hand}"
         elif tracker.base_hand.calibration:
             reuse = "--save-hand FILE, then --hand-model FILE"
+        elif tracker.finger_scales_:
+            # a number carries the size only: the finger lengths come back with the hand file
+            reuse = f"--hand-scale {tracker.scale_:.4f} (the size only) or --save-hand FILE (with the finger lengths)"
         else:
             reuse = f"--hand-scale {tracker.scale_:.4f} or --save-hand FILE"
         console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")

@@ -127,6 +127,25 @@ def rec(tmp_path_factory):
 
 
 @pytest.mark.slow
+def test_the_summary_says_what_a_size_number_brings_back(rec, tmp_path):
+    """The automatic size is printed with how to reuse it: ``--hand-scale X`` is the size alone, so
+    with finger lengths estimated the summary says the hand file brings them back (a new user took the
+    number for the whole hand); without them the number is the whole of it."""
+    r = _cli("track", rec / "rec", "-o", tmp_path / "a.csv", "--no-check-hand")
+    assert r.exit_code == 0, r.output
+    _, meta = read_tracking(tmp_path / "a.csv")
+    size = meta["hand_scale"].split()[0]
+    assert "finger lengths" in meta["hand_scale"], meta["hand_scale"]
+    text = " ".join(r.output.split())
+    assert f"reuse it with --hand-scale {size} (the size only) or --save-hand FILE (with the finger lengths)" in text
+    r = _cli("track", rec / "rec", "-o", tmp_path / "b.csv", "--no-check-hand", "--no-finger-lengths")
+    assert r.exit_code == 0, r.output
+    size = read_tracking(tmp_path / "b.csv")[1]["hand_scale"].split()[0]
+    text = " ".join(r.output.split())
+    assert f"reuse it with --hand-scale {size} or --save-hand FILE" in text and "size only" not in text
+
+
+@pytest.mark.slow
 def test_calibrate_then_track_on_the_file(rec, tmp_path):
     """``tracker calibrate`` writes the hand of the first frames; ``track --hand-model`` uses it as it
     is and says so; neither overwrites an existing file."""
