@@ -283,6 +283,13 @@ def _print(line: str) -> None:
     Console(markup=False, soft_wrap=True).print(line)  # one line, as typed, never read as markup
 
 
+def _note(text: str) -> None:
+    """A sentence for the reader, wrapped at the terminal's width (``_print`` keeps a line whole, for paths)."""
+    from rich.console import Console
+
+    Console(markup=False).print(text)
+
+
 @app.command()
 @_errors
 def info(
@@ -429,8 +436,8 @@ def show(
     if warning:
         _print(warning)
     if segmenter is not None and fitted is None:
-        _print("the outline is what the segmenter kept, not yet tested to be a hand: tracker track says when "
-               "a frame has none (a mug, a wall)")
+        _note("the outline is what the segmenter kept, not yet tested to be a hand: tracker track says when "
+              "a frame has none (a mug, a wall)")
 
 
 def _keypoints_by_frame(path, names, n_frames):

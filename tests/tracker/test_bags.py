@@ -551,8 +551,13 @@ def test_cli_reads_bags_in_place(tmp_path):
     assert r.exit_code == 0, r.output
     assert iio.imread(tmp_path / "sheet.png").ndim == 3 and "not yet tested to be a hand" not in r.output
     # with the mask drawn, the sheet says the outline is no hand yet (a mug was shown as "segmented hand")
-    r = _cli("show", src, "-o", tmp_path / "masked.png")
+    from tracker.cli import app
+
+    r = CliRunner().invoke(app, ["show", str(src), "-o", str(tmp_path / "masked.png")], env={"COLUMNS": "80"})
     assert r.exit_code == 0 and "not yet tested to be a hand" in " ".join(r.output.split()), r.output
+    # the note is a sentence: wrapped at the terminal's width (a new user's 80 columns got a 125-character line)
+    note = [ln for ln in r.output.splitlines() if "segmenter" in ln or "a wall" in ln]
+    assert note and max(len(ln) for ln in note) <= 80, note
     r = _cli("import", src, "-o", tmp_path / "rec", "--every", "2", "--end", "0.1", "--hand", "right")
     assert r.exit_code == 0, r.output
     rec = Recording.open(tmp_path / "rec")
