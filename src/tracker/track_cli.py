@@ -8,6 +8,7 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import List, Optional
 
@@ -442,8 +443,9 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=width)
     for c in heads:
         t.add_column(c, justify="left" if c == "result" else "right", no_wrap=True)
+    shared = len(os.path.commonprefix([r[0] for r in rows])) if len(rows) > 1 else 0
     for r in rows:
-        t.add_row(middle_cut(r[0], width), *r[1:])
+        t.add_row(middle_cut(r[0], width, shared), *r[1:])
     console.print(t)
     for row in table.to_dict("records"):
         if row["other_hand_better"] in (True, "True"):
@@ -464,15 +466,23 @@ def _short(x: float) -> str:
     return f"{x:.1f}" if abs(x) < 100 else f"{x:.0f}"
 
 
-def middle_cut(name: str, width: int) -> str:
+def middle_cut(name: str, width: int, shared: int = 0) -> str:
     """``name`` cut to ``width`` characters in its middle, where recordings of one session share their
     date (the 19 SR305 stills all read "20210326-23…" cut at the end), keeping its start and its end.
+    ``shared``: how many leading characters every name of the table has in common; the cut then falls
+    inside them when what follows fits, so that the part telling the names apart stays whole (at 80
+    columns a new user's two takes both read "202…15_140" / "202…36_110", the takes' own digits cut).
 
     >>> middle_cut("20210326-230536_110", 12), middle_cut("short", 12)
     ('202…0536_110', 'short')
+    >>> middle_cut("20210326-231615_140", 10), middle_cut("20210326-231615_140", 10, shared=11)
+    ('202…15_140', '2…1615_140')
     """
     if len(name) <= width:
         return name
+    rest = name[shared:]
+    if 0 < shared and len(rest) + 2 <= width:
+        return name[:width - 1 - len(rest)] + "…" + rest
     head = max((width - 1) // 3, 1)
     return name[:head] + "…" + name[len(name) - (width - 1 - head):]
 

@@ -205,19 +205,24 @@ def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path, monkeypatch, slow)
     ("20210326-23…"); cut in the middle, each keeps the part that tells them apart. ``slow``: the times
     as wide as they get (12345 ms a frame, 10000 fps): a loaded machine's 4-digit times had the name's
     minimum width push the header "result" off the table (CI)."""
-    if slow:
-        from tracker import run
+    from tracker import run
 
-        real = run.track_many
+    real = run.track_many
+    # the times fixed, so the name's width is too: as wide as they get, or as narrow (8.2 ms, 99.9 fps)
+    ms, fps = (12345.0, 10000.0) if slow else (8.2, 99.9)
 
-        def slow_many(*a, **kw):
-            table = real(*a, **kw)
-            return table.assign(median_ms=12345.0, wall_s=table["frames"] / 10000.0)
+    def timed_many(*a, **kw):
+        table = real(*a, **kw)
+        return table.assign(median_ms=ms, wall_s=table["frames"] / fps)
 
-        monkeypatch.setattr(run, "track_many", slow_many)
+    monkeypatch.setattr(run, "track_many", timed_many)
     _, lines = _many_names_table(tmp_path, 80)
     firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
     assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
+    if not slow:
+        # the cut falls in the date both names share, so each keeps its take's own digits whole (a new user
+        # read "202…15_140" and "202…36_110": the takes 230536 and 231615 cut to their last two digits)
+        assert "0536_110" in firsts[0] and "1615_0" in firsts[1], firsts
     # only the names are cut: every header and number is whole (the ms column was cut to "3008…")
     head = next(line for line in lines if "name" in line)
     assert "…" not in head and {"frames", "tracked", "reinit", "ms", "fps", "result"} <= set(head.strip("┃ ").replace("┃", " ").split())
