@@ -123,7 +123,8 @@ def test_the_avx2_path_is_another_processors():
 
 def test_every_real_frame_fits_the_hand_not_the_body(fits):
     """≥ 90 % of the 21 projected keypoints inside the labelled hand mask dilated by 8 px on every
-    frame (measured 0.95–1.00), and the size found is a hand's (this subject's hand is 1.2–1.5× the
+    frame (measured 0.90–1.00: 231615_140 at 19 of 21, its little finger straightened by the start's pull of its
+    unseen end joint reaches past the tip; 1.00 before), and the size found is a hand's (this subject's hand is 1.2–1.5× the
     model; measured 1.254 and 1.290 on the two recordings)."""
     for name, (_, truth, uv, _, scale, _) in fits.items():
         near = ndimage.binary_dilation(truth, iterations=8)
