@@ -32,6 +32,22 @@ def _console(stderr: bool = False):
     return Console(stderr=stderr, markup=False)  # names, paths and reasons are shown as typed, never as markup
 
 
+def _warn_same_version(name, version, target) -> None:
+    """Warn when ``name@version`` is already in another registry that lookups search: two bundles under
+    one name@version, and ``--synergies name@version`` takes whichever registry comes first (a new
+    user's own ``fingerfist@1.0.0`` replaced the shipped one in every lookup without a word)."""
+    if version is None:
+        return
+    from synergy.bundle import list_bundles, registry_paths
+
+    others = [r.path.parent for r in list_bundles([target])
+              if r.name == name and r.version == version and r.path.parent.resolve() != Path(target).resolve()]
+    if others:
+        first = next(p for p in registry_paths([target]) if p.resolve() in {Path(target).resolve(), others[0].resolve()})
+        _console(stderr=True).print(f"warning: {name}@{version} is also in {others[0]}: a lookup by name takes the one in "
+                                    f"{first}; give another version to keep both", markup=False)
+
+
 def _check_variance(variance: float) -> None:
     from synergy.errors import SynergyError
 
@@ -106,6 +122,7 @@ def fit(
     # the bundles known now (--per-task: by the labels given; a C3D's own task event is read with it)
     for bname in [f"{name}-{t}" for t in dict.fromkeys(labels.values()) if t] if per_task else [name]:
         check_new_bundle(bname, version, target)
+        _warn_same_version(bname, version, target)
     read_kw = dict(markers=markers, hand=hand, smooth_hz=smooth_hz, check_hand=not no_hand_check,
                    calibration=load_calibration(subject) if subject is not None else "trial")
     if dip_prior_sd is not None:  # otherwise read_trial's default, the same as synergy angles'

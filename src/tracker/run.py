@@ -79,11 +79,13 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
     return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *tracker.hand.dof_names])
 
 
-def tracking_metadata(recording_path, tracker, synergies_spec="") -> dict:
-    """The header of a tracking output: what was tracked, how, with which hand model."""
+def tracking_metadata(recording_path, tracker, synergies_spec="", synergies_file="") -> dict:
+    """The header of a tracking output: what was tracked, how, with which hand model and which synergy
+    bundle (``synergies_file``: the bundle file read, since one name@version may be in two registries)."""
     # the model file's identity (a resized hand is that file plus hand_scale)
     st, hand = tracker.settings, getattr(tracker, "base_hand", tracker.hand)
     return {"recording": str(recording_path), "mode": st.mode, "synergies": synergies_spec or "",
+            "synergies_file": str(synergies_file or ""),
             "pcs": "" if tracker.n_pcs is None else str(tracker.n_pcs), "stride": str(st.observe.stride),
             "icp": str(st.icp.icp_iterations), "gn": str(st.icp.gn_iterations), "model": st.correspond.model,
             "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,
@@ -402,7 +404,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
             viewer.abort()
         raise
     wall_s = time.perf_counter() - t_start
-    meta = tracking_metadata(job.recording, tracker, bundle.spec if bundle else "")
+    meta = tracking_metadata(job.recording, tracker, bundle.spec if bundle else "", bundle.path if bundle else "")
     try:
         # without overwrite a file that appeared while tracking is not replaced either
         write_tracking(job.output, df, meta, overwrite=job.overwrite)

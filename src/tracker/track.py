@@ -130,6 +130,10 @@ class TrackerSettings:
     predicted hand's, the prediction is moved onto it first. The net
     does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
     undoes what the mode is for (the demo's grasp seen from the back: 8.0° with the net, 5.0° without).
+    There its far-points test still runs (with ``safety_net``): a reduced-mode frame that leaves more than
+    ``net_far_share`` of the segmented cloud farther than ``net_far_mm`` is lost, without θ, and the next
+    frame starts again (a rendered hand before the body whose frame was segmented with the body: fitted
+    onto the torso 270 mm away and reported tracked for two frames).
     ``unseen_prior``: joints that move no data point (fewer than ``unseen_points`` valid pairs on the
     parts they move: the middle and end phalanges of fingers curled away from the camera) are pulled
     this share of the way per frame to their most likely values given the seen joints — the synergy
@@ -751,7 +755,7 @@ class HandTracker:
         st = self.settings
         pts, nrm = _usable(points, normals, st.max_points)
         n_in = len(pts)
-        net, recentred = "", False
+        net, recentred, far_lost = "", False, False
         if n_in < st.min_points:
             # nothing seen: no θ is output (an unreadable frame's row repeated the frame before it, which
             # a user of the rows cannot tell from a measurement); the next start may still begin there
@@ -829,6 +833,12 @@ class HandTracker:
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
                     status = "reinit"
+            elif st.safety_net and self._far_off(theta, all_pts, most=200):
+                # reduced mode has no net (its all-DoF searches would undo the subspace), but a fit that
+                # leaves most of the segmented cloud far away is on something else: lost, not tracked
+                # (a rendered hand in front of the body, segmented with the body: 284 of 2329 points
+                # kept by the gate, fitted onto the torso 270 mm away and reported tracked)
+                far_lost = True
         # a start has no earlier frame that holds its unseen joints: all the way. The net's replacement
         # half the way, as tracked frames: it starts from the tracked fit too, and all the way there made the
         # hard cases' fast sweeps 7.6 -> 8.7 deg (Kinect v1 noise 14.0 -> 16.1) and the turn 6.5 -> 7.1 with noise
@@ -837,7 +847,7 @@ class HandTracker:
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
         rejected = corr.rejected_share
-        if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected:
+        if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected and not far_lost:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
             if recentred and self.prev is not None:
                 # the jump was no velocity: the next prediction must not repeat it
@@ -850,7 +860,10 @@ class HandTracker:
                 self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
-        return FrameResult(_output_theta(theta), status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
+        # a fit on something else gives no θ (as a start that found no hand: the frame's row must not
+        # read as a hand's pose)
+        out = np.full(self.hand.n_dofs, np.nan) if far_lost else _output_theta(theta)
+        return FrameResult(out, status, fit_mm, corr.used, n_in, (time.perf_counter() - t0) * 1e3, float(rejected), net)
 
     def segment_window(self, camera):
         """Where to segment the next frame (``observe(..., window=...)``): :func:`tracker.observe.hand_window`
@@ -988,10 +1001,11 @@ class HandTracker:
         st = self.settings
         if self._wrong_way(theta, sil):
             return "wrist"
-        if st.net_far_share and points is not None and len(points):
-            d = near_mm if near_mm is not None else data_to_model_mm(self.context.matcher, theta, points)
-            if np.mean(d > st.net_far_mm) > st.net_far_share:
+        if near_mm is not None and st.net_far_share and len(points):
+            if np.mean(near_mm > st.net_far_mm) > st.net_far_share:
                 return "far"
+        elif self._far_off(theta, points):
+            return "far"
         # the threshold is never below net_score_mm: most frames are decided without the level's median
         if s > st.net_score_mm and s > self._net_threshold():
             return "score"
@@ -999,6 +1013,18 @@ class HandTracker:
         if turn > st.net_jump_deg or moved > st.net_jump_mm:
             return "jump"
         return ""
+
+    def _far_off(self, theta, points, most=None) -> bool:
+        """Whether more than ``net_far_share`` of ``points`` lie farther than ``net_far_mm`` from the hand
+        at ``theta`` (the safety net's far-points test, :meth:`_doubtful`); ``most``: measured on every
+        k-th point, at most that many (a share needs no more: reduced mode's test on every frame, 0.18 ms
+        at 900 points, ~12 % of its frame)."""
+        st = self.settings
+        if not st.net_far_share or points is None or not len(points):
+            return False
+        if most is not None:
+            points = points[::-(-len(points) // most)]
+        return bool(np.mean(data_to_model_mm(self.context.matcher, theta, points) > st.net_far_mm) > st.net_far_share)
 
     def _wrong_way(self, theta, sil) -> bool:
         """Whether the scene contradicts the hand's orientation: the frame's wrist cue

@@ -566,6 +566,14 @@ def test_shipped_bundle_command(reg):
     r = run("fit", "--angles", FINGERFIST, "--format", "schroeder26", "--name", "fingerfist",
             "--task", "general", "--variance", "0.99", "--version", "1.0.0", "-o", reg)
     assert r.exit_code == 0, r.output
+    # the shipped fingerfist@1.0.0 is searched too: two bundles under one name@version, said (a new user's
+    # own fingerfist@1.0.0 replaced the shipped one in every lookup without a word)
+    err = " ".join(r.stderr.split())
+    assert f"warning: fingerfist@1.0.0 is also in {ROOT / 'models' / 'synergies'}" in err, r.stderr
+    assert f"a lookup by name takes the one in {reg}" in err, r.stderr
+    r2 = run("fit", "--angles", FINGERFIST, "--format", "schroeder26", "--name", "mine", "--version", "1.0.0",
+             "-o", reg, "--variance", "0.99")
+    assert r2.exit_code == 0 and "warning" not in r2.stderr, r2.output
     b = read_bundle(reg / "fingerfist-1.0.0.npz")
     cum = np.cumsum(b.model.all_explained_variance_ratio_)
     np.testing.assert_allclose(cum[[0, 2, 5]], [0.713, 0.854, 0.968], atol=1e-3)
