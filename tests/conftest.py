@@ -31,16 +31,24 @@ def pytest_pyfunc_call(pyfuncitem):
     if pyfuncitem.get_closest_marker("isolated") is None or os.environ.get(_ISOLATED_CHILD):
         return None
     env = dict(os.environ, **{_ISOLATED_CHILD: "1"})
-    with tempfile.TemporaryDirectory(prefix="isolated-") as base:
-        # faulthandler prints every thread's stack shortly before the kill: where it hung
-        cmd = [sys.executable, "-X", "faulthandler", "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
-               "-o", f"faulthandler_timeout={ISOLATED_TIMEOUT_S * 0.9:g}", "--basetemp", str(Path(base) / "t"),
-               pyfuncitem.nodeid]
-        try:
-            run = subprocess.run(cmd, cwd=pyfuncitem.config.rootpath, env=env, capture_output=True, text=True,
-                                 timeout=ISOLATED_TIMEOUT_S)
-        except subprocess.TimeoutExpired as exc:
-            run = exc
+    first = None
+    for attempt in range(2):
+        with tempfile.TemporaryDirectory(prefix="isolated-") as base:
+            # faulthandler prints every thread's stack shortly before the kill: where it hung
+            cmd = [sys.executable, "-X", "faulthandler", "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
+                   "-o", f"faulthandler_timeout={ISOLATED_TIMEOUT_S * 0.9:g}", "--basetemp", str(Path(base) / "t"),
+                   pyfuncitem.nodeid]
+            try:
+                run = subprocess.run(cmd, cwd=pyfuncitem.config.rootpath, env=env, capture_output=True, text=True,
+                                     timeout=ISOLATED_TIMEOUT_S)
+            except subprocess.TimeoutExpired as exc:
+                run = exc
+        # killed by a signal (a segfault in librealsense's threads, once in ~1250 tests under load, while the
+        # test itself was importing rosbags after pipe.stop()): run once more; a failed assertion, a second
+        # crash or a hang fails as before, with the first crash's output too
+        if isinstance(run, subprocess.TimeoutExpired) or run.returncode >= 0 or attempt:
+            break
+        first = f"first run killed by signal {-run.returncode}:\n{_tail(run.stdout + run.stderr, 30)}\n"
     if isinstance(run, subprocess.TimeoutExpired):
         out = "".join(x.decode(errors="replace") if isinstance(x, bytes) else x
                       for x in (run.stdout or "", run.stderr or ""))
@@ -50,7 +58,11 @@ def pytest_pyfunc_call(pyfuncitem):
         reasons = [ln.split(": ", 1)[-1] for ln in out.splitlines() if ln.startswith("SKIPPED")]
         pytest.skip(reasons[0] if reasons else "skipped in its isolated run")
     if run.returncode != 0:
-        pytest.fail(f"isolated run ended with exit code {run.returncode}\n{_tail(out)}", pytrace=False)
+        pytest.fail(f"{first or ''}isolated run ended with exit code {run.returncode}\n{_tail(out)}", pytrace=False)
+    if first:
+        import warnings
+
+        warnings.warn(f"{pyfuncitem.nodeid}: {first.splitlines()[0]}; passed on its second run", stacklevel=1)
     return True
 
 
