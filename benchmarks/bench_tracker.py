@@ -185,7 +185,7 @@ def main():
     for mode, label in [("full", "full"), ("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
         for net in (True, False):
             rows.append((f"{label}, ours, safety net {'on' if net else 'off'}"
-                         + (" (the default; not run in reduced)" if net and mode == "reduced" else ""),
+                         + (" (default; reduced: far test only)" if net and mode == "reduced" else ""),
                          lambda mode=mode, net=net: run(hand, bundle, cam, truth, obs, mode, True, safety_net=net)))
     for mode, label in [("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
         rows.append((f"{label}, ours, safety net off, a pass per stage",
@@ -207,7 +207,7 @@ def main():
         net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.safety_net and tr.net_runs_ else ""
         print(f"  {label:<74} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
     for net in ("on", "off"):
-        fps = {mode: 1000 / best[f"{label}, ours, safety net {net}" + (" (the default; not run in reduced)"
+        fps = {mode: 1000 / best[f"{label}, ours, safety net {net}" + (" (default; reduced: far test only)"
                                                                         if net == "on" and mode == "reduced" else "")][0]
                for mode, label in [("full", "full"), ("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]}
         verdict = ", ".join(f"{mode} {abs(fps[mode] / fps['full'] - 1) * 100:.0f} % "
@@ -230,7 +230,7 @@ def main():
     names = [label for label, _, _ in PARTS] + ["other"]
     print(f"  {'':<34} {'total':>7}" + "".join(f" {n:>11}" for n in names))
     kinds = [("full", False, "full, paper's method"), ("full", True, "full, ours"),
-             ("reduced", True, "reduced, ours (no net in reduced)"), ("hierarchical", True, "hierarchical, ours")]
+             ("reduced", True, "reduced, ours (net: far test only)"), ("hierarchical", True, "hierarchical, ours")]
     fastest = {}
     for _ in range(max(args.repeats, 1)):
         for mode, ours, label in kinds:
