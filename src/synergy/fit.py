@@ -109,6 +109,9 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
 
 def _format_of(p: Path, fmt: str) -> str:
     """The format ``p`` is read in (``auto``: by suffix); a missing file is an error here too."""
+    if p.is_dir():
+        # a folder has no suffix to go by: "unknown file type" sent a user looking for a format option
+        raise SynergyError(p, "is a folder: give its files (e.g. FOLDER/*.c3d)")
     if fmt == "auto":
         fmt = {".csv": "csv", ".txt": "schroeder26", ".dat": "schroeder26", ".c3d": "c3d"}.get(
             p.suffix.lower(), "")

@@ -511,6 +511,9 @@ def test_cli_errors_exit_2_one_line(csvs, reg, tmp_path):
     assert run("fit", csvs[0], "--name", "x", "-o", reg, "--version", "1.0.0").exit_code == 0
     assert_one_line_error(run("fit", csvs[0], "--name", "x", "-o", reg, "--version", "1.0.0"), "immutable")
     assert_one_line_error(run("fit", tmp_path / "missing.csv", "--name", "x", "-o", reg), "no such file")
+    # a folder given for its files (a new user's was "unknown file type", which sent them to --format)
+    (tmp_path / "mocap").mkdir()
+    assert_one_line_error(run("fit", tmp_path / "mocap", "--name", "x", "-o", reg), f"{tmp_path / 'mocap'}: is a folder")
     assert_one_line_error(run("fit", csvs[0], "--name", "x", "-o", reg, "--variance", "1.5"), "--variance")
     assert_one_line_error(run("fit", csvs[0], "--name", "x"), "no target registry")
     assert_one_line_error(run("fit", tmp_path / "m.c3d", "--name", "x", "-o", reg))
