@@ -38,14 +38,14 @@ def _warn_same_version(name, version, target) -> None:
     user's own ``fingerfist@1.0.0`` replaced the shipped one in every lookup without a word)."""
     if version is None:
         return
-    from synergy.bundle import list_bundles, registry_paths
+    from synergy.bundle import list_bundles
 
     others = [r.path.parent for r in list_bundles([target])
               if r.name == name and r.version == version and r.path.parent.resolve() != Path(target).resolve()]
     if others:
-        first = next(p for p in registry_paths([target]) if p.resolve() in {Path(target).resolve(), others[0].resolve()})
+        # the target is searched first (list_bundles([target]): it leads the registries), so it wins
         _console(stderr=True).print(f"warning: {name}@{version} is also in {others[0]}: a lookup by name takes the one in "
-                                    f"{first}; give another version to keep both", markup=False)
+                                    f"{target}; give another version to keep both", markup=False)
 
 
 def _check_variance(variance: float) -> None:

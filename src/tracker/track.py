@@ -1001,10 +1001,7 @@ class HandTracker:
         st = self.settings
         if self._wrong_way(theta, sil):
             return "wrist"
-        if near_mm is not None and st.net_far_share and len(points):
-            if np.mean(near_mm > st.net_far_mm) > st.net_far_share:
-                return "far"
-        elif self._far_off(theta, points):
+        if self._far_off(theta, points, near_mm=near_mm):
             return "far"
         # the threshold is never below net_score_mm: most frames are decided without the level's median
         if s > st.net_score_mm and s > self._net_threshold():
@@ -1014,17 +1011,20 @@ class HandTracker:
             return "jump"
         return ""
 
-    def _far_off(self, theta, points, most=None) -> bool:
+    def _far_off(self, theta, points, *, most=None, near_mm=None) -> bool:
         """Whether more than ``net_far_share`` of ``points`` lie farther than ``net_far_mm`` from the hand
-        at ``theta`` (the safety net's far-points test, :meth:`_doubtful`); ``most``: measured on every
-        k-th point, at most that many (a share needs no more: reduced mode runs the test on every frame,
-        0.18 ms at 900 points, 0.12 ms at 200)."""
+        at ``theta`` (the safety net's far-points test, :meth:`_doubtful`). ``near_mm``: the points'
+        :func:`tracker.correspond.data_to_model_mm` when already measured; ``most``: else measured on
+        every k-th point, at most that many (a share needs no more: reduced mode runs the test on every
+        frame, 0.18 ms at 900 points, 0.12 ms at 200)."""
         st = self.settings
         if not st.net_far_share or points is None or not len(points):
             return False
-        if most is not None:
-            points = points[::-(-len(points) // most)]
-        return bool(np.mean(data_to_model_mm(self.context.matcher, theta, points) > st.net_far_mm) > st.net_far_share)
+        if near_mm is None:
+            if most is not None:
+                points = points[::-(-len(points) // most)]
+            near_mm = data_to_model_mm(self.context.matcher, theta, points)
+        return bool(np.mean(near_mm > st.net_far_mm) > st.net_far_share)
 
     def _wrong_way(self, theta, sil) -> bool:
         """Whether the scene contradicts the hand's orientation: the frame's wrist cue
