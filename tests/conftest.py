@@ -125,6 +125,10 @@ def played_by_librealsense(rs, bag, attempts: int = 3):
             for s in sensors:
                 s.stop()
             if len(frames) == len(sensors) or attempt == attempts - 1:
+                if attempt:
+                    import warnings
+
+                    warnings.warn(f"{bag.name}: librealsense's play {attempt + 1} had every stream", stacklevel=3)
                 yield {k: sorted(v, key=lambda f: f.get_timestamp()) for k, v in frames.items()}, scale
                 return
         finally:
