@@ -128,7 +128,7 @@ def played_by_librealsense(rs, bag, attempts: int = 3):
                 if attempt:
                     import warnings
 
-                    warnings.warn(f"{bag.name}: librealsense's play {attempt + 1} had every stream", stacklevel=3)
+                    warnings.warn(f"{Path(bag).name}: librealsense's play {attempt + 1} had every stream", stacklevel=3)
                 yield {k: sorted(v, key=lambda f: f.get_timestamp()) for k, v in frames.items()}, scale
                 return
         finally:
