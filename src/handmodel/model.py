@@ -325,10 +325,19 @@ class HandModel:
         >>> np.round(hand.wrist_crease(np.zeros(26)) * 1000, 2)  # the rest pose: fingers along +y
         array([ 0.  , -8.77,  0.  ])
         """
+        root, local = self.wrist_crease_local()
+        return self.points(theta, [root], [local])[..., 0, :]
+
+    def wrist_crease_local(self) -> tuple[int, np.ndarray]:
+        """``(node, offset)``: :meth:`wrist_crease` as a point of the root node (its frame, metres).
+
+        >>> HandModel.load().wrist_crease_local()[0]
+        0
+        """
         root = int(np.flatnonzero(self.parents < 0)[0])
         seg = next((s for s in self.segments if s.joint == root), None)
         back = 0.0 if seg is None else (seg.half_thickness if seg.shape == "slab" else seg.radius[0])
-        return self.points(theta, [root], [[0.0, -back, 0.0]])[..., 0, :]
+        return root, np.array([0.0, -back, 0.0])
 
     def fingertip_ends(self, theta) -> np.ndarray:
         """Where each finger's surface ends, ``(..., 5, 3)`` metres, in :attr:`tip_indices` order.

@@ -726,14 +726,18 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
                gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
                sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
-               sil_weight, out_p, out_n, out_seg, out_d, out_node, out_valid, stats):
+               sil_weight, wl_on, wl_node, wl_local, wl_normal, wl_share, wl_free, out_p, out_n, out_seg, out_d, out_node,
+               out_valid, stats):
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
     correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
     silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result
     (in the ``out_*`` arrays). A stage with ``st_local`` takes a local pass (:func:`match_same`: each
     point stays on the primitive it was matched to; the silhouette pairs of the stage before are
     kept) instead of the search over every primitive while the model moved less than ``local_m`` (m;
-    :func:`pairs_moved`) since the pass before.
+    :func:`pairs_moved`) since the pass before. ``wl_on``: one more pair, the point ``wl_local`` of node
+    ``wl_node`` (the wrist crease) to its closest point on the plane through the camera centre with unit
+    normal ``wl_normal`` (the arm's centre line), weighing like ``wl_share`` × the valid data pairs, when
+    it lies more than ``wl_free`` (m) from the plane (its target then that far from the plane; else no pair).
     ``moments``: Gauss-Newton on moment sums (point-to-point only), else the per-pair solver; the
     moment path adds its steps taken and failed to ``stats`` (see :func:`solve_stage_moments`), every
     closest-point pass adds 1 to ``stats[3]``, every local pass to ``stats[4]``. Returns θ."""
@@ -744,11 +748,12 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
     wa = np.empty((n, 3))
     wo = np.empty((n, 3))
     n_s = sm_nodes.shape[0] if sil_on else 0
-    pt_node = np.empty(P + n_s, np.int64)
-    pt_local = np.empty((P + n_s, 3))
-    tgt = np.empty((P + n_s, 3))
-    w = np.empty(P + n_s)
-    plane = np.zeros((P + n_s if point_to_plane else 0, 3))
+    n_x = n_s + (1 if wl_on else 0)
+    pt_node = np.empty(P + n_x, np.int64)
+    pt_local = np.empty((P + n_x, 3))
+    tgt = np.empty((P + n_x, 3))
+    w = np.empty(P + n_x)
+    plane = np.zeros((P + n_x if point_to_plane else 0, 3))
     s_nodes = np.empty(n_s, np.int64)
     s_local = np.empty((n_s, 3))
     s_tgt = np.empty((n_s, 3))
@@ -843,6 +848,22 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                     if point_to_plane:
                         plane[k, r] = 0.0
                 w[k] = ws
+                k += 1
+        if wl_on and nv >= 1:
+            c = np.empty(3)
+            for r in range(3):
+                c[r] = (G[wl_node, r, 0] * wl_local[0] + G[wl_node, r, 1] * wl_local[1]
+                        + G[wl_node, r, 2] * wl_local[2] + G[wl_node, r, 3])
+            off = c[0] * wl_normal[0] + c[1] * wl_normal[1] + c[2] * wl_normal[2]
+            if abs(off) > wl_free:
+                off -= wl_free if off > 0.0 else -wl_free
+                pt_node[k] = wl_node
+                for r in range(3):
+                    pt_local[k, r] = wl_local[r]
+                    tgt[k, r] = c[r] - off * wl_normal[r]
+                    if point_to_plane:
+                        plane[k, r] = 0.0
+                w[k] = np.sqrt(wl_share * nv)
                 k += 1
         if moments and not point_to_plane:
             node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)

@@ -36,6 +36,7 @@ from .correspond import (
     silhouette_pairs,
 )
 from .errors import TrackerError
+from .wrist import arm_line_normal
 
 
 @dataclass
@@ -58,6 +59,14 @@ class IcpSettings:
     passes lose nothing (the experiments' fingerfist segments, reduced: 2.527° either way, 3 searches
     a frame instead of 6; the occluded grasp with 3 grasp PCs: 1.816° either way), with all DoF they
     do (0.650° → 0.658°), so full stages always search.
+    ``wrist_line_weight``: in a fit given the frame's wrist cue (:func:`fit`'s ``wrist``,
+    :func:`tracker.wrist.wrist_cue`; a start's last fits, :func:`tracker.init.fit_single_frame`), one
+    more pair holds the model's wrist crease
+    (:meth:`HandModel.wrist_crease`) on the arm's centre line in the image
+    (:func:`tracker.wrist.arm_line_normal`), weighing like this share of the valid data pairs (0 = off;
+    the paper has no such term), while the crease lies more than ``wrist_line_mm`` across from that line,
+    and only up to it: the cue's own error (the true crease 0–3 mm off the line on most rendered frames
+    with a forearm). Across the arm only: where the mask ends along it is the segmenter's cut.
     """
 
     rigid_iterations: int = 1
@@ -72,6 +81,8 @@ class IcpSettings:
     coarse_iterations: int = 1
     stages_per_pass: int = 3
     local_mm: float = 1.0
+    wrist_line_weight: float = 0.01
+    wrist_line_mm: float = 3.0
 
     def check(self):
         if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:
@@ -79,8 +90,10 @@ class IcpSettings:
         if self.stages_per_pass < 1 or not self.local_mm >= 0:
             raise TrackerError("settings", f"stages_per_pass must be ≥ 1 and local_mm ≥ 0, got {self.stages_per_pass}"
                                f" and {self.local_mm}")
-        if self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0:
-            raise TrackerError("settings", "projected_steps, robust_mm and silhouette_weight must not be negative")
+        if (self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0
+                or not self.wrist_line_weight >= 0 or not self.wrist_line_mm >= 0):
+            raise TrackerError("settings", "projected_steps, robust_mm, silhouette_weight, wrist_line_weight and "
+                                           "wrist_line_mm must not be negative")
 
     def solver(self) -> SolverSettings:
         return SolverSettings(iterations=self.gn_iterations, damping=self.damping, pose_damping=self.pose_damping,
@@ -218,7 +231,7 @@ def cauchy_weights(distance_m, scale_mm) -> np.ndarray:
 
 
 def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0, normals=None,
-        samples=None, silhouette=None, moments=True, stats=None):
+        samples=None, silhouette=None, wrist=None, moments=True, stats=None):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
 
     The whole loop runs in one compiled call (:func:`tracker._icp_kernels.fit_kernel`) when
@@ -239,6 +252,8 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     normals : (N, 3) data normals or None (NaN rows: unknown)
     samples, silhouette : :class:`tracker.correspond.ModelSamples` and :class:`~tracker.correspond.Silhouette`
         for the model→data term (both or neither)
+    wrist : :class:`tracker.wrist.WristCue` or None
+        the frame's wrist cue for the wrist-line pair (:class:`IcpSettings` ``wrist_line_weight``)
     moments : bool
         Gauss-Newton on moment sums (default) or on every pair.
     stats : int64 array (5,), optional
@@ -256,7 +271,7 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         raise TrackerError("stats", f"stats must be an int64 array of shape (5,), got {stats.dtype} {stats.shape}")
     if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
         return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
-                             samples=samples, silhouette=silhouette)
+                             samples=samples, silhouette=silhouette, wrist=wrist)
     solver = st.solver()
     cs = matcher.settings
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -270,6 +285,7 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
                     int(silhouette.v0), int(silhouette.u0))
     else:
         sil_args = _NO_SILHOUETTE
+    wl_node, wl_local, wl_normal = wrist_line(hand, wrist, st)
     out_p, out_n = np.zeros((P, 3)), np.zeros((P, 3))
     out_seg, out_d = np.empty(P, np.int64), np.empty(P)
     out_node, out_valid = np.empty(P, np.int64), np.empty(P, np.bool_)
@@ -281,12 +297,25 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
                       bool(solver.joint_limit_avoidance), bool(solver.clamp), float(solver.clamp_margin),
                       float(st.robust_mm), bool(st.point_to_plane), bool(moments),
                       sil_on, *sil_args, 1.5, float(st.silhouette_weight),
+                      wl_node >= 0, max(wl_node, 0), wl_local, wl_normal, float(st.wrist_line_weight),
+                      st.wrist_line_mm / 1000.0,
                       out_p, out_n, out_seg, out_d, out_node, out_valid,
                       np.zeros(5, np.int64) if stats is None else stats)
     return th, Correspondences(out_p, out_node, out_n, out_d, out_valid, pts)
 
 
+def wrist_line(hand, cue, settings):
+    """``(node, offset, plane normal)`` of the wrist-line pair (:class:`IcpSettings`
+    ``wrist_line_weight``): the model's wrist crease as a point of its node and the plane of the wrist
+    ``cue`` (:func:`tracker.wrist.arm_line_normal`); node −1 when the term is off or there is no cue."""
+    if cue is None or not settings.wrist_line_weight > 0:
+        return -1, _NO_POINT, _NO_POINT
+    node, local = hand.wrist_crease_local()
+    return node, np.asarray(local, np.float64), arm_line_normal(cue)
+
+
 _NO_ROWS = np.zeros((0, 3))
+_NO_POINT = np.zeros(3)
 _CAMERA_CENTRE = np.zeros(3)
 # stand-ins of the silhouette arrays' types when the term is off (one compiled version serves both)
 _NO_SILHOUETTE = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), 1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)),
@@ -401,7 +430,7 @@ def capsule_pass(hand, matcher, theta, points, normals, segments=None):
 
 
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
-                  normals=None, samples=None, silhouette=None):
+                  normals=None, samples=None, silhouette=None, wrist=None):
     """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled
     correspondence, silhouette and solver kernels (any matcher; the compiled loop is checked against it).
 
@@ -416,6 +445,8 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
     normals : (N, 3) data normals or None (NaN rows: unknown)
     samples, silhouette : :class:`tracker.correspond.ModelSamples` and :class:`~tracker.correspond.Silhouette`
         for the model→data term (both or neither)
+    wrist : :class:`tracker.wrist.WristCue` or None
+        the frame's wrist cue for the wrist-line pair
 
     Returns
     -------
@@ -424,6 +455,7 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
     st = settings or IcpSettings()
     solver = st.solver()
     capsules = isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)
+    wl_node, wl_local, wl_normal = wrist_line(hand, wrist, st)
     corr = pairs = sil_last = None
     last = None  # (θ, segments) of the pass before: where and onto which primitives it matched
     for _ in range(n_rigid):
@@ -473,6 +505,13 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
                 w = np.r_[w, np.full(len(sn), st.silhouette_weight * np.sqrt(max(v.sum(), 1) / max(len(samples.nodes), 1)))]
                 if plane is not None:
                     plane = np.r_[plane, np.zeros((len(sn), 3))]
+        c = hand.points(theta, [wl_node], [wl_local])[0] if wl_node >= 0 else None
+        if c is not None and abs(wl_normal @ c) > st.wrist_line_mm / 1000.0:
+            off = wl_normal @ c - np.copysign(st.wrist_line_mm / 1000.0, wl_normal @ c)
+            nodes, loc, tg = np.r_[nodes, [wl_node]], np.r_[loc, [wl_local]], np.r_[tg, [c - off * wl_normal]]
+            w = np.r_[w, np.sqrt(st.wrist_line_weight * v.sum())]
+            if plane is not None:
+                plane = np.r_[plane, np.zeros((1, 3))]
         pairs, pairs_at = (nodes, loc), theta
         theta, _ = solve(hand, theta, nodes, loc, tg, weights=w, normals=plane, subspace=sp, settings=solver)
         if stage.project is not None:

@@ -166,11 +166,12 @@ class FitContext:
     def __post_init__(self):
         self.capsules = finger_capsules(self.hand)
 
-    def fit(self, theta, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False):
-        """One ICP fit without temporal prior (see :func:`tracker.icp.search_schedule`)."""
+    def fit(self, theta, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False, wrist=None):
+        """One ICP fit without temporal prior (see :func:`tracker.icp.search_schedule`; ``wrist``: the
+        frame's wrist cue for the wrist-line pair, :class:`tracker.icp.IcpSettings`)."""
         stages = search_schedule(mode, n_icp, self.full, self.reduced, self.ladder, through=through)
         return fit(self.hand, points, theta, stages, self.matcher, self.icp, n_rigid=n_rigid, normals=normals,
-                   samples=self.samples, silhouette=silhouette)
+                   samples=self.samples, silhouette=silhouette, wrist=wrist)
 
     def fit_many(self, thetas, points, mode, n_rigid, n_icp, *, silhouette=None, normals=None, through=False,
                  gn=None):
@@ -553,7 +554,7 @@ def thin(points, n):
 
 
 def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = None, *, theta0=None, mode=None,
-                     silhouette=None, postures=None, normals=None, extra=(), search=True):
+                     silhouette=None, postures=None, normals=None, extra=(), search=True, wrist=None):
     """Fit one frame without temporal prior; returns ``(θ, Correspondences)``.
 
     From ``theta0``'s global pose (or candidate placements from the cloud) and several synergy
@@ -561,14 +562,16 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
     exist); ``extra`` θ (e.g. the last good estimate before a loss) are refined through themselves,
     as they are and re-placed on the cloud. ``search`` False skips the coarse and finger-wise searches.
     ``settings.strategy`` chooses successive halving over batched candidate fits (default) or the
-    exhaustive search (see :class:`InitSettings`).
+    exhaustive search (see :class:`InitSettings`). ``wrist``: the frame's wrist cue, which the winner's
+    last fits hold the hand's wrist crease to (the wrist-line pair, :class:`tracker.icp.IcpSettings`);
+    the candidates' fits leave it out (it reordered close candidates).
     """
     st = settings or InitSettings()
     st.check()
     mode = mode or ("hierarchical" if ctx.synergies is not None else "full")
     run = _search_halving if st.strategy == "halving" else _search_exhaustive
     return run(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette, postures=postures, normals=normals,
-               extra=extra, search=search)
+               extra=extra, search=search, wrist=wrist)
 
 
 def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta0, postures, extra, search):
@@ -606,7 +609,7 @@ def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta
 
 
 def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals, extra,
-                    search):
+                    search, wrist=None):
     """Successive halving: every start fitted briefly on a small thinned cloud (:meth:`FitContext.fit_many`
     per fit mode); the best few fitted longer on larger clouds; the finger-wise restarts
     (:func:`finger_search_batched`) from the best; the winner converged with all DoF."""
@@ -659,8 +662,8 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
     # all DoF at the end (the short hierarchical fits above spend most iterations in the subspaces):
     # converged on the refinement cloud, then a few iterations on the full cloud
     p_, n_ = cloud(st.refine_points)
-    theta, _ = ctx.fit(theta, p_, "full", 0, st.icp_iterations, normals=n_, **kw)
-    theta, corr = ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, **kw)
+    theta, _ = ctx.fit(theta, p_, "full", 0, st.icp_iterations, normals=n_, wrist=wrist, **kw)
+    theta, corr = ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, wrist=wrist, **kw)
     return theta, corr
 
 
@@ -772,7 +775,7 @@ def finger_pair_variants(ctx: FitContext, theta) -> list[tuple[int, np.ndarray]]
 
 
 def _search_exhaustive(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals,
-                       extra, search):
+                       extra, search, wrist=None):
     """The exhaustive search: every start refined with ``icp_iterations`` on the full cloud."""
     hand = ctx.hand
     sub = thin(points, st.coarse_points)
@@ -836,5 +839,7 @@ def _search_exhaustive(ctx: FitContext, points, st: InitSettings, *, theta0, mod
             best = (s, th, corr)
     if search and st.finger_search:
         best = finger_search(ctx, best, points, st, silhouette=silhouette, normals=normals)
+    if wrist is not None:
+        return ctx.fit(best[1], points, "full", 0, st.polish_icp, silhouette=silhouette, normals=normals, wrist=wrist)
     return best[1], best[2]
 

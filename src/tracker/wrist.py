@@ -206,6 +206,20 @@ def arm_length_m(cue, mask, frame_depth, camera, *, reach_m=0.15, step_m=0.015, 
     return float(min(np.linalg.norm(A - cue.point, axis=1).max(), reach_m))
 
 
+def arm_line_normal(cue: WristCue) -> np.ndarray:
+    """The unit normal of the plane through the camera centre and the arm's centre line (the line
+    through the cue's point along its direction): a point's distance from that plane is how far it lies
+    across the arm in the image, at its own depth. The middle of the wrist line lies on the arm's centre
+    line by its definition; where the line ends along the arm depends on the segmenter's cut.
+
+    >>> cue = WristCue(np.array([0.0, 0.0, 0.5]), np.zeros(2), np.array([0.0, 1.0, 0.0]), 0.05)
+    >>> arm_line_normal(cue).round(3).tolist()  # the arm runs down the image: across it is ±x
+    [-1.0, 0.0, 0.0]
+    """
+    n = np.cross(np.asarray(cue.point, float), np.asarray(cue.direction, float))
+    return n / max(float(np.linalg.norm(n)), 1e-12)
+
+
 @dataclass(frozen=True)
 class _Shifted:
     fx: float
