@@ -726,8 +726,8 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye,
                gn_iters, max_halvings, tol, limit_avoid, clamp, margin, robust_mm, point_to_plane, moments,
                sil_on, sm_nodes, sm_local, sm_local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol_px,
-               sil_weight, wl_on, wl_node, wl_local, wl_normal, wl_share, wl_free, out_p, out_n, out_seg, out_d, out_node,
-               out_valid, stats):
+               sil_weight, wl_on, wl_node, wl_local, wl_normal, wl_share, wl_free,
+               out_p, out_n, out_seg, out_d, out_node, out_valid, stats):
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``n_rigid`` rigid steps, then per stage
     correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs and
     silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the result

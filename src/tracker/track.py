@@ -172,8 +172,8 @@ class TrackerSettings:
     stills); a hand the ``--box`` cut to 35 pixels was fitted at 0.47 mm, outside the box.
     ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
     (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
-    fingers point up the arm never wins, and a start's fit is refitted with the hand's wrist crease held
-    on the arm's centre line (:class:`tracker.icp.IcpSettings` ``wrist_line_weight``: on all 18 real
+    fingers point up the arm never wins, and a start's last fits hold the hand's wrist crease on the
+    arm's centre line (:class:`tracker.icp.IcpSettings` ``wrist_line_weight``: on all 18 real
     stills with a cue the fitted crease lay 4–29 mm to the thumb's side of that line, and the labelled
     creases within 3 mm of it on 16, 6 mm at most). ``rgb_seed``: frames given with their colour image start
     their search also from the hand fitted to the colour keypoints (:mod:`tracker.rgb`, extra

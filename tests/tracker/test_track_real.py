@@ -169,22 +169,23 @@ def test_no_open_hand_is_fitted_turned_over(fits):
 
 
 def test_real_frames_fingertips(fits):
-    """Fingertips: at least 18 of the 19 frames have every labelled tip within 15 px of its model tip
-    and the model hand's end within 20 px of the labelled wrist crease (the issue's floor for every frame), at least
-    94 of the 95 labelled tips are within 15 px, the median tip error over all frames is ≤ 5.5 px, and no tip is more
-    than 45 px off on any frame. Measured (module note): 19 frames, 95 tips, median 5.2 px, worst 13.4 px (230536_110's
-    wrist was 21.1 px until a start's crease was held on the arm's centre line). 231615_140 (thumb across the palm) was 20.8 px until a start's unseen joints
-    were pulled all the way (its thumb's end phalanx has no data point; the search left it bent back 21°). The 45 px bound
-    is for 231615_100's middle finger, pointing at the camera: at other sizes (× 0.995) the wrong fit wins there
-    (41 px; it scores better, the search finds one or the other).
+    """Fingertips: at least 18 of the 19 frames have every labelled tip within 15 px of its model tip and the model
+    hand's end within 20 px of the labelled wrist crease (the issue's floor for every frame), at least 94 of the
+    95 labelled tips are within 15 px, the median tip error over all frames is ≤ 5.5 px, and no tip is more than
+    45 px off on any frame. Measured (module note): 19 frames, 95 tips, median 5.2 px, worst 13.4 px
+    (230536_110's wrist was 21.1 px until a start's crease was held on the arm's centre line). 231615_140 (thumb
+    across the palm) was 20.8 px until a start's unseen joints were pulled all the way (its thumb's end phalanx
+    has no data point; the search left it bent back 21°). The 45 px bound is for 231615_100's middle finger,
+    pointing at the camera: at other sizes (× 0.995) the wrong fit wins there (41 px; it scores better, the
+    search finds one or the other).
 
-    What is left is the model's shape against this hand's: the fitted crease still lies on the thumb's side
-    of the forearm's axis, which the labels follow (230536_110: the fit turns the palm in the image with
-    every finger's abduction making up for it; the finger bases on the arc took it from 24 to 21 px, the
-    wrist line to 12 px); the thumb — its labelled tips lie a median 8 px beyond the model's along the last bone (the other fingers
-    within ±4 px): the model's thumb phalanges are short (Buchholz et al. 1992 make them 1.28× the model's
-    against its middle finger), but a thumb 1.28× long met the floors on fewer frames (15.2 of 19 over the
-    9 resized runs, median 4.0 px against 4.7): a longer thumb folded across the palm does not fit the blob
+    What is left is the model's shape against this hand's: the fitted crease still lies on the thumb's side of
+    the forearm's axis, which the labels follow (230536_110: the fit turns the palm in the image with every
+    finger's abduction making up for it; the finger bases on the arc took it from 24 to 21 px, the wrist line to
+    12 px); the thumb — its labelled tips lie a median 8 px beyond the model's along the last bone (the other
+    fingers within ±4 px): the model's thumb phalanges are short (Buchholz et al. 1992 make them 1.28× the
+    model's against its middle finger), but a thumb 1.28× long met the floors on fewer frames (15.2 of 19 over
+    the 9 resized runs, median 4.0 px against 4.7): a longer thumb folded across the palm does not fit the blob
     the sensor sees there (231615_0's thumb 20–25 px)."""
     ok, tip_errs, worst = 0, [], 0.0
     for name, (lab, _, uv, names, _, crease) in fits.items():
