@@ -114,12 +114,12 @@ def played_by_librealsense(rs, bag, attempts: int = 3):
                 s.start(keep)
             deadline, stopped_since = time.monotonic() + 10, None
             while time.monotonic() < deadline:
-                if playback.current_status() != rs.playback_status.stopped:
-                    stopped_since = None
-                elif len(frames) == len(sensors) or time.monotonic() - (stopped_since or time.monotonic()) > 1:
-                    break
-                else:
+                if playback.current_status() == rs.playback_status.stopped:
                     stopped_since = stopped_since or time.monotonic()
+                    if len(frames) == len(sensors) or time.monotonic() - stopped_since > 1:
+                        break
+                else:
+                    stopped_since = None
                 time.sleep(0.05)
             time.sleep(0.2)  # a frame in flight when the status changed
             for s in sensors:

@@ -849,7 +849,7 @@ def fit_kernel(theta0, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes,
                         plane[k, r] = 0.0
                 w[k] = ws
                 k += 1
-        if wl_on and nv >= 1:
+        if wl_on:
             c = np.empty(3)
             for r in range(3):
                 c[r] = (G[wl_node, r, 0] * wl_local[0] + G[wl_node, r, 1] * wl_local[1]

@@ -776,7 +776,9 @@ def finger_pair_variants(ctx: FitContext, theta) -> list[tuple[int, np.ndarray]]
 
 def _search_exhaustive(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals,
                        extra, search, wrist=None):
-    """The exhaustive search: every start refined with ``icp_iterations`` on the full cloud."""
+    """The exhaustive search: every start refined with ``icp_iterations`` on the full cloud (with a
+    ``wrist`` cue the best is polished once more with the wrist-line pair: its last fits are the
+    candidates' own)."""
     hand = ctx.hand
     sub = thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
