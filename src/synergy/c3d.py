@@ -38,7 +38,7 @@ from synergy.errors import C3DError
 __all__ = ["MarkerData", "read_c3d", "write_c3d", "strip_prefix", "UNIT_SCALE"]
 
 #: Metres per length unit accepted in POINT:UNITS.
-from synergy.c3d_native import _read_isolated, _Raw
+from synergy.c3d_native import C3D_PARAMETERS_FAILED, C3D_TRIAL_FIELDS, _read_isolated, _Raw, vague
 from synergy.c3d_sections import _Layout, _layout
 
 UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
@@ -228,7 +228,7 @@ def _events(params) -> list[tuple[str, float, str]]:
     else:
         secs = np.array([_f32(t) for t in times.ravel()])
     used = _number(params, "EVENT", "USED")
-    n = len(secs) if used is None else min(int(used), len(secs))
+    n = len(secs) if used is None or not np.isfinite(used) else min(int(used), len(secs))
     labels = _strings(params, "EVENT", "LABELS") or []
     contexts = _strings(params, "EVENT", "CONTEXTS") or []
     ev = [(labels[i] if i < len(labels) else "", float(secs[i]), contexts[i] if i < len(contexts) else "")
@@ -242,8 +242,6 @@ def _assemble(path: Path, raw: _Raw, layout: _Layout, backend: str) -> MarkerDat
     if n_points == 0:
         extra = f" (the header claims {layout.n_points})" if layout.n_points else ""
         raise C3DError(path, f"no point channels{extra}")
-    if n_frames == 0:
-        raise C3DError(path, "no frames stored")
 
     # Truncated: fewer frames than every count the file announces, and a partial frame at
     # the end. A file ending exactly after its last whole frame is taken at its word
@@ -251,12 +249,14 @@ def _assemble(path: Path, raw: _Raw, layout: _Layout, backend: str) -> MarkerDat
     claims = []
     if layout.last_frame >= layout.first_frame:
         claims.append(layout.last_frame - layout.first_frame + 1)
-    if layout.frames_param:  # as stored: ezc3d rewrites POINT:FRAMES to what it read
+    if layout.frames_param and np.isfinite(layout.frames_param):  # as stored: ezc3d rewrites POINT:FRAMES
         claims.append(int(layout.frames_param))
     leftover = layout.size - layout.data_start - n_frames * raw.frame_bytes
     if claims and n_frames < min(claims) and leftover != 0:
         raise C3DError(path, f"truncated: {min(claims)} frames announced, {n_frames} whole frames "
                              f"stored and {leftover} bytes of a partial frame")
+    if n_frames == 0:
+        raise C3DError(path, "no frames stored")
 
     original = _strings(params, "POINT", "LABELS") or []
     original = original[:n_points] + [f"POINT{i + 1}" for i in range(len(original), n_points)]
@@ -340,24 +340,56 @@ def read_c3d(path: str | os.PathLike, *, backend: str = "auto") -> MarkerData:
     reasons = []
     for name in order:
         if name == "ezc3d" and layout.processor == 86:
-            reasons.append("ezc3d: big-endian (MIPS) files are not supported")
+            reasons.append(_BIG_ENDIAN)
             continue
         if name == "ezc3d" and layout.ezc3d_problem:
-            reasons.append(f"ezc3d: skipped, {layout.ezc3d_problem}")
+            reasons.append(layout.ezc3d_problem)
             continue
         try:
             return _assemble(path, _read_isolated(path, name, layout), layout, name)
         except C3DError as exc:
-            reasons.append(f"{name}: {exc.reason}")
+            reasons.append(exc.reason)
         except MemoryError:
-            reasons.append(f"{name}: out of memory")
-        except Exception as exc:  # noqa: BLE001 - any backend failure becomes a C3DError
-            msg = str(exc).split("\n")[0][:200] or type(exc).__name__
-            reasons.append(f"{name}: {msg}")
-    distinct = {r.split(": ", 1)[1] for r in reasons}
-    if len(distinct) == 1:
-        raise C3DError(path, distinct.pop())
-    raise C3DError(path, "unreadable; " + "; ".join(reasons))
+            reasons.append("out of memory")
+        except Exception:  # noqa: BLE001 - any failure becomes a C3DError, in our words
+            reasons.append(C3D_PARAMETERS_FAILED)
+    raise C3DError(path, _verdict(reasons, layout))
+
+
+_BIG_ENDIAN = "big-endian (MIPS) files are not supported by the ezc3d reader"
+
+
+def _verdict(reasons: list[str], layout: _Layout) -> str:
+    """The one reason given for a file no backend read: what is wrong with the file, in our words.
+
+    First a truncation (the sizes say so), then what the backends found; only when they said no
+    more than "malformed", a header field the c3d package cannot take, what our own parse found
+    wrong with the parameter section (when the c3d package could not parse it either), the c3d
+    package's limit on TRIAL fields, the vaguest reason last. ezc3d's limit on MIPS files is never
+    the reason while another exists.
+
+    Examples
+    --------
+    >>> lay = _Layout(1024, 1024, 86, 1, 10, 3, None, None)
+    >>> _verdict([_BIG_ENDIAN, "truncated: 10 frames announced"], lay)
+    'truncated: 10 frames announced'
+    >>> _verdict(["no point channels", "no POINT group in the parameter section"], lay)
+    'unreadable: no point channels; no POINT group in the parameter section'
+    >>> _verdict([_BIG_ENDIAN, C3D_PARAMETERS_FAILED], lay) == C3D_PARAMETERS_FAILED
+    True
+    """
+    limits = {_BIG_ENDIAN, C3D_TRIAL_FIELDS, layout.repair_note}  # POINT:USED is repaired for the c3d package
+    facts = list(dict.fromkeys(r for r in reasons if r not in limits and not vague(r)))
+    for r in facts:
+        if r.startswith("truncated"):
+            return r
+    if facts:
+        return facts[0] if len(facts) == 1 else "unreadable: " + "; ".join(facts)
+    if layout.header_fault:
+        return layout.header_fault
+    if C3D_PARAMETERS_FAILED in reasons and (layout.chain or layout.overlap):
+        return f"corrupt parameter section: {layout.chain or layout.overlap}"
+    return min(reasons, key=lambda r: (r == _BIG_ENDIAN, r != C3D_TRIAL_FIELDS, vague(r)))
 
 
 # --------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import select
 import signal
 import subprocess
@@ -45,6 +46,105 @@ def _text(s: str) -> str:
         return b.decode("utf-8").strip()
     except UnicodeDecodeError:
         return b.decode("latin-1").strip()
+
+
+#: What a backend failure says when the backend gave no reason of its own that we can name: the
+#: file is malformed, and :func:`synergy.c3d.read_c3d` prefers any more specific reason.
+C3D_PARAMETERS_FAILED = "corrupt parameter section (its entries cannot be followed)"
+C3D_FRAMES_FAILED = "corrupt data section (its frames cannot be decoded)"
+EZC3D_FAILED = "malformed (its sections cannot be followed to the end)"
+#: A limit of the c3d package, not a fault of the file (read_c3d drops it when ezc3d says more).
+C3D_TRIAL_FIELDS = ("TRIAL:ACTUAL_START_FIELD or ACTUAL_END_FIELD is not a plain pair of words, "
+                    "which the c3d reader needs")
+
+
+def vague(reason: str) -> int:
+    """0 if a backend's reason says what is wrong with the file, else how little it says: the c3d
+    package's parse failed (1), ezc3d's (2), a reader crashed or hung (3).
+
+    Examples
+    --------
+    >>> vague("truncated: 3 frames announced"), vague(C3D_PARAMETERS_FAILED), vague(EZC3D_FAILED)
+    (0, 1, 2)
+    """
+    if reason in (C3D_PARAMETERS_FAILED, C3D_FRAMES_FAILED):
+        return 1
+    if reason == EZC3D_FAILED:
+        return 2
+    return 3 if reason.endswith("(the file is malformed)") else 0
+
+
+# py-c3d's consistency checks (Reader._check_metadata), as "inconsistent <what>! <a> header != <b> ...".
+_C3D_CHECKS = (
+    (r"inconsistent point count! (\S+) header != (\S+) POINT:USED",
+     "the header says {0:.6g} points but POINT:USED says {1:.6g}"),
+    (r"inconsistent scale factor! (\S+) header != (\S+) POINT:SCALE",
+     "the header's scale factor {0:.6g} differs from POINT:SCALE {1:.6g}"),
+    (r"inconsistent frame rate! (\S+) header != (\S+) POINT:RATE",
+     "the header's frame rate {0:.6g} Hz differs from POINT:RATE {1:.6g} Hz"),
+    (r"inconsistent analog rate! (\S+) header != (\S+) analog-fps / (\S+) point-fps",
+     "the header's {0:.6g} analog samples per frame differ from ANALOG:RATE {1:.6g} / POINT:RATE {2:.6g}"),
+    (r"inconsistent analog count! (\S+) header != (\S+) analog used \* (\S+) per-frame",
+     "the header's {0:.6g} analog values per frame differ from ANALOG:USED {1:.6g} x {2:.6g} samples per frame"),
+)
+
+
+def _c3d_inconsistency(text: str) -> str:
+    """py-c3d's failed consistency check in our words.
+
+    Examples
+    --------
+    >>> _c3d_inconsistency("inconsistent point count! 14 header != 1806 POINT:USED")
+    'the header says 14 points but POINT:USED says 1806'
+    >>> _c3d_inconsistency("something else")
+    'the header and the parameters disagree'
+    """
+    for pattern, words in _C3D_CHECKS:
+        m = re.match(pattern, text)
+        if m:
+            try:
+                return words.format(*(float(g) for g in m.groups()))
+            except ValueError:
+                break
+    return "the header and the parameters disagree"
+
+
+# ezc3d's C++ reasons that name a fault of the file, in our words; anything else is EZC3D_FAILED.
+_EZC3D_REASONS = (
+    (r"(\w+) parameter is not (?:a|an) (INT|FLOAT|BYTE|string)",
+     lambda m: f"parameter {m[1]} is not stored as {_TYPES[m[2]]}"),
+    (r"CHAR type cannot be converted to (INT|FLOAT)",
+     lambda m: f"a parameter read as {_TYPES[m[1]]} is stored as text"),
+    (r"(\w+) is not present in (\w+)", lambda m: f"parameter {m[2]}:{m[1]} is missing"),
+    (r"RATIO or RATE must be present in (\w+)", lambda m: f"parameter {m[1]}:RATIO or {m[1]}:RATE is missing"),
+    (r"Group::parameterIdx could not find (\S+)", lambda m: f"parameter {m[1]} is missing"),
+    (r"Parameters::groupIdx could not find (\S+)", lambda m: f"group {m[1]} is missing"),
+    (r"Could not read the processor type", lambda m: "unknown processor type in the parameter section"),
+    (r"File must be a valid c3d file", lambda m: "not a C3D file"),
+    (r"Data type (?:is not set|not implemented yet|not recognized)", lambda m: "a parameter has an unknown data type"),
+    (r"bad_alloc", lambda m: "out of memory"),  # std::bad_alloc under the worker's memory limit
+)
+_TYPES = {"INT": "integers", "FLOAT": "floats", "BYTE": "bytes", "string": "text"}
+
+
+def _ezc3d_reason(text: str) -> str:
+    """ezc3d's exception text in our words.
+
+    Examples
+    --------
+    >>> _ezc3d_reason("OFFSET parameter is not an INT")
+    'parameter OFFSET is not stored as integers'
+    >>> _ezc3d_reason("std::bad_alloc")
+    'out of memory'
+    >>> _ezc3d_reason("The format is not standard. If you want to ignore this error, set "
+    ...               "ignoreBadFormatting to true: iostream error") == EZC3D_FAILED
+    True
+    """
+    for pattern, words in _EZC3D_REASONS:
+        m = re.search(pattern, text)
+        if m:
+            return words(m)
+    return EZC3D_FAILED
 
 
 def _ezc3d_param(groups: dict, group: str, name: str):
@@ -113,10 +213,30 @@ def _read_c3d_package(path: Path, repair: tuple[int, bytes] | None = None):
         source = open(path, "rb")
     with source as fh, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # EOF and "no analog data" notices; truncation is judged later
-        reader = c3d.Reader(fh)
+        try:
+            reader = c3d.Reader(fh)
+        except AssertionError as exc:
+            raise C3DError(path, _c3d_inconsistency(str(exc))) from None
+        except KeyError as exc:
+            dup = re.fullmatch(r"Parameter already exists with key (.*)", str(exc.args[0]) if exc.args else "")
+            raise C3DError(path, f"corrupt parameter section: parameter {dup[1]} appears twice in its group" if dup
+                           else C3D_PARAMETERS_FAILED) from None
+        except (MemoryError, C3DError):
+            raise
+        except Exception:  # noqa: BLE001 - struct, Overflow, Value, Index errors of a section it misreads
+            raise C3DError(path, C3D_PARAMETERS_FAILED) from None
         if reader.get("POINT:LABELS") is None and reader.get("POINT:USED") is None:
-            raise ValueError("no POINT group in the parameter section")
-        frames = [pts[:, :4].copy() for _, pts, _ in reader.read_frames(copy=False)]
+            raise C3DError(path, "no POINT group in the parameter section")
+        try:  # read_frames starts from these; the package takes only 1-D TRIAL fields (ART's are [1, 2])
+            reader.first_frame, reader.last_frame
+        except (TypeError, ValueError, IndexError, AssertionError):
+            raise C3DError(path, C3D_TRIAL_FIELDS) from None
+        try:
+            frames = [pts[:, :4].copy() for _, pts, _ in reader.read_frames(copy=False)]
+        except MemoryError:
+            raise
+        except Exception:  # noqa: BLE001
+            raise C3DError(path, C3D_FRAMES_FAILED) from None
     m = int(reader.point_used)
     word = 4 if reader.point_scale < 0 else 2
     frame_bytes = word * (4 * m + int(reader.analog_used) * int(reader.analog_per_frame))
@@ -188,7 +308,12 @@ def _worker_read(path: Path, backend: str, repair) -> tuple[dict, list[np.ndarra
     if backend == "ezc3d":
         import ezc3d
 
-        c = ezc3d.c3d(str(path))
+        try:
+            c = ezc3d.c3d(str(path))
+        except MemoryError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - C++ exceptions arrive as RuntimeError, OSError, ValueError, ...
+            raise C3DError(path, _ezc3d_reason(str(exc))) from None
         raw = _read_ezc3d(path, c)
         groups = c["parameters"]
 
@@ -235,8 +360,8 @@ def _worker_main() -> None:
             doc = {"ok": False, "error": exc.reason}
         except MemoryError:
             doc = {"ok": False, "error": "out of memory"}
-        except Exception as exc:  # noqa: BLE001 - any backend failure is reported, not fatal
-            doc = {"ok": False, "error": str(exc).split("\n")[0][:200] or type(exc).__name__}
+        except Exception:  # noqa: BLE001 - any backend failure is reported, not fatal
+            doc = {"ok": False, "error": EZC3D_FAILED if req["backend"] == "ezc3d" else C3D_PARAMETERS_FAILED}
         body = json.dumps(doc).encode()
         # The answer is built before the limit is lifted: sending it must not need more memory.
         out.write(len(body).to_bytes(8, "little") + body)

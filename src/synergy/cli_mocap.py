@@ -289,7 +289,7 @@ def angles(
         cal.source = str(static)
     rows, notes, chosen = [], [], set()
     failed = []
-    with Progress(console=_console(stderr=True), transient=True) as progress:
+    with Progress(console=(c := _console(stderr=True)), transient=True, disable=not c.is_terminal) as progress:
         bar = progress.add_task("converting", total=len(files))
         for f, dst in targets:
             progress.update(bar, description=f"{f.name}")

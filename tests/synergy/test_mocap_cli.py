@@ -116,3 +116,48 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     r = subprocess.run([sys.executable, "-m", "synergy.cli", "simulate", "-o", str(tmp_path), "--motions", "dance"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "unknown motion" in r.stderr
+
+
+COMMANDS = {"angles": ["-o", "out"], "fit": ["--name", "t", "-o", "."],
+            "calibrate": ["--markers", "hand19", "-o", "s.yaml"]}
+
+
+@pytest.mark.parametrize("command, make, problem", [
+    ("angles", lambda p: p.write_bytes(b"this is not a c3d file at all\n"), "not a C3D file (it is text)"),
+    ("fit", lambda p: p.write_bytes(b"this is not a c3d file at all\n"), "not a C3D file (it is text)"),
+    ("calibrate", lambda p: p.write_bytes(b"this is not a c3d file at all\n"), "not a C3D file (it is text)"),
+    ("fit", lambda p: p.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(3000)), "not a C3D file (it is a PNG image)"),
+    ("calibrate", lambda p: p.write_bytes(bytes(4096)), "not a C3D file (header key byte is 0x00, expected 0x50)"),
+    ("angles", lambda p: p.write_bytes(b"\x02\x50" + bytes(200)),
+     "truncated: 202 bytes, shorter than the 512-byte header"),
+    ("fit", lambda p: p.write_bytes(b""), "empty file (0 bytes)"),
+    ("angles", lambda p: p.mkdir(), "not a regular file"),
+    ("calibrate", lambda p: p.mkdir(), "not a regular file"),
+], ids=["text-angles", "text-fit", "text-calibrate", "png-fit", "zeros-calibrate", "short-header-angles", "empty-fit",
+        "folder-angles", "folder-calibrate"])
+def test_bad_c3d_inputs_through_the_reading_commands(tmp_path, command, make, problem):
+    """angles, fit and calibrate: exit 2 and one line, ``error: <file>: <problem>``, in our words."""
+    bad = tmp_path / "x.c3d"
+    make(bad)
+    r = subprocess.run([sys.executable, "-m", "synergy.cli", command, str(bad), *COMMANDS[command]],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 2 and r.stdout == "" and r.stderr == f"error: {bad}: {problem}\n", r.stderr
+
+
+def test_damaged_real_c3d_through_the_cli(tmp_path):
+    """A real trial cut short (py-c3d failed on its 2-D TRIAL fields with "only 0-dimensional arrays can be
+    converted", ezc3d's reason came second) and one whose parameters overrun (ezc3d's "iostream error",
+    py-c3d's "unpack requires a buffer"): each says what is wrong with the file."""
+    from conftest import shared
+
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(shared("c3dorg_art_hands", "ART-Human_hands_real_no6dof.c3d").read_bytes()[:20_000])
+    overrun = tmp_path / "overrun.c3d"
+    overrun.write_bytes(shared("btk_samples", "others__badParameterOffset.c3d").read_bytes())
+    for f, problem in ((cut, "truncated: 969 frames announced, 16 whole frames stored and 288 bytes of a partial "
+                             "frame"),
+                       (overrun, "corrupt parameter section: parameter LABELS is 429 bytes long but its offset to the "
+                                 "next entry is 416")):
+        r = subprocess.run([sys.executable, "-m", "synergy.cli", "angles", str(f), "-o", str(tmp_path / "out")],
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr == f"error: {f}: {problem}\n", r.stderr
