@@ -90,6 +90,19 @@ def _key_columns(header) -> int:
     return 1
 
 
+def _renamed(column, header):
+    """``column``'s name in ``header``: itself, else the longest name it begins with (a column whose name
+    was shortened, "hierarchical, Kinect v1 noise" → "hierarchical, Kinect v1"), else None.
+
+    >>> _renamed("hierarchical, Kinect v1 noise", ["full", "hierarchical", "hierarchical, Kinect v1"])
+    'hierarchical, Kinect v1'
+    """
+    if column in header:
+        return column
+    return max((h for h in header if column.startswith(h + ",") or column.startswith(h + " ")), key=len,
+               default=None)
+
+
 def compare(old_text: str, new_text: str) -> list:
     """Every result cell of the tables both reports hold, old against new (:class:`Change` each).
 
@@ -110,7 +123,7 @@ def compare(old_text: str, new_text: str) -> list:
             if other is None:
                 continue
             for col, before in zip(h_old[k_old:], r[k_old:]):
-                after = other.get(col)
+                after = other.get(_renamed(col, h_new))
                 if after is None or SKIP.search(col):
                     continue
                 a, b = value(before, col), value(after, col)
