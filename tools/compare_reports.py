@@ -154,12 +154,16 @@ def main(argv=None) -> int:
     ap.add_argument("new", type=Path)
     ap.add_argument("--all", action="store_true", help="list every changed cell, not only the worse ones")
     a = ap.parse_args(argv)
-    try:
-        texts = [p.read_text(encoding="utf-8") for p in (a.old, a.new)]
-    except (OSError, UnicodeDecodeError) as exc:
-        print(f"error: {getattr(exc, 'filename', None) or a.old}: {exc.strerror if isinstance(exc, OSError) else exc}",
-              file=sys.stderr)
-        return 2
+    texts = []
+    for path in (a.old, a.new):
+        try:
+            texts.append(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            print(f"error: {path}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        except UnicodeDecodeError:
+            print(f"error: {path}: not a UTF-8 text file (a report.md is)", file=sys.stderr)
+            return 2
     print("\n".join(markdown(compare(*texts), old_name=str(a.old), new_name=str(a.new), every=a.all)))
     return 0
 

@@ -81,3 +81,8 @@ def test_command_line(tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "compare_reports.py"), str(tmp_path / "nope.md"),
                         str(REPORT)], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nope.md" in r.stderr
+    png = tmp_path / "report.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "compare_reports.py"), str(REPORT), str(png)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr == f"error: {png}: not a UTF-8 text file (a report.md is)\n"
