@@ -1,0 +1,122 @@
+"""Hands from your own camera loop: one depth image in, one hand out.
+
+:class:`HandTracker` is the tracker as a user's program meets it — a camera, the hand's side and a
+synergy bundle in, then :meth:`HandTracker.step` once per depth image (metres, ``(H, W)``), each giving
+a :class:`HandResult`. It runs the same path as ``tracker track`` (:func:`tracker.run.run_job`): the
+frame is segmented in the predicted hand's window (:func:`tracker.observe.observe`), then fitted by
+:class:`tracker.track.HandTracker`, so a recording stepped through it gives the CSV's θ bit for bit.
+
+>>> import numpy as np
+>>> ht = HandTracker("sr305", hand="right")
+>>> r = ht.step(np.zeros((ht.camera.height, ht.camera.width)))  # an empty frame: no hand
+>>> r.status, r.found, r.keypoints.shape
+('lost', False, (21, 3))
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from handmodel.model import HandModel
+from synergy.bundle import load_bundle
+
+from . import TRACKING_HAND
+from .cameras import as_camera
+from .errors import TrackerError
+from .observe import observe
+from .run import settings_for_hand
+from .track import HandTracker as _FrameTracker
+from .track import TrackerSettings
+
+HANDS = ("left", "right")
+
+
+@dataclass(frozen=True)
+class HandResult:
+    """One frame's hand.
+
+    Attributes
+    ----------
+    status : ``"tracked"`` (followed from the last frame), ``"reinit"`` (found by a fresh search) or
+        ``"lost"`` (no hand: ``theta`` and ``keypoints`` are NaN)
+    theta : (26,) the hand's parameters in :data:`handmodel.dofs.DOF_NAMES` order (metres, radians)
+    keypoints : (21, 3) wrist then each finger base → tip, metres, camera frame (x right, y down, z forward)
+    fit_mm : mean distance of the fitted points to the hand's surface, mm (NaN when lost)
+    points : the points the frame's segmented hand gave; ms : the frame's time, segmentation included
+    mask : (H, W) the pixels taken for the hand (None for an unusable frame)
+    """
+
+    status: str
+    theta: np.ndarray
+    keypoints: np.ndarray
+    fit_mm: float
+    points: int
+    ms: float
+    mask: np.ndarray | None = None
+
+    @property
+    def found(self) -> bool:
+        """Whether this frame has a hand (tracked or found anew)."""
+        return self.status != "lost"
+
+
+class HandTracker:
+    """Track one hand through depth images from any source (a RealSense loop, ROS, OpenCV, files).
+
+    Parameters
+    ----------
+    camera : a :class:`tracker.cameras.Camera`, a preset name (``"sr305"``, ``"kinect1"`` …, see
+        ``tracker.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (pyrealsense2's
+        intrinsics do)
+    hand : ``"left"`` or ``"right"``
+    synergies : a synergy bundle — a name (``"fingerfist"``, ``"grasp@1.0.0"``), a ``.npz`` path, or a
+        loaded :class:`synergy.bundle.Bundle`; None tracks all 26 DoF without synergies (``mode="full"``)
+    settings : :class:`tracker.track.TrackerSettings` (None: the defaults; ``.paper()`` is the paper's method)
+    hand_model : the hand model's name or YAML path (a calibrated hand file from ``tracker calibrate``);
+        :data:`tracker.TRACKING_HAND` by default
+    segmenter : :class:`tracker.segment.Segmenter` (None: its defaults)
+    registries : extra synergy registry folders searched for ``synergies``
+
+    Attributes
+    ----------
+    camera : the :class:`~tracker.cameras.Camera`; model : the :class:`handmodel.HandModel` tracked
+        (its size once calibrated); core : the frame tracker underneath (its counters and hand size)
+    """
+
+    def __init__(self, camera, hand: str = "left", synergies=None, settings: TrackerSettings | None = None, *,
+                 hand_model: str = TRACKING_HAND, segmenter=None, registries=None):
+        if hand not in HANDS:
+            raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
+        self.camera = as_camera(camera)
+        bundle = synergies
+        if isinstance(synergies, str) or hasattr(synergies, "__fspath__"):
+            bundle = load_bundle(synergies, registries=list(registries) if registries else None)
+        model = HandModel.load(hand_model, right=hand == "right")
+        self.core = _FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
+        self.segmenter = segmenter
+
+    @property
+    def model(self) -> HandModel:
+        return self.core.hand
+
+    def step(self, depth_m, color=None) -> HandResult:
+        """Track the hand in one depth image ``(H, W)`` in metres (0 or NaN: no depth); ``color``: the
+        colour image registered to it, ``(H, W, 3)`` uint8, or None."""
+        t0 = time.perf_counter()
+        d = np.asarray(depth_m, np.float64)
+        cam = self.camera
+        if d.shape != (cam.height, cam.width):
+            raise TrackerError("depth", f"frame of shape {d.shape}, the camera's is {(cam.height, cam.width)}")
+        ob = observe(d, cam, self.core.settings.observe, segmenter=self.segmenter, color=color,
+                     window=self.core.segment_window(cam))
+        r = self.core.track(ob, cam, color=color)
+        kp = (np.full((self.core.hand.n_nodes, 3), np.nan) if not np.all(np.isfinite(r.theta))
+              else self.core.hand.keypoints(r.theta))
+        return HandResult(r.status, r.theta, kp, r.fit_mm, len(ob.points), (time.perf_counter() - t0) * 1000.0,
+                          ob.mask)
+
+    def reset(self) -> None:
+        """Forget the last frame: the next one is searched from scratch (a cut in the video)."""
+        self.core.reset()
