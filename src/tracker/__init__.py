@@ -1,4 +1,12 @@
-"""Synergistic hand tracking in depth images."""
+"""Synergistic hand tracking in depth images.
+
+The user-facing names, imported lazily (``tracker --help`` must not pay for numpy or numba):
+
+>>> import tracker
+>>> [n for n in tracker.__all__ if getattr(tracker, n, None) is None]  # each resolves on first use
+[]
+"""
+from .errors import RecordingError, TrackerError
 
 #: The hand model the tracker fits when none is named (``--hand-model``): the shipped hand with its finger
 #: bases on the human metacarpal arc (:mod:`handmodel.anthropometry`), which real hands fit better than the
@@ -7,3 +15,31 @@ TRACKING_HAND = "human"
 
 #: The paper's hand (htrack's ``default.calib``, ``models/hands/default.yaml``), fitted with ``--paper``.
 PAPER_HAND = "default"
+
+# name -> the module (under tracker) that owns it
+_LAZY = {
+    "HandTracker": "stream", "HandResult": "stream",
+    "TrackerSettings": "track",
+    "Segmenter": "segment",
+    "Camera": "cameras", "preset": "cameras",
+    "Recording": "recording", "RecordingWriter": "recording",
+    "observe": "observe", "Observation": "observe", "ObserveSettings": "observe",
+    "CorrespondSettings": "correspond", "IcpSettings": "icp", "InitSettings": "init",
+    "TrackJob": "run", "run_job": "run", "read_tracking": "run", "write_tracking": "run",
+    "read_keypoints": "run", "write_keypoints": "run", "tracked_hand": "run",
+    "keypoint_error_mm": "evaluate", "posture_error_deg": "evaluate",
+}
+
+__all__ = sorted(["PAPER_HAND", "RecordingError", "TRACKING_HAND", "TrackerError", *_LAZY])
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'tracker' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__
