@@ -15,7 +15,9 @@ frame is segmented in the predicted hand's window (:func:`tracker.observe.observ
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FrameTimeout
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -39,8 +41,10 @@ class HandResult:
 
     Attributes
     ----------
-    status : ``"tracked"`` (followed from the last frame), ``"reinit"`` (found by a fresh search) or
-        ``"lost"`` (no hand: ``theta`` and ``keypoints`` are NaN)
+    status : ``"tracked"`` (followed from the last frame), ``"reinit"`` (found by a fresh search),
+        ``"lost"`` (no hand: ``theta`` and ``keypoints`` are NaN) or, in real-time mode only,
+        ``"predicted"`` (the frame came while the last one was still being fitted — a search — and got
+        the latest fitted hand moved on by its last motion; ``points``, ``mask`` are then 0 and None)
     theta : (26,) the hand's parameters in :data:`handmodel.dofs.DOF_NAMES` order (metres, radians)
     keypoints : (21, 3) wrist then each finger base → tip, metres, camera frame (x right, y down, z forward)
     fit_mm : mean distance of the fitted points to the hand's surface, mm (NaN when lost)
@@ -58,7 +62,7 @@ class HandResult:
 
     @property
     def found(self) -> bool:
-        """Whether this frame has a hand (tracked or found anew)."""
+        """Whether this frame has a hand (tracked, found anew or predicted)."""
         return self.status != "lost"
 
 
@@ -78,6 +82,12 @@ class HandTracker:
         :data:`tracker.TRACKING_HAND` by default
     segmenter : :class:`tracker.segment.Segmenter` (None: its defaults)
     registries : extra synergy registry folders searched for ``synergies``
+    budget_ms : None (the default): every frame is fitted before :meth:`step` returns, as ``tracker
+        track`` does. A number: real-time mode for a live sensor — frames are fitted by a worker thread
+        and :meth:`step` waits at most this long for the frame's fit; a frame whose fit takes longer
+        (a start search can take a second) gets the latest fitted hand moved on by its last motion
+        (status ``"predicted"``), and frames that come while the worker is busy are not fitted at all
+        (the worker takes the newest frame next), so the loop keeps up with the sensor
 
     Attributes
     ----------
@@ -86,7 +96,7 @@ class HandTracker:
     """
 
     def __init__(self, camera, hand: str = "left", synergies=None, settings: TrackerSettings | None = None, *,
-                 hand_model: str = TRACKING_HAND, segmenter=None, registries=None):
+                 hand_model: str = TRACKING_HAND, segmenter=None, registries=None, budget_ms: float | None = None):
         if hand not in HANDS:
             raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
         self.camera = as_camera(camera)
@@ -96,6 +106,13 @@ class HandTracker:
         model = HandModel.load(hand_model, right=hand == "right")
         self.core = _FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
         self.segmenter = segmenter
+        if budget_ms is not None and not budget_ms > 0:
+            raise TrackerError("budget_ms", f"must be a positive number of ms or None, got {budget_ms!r}")
+        self.budget_ms = budget_ms
+        self._worker = None if budget_ms is None else ThreadPoolExecutor(1, thread_name_prefix="hand-fit")
+        self._pending = None   # the frame the worker is fitting (a Future)
+        self._last = []        # the last two fitted results (oldest first): what a predicted frame extrapolates
+        self._last_hand = None  # the hand model of the last fitted result
 
     @property
     def model(self) -> HandModel:
@@ -109,14 +126,71 @@ class HandTracker:
         cam = self.camera
         if d.shape != (cam.height, cam.width):
             raise TrackerError("depth", f"frame of shape {d.shape}, the camera's is {(cam.height, cam.width)}")
+        if self._worker is None:
+            return self._fit(d, color, t0)
+        if self._pending is not None and self._pending.done():
+            self._pending.result()  # a fit that failed raises here, not silently later
+            self._pending = None
+        if self._pending is not None:  # still fitting an earlier frame: this one is not fitted
+            return self._predicted(t0)
+        self._pending = self._worker.submit(self._fit, d, color, t0)
+        try:
+            r = self._pending.result(timeout=max(self.budget_ms / 1000.0 - (time.perf_counter() - t0), 0.0))
+        except FrameTimeout:
+            return self._predicted(t0)
+        self._pending = None
+        return r
+
+    def _predicted(self, t0) -> HandResult:
+        """The latest fitted hand moved on by its last change (global rotation kept, as the tracker's
+        own prediction): what a frame gets while the worker is still fitting an earlier one."""
+        if not self._last or not self._last[-1].found:
+            nan = np.full_like(self._last[-1].theta if self._last else np.zeros(26), np.nan)
+            kp = np.full((self.core.hand.n_nodes, 3), np.nan)
+            return HandResult("lost", nan, kp, float("nan"), 0, (time.perf_counter() - t0) * 1000.0)
+        last = self._last[-1]
+        theta = last.theta.copy()
+        if len(self._last) == 2 and self._last[0].found:
+            change = last.theta - self._last[0].theta
+            change[3:6] = 0.0
+            theta = theta + change
+        return replace(last, status="predicted", theta=theta, keypoints=self._last_hand.keypoints(theta),
+                       points=0, mask=None, ms=(time.perf_counter() - t0) * 1000.0)
+
+    def _fit(self, d, color, t0) -> HandResult:
+        cam = self.camera
         ob = observe(d, cam, self.core.settings.observe, segmenter=self.segmenter, color=color,
                      window=self.core.segment_window(cam))
         r = self.core.track(ob, cam, color=color)
         kp = (np.full((self.core.hand.n_nodes, 3), np.nan) if not np.all(np.isfinite(r.theta))
               else self.core.hand.keypoints(r.theta))
-        return HandResult(r.status, r.theta, kp, r.fit_mm, len(ob.points), (time.perf_counter() - t0) * 1000.0,
-                          ob.mask)
+        out = HandResult(r.status, r.theta, kp, r.fit_mm, len(ob.points), (time.perf_counter() - t0) * 1000.0,
+                         ob.mask)
+        # the hand the result was fitted with: the worker may be changing its size while a frame is predicted
+        self._last, self._last_hand = [*self._last[-1:], out], self.core.hand
+        return out
+
+    def wait(self) -> HandResult | None:
+        """Real-time mode: wait for the frame the worker is fitting and return its result (None when
+        it is idle) — e.g. at the end of a recording, whose last frames came while it was busy."""
+        if self._pending is None:
+            return None
+        r, self._pending = self._pending.result(), None
+        return r
 
     def reset(self) -> None:
         """Forget the last frame: the next one is searched from scratch (a cut in the video)."""
+        self.wait()
+        self._last = []
         self.core.reset()
+
+    def close(self) -> None:
+        """Stop the real-time worker (after the frame it is fitting)."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

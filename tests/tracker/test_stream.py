@@ -44,3 +44,43 @@ def test_lost_frame_has_nan_hand_and_bad_input_is_refused():
         ht.step(np.zeros((10, 10)))
     with pytest.raises(TrackerError, match="left' or 'right"):
         HandTracker("kinect1", hand="middle")
+
+
+def test_real_time_mode_never_waits_for_a_slow_fit(recording):
+    """A fit made slow on purpose (a search that takes long): the frames that come meanwhile return at
+    once with the last fitted hand moved on by its last motion, and the worker takes up the newest frame
+    after it. Deterministic: the slow fit waits for an event the test sets only after those frames."""
+    import threading
+
+    rec = Recording.open(recording)
+    frames = list(rec)
+    sync = HandTracker(rec.camera, hand=rec.handedness, synergies="fingerfist")
+    expected = [sync.step(f.depth) for f in frames[:3]]
+    with HandTracker(rec.camera, hand=rec.handedness, synergies="fingerfist", budget_ms=1e7) as ht:
+        got = [ht.step(f.depth) for f in frames[:3]]  # a budget nothing exceeds: every frame fitted in turn
+        assert all(np.array_equal(a.theta, b.theta) for a, b in zip(got, expected))
+        hand2 = ht.model  # the hand of frame 2's fit (a calibrating frame may change its size)
+        gate, released_late = threading.Event(), []
+        track = ht.core.track
+
+        def slow(*a, **kw):
+            released_late.append(not gate.wait(60.0))
+            return track(*a, **kw)
+
+        ht.core.track = slow
+        ht.budget_ms = 20.0
+        waiting = [ht.step(f.depth) for f in frames[3:6]]
+        gate.set()
+        slow_frame = ht.wait()  # frame 3's fit, done once released
+        assert slow_frame.status in ("tracked", "reinit") and ht.wait() is None
+        assert [r.status for r in waiting] == ["predicted"] * 3
+        change = got[2].theta - got[1].theta
+        change[3:6] = 0.0
+        assert np.allclose(waiting[0].theta, got[2].theta + change)
+        assert np.allclose(waiting[0].keypoints, hand2.keypoints(got[2].theta + change))
+        ht.core.track = track
+        ht.budget_ms = 1e7
+        after = ht.step(frames[5].depth)  # the worker is free again: the newest frame is fitted
+        assert after.status in ("tracked", "reinit") and released_late == [False]
+    with pytest.raises(TrackerError, match="budget_ms"):
+        HandTracker("kinect1", budget_ms=0)
