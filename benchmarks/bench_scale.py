@@ -117,7 +117,7 @@ def main(argv=None):
     # the realistic scenes and the real frame on the tracker's hand (tracker.TRACKING_HAND), as a user tracks
     hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
     # one core: the search's fits one after the other (InitSettings.threads)
-    settings = TrackerSettings(hand_scale="auto").replace(init_threads=1)
+    settings = TrackerSettings().replace(scale=dict(hand_scale="auto"), init=dict(threads=1))
     frames = realistic_frames(hand, limit)
     # compile once (numba) before anything is timed
     warm = HandTracker(hand, settings, synergies=bundle)
@@ -153,14 +153,14 @@ def main(argv=None):
     n_thr = search_threads(0)
     timings = {}
     for k in sorted({1, n_thr}):
-        tr = HandTracker(right, settings.replace(init_threads=k), synergies=bundle)
+        tr = HandTracker(right, settings.replace(init=dict(threads=k)), synergies=bundle)
         c0, w0 = time.process_time(), time.perf_counter()
         ob = observe(depth, cam, settings.observe)
         res = tr.track(ob, cam)
         timings[k] = (time.process_time() - c0, time.perf_counter() - w0)
     t_first = timings[1][0]
     pts, nrm, sil = prepared(tr, ob, cam)
-    given = HandTracker(right, settings.replace(hand_scale=tr.scale_), synergies=bundle)
+    given = HandTracker(right, settings.replace(scale=dict(hand_scale=tr.scale_)), synergies=bundle)
     c0 = time.process_time()
     given.track(observe(depth, cam, settings.observe), cam)
     t_given = time.process_time() - c0

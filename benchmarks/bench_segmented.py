@@ -45,7 +45,7 @@ from tracker.track import HandTracker, TrackerSettings
 
 SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
           ("realsense", "forearm,box"))
-SKIP = TrackerSettings().scale_frames + 1  # the start and the size's refinement are not the tracking rate
+SKIP = TrackerSettings().scale.frames + 1  # the start and the size's refinement are not the tracking rate
 
 
 def frames_of(hand, sensor, spec, n, color=True):
@@ -70,7 +70,7 @@ def track_pass(hand, bundle, cam, frames):
     """One pass over a scene's frames with a fresh tracker: per frame the CPU ms of ``observe``, of the
     step, of the whole-frame ``observe``, and whether the window was used."""
     # one core: a start search's fits one after the other too (InitSettings.threads)
-    tr = HandTracker(hand, TrackerSettings().replace(init_threads=1), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
     out = []
     for depth, color in frames:
         t0 = time.process_time()

@@ -87,8 +87,8 @@ def main(argv=None):
     cam = preset("kinect1")
     rows, data = frames(hand, bundle, cam, a.frames, a.seed)
     strategies = ("halving",) if a.no_peer else ("halving", "exhaustive")
-    trackers = {s: E._tracker(hand, bundle, mode="full", init_icp_iterations=a.icp, init_strategy=s,
-                                init_threads=1) for s in strategies}
+    trackers = {s: E._tracker(hand, bundle, mode="full",
+                                init=dict(icp_iterations=a.icp, strategy=s, threads=1)) for s in strategies}
     # compile and warm up outside the timing (numba caches, first-call allocations)
     for tr in trackers.values():
         tr.fit_single_frame(data[0][1].points, theta0=data[0][3], mode=a.mode, silhouette=data[0][2],

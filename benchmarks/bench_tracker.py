@@ -62,8 +62,8 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
     and this benchmark times tracking. Returns the median ms per frame, the mean posture error (°)
     and the tracker."""
     # the rendered hand is the model's size
-    base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1, **kw), synergies=bundle)
+    base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
+    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
     ms, err = [], []
     for t, ob in zip(truth, obs):
         t0 = time.process_time()
@@ -100,8 +100,8 @@ def timed_parts(acc):
 
 def breakdown(hand, bundle, cam, obs, mode, ours=True):
     """Mean CPU ms per tracked frame of each part of ``HandTracker.step`` (frames after the 10th)."""
-    base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1), synergies=bundle)
+    base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
+    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1)), synergies=bundle)
     for ob in obs[:10]:
         tr.track(ob, cam)
     acc, total = {}, 0.0
@@ -120,8 +120,8 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
     """Gauss-Newton steps per tracked frame (frames after the 10th) of the compiled ICP fits: taken,
     failed (no energy drop after the halvings; each ends its stage), the trial steps' energy
     evaluations, the closest-point searches and the local passes (:func:`tracker.icp.fit`'s ``stats``)."""
-    base = TrackerSettings(hand_scale=1.0) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init_threads=1, **kw), synergies=bundle)
+    base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
+    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
     stats = np.zeros(5, np.int64)
     for ob in obs[:10]:
         tr.track(ob, cam)
@@ -133,7 +133,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
 
 def peer(hand, bundle, cam, truth, obs):
     """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
-    tr = HandTracker(hand, TrackerSettings.paper(mode="full", init_threads=1), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings.paper(mode="full", init=dict(threads=1)), synergies=bundle)
     match = tr.context.matcher
     lo, hi = tr.limits[:, 0], tr.limits[:, 1]
     theta = truth[0].copy()
@@ -177,7 +177,7 @@ def main():
     def python_loop(ours):
         # the tracker calls tracker.track.fit; the peer swaps in the Python loop
         with mock.patch("tracker.track.fit", fit_reference):
-            return run(hand, bundle, cam, truth, obs, "full", ours, **({"safety_net": False} if ours else {}))
+            return run(hand, bundle, cam, truth, obs, "full", ours, **({"net": {"enabled": False}} if ours else {}))
 
     rows = [("full, paper's method (our first frame)", lambda: run(hand, bundle, cam, truth, obs, "full", False)),
             (f"reduced ({k} PCs), paper's method (our first frame)",
@@ -186,13 +186,14 @@ def main():
         for net in (True, False):
             rows.append((f"{label}, ours, safety net {'on' if net else 'off'}"
                          + (" (default; reduced: far test only)" if net and mode == "reduced" else ""),
-                         lambda mode=mode, net=net: run(hand, bundle, cam, truth, obs, mode, True, safety_net=net)))
+                         lambda mode=mode, net=net: run(hand, bundle, cam, truth, obs, mode, True, net=dict(enabled=net))))
     for mode, label in [("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
         rows.append((f"{label}, ours, safety net off, a pass per stage",
-                     lambda mode=mode: run(hand, bundle, cam, truth, obs, mode, True, safety_net=False,
-                                           stages_per_pass=1)))
+                     lambda mode=mode: run(hand, bundle, cam, truth, obs, mode, True, net=dict(enabled=False),
+                                           icp=dict(stages_per_pass=1))))
     rows += [(f"reduced ({k} PCs), ours, 2 steps projected",
-              lambda: run(hand, bundle, cam, truth, obs, "reduced", True, projected_steps=2, safety_net=False)),
+              lambda: run(hand, bundle, cam, truth, obs, "reduced", True, icp=dict(projected_steps=2),
+                                net=dict(enabled=False))),
              ("peer: paper ICP, scipy least_squares (full)", lambda: peer(hand, bundle, cam, truth, obs) + (None,)),
              ("peer: full, paper's method, Python ICP loop", lambda: python_loop(False)),
              ("peer: full, ours (net off), Python ICP loop", lambda: python_loop(True))]
@@ -204,7 +205,7 @@ def main():
                 best[label] = (ms, e, tr)
     for label, _ in rows:
         ms, e, tr = best[label]
-        net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.safety_net and tr.net_runs_ else ""
+        net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.net.enabled and tr.net_runs_ else ""
         print(f"  {label:<74} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
     for net in ("on", "off"):
         fps = {mode: 1000 / best[f"{label}, ours, safety net {net}" + (" (default; reduced: far test only)"
@@ -218,11 +219,11 @@ def main():
           "GN taken / failed: no energy drop after the halvings / trial energy evaluations):")
     for mode, ours, label, kw in [("full", False, "full, paper's method", {}),
                                   ("reduced", False, f"reduced ({k} PCs), paper's method", {}),
-                                  ("full", True, "full, ours (net off)", {"safety_net": False}),
-                                  ("reduced", True, f"reduced ({k} PCs), ours", {"safety_net": False}),
+                                  ("full", True, "full, ours (net off)", {"net": {"enabled": False}}),
+                                  ("reduced", True, f"reduced ({k} PCs), ours", {"net": {"enabled": False}}),
                                   ("reduced", True, f"reduced ({k} PCs), ours, a pass per stage",
-                                   {"safety_net": False, "stages_per_pass": 1}),
-                                  ("hierarchical", True, "hierarchical, ours (net off)", {"safety_net": False})]:
+                                   {"net": {"enabled": False}, "icp": {"stages_per_pass": 1}}),
+                                  ("hierarchical", True, "hierarchical, ours (net off)", {"net": {"enabled": False}})]:
         taken, failed, evals, passes, local = steps(hand, bundle, cam, obs, mode, ours, **kw)
         print(f"  {label:<44} {passes:4.1f} / {local:4.1f} / {taken:6.2f} / {failed:5.2f} / {evals:6.1f}")
     print("  where a tracked frame's time goes (mean CPU ms; 'net test': the safety net's score and test, and its "

@@ -18,10 +18,11 @@ from handmodel.geometry import surface_samples
 from ._icp_kernels import feature_transform
 from ._silhouette_kernels import silhouette_pairs_kernel
 from .errors import TrackerError
+from .settings_base import SettingsGroup
 
 
-@dataclass
-class CorrespondSettings:
+@dataclass(frozen=True)
+class CorrespondSettings(SettingsGroup):
     """How data→model pairs are found and rejected.
 
     ``model``: the surface, ``"capsules"`` (the paper's) or ``"mesh"``; ``reject_mm``: pairs this far
@@ -34,6 +35,11 @@ class CorrespondSettings:
     reject_mm: float = 50.0
     facing_only: bool = True
     normal_agreement: float = 0.5
+
+    @classmethod
+    def paper(cls):
+        """Pairs rejected at 50 mm, no normal test."""
+        return cls(reject_mm=50.0, normal_agreement=-1.0)
 
     def check(self):
         if self.model not in SURFACES:

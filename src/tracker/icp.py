@@ -36,11 +36,12 @@ from .correspond import (
     silhouette_pairs,
 )
 from .errors import TrackerError
+from .settings_base import SettingsGroup
 from .wrist import arm_line_normal
 
 
-@dataclass
-class IcpSettings:
+@dataclass(frozen=True)
+class IcpSettings(SettingsGroup):
     """Iterations and the estimation of one ICP fit.
 
     ``rigid_iterations`` + ``icp_iterations`` per tracked frame (the paper: 1 + 4), each non-rigid one
@@ -83,6 +84,13 @@ class IcpSettings:
     local_mm: float = 1.0
     wrist_line_weight: float = 0.01
     wrist_line_mm: float = 3.0
+
+    @classmethod
+    def paper(cls):
+        """1 rigid + 4 non-rigid iterations × 5 Gauss-Newton steps, λ 1 on posture and 0 on pose, plain
+        least squares, no silhouette or wrist-line term, one search per stage."""
+        return cls(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0, pose_damping=0.0,
+                   robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, stages_per_pass=1, wrist_line_weight=0.0)
 
     def check(self):
         if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:

@@ -36,12 +36,13 @@ from .correspond import (
     data_to_model_mm,
 )
 from .errors import TrackerError
+from .settings_base import SettingsGroup
 from .icp import IcpSettings, fit, model_to_data_mean, search_schedule
 from .wrist import WRIST_REACH_MM, WRIST_TURN_MM, wrist_cost_mm
 
 
-@dataclass
-class InitSettings:
+@dataclass(frozen=True)
+class InitSettings(SettingsGroup):
     """The single-frame search.
 
     ``icp_iterations``: ICP iterations refining each start on the full cloud; ``postures``: starts from
@@ -98,6 +99,11 @@ class InitSettings:
         again to the safety net's searches while tracking, for the few frames whose fingers swapped)."""
         return replace(cls(icp_iterations=10, rank_points=200, keep=(6, 2), refine_points=800, refine_icp=6,
                            polish_icp=2, finger_sweeps=1, finger_pairs=False), **changes)
+
+    @classmethod
+    def paper(cls):
+        """The paper's fit from the synergy mean: no coarse or finger-wise search."""
+        return cls(search=False, finger_search=False)
 
     def check(self):
         if self.strategy not in STRATEGIES:

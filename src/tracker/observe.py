@@ -24,11 +24,13 @@ import numpy as np
 
 from ._icp_kernels import gate_kernel, observe_window
 from ._segment_kernels import dropout_band_kernel
+from .errors import TrackerError
 from .segment import Segmenter, bounds
+from .settings_base import SettingsGroup
 
 
-@dataclass
-class ObserveSettings:
+@dataclass(frozen=True)
+class ObserveSettings(SettingsGroup):
     """Sampling of the hand's points: every ``stride``-th pixel in x and y, or, with ``target_points``,
     the largest stride ≤ ``stride`` that keeps about that many points (a distant hand sampled densely
     enough, a near one not oversampled); ``smooth``: radius (px) of the edge-preserving depth
@@ -58,6 +60,15 @@ class ObserveSettings:
     arm_gate_mm: float | None = 2.0
     edge_px: int = 1
     window_m: float = 0.08
+
+    @classmethod
+    def paper(cls):
+        """Every 3rd pixel in x and y, no smoothing, no gate, the segmented mask alone."""
+        return cls(stride=3, target_points=None, smooth=0, gate_mm=0.0, edge_px=0)
+
+    def check(self):
+        if self.stride < 1:
+            raise TrackerError("observe.stride", f"must be positive, got {self.stride!r}")
 
 
 def backproject(depth, camera):

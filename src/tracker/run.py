@@ -117,7 +117,7 @@ def _scale_text(tracker) -> str:
     fingers = getattr(tracker, "finger_scales_", None)
     # per-finger length factors (finger_lengths) follow the size, in the hand model's finger order
     tail = f"; finger lengths {', '.join(f'{k} {v:.3f}' for k, v in fingers.items())}" if fingers else ""
-    if tracker.settings.hand_scale != "auto":
+    if tracker.settings.scale.hand_scale != "auto":
         given = "the hand file's calibrated hand as it is" if getattr(tracker.base_hand, "calibration", None) else "given"
         return f"{scale:.4f} ({given}){tail}"
     return f"{scale:.4f} (auto, median of {', '.join(f'{e:.4f}' for e in est)}){tail}"
@@ -290,7 +290,7 @@ class TrackJob:
     start_s, end_s, every : a recording file's frames from ``start_s`` to ``end_s`` (s of file time),
         every ``every``-th
     save_hand : write the hand calibrated in this run to this YAML file (:func:`tracker.scale.calibrated_hand`)
-    hand_scale_asked : ``settings.hand_scale`` was asked for (``--hand-scale``). A calibrated hand file
+    hand_scale_asked : ``settings.scale.hand_scale`` was asked for (``--hand-scale``). A calibrated hand file
         (``hand_model``) is tracked as it is (size 1) unless ``"auto"`` was asked, which estimates the
         size again on it; a number other than 1 with such a file is refused (it would scale the
         calibrated hand a second time)
@@ -362,7 +362,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     handedness = getattr(rec, "handedness", None) or job.handedness
     hand = HandModel.load(job.hand_model, right=handedness == "right")
     settings = settings_for_hand(hand, job.settings, job.hand_scale_asked)
-    if job.save_hand is not None and settings.hand_scale != "auto":
+    if job.save_hand is not None and settings.scale.hand_scale != "auto":
         raise TrackerError(job.save_hand, "nothing to save: this run does not calibrate the hand (its size is "
                                           f"{'in the hand file' if hand.calibration else 'given'}; "
                                           "--hand-scale auto estimates it)")
@@ -450,25 +450,25 @@ def settings_for_hand(hand, settings, hand_scale_asked=False):
     cal = getattr(hand, "calibration", None)
     if not cal:
         return settings
-    if hand_scale_asked and settings.hand_scale != "auto":
-        if float(settings.hand_scale) != 1.0:
+    if hand_scale_asked and settings.scale.hand_scale != "auto":
+        if float(settings.scale.hand_scale) != 1.0:
             raise TrackerError(hand.path, f"is a calibrated hand (size {cal.get('hand_scale')} already in it): "
-                                          f"--hand-scale {settings.hand_scale:g} would scale it again; leave "
+                                          f"--hand-scale {settings.scale.hand_scale:g} would scale it again; leave "
                                           "--hand-scale out to track on it as it is, or give --hand-scale auto "
                                           "to estimate the size again on it")
         return settings
     if hand_scale_asked:
         return settings
-    return settings.replace(hand_scale=1.0)
+    return settings.replace(scale=dict(hand_scale=1.0))
 
 
 def calibration_done(tracker) -> bool:
     """Whether ``tracker``'s automatic size (and, with ``finger_lengths``, the finger lengths) is
-    settled: the estimates of ``scale_frames`` frames are in."""
-    st = tracker.settings
+    settled: the estimates of ``scale.frames`` frames are in."""
+    st = tracker.settings.scale
     if st.hand_scale != "auto" or tracker.scale_ is None:
         return st.hand_scale != "auto"
-    done = len(tracker.scale_estimates_) >= st.scale_frames
+    done = len(tracker.scale_estimates_) >= st.frames
     return done and (not st.finger_lengths or tracker.finger_scales_ is not None)
 
 
@@ -484,7 +484,7 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
     rec = open_job_recording(job)
     bundle = load_bundle(job.synergies, registries=list(job.registries) or None) if job.synergies else None
     hand = HandModel.load(job.hand_model, right=(getattr(rec, "handedness", None) or job.handedness) == "right")
-    tracker = HandTracker(hand, job.settings.replace(hand_scale="auto"), synergies=bundle)
+    tracker = HandTracker(hand, job.settings.replace(scale=dict(hand_scale="auto")), synergies=bundle)
     cam, frames = rec.camera, []
 
     if each:

@@ -6,11 +6,6 @@ The stages it drives: :mod:`tracker.observe` → :mod:`tracker.segment` → :mod
 :class:`TrackerSettings` is composed of the stages' settings; ``TrackerSettings.paper()`` is the
 paper's method (§VI, FORMAT.md §5), the defaults are ours.
 
->>> s = TrackerSettings.paper()
->>> (s.icp.rigid_iterations, s.icp.icp_iterations, s.icp.gn_iterations, s.observe.stride)
-(1, 4, 5, 3)
->>> TrackerSettings().replace(mode="reduced", robust_mm=0.0).icp.robust_mm
-0.0
 """
 from __future__ import annotations
 
@@ -41,6 +36,7 @@ from .icp import MODES, IcpSettings, centre_shift, fit, posed_samples, tracking_
 from .init import FitContext, InitSettings, finger_shapes, fit_single_frame, score, search_threads, thin
 from .observe import ObserveSettings, hand_window, past_wrist, predicted_near
 from .rgb import RgbSeed
+from .settings import TrackerSettings
 from .scale import (
     calibrate_scale,
     finger_scales,
@@ -52,259 +48,6 @@ from .scale import (
     size_score,
 )
 from .wrist import arm_behind, arm_length_m, wrist_cost_mm, wrist_cue
-
-LIMITS = ("anatomical", "data", "model")
-
-
-@dataclass
-class TrackerSettings:
-    """Every knob of the tracker: the stages' settings and the tracker's own.
-
-    ``mode``: full, reduced or hierarchical; ``n_pcs`` PCs, or the PCs that explain ``variance``;
-    ``hierarchy``: PC counts of the reduced stages before all DoF (single-frame fits); ``limits``:
-    joint limits, "anatomical" (handmodel's), "data" (the bundle's joint min/max, as the original with
-    PCA on) or "model" (the model file's); ``prediction``: share of the last frame's change added
-    before fitting (0 = off); a frame is lost when its fit error exceeds ``lost_fit_mm`` or more than
-    ``lost_rejected`` of its points are rejected, or it has fewer than ``min_points``; ``max_points``
-    caps the points a frame fits (None = all). ``hand_scale``: the user's hand size as a factor on
-    the model (:meth:`handmodel.HandModel.scaled`), or ``"auto"``: estimated on the first frame and
-    refined over the next ``scale_frames`` − 1 tracked frames (the median), within ``scale_range``;
-    while the calibrated frames' fits score above ``scale_trust_mm``, the next frame is calibrated
-    again (at most ``scale_frames`` frames) and the best-scoring frame's size is used;
-    ``scale_refine``: how the next frames estimate it, ``"search"`` (each calibrated on its own; its
-    fit replaces the tracked one when it scores better, :meth:`HandTracker._take_better_start`) or
-    ``"local"`` (around the current size; :meth:`HandTracker._refine_scale`). ``finger_lengths``: with
-    ``"auto"``, each finger's length factor is estimated too, from the frames that refined the size
-    (:func:`tracker.scale.finger_scales`, each shrunk towards 1 by how much the frames disagree on it),
-    once the size is settled (on by default; the realistic scenes' 30 runs: mean keypoint error
-    3.39 → 2.97 mm, worst run 6.3 → 6.0; off in ``paper()``).
-    ``check_hand``: on the first frame, also fit the mirror-image hand and report in ``hand_check_``
-    whether it fits clearly better (the recording's handedness is likely wrong), or alike (the depth
-    cannot tell: :attr:`HandCheck.alike`). More frames did not decide better: their tracked fits
-    score worse than the mirror's fresh searches (the labelled SR305 stills, right hands tracked as
-    right, the mean of five frames said the left hand fits clearly better, 4.8 against 3.0 mm).
-
-    ``safety_net``: every tracked frame is tested (its start-search score, :func:`tracker.init.score`,
-    above ``net_score_mm`` and above ``net_score_ratio`` × the scene's level — the median of the last
-    undoubted frames' scores, or the last full start search's if higher: clutter that stays raises
-    every fit's score — or a
-    jump from the prediction of more than ``net_jump_deg`` / ``net_jump_mm``); a doubtful frame gets
-    the cheap start search (:meth:`tracker.init.InitSettings.cheap`) on its cloud — with
-    ``net_anchored`` first from the tracked global pose (postures only), and from placements found in
-    the cloud only when that still scores above the threshold — and the best estimate by score is
-    kept when it beats the tracked one by ``net_margin_mm`` (a search's estimate a hair better in score
-    can be degrees worse in posture: the tracked one was consistent with the frames before it). The
-    wrist cue is used only with an arm's worth of surface behind it (:func:`tracker.wrist.arm_behind`),
-    and by the net only with ``net_wrist_cue``: a tracked hand has its own evidence of which way it
-    points, and a false cue (a hand seen edge-on, no arm in view) added 13–60 mm to the right pose's
-    score, so that the search's hand turned over won (rotate scenario: 7.4° with the cue, 5.1° without).
-    ``net_wrist_mm``: a tracked frame is doubtful too when the hand points the wrong way for the
-    scene — the cue costs it more than this (:func:`tracker.wrist.wrist_cost_mm`) and the surface
-    beyond the cue goes on for ``net_arm_m`` (:func:`tracker.wrist.arm_length_m`: an arm, not the
-    rotate scenario's false cues, pieces of the hand 4–6 cm long; real arms 17–60 cm); 0 = off. A
-    hand turned round fits a flat palm as well as the right one and need not jump: the 19 labelled
-    SR305 stills tracked as one recording were fitted upside down from frame 2 on (1 frame within
-    the labels' floors); with the test every wrist is within 40 px and 5–6 frames meet them. Such a
-    frame's comparison scores with the cue: without it the search's hand turned round wins again
-    (the stills: 1 frame, wrists up to 131 px; a rendered jump: 156–168° off on every frame).
-    ``net_wrist_fit_mm``: such a frame's search result replaces the tracked one only when it also
-    scores within this of it without the cue (:func:`_without_cue`; 0: no worse). A cue can be wrong
-    where the wrist cut kept some forearm (a fist no wider than its arm: the cue sits at the mask's
-    end), and a hand stretched down the arm to reach it fits the depth worse than the tracked fist
-    (rendered fists: 4.1 against 8.4 mm and 4.6 against 5.6 mm without the cue; 40-43 mm after the
-    replacement), while the right hand fits it better than a tracked hand turned round (the rendered
-    jump and the stills tracked as one recording: 1.7-4.5 against 5.9-9.3 mm).
-    ``net_wrist_every``, ``net_wrist_moved``: the test's answer depends on the hand's pose and on where
-    the arm enters the frame (:func:`tracker._wrist_kernels.arm_entry`, ~20 µs), so it is rerun in full
-    only when the pose has turned or moved more than ``net_wrist_moved`` (degrees, mm) or the arm's
-    entry moved more than its mm since it last passed, and at least every ``net_wrist_every`` frames
-    (1 = every frame): ~0.9 ms of a tracked frame with an arm in view (the segmented benchmark's step
-    6.5 → 5.6 ms), the same fits (the realistic scenes, the real frames, the rendered jump scene).
-    ``net_far_share``: a tracked frame is doubtful too when more than this share of its points lie
-    farther than ``net_far_mm`` from the hand's surface (0 = off): the score's threshold follows the
-    scene's level, which fits going wrong raise (the stills: 12–22 mm), while this share does not
-    depend on the scene (right fits: at most 9 % over the realistic scenes' 870 tracked frames, 0 on
-    the Kinect scenarios; the stills' wrong postures 10–38 %). The stills: 5–6 → 7–8 frames within
-    the floors; ~0.07 ms a frame.
-    ``recentre``: when the segmented cloud's centre is farther than the rejection radius from the
-    predicted hand's, the prediction is moved onto it first. The net
-    does not run in reduced mode: its all-DoF estimates fit the visible surface better and win, which
-    undoes what the mode is for (the demo's grasp seen from the back: 8.0° with the net, 5.0° without).
-    There its far-points test still runs (with ``safety_net``): a reduced-mode frame that leaves more than
-    ``net_far_share`` of the segmented cloud farther than ``net_far_mm`` is lost, without θ, and the next
-    frame starts again (a rendered hand before the body whose frame was segmented with the body: fitted
-    onto the torso 270 mm away and reported tracked for two frames).
-    ``unseen_prior``: joints that move no data point (fewer than ``unseen_points`` valid pairs on the
-    parts they move: the middle and end phalanges of fingers curled away from the camera) are pulled
-    this share of the way per frame to their most likely values given the seen joints — the synergy
-    model's Gaussian conditional mean (:meth:`HandTracker._unseen_pulled`); nothing else holds them,
-    and they drifted to the joint limits (grasp seen from the back, full DoF: 7.6° → 3.3°). A start's
-    fit (no earlier frame to hold them: they are where the search's start left them) is pulled all the
-    way (a real SR305 still's thumb folded over the palm, its end phalanx without a point: bent back
-    21° as the search left it, 20.8 px from its labelled tip; 15.3 px pulled half the way, 10.3 px all
-    the way). Full and hierarchical modes with a synergy bundle; 0 = off.
-    ``finger_restart_deg``: a tracked fit whose fingers bend their last joint more than this many
-    degrees off its coupling with the joint before it is fitted once more from the coupled angle, and
-    that fit is kept when it scores clearly better (:func:`tracker.coupling.restart_uncoupled`:
-    fingertips at their limits after a fast close, under sensor noise); 0 = off; not in reduced mode.
-    ``finger_bent_back_deg``: in that refit, the fingers whose last two joints are hyperextended by
-    more than this many degrees together start bent as far the other way (:func:`tracker.coupling.bent_back`;
-    real fingers at most 24–33°): a finger curling towards the camera seen end-on fits the depth
-    bent backwards about as well (realistic Kinect v1 0.8× scene, torso 4 cm behind, depth only: the
-    index tip 71–84 mm off on 14 frames, the run 11.1 → 7.3 mm); only a finger seen, with at least
-    :data:`tracker.coupling.BENT_BACK_MIN_POINTS` pairs on its last two bones (hidden fingers of a grasp
-    seen from the back fit any bend: 5.7 → 11.6° when they were restarted too); 0 = off.
-    ``no_hand_rejected``: a start — a frame fitted without one before it (the first, after a loss,
-    each calibrating frame) — whose fit rejects more than this share of its points found no hand:
-    the frame is lost with no θ, its size is not kept, and the next frame starts again (0 = off).
-    Depth alone cannot tell a hand from a hand-sized object, but most of what a segmenter finds in
-    a frame without a hand is bigger than one: a wall, a table, a body, a door. Measured on first
-    frames with the size calibrated: right fits reject at most 15 % (19 labelled SR305 stills,
-    2–15 %; 72 rendered realistic frames, ≤ 6 %; on the human hand, :data:`tracker.TRACKING_HAND`: the
-    stills ≤ 14.7 %, 73 rendered starts of two seeds ≤ 7.5 %), fits to frames without a hand 25–36 % (the
-    real RealSense D435 and Azure Kinect recordings, three frames: 32–36 % on the paper's hand, but the
-    D435's thin upright object 24.6 % on the human hand, which 25 % let through) and 39–71 % (rendered
-    torso or table alone); the default 20 % lies midway between the hands' 15 % and the 25 %; a box the
-    size of a hand is fitted (6–19 %). The mirror image of a real hand is often rejected too (the 19
-    right-hand stills tracked as the left hand: 7 found no hand; the CLI's warning then names ``--hand``).
-    A start needs a segmented region of ``start_min_pixels`` pixels too (its points when no mask is given; 0 = off; a tracked frame needs
-    ``min_points``): right first frames have 1171–8270 mask pixels (rendered) and 6210–12550 (the
-    stills); a hand the ``--box`` cut to 35 pixels was fitted at 0.47 mm, outside the box.
-    ``wrist_cue``: the start searches score candidates also by the frame's wrist cue
-    (:func:`tracker.wrist.wrist_cue`: where the arm leaves the hand's mask), so that a hand whose
-    fingers point up the arm never wins, and a start's last fits hold the hand's wrist crease on the
-    arm's centre line (:class:`tracker.icp.IcpSettings` ``wrist_line_weight``: on all 18 real
-    stills with a cue the fitted crease lay 4–29 mm to the thumb's side of that line, and the labelled
-    creases within 3 mm of it on 16, 6 mm at most). ``rgb_seed``: frames given with their colour image start
-    their search also from the hand fitted to the colour keypoints (:mod:`tracker.rgb`, extra
-    ``[rgb]``; not with ``hand_scale="auto"``'s first frame, whose search also finds the size).
-    """
-
-    mode: str = "full"
-    n_pcs: int | None = None
-    variance: float | None = 0.99
-    hierarchy: tuple = (1, 4)
-    limits: str = "anatomical"
-    prediction: float = 1.0
-    lost_fit_mm: float = 12.0
-    lost_rejected: float = 0.6
-    min_points: int = 30
-    max_points: int | None = None
-    hand_scale: float | str = "auto"
-    scale_frames: int = 5
-    scale_trust_mm: float = 6.0
-    scale_refine: str = "search"
-    finger_lengths: bool = True
-    finger_bent_back_deg: float = BENT_BACK_DEG
-    scale_range: tuple = (0.6, 2.0)
-    check_hand: bool = False
-    safety_net: bool = True
-    net_score_mm: float = 0.7
-    net_score_ratio: float = 2.5
-    net_jump_deg: float = 30.0
-    net_jump_mm: float = 40.0
-    net_anchored: bool = True
-    net_margin_mm: float = 0.2
-    recentre: bool = True
-    net_wrist_cue: bool = False
-    net_wrist_mm: float = 20.0
-    net_wrist_fit_mm: float = 0.0
-    net_arm_m: float = 0.12
-    net_wrist_every: int = 6
-    net_wrist_moved: tuple = (15.0, 15.0)
-    net_far_share: float = 0.1
-    net_far_mm: float = 15.0
-    no_hand_rejected: float = 0.2
-    start_min_pixels: int = 150
-    unseen_prior: float = 0.5
-    unseen_points: int = 3
-    finger_restart_deg: float = 50.0
-    wrist_cue: bool = True
-    rgb_seed: bool = False
-    observe: ObserveSettings = field(default_factory=ObserveSettings)
-    correspond: CorrespondSettings = field(default_factory=CorrespondSettings)
-    icp: IcpSettings = field(default_factory=IcpSettings)
-    init: InitSettings = field(default_factory=InitSettings)
-
-    @classmethod
-    def paper(cls, **changes) -> "TrackerSettings":
-        """The paper's method: fixed stride 3 without smoothing, plain least squares on data→model
-        pairs (rejected at 50 mm, no normal test, no silhouette term), 1 rigid + 4 non-rigid ICP
-        iterations × 5 Gauss-Newton steps, λ = 1 on posture and 0 on pose, single-frame fits from the
-        synergy mean without our coarse or finger-wise searches, the model's own size (``hand_scale``
-        1.0; the default is ``"auto"``); ``changes`` as in :meth:`replace`."""
-        base = cls(observe=ObserveSettings(stride=3, target_points=None, smooth=0, gate_mm=0.0, edge_px=0),
-                   correspond=CorrespondSettings(reject_mm=50.0, normal_agreement=-1.0),
-                   icp=IcpSettings(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0,
-                                   pose_damping=0.0, robust_mm=0.0, silhouette_weight=0.0, projected_steps=0,
-                                   stages_per_pass=1, wrist_line_weight=0.0),
-                   init=InitSettings(search=False, finger_search=False), safety_net=False, recentre=False, wrist_cue=False,
-                   hand_scale=1.0, finger_lengths=False, unseen_prior=0.0, finger_restart_deg=0.0,
-                   no_hand_rejected=0.0, start_min_pixels=0)
-        return base.replace(**changes)
-
-    def replace(self, **changes) -> "TrackerSettings":
-        """A copy with fields changed by name, wherever they live (``mode``, ``stride``, ``robust_mm``,
-        ``init_icp_iterations`` …); a stage's settings may also be given whole (``icp=IcpSettings(…)``)."""
-        own = {f.name for f in dataclasses.fields(self)}
-        top = {k: v for k, v in changes.items() if k in own}
-        out = dataclasses.replace(self, **top)
-        for k, v in changes.items():
-            if k in own:
-                continue
-            stage, name = _STAGE_OF.get(k, (None, None))
-            if stage is None:
-                raise TrackerError("settings", f"unknown tracker setting {k!r}")
-            setattr(out, stage, dataclasses.replace(getattr(out, stage), **{name: v}))
-        return out
-
-    def check(self):
-        if self.mode not in MODES:
-            raise TrackerError("settings", f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if self.limits not in LIMITS:
-            raise TrackerError("settings", f"limits must be one of {', '.join(LIMITS)}, got {self.limits!r}")
-        if isinstance(self.hand_scale, str):
-            if self.hand_scale != "auto":
-                raise TrackerError("settings", f"hand_scale must be a positive number or 'auto', got {self.hand_scale!r}")
-        elif not (np.isfinite(self.hand_scale) and self.hand_scale > 0):
-            raise TrackerError("settings", f"hand_scale must be a positive number or 'auto', got {self.hand_scale!r}")
-        lo, hi = self.scale_range
-        if not 0 < lo < hi or self.scale_frames < 1:
-            raise TrackerError("settings", "scale_range must be 0 < low < high and scale_frames ≥ 1")
-        if not isinstance(self.hand_scale, str) and not lo <= self.hand_scale <= hi:
-            raise TrackerError("settings", f"hand_scale must be within scale_range {lo:g}–{hi:g}, got {self.hand_scale!r}")
-        if self.scale_refine not in ("search", "local"):
-            raise TrackerError("settings", f"scale_refine must be 'search' or 'local', got {self.scale_refine!r}")
-        if self.observe.stride < 1:
-            raise TrackerError("settings", "stride must be positive")
-        if self.start_min_pixels < 0:
-            raise TrackerError("settings", f"start_min_pixels must be ≥ 0 (0 = off), got {self.start_min_pixels!r}")
-        if not 0.0 <= self.no_hand_rejected < 1.0:
-            raise TrackerError("settings", f"no_hand_rejected must be in [0, 1), got {self.no_hand_rejected!r}")
-        if not self.net_wrist_fit_mm >= 0:
-            raise TrackerError("settings", f"net_wrist_fit_mm must be ≥ 0, got {self.net_wrist_fit_mm!r}")
-        if int(self.net_wrist_every) < 1 or len(self.net_wrist_moved) != 2 or min(self.net_wrist_moved) < 0:
-            raise TrackerError("settings", "net_wrist_every must be ≥ 1 and net_wrist_moved two limits ≥ 0 "
-                                           f"(degrees, mm), got {self.net_wrist_every!r} and {self.net_wrist_moved!r}")
-        self.correspond.check()
-        self.icp.check()
-
-
-def _stage_fields():
-    out = {}
-    for stage, cls, prefix in (("observe", ObserveSettings, ""), ("correspond", CorrespondSettings, ""),
-                               ("icp", IcpSettings, ""), ("init", InitSettings, "init_")):
-        for f in dataclasses.fields(cls):
-            out[prefix + f.name] = (stage, f.name)
-    # the old flat names of the single-frame search
-    out["init_postures"] = ("init", "postures")
-    out["finger_search"] = ("init", "finger_search")
-    out["finger_search_icp"] = ("init", "finger_search_icp")
-    return out
-
-
-_STAGE_OF = _stage_fields()
-
 
 @dataclass
 class HandCheck:
@@ -384,9 +127,9 @@ def _output_theta(theta) -> np.ndarray:
 def fit_context(hand, settings: TrackerSettings, synergies=None):
     """The parts of every fit of ``hand`` (:class:`tracker.init.FitContext`) and the number of PCs."""
     lim = np.array(hand.limits, float)
-    if settings.limits == "anatomical":
+    if settings.subspace.limits == "anatomical":
         lim = anatomical_limits(hand)
-    elif settings.limits == "data" and synergies is not None:
+    elif settings.subspace.limits == "data" and synergies is not None:
         post = ~hand.pose_mask
         lim[post, 0] = synergies.model.joint_min_
         lim[post, 1] = synergies.model.joint_max_
@@ -394,13 +137,13 @@ def fit_context(hand, settings: TrackerSettings, synergies=None):
     reduced, ladder, n_pcs, model = None, [], None, None
     if synergies is not None:
         model = synergies.model
-        n_pcs = int(settings.n_pcs) if settings.n_pcs is not None else model.n_components_for(settings.variance or 0.99)
+        n_pcs = int(settings.subspace.n_pcs) if settings.subspace.n_pcs is not None else model.n_components_for(settings.subspace.variance or 0.99)
         if not 1 <= n_pcs <= model.all_components_.shape[0]:
             raise TrackerError("synergies", f"{n_pcs} PCs requested, the bundle has {model.all_components_.shape[0]}")
         reduced = synergies.subspace(n_pcs, hand=hand)
         # the ladder's last stage is `full` itself: the fit tells all-DoF stages by identity
         ladder = hierarchical_schedule(hand, model.all_components_, model.mean_, model.pc_min_, model.pc_max_,
-                                       steps=settings.hierarchy, n_pcs=n_pcs)[:-1] + [full]
+                                       steps=settings.subspace.hierarchy, n_pcs=n_pcs)[:-1] + [full]
     matcher = Matcher(hand, settings.correspond)
     samples = ModelSamples(hand) if settings.icp.silhouette_weight > 0 else None
     # the start search scores both directions even when the fit itself has no silhouette term
@@ -457,14 +200,14 @@ class HandTracker:
         self.net_runs_, self.net_replaced_, self.net_ms_, self.recentred_ = 0, 0, 0.0, 0
         self.net_anchored_, self.net_placed_, self.net_wrong_way_ = 0, 0, 0
         self.wrist_tests_ = 0  # the wrist tests run in full (_wrong_way: the others found nothing changed)
-        self.rgb_ = RgbSeed(keypoint_detector) if settings.rgb_seed else None
+        self.rgb_ = RgbSeed(keypoint_detector) if settings.start.rgb_seed else None
         self.rgb_seeds_, self.rgb_kept_ = 0, 0
         self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
         self._wrist_passed = None  # (θ, arm entry, frames since) of the last hand the wrist test passed
         self._search_level = 0.0
-        auto = settings.hand_scale == "auto"
-        self._use_scale(1.0 if auto else float(settings.hand_scale))
-        self.scale_ = None if auto else float(settings.hand_scale)
+        auto = settings.scale.hand_scale == "auto"
+        self._use_scale(1.0 if auto else float(settings.scale.hand_scale))
+        self.scale_ = None if auto else float(settings.scale.hand_scale)
         # the synergy model's joint covariance and which parts each posture DoF moves (unseen_prior)
         self._unseen = _unseen_parts(hand, synergies)
         self.unseen_frames_ = 0
@@ -532,7 +275,7 @@ class HandTracker:
         of ``scale_range`` (:meth:`_size_out`) found no hand either."""
         st = self.settings
         s, theta, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
-                                         scale_range=st.scale_range)
+                                         scale_range=st.scale.range)
         if self._no_hand_sized(s, corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
             self._keep_contexts(1.0 if self.scale_ is None else self.scale_)
@@ -541,7 +284,7 @@ class HandTracker:
         self._calibrations.append((q, s))
         self._use_scale(s)
         q_best, best = min(self._calibrations)
-        self._scale_open = q_best > st.scale_trust_mm and len(self._calibrations) < st.scale_frames
+        self._scale_open = q_best > st.scale.trust_mm and len(self._calibrations) < st.scale.frames
         self.scale_estimates_ = [best]
         self.scale_ = best
         if round(best, 5) != round(s, 5):
@@ -560,12 +303,12 @@ class HandTracker:
 
     def _calibrating(self) -> bool:
         """Whether the next frame calibrates the size (``hand_scale="auto"`` not settled yet)."""
-        return self.settings.hand_scale == "auto" and (self.scale_ is None or self._scale_open)
+        return self.settings.scale.hand_scale == "auto" and (self.scale_ is None or self._scale_open)
 
     def _found_nothing(self, corr) -> bool:
         """Whether a start's fit (its correspondences ``corr``) rejects more than ``no_hand_rejected``
         of its points: what it fitted is no hand."""
-        limit = self.settings.no_hand_rejected
+        limit = self.settings.loss.no_hand_rejected
         return bool(limit) and len(corr.valid) > 0 and corr.rejected_share > limit
 
     def _size_out(self, s) -> bool:
@@ -574,8 +317,8 @@ class HandTracker:
         in by a ``--box`` that cut the hand out, fitted at 2.0× the model, the range's end, with 23 % of
         its points rejected; the 19 SR305 stills: 1.21–1.31×). A test of the no-hand tests: off with
         ``no_hand_rejected`` 0."""
-        lo, hi = self.settings.scale_range
-        return bool(self.settings.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
+        lo, hi = self.settings.scale.range
+        return bool(self.settings.loss.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
 
     def _no_hand_sized(self, s, corr) -> bool:
         """Whether a calibrating start (size ``s``, pairs ``corr``) found no hand: its size at an end of
@@ -603,10 +346,10 @@ class HandTracker:
         (~30 ms)."""
         s, st = self.scale_, self.settings
         found = None
-        if st.scale_refine == "search":
+        if st.scale.refine == "search":
             self._add_wrist(sil)
             est, th_est, _ = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
-                                             scale_range=st.scale_range)
+                                             scale_range=st.scale.range)
             if abs(math.log(est / s)) > SIZE_RESTART_LOG:
                 # a size far from the tracked fit's: its search may hold a better start (its hand taken
                 # before the probed sizes' contexts are dropped)
@@ -618,7 +361,7 @@ class HandTracker:
             sub = thin(pts, st.init.refine_points)
             est, _, _, _ = parabola_scale(self.context_for, self.theta, self.hand, pts[sub], s, silhouette=sil,
                                           normals=None if nrm is None else nrm[sub])
-        est = float(np.clip(est, *st.scale_range))
+        est = float(np.clip(est, *st.scale.range))
         keep_key = round(float(np.median(self.scale_estimates_ + [est])), 5)
         # the sizes the search probed are not needed again
         self._keep_contexts(keep_key, s)
@@ -633,9 +376,9 @@ class HandTracker:
             self.last_good = self.theta
         if found is not None:
             self._take_better_start(pts, nrm, sil, *found)
-        if st.finger_lengths:
+        if st.scale.finger_lengths:
             self._size_frames.append((pts, nrm, sil, self.theta.copy(), self.hand))
-        if st.finger_lengths and len(self.scale_estimates_) >= st.scale_frames:
+        if st.scale.finger_lengths and len(self.scale_estimates_) >= st.scale.frames:
             self._find_finger_lengths()
 
     def _take_better_start(self, pts, nrm, sil, hand_est, theta_est):
@@ -656,7 +399,7 @@ class HandTracker:
                                normals=nrm)
         here, c_here = ctx.fit(self.theta, pts, "full", 1, n, silhouette=sil, normals=nrm)
         if (np.all(np.isfinite(cand))
-                and score(ctx, cand, c_cand, sil) < score(ctx, here, c_here, sil) - st.net_margin_mm):
+                and score(ctx, cand, c_cand, sil) < score(ctx, here, c_here, sil) - st.net.margin_mm):
             self.theta = self.last_good = cand
             self.prev = None
             self._wrist_passed = None
@@ -694,18 +437,18 @@ class HandTracker:
         also fitted from the coupled last joint: size 1.279 and 1.237, index 0.90 and 0.93, little finger
         0.88 and 0.87; median 5.0 → 3.8 px, worst tip 19 px, frames within every floor 15 → 14."""
         st = self.settings
-        if st.hand_scale != "auto":
+        if st.scale.hand_scale != "auto":
             raise TrackerError("calibration", "calibrate_each needs hand_scale='auto'")
         frames, used, est, seen = [], [], [], 0
         for i, ob in enumerate(observations):
             seen += 1
             sil = _silhouette(_silhouette_mask(ob), ob.depth, camera, ob.frame_depth)
-            pts, nrm = _usable(ob.points, ob.normals, st.max_points)
-            if len(pts) < st.min_points:
+            pts, nrm = _usable(ob.points, ob.normals, st.loss.max_points)
+            if len(pts) < st.loss.min_points:
                 continue
             self._add_wrist(sil)
             size, _, corr = calibrate_scale(self.context_for, pts, st.init, silhouette=sil, normals=nrm,
-                                            scale_range=st.scale_range)
+                                            scale_range=st.scale.range)
             if self._no_hand_sized(size, corr):
                 self.no_hand_ += 1
                 continue
@@ -721,7 +464,7 @@ class HandTracker:
         self.scale_, self.scale_estimates_ = s, [float(e) for e in est]
         self._use_scale(s)
         self._keep_contexts(s)
-        if st.finger_lengths:
+        if st.scale.finger_lengths:
             self._size_frames = [(p, n, sil, self.fit_single_frame(p, silhouette=sil, normals=n)[0], self.hand)
                                  for p, n, sil in frames]
             self._find_finger_lengths()
@@ -734,8 +477,8 @@ class HandTracker:
         only (hierarchical mode predicts all DoF: motion outside the synergies is real motion there)."""
         theta = self.theta.copy()
         st = self.settings
-        if st.prediction and self.prev is not None:
-            step = (self.theta - self.prev) * float(st.prediction)
+        if st.predict.share and self.prev is not None:
+            step = (self.theta - self.prev) * float(st.predict.share)
             step[3:6] = 0.0
             post = ~self.hand.pose_mask
             if st.mode == "reduced":
@@ -756,21 +499,21 @@ class HandTracker:
         sil = _silhouette(mask, depth, camera, frame_depth)
         t0 = time.perf_counter()
         st = self.settings
-        pts, nrm = _usable(points, normals, st.max_points)
+        pts, nrm = _usable(points, normals, st.loss.max_points)
         n_in = len(pts)
         net, recentred, far_lost = "", False, False
-        if n_in < st.min_points:
+        if n_in < st.loss.min_points:
             # nothing seen: no θ is output (an unreadable frame's row repeated the frame before it, which
             # a user of the rows cannot tell from a measurement); the next start may still begin there
             self.lost = True
             return FrameResult(np.full(self.hand.n_dofs, np.nan), "lost", float("nan"), 0, n_in,
                                (time.perf_counter() - t0) * 1e3, 1.0)
         starting = self._calibrating() or self.lost or self.theta is None
-        if starting and st.start_min_pixels:
+        if starting and st.loss.start_min_pixels:
             # too little of anything to start a hand from: 26 DoF fitted to a few dozen points fit anything.
             # The region's pixels, not its points: a coarse stride (Fig. 9's 1/36) samples a whole hand sparsely
             region = n_in if sil is None or sil.empty else int(np.count_nonzero(sil.mask))
-            if region < st.start_min_pixels:
+            if region < st.loss.start_min_pixels:
                 return self._no_hand(None, n_in, t0)
         if self._calibrating():
             self._add_wrist(sil)
@@ -780,7 +523,7 @@ class HandTracker:
             status = "reinit"
             self.prev = None
             self._wrist_passed = None
-            if st.safety_net:
+            if st.net.enabled:
                 # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
                 self._search_level = score(self.context, theta, corr, sil)
         elif self.lost or self.theta is None:
@@ -799,7 +542,7 @@ class HandTracker:
             status = "reinit"
             self.prev = None
             self._wrist_passed = None
-            if st.safety_net:
+            if st.net.enabled:
                 # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
                 self._search_level = score(self.context, theta, corr, sil)
         else:
@@ -809,7 +552,7 @@ class HandTracker:
             # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
             # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
             keep, arm = self._gate(pred, pts) if st.observe.gate_mm > 0 else (None, None)
-            if st.recentre and (keep is None or keep.all()):
+            if st.predict.recentre and (keep is None or keep.all()):
                 moved = self._recentred(pred, pts)
                 recentred, pred = moved is not pred, moved
                 if recentred and keep is not None:
@@ -831,16 +574,16 @@ class HandTracker:
 
             theta, corr = tracking_fit(pred)
             status = "tracked"
-            if st.finger_restart_deg and st.mode != "reduced":
+            if st.refine.finger_restart_deg and st.mode != "reduced":
                 theta, corr, _ = restart_uncoupled(self.hand, theta, corr, tracking_fit,
                                                    lambda t, c: score(ctx, t, c, sil), self.limits,
-                                                   tolerance_deg=st.finger_restart_deg,
-                                                   bent_back_deg=st.finger_bent_back_deg or None)
-            if st.safety_net and st.mode != "reduced":
+                                                   tolerance_deg=st.refine.finger_restart_deg,
+                                                   bent_back_deg=st.refine.finger_bent_back_deg or None)
+            if st.net.enabled and st.mode != "reduced":
                 theta, corr, pts, nrm, net = self._safety_net(theta, corr, pred, pts, nrm, all_pts, all_nrm, sil)
                 if net == "replaced":
                     status = "reinit"
-            elif st.safety_net and self._far_off(theta, all_pts, most=200):
+            elif st.net.enabled and self._far_off(theta, all_pts, most=200):
                 # reduced mode has no net (its all-DoF searches would undo the subspace), but a fit that
                 # leaves most of the segmented cloud far away is on something else: lost, not tracked
                 # (a rendered hand in front of the body, segmented with the body: 284 of 2329 points
@@ -850,11 +593,11 @@ class HandTracker:
         # half the way, as tracked frames: it starts from the tracked fit too, and all the way there made the
         # hard cases' fast sweeps 7.6 -> 8.7 deg (Kinect v1 noise 14.0 -> 16.1) and the turn 6.5 -> 7.1 with noise
         theta = self._unseen_pulled(theta, corr, 1.0 if status == "reinit" and net != "replaced" else None)
-        if st.check_hand and self.hand_check_ is None and status == "reinit":
+        if st.start.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         fit_mm = corr.fit_error_mm()
         rejected = corr.rejected_share
-        if np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected and not far_lost:
+        if np.isfinite(fit_mm) and fit_mm <= st.loss.lost_fit_mm and rejected <= st.loss.lost_rejected and not far_lost:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
             if recentred and self.prev is not None:
                 # the jump was no velocity: the next prediction must not repeat it
@@ -863,7 +606,7 @@ class HandTracker:
             self.last_good = theta
             self.lost = False
             if (status == "tracked" and not self.calibrated_each_
-                    and len(self.scale_estimates_) < (st.scale_frames if st.hand_scale == "auto" else 0)):
+                    and len(self.scale_estimates_) < (st.scale.frames if st.scale.hand_scale == "auto" else 0)):
                 self._refine_scale(pts, nrm, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
@@ -889,11 +632,11 @@ class HandTracker:
         ``unseen_points`` valid pairs lie on the parts it moves). Unchanged when every DoF, or none, is
         seen (nothing to condition on), or when ``unseen_prior`` is 0 (off)."""
         st = self.settings
-        if not st.unseen_prior or self._unseen is None or st.mode == "reduced":
+        if not st.refine.unseen_prior or self._unseen is None or st.mode == "reduced":
             return theta
         moves, mu, S = self._unseen
         counts = np.bincount(corr.nodes[corr.valid], minlength=self.hand.n_nodes)
-        hid = moves @ counts < st.unseen_points
+        hid = moves @ counts < st.refine.unseen_points
         if not hid.any() or hid.all():
             return theta
         seen = ~hid
@@ -902,7 +645,7 @@ class HandTracker:
         cond = mu[hid] + S[np.ix_(hid, seen)] @ np.linalg.solve(S[np.ix_(seen, seen)], x[seen] - mu[seen])
         out = np.array(theta, float)
         idx = post[hid]
-        share = st.unseen_prior if share is None else share
+        share = st.refine.unseen_prior if share is None else share
         out[idx] = np.clip(x[hid] + share * (cond - x[hid]), self.limits[idx, 0], self.limits[idx, 1])
         self.unseen_frames_ += 1
         return out
@@ -937,14 +680,14 @@ class HandTracker:
     def _add_wrist(self, sil):
         """The frame's wrist cue on its silhouette, where :func:`tracker.init.score` finds it (added only
         when a search is about to run: tracking does not score by it)."""
-        if sil is not None and self.settings.wrist_cue and not hasattr(sil, "wrist"):
+        if sil is not None and self.settings.start.wrist_cue and not hasattr(sil, "wrist"):
             sil.wrist = self._frame_cue(sil)
 
     def _frame_cue(self, sil):
         """The frame's wrist cue (:func:`tracker.wrist.wrist_cue`) when an arm's worth of surface lies
         behind it (:func:`tracker.wrist.arm_behind`), else None; found once per frame (kept on the
         silhouette as ``arm_cue``, which :func:`tracker.init.score` does not read)."""
-        if sil is None or not self.settings.wrist_cue:
+        if sil is None or not self.settings.start.wrist_cue:
             return None
         if not hasattr(sil, "arm_cue"):
             frame = getattr(sil, "frame_depth", None)
@@ -966,16 +709,16 @@ class HandTracker:
         st = self.settings
         P, N = posed_samples(self.hand, self.context.score_samples, pred)
         near = predicted_near(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
-                              min_points=st.min_points)
+                              min_points=st.loss.min_points)
         if near is None:
             return np.ones(len(pts), bool), None
-        if st.observe.arm_gate_mm is None or not st.safety_net or st.mode == "reduced":
+        if st.observe.arm_gate_mm is None or not st.net.enabled or st.mode == "reduced":
             # without the net's far-points test nothing would see the hand cut off past a wrong wrist
             # (fast and turning hands alone without the net: 32.0 -> 35.4 and 26.7 -> 32.0 deg)
             return near, None
         axis = self.hand.joint_frames(pred)[0, :3, 1]
         arm = near & past_wrist(pts, self.hand.wrist_crease(pred), axis, st.observe.arm_gate_mm / 1000.0)
-        if not arm.any() or np.count_nonzero(near & ~arm) < max(st.min_points, 1):
+        if not arm.any() or np.count_nonzero(near & ~arm) < max(st.loss.min_points, 1):
             return near, None
         return near, arm
 
@@ -996,7 +739,7 @@ class HandTracker:
         the scene's level when higher."""
         st = self.settings
         level = max(np.median(self._scores) if self._scores else 0.0, self._search_level)
-        return max(st.net_score_mm, st.net_score_ratio * level)
+        return max(st.net.score_mm, st.net.score_ratio * level)
 
     def _doubtful(self, theta, pred, s, sil=None, points=None, near_mm=None) -> str:
         """The safety net's test of a tracked frame: why it is doubtful — ``"wrist"`` (the hand points
@@ -1011,10 +754,10 @@ class HandTracker:
         if self._far_off(theta, points, near_mm=near_mm):
             return "far"
         # the threshold is never below net_score_mm: most frames are decided without the level's median
-        if s > st.net_score_mm and s > self._net_threshold():
+        if s > st.net.score_mm and s > self._net_threshold():
             return "score"
         turn, moved = _pose_change(theta, pred)
-        if turn > st.net_jump_deg or moved > st.net_jump_mm:
+        if turn > st.net.jump_deg or moved > st.net.jump_mm:
             return "jump"
         return ""
 
@@ -1025,13 +768,13 @@ class HandTracker:
         every k-th point, at most that many (a share needs no more: reduced mode runs the test on every
         frame, 0.18 ms at 900 points, 0.12 ms at 200)."""
         st = self.settings
-        if not st.net_far_share or points is None or not len(points):
+        if not st.net.far_share or points is None or not len(points):
             return False
         if near_mm is None:
             if most is not None:
                 points = points[::-(-len(points) // most)]
             near_mm = data_to_model_mm(self.context.matcher, theta, points)
-        return bool(np.mean(near_mm > st.net_far_mm) > st.net_far_share)
+        return bool(np.mean(near_mm > st.net.far_mm) > st.net.far_share)
 
     def _wrong_way(self, theta, sil) -> bool:
         """Whether the scene contradicts the hand's orientation: the frame's wrist cue
@@ -1047,21 +790,21 @@ class HandTracker:
         and torso, Kinect v1; SR305 noise ~0.7 ms; 1.6 / 1.3 ms before their window work was compiled);
         ~5 µs where nothing does (a hand alone)."""
         st = self.settings
-        if not st.net_wrist_mm:
+        if not st.net.wrist.cost_mm:
             return False
         entry = self._arm_entry(sil)
         last = self._wrist_passed
-        if last is not None and last[2] + 1 < st.net_wrist_every and _same_entry(entry, last[1], st.net_wrist_moved[1]):
+        if last is not None and last[2] + 1 < st.net.wrist.every and _same_entry(entry, last[1], st.net.wrist.moved[1]):
             turn, moved = _pose_change(theta, last[0])
-            if turn <= st.net_wrist_moved[0] and moved <= st.net_wrist_moved[1]:
+            if turn <= st.net.wrist.moved[0] and moved <= st.net.wrist.moved[1]:
                 # the test's two inputs as when it last passed: the hand's pose and where the arm
                 # enters the frame (a scene turned round under a fit that stayed moves the entry)
                 self._wrist_passed = (last[0], last[1], last[2] + 1)
                 return False
         self.wrist_tests_ += 1
         cue = self._frame_cue(sil)
-        wrong = (cue is not None and wrist_cost_mm(cue, self.hand, theta) > st.net_wrist_mm
-                 and arm_length_m(cue, sil.mask, sil.frame_depth, sil.camera) >= st.net_arm_m)
+        wrong = (cue is not None and wrist_cost_mm(cue, self.hand, theta) > st.net.wrist.cost_mm
+                 and arm_length_m(cue, sil.mask, sil.frame_depth, sil.camera) >= st.net.wrist.arm_m)
         self._wrist_passed = None if wrong else (np.array(theta, float), entry, 0)
         return wrong
 
@@ -1101,7 +844,7 @@ class HandTracker:
         self.net_runs_ += 1
         if why == "wrist":
             self.net_wrong_way_ += 1
-        if self.settings.net_wrist_cue or why == "wrist":
+        if self.settings.net.wrist.cue or why == "wrist":
             # the cue made the frame doubtful: without it the comparison would keep the hand turned
             # over, which fits the depth as well as the right one
             self._add_wrist(sil)
@@ -1111,7 +854,7 @@ class HandTracker:
         starts = (theta,) if self.last_good is None else (theta, self.last_good)
         st = self.settings
         best = (s_track, None, None)
-        if st.net_anchored:
+        if st.net.anchored:
             # a posture gone wrong under a right global pose (fingers hidden, a fast close) is the
             # common failure: the posture search from the tracked pose fits no placements and cannot
             # pick a wrong one
@@ -1119,15 +862,15 @@ class HandTracker:
                                        silhouette=sil, normals=all_nrm, extra=starts)
             self.net_anchored_ += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
-        if not st.net_anchored or best[0] > self._net_threshold():
+        if not st.net.anchored or best[0] > self._net_threshold():
             # still doubtful: the hand may have turned beyond the tracked pose's reach
             th2, c2 = fit_single_frame(ctx, all_pts, InitSettings.cheap(), silhouette=sil, normals=all_nrm, extra=starts)
             self.net_placed_ += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
         self.net_ms_ += (time.perf_counter() - t0) * 1e3
-        if (best[1] is not None and best[0] < s_track - st.net_margin_mm
+        if (best[1] is not None and best[0] < s_track - st.net.margin_mm
                 and (why != "wrist" or _without_cue(ctx, best[1], best[2], sil)
-                     <= _without_cue(ctx, theta, c_all, sil) + st.net_wrist_fit_mm)):
+                     <= _without_cue(ctx, theta, c_all, sil) + st.net.wrist.fit_mm)):
             self.net_replaced_ += 1
             self.prev = None
             self._wrist_passed = None

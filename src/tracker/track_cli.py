@@ -102,24 +102,12 @@ def track(
         _check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     _check_every(overlay_every)
     segmenter = _segmenter(depth_range, box, forearm, plane)
+    # Dask's workers already run recordings side by side
+    threads = 1 if threads is None and dask is not None else threads
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
-                         prediction, robust, finger_search, projected_steps, hand_scale, check_hand)
-    settings.rgb_seed = rgb_seed
-    if finger_lengths is not None:
-        settings.finger_lengths = finger_lengths
-    if safety_net is not None:
-        settings.safety_net = safety_net
-    if unseen_prior is not None:
-        if not 0.0 <= unseen_prior <= 1.0:
-            raise TrackerError("--unseen-prior", f"must be within 0..1, got {unseen_prior}")
-        settings.unseen_prior = unseen_prior
-    if no_hand is not None:
-        if not 0.0 <= no_hand < 1.0:
-            raise TrackerError("--no-hand-rejected", f"must be a share in [0, 1) (0 = off), got {no_hand}")
-        settings.no_hand_rejected = no_hand
-    if threads is not None or dask is not None:
-        # Dask's workers already run recordings side by side
-        settings = settings.replace(init_threads=1 if threads is None else threads)
+                         prediction, robust, finger_search, projected_steps, hand_scale, check_hand,
+                         rgb_seed=rgb_seed, finger_lengths=finger_lengths, safety_net=safety_net,
+                         unseen_prior=unseen_prior, no_hand=no_hand, threads=threads)
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob
@@ -256,31 +244,50 @@ def _check_hand_file(path):
         raise TrackerError(path, "a hand file must end in .yaml or .yml (--hand-model takes it back by that)")
 
 
-def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette, prediction,
-              robust, finger_search, projected_steps, hand_scale, check_hand):
-    """The :class:`tracker.track.TrackerSettings` of the command line: the default or the paper's,
-    with every option given replacing its value."""
-    from .errors import TrackerError
-    from .icp import MODES
-    from .track import TrackerSettings
+#: The option of each settings field the command line sets: a settings error names the option.
+_OPTION_OF = {"mode": "--mode", "subspace.variance": "--variance", "subspace.n_pcs": "--pcs",
+              "scale.hand_scale": "--hand-scale", "refine.unseen_prior": "--unseen-prior",
+              "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride"}
 
-    # before the synergy bundle a mode needs: a typo must not read as a missing --synergies
-    if mode not in MODES:
-        raise TrackerError("--mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {mode!r}")
+
+def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette, prediction,
+              robust, finger_search, projected_steps, hand_scale, check_hand, *, rgb_seed=False, finger_lengths=None,
+              safety_net=None, unseen_prior=None, no_hand=None, threads=None):
+    """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
+    with every option given replacing its value, checked (:func:`_checked`)."""
+    from .errors import TrackerError
+    from .settings import TrackerSettings
+
     if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
         raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
-    variance = 0.99 if variance is None else variance
-    if not pcs and not 0.0 < variance < 1.0:  # the option's own name, not the PCA's n_components
-        raise TrackerError("--variance", f"must be a fraction in (0, 1), got {variance}")
-    given = dict(stride=stride, smooth=smooth, target_points=None if points == 0 else points,
-                 icp_iterations=icp, gn_iterations=gn, damping=damping, model=model, silhouette_weight=silhouette,
-                 prediction=prediction, robust_mm=robust, finger_search=finger_search, projected_steps=projected_steps)
-    given = {k: v for k, v in given.items() if v is not None or (k == "target_points" and points == 0)}
-    if hand_scale is not None:
-        given["hand_scale"] = _hand_scale(hand_scale)
-    given["check_hand"] = check_hand
+    groups = {
+        "observe": dict(stride=stride, smooth=smooth, target_points=points or None),
+        "icp": dict(icp_iterations=icp, gn_iterations=gn, damping=damping, silhouette_weight=silhouette,
+                    robust_mm=robust, projected_steps=projected_steps),
+        "correspond": dict(model=model), "predict": dict(share=prediction),
+        "init": dict(finger_search=finger_search, threads=threads),
+        "scale": dict(hand_scale=_hand_scale(hand_scale), finger_lengths=finger_lengths),
+        "start": dict(check_hand=check_hand, rgb_seed=rgb_seed), "net": dict(enabled=safety_net),
+        "refine": dict(unseen_prior=unseen_prior), "loss": dict(no_hand_rejected=no_hand),
+    }
+    # an option not given keeps the default's value (the paper's with --paper); --points 0: all points (None)
+    given = {g: {k: v for k, v in kv.items() if v is not None or (k == "target_points" and points == 0)}
+             for g, kv in groups.items()}
+    given["subspace"] = dict(n_pcs=pcs, variance=None if pcs else (0.99 if variance is None else variance))
     base = TrackerSettings.paper() if paper else TrackerSettings()
-    return base.replace(mode=mode, n_pcs=pcs, variance=None if pcs else variance, **given)
+    return _checked(base.replace(mode=mode, **given))
+
+
+def _checked(settings):
+    """``settings`` after ``settings.check()``, whose error names the command-line option of the field
+    (before the synergy bundle a mode needs is loaded: a typo must not read as a missing --synergies)."""
+    from .errors import TrackerError
+
+    try:
+        settings.check()
+    except TrackerError as e:
+        raise TrackerError(_OPTION_OF.get(e.where, e.where), e.reason) from None
+    return settings
 
 
 def _track_one(job, recording, output, keypoints, overlay, mode, paper):
@@ -318,13 +325,13 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     console.print(table)
     if tracker.no_hand_:
         # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
-        # (TrackerSettings.start_min_pixels, no_hand_rejected)
+        # (LossSettings.start_min_pixels, no_hand_rejected)
         st, few, out = tracker.settings, tracker.too_few_, tracker.size_out_
-        why = [f"{few} with fewer than {st.start_min_pixels} pixels to start from"] if few else []
+        why = [f"{few} with fewer than {st.loss.start_min_pixels} pixels to start from"] if few else []
         if tracker.no_hand_ > few + out:
-            why.append(f"{tracker.no_hand_ - few - out} whose fit rejected more than {st.no_hand_rejected:.0%} of the points")
+            why.append(f"{tracker.no_hand_ - few - out} whose fit rejected more than {st.loss.no_hand_rejected:.0%} of the points")
         if out:
-            lo, hi = st.scale_range
+            lo, hi = st.scale.range
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
         console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
@@ -332,10 +339,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         why = ("nothing segmented looks like a hand" if tracker.no_hand_
                else "nothing segmented where a hand can be")
         console.print(f"warning: no hand found in any frame of {recording}: {why} ({_no_hand_hints(job, tracker)})")
-    if tracker.base_hand.calibration and tracker.settings.hand_scale != "auto":
+    if tracker.base_hand.calibration and tracker.settings.scale.hand_scale != "auto":
         console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
                       " in the file), not estimated again")
-    elif tracker.scale_ is not None and tracker.settings.hand_scale == "auto" and found.any():
+    elif tracker.scale_ is not None and tracker.settings.scale.hand_scale == "auto" and found.any():
         # the size a later run takes back with --hand-scale (it is in the output header too); on a
         # calibrated hand file a number is refused (it would scale that hand twice): the file it saves
         if job.save_hand:
@@ -353,13 +360,13 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     if tracker.size_starts_:
         console.print(f"start: the fit replaced on {tracker.size_starts_} of the size-refining frames by their own "
                       "search's, which scored better")
-    if tracker.settings.safety_net and tracker.settings.mode != "reduced" and len(df):
+    if tracker.settings.net.enabled and tracker.settings.mode != "reduced" and len(df):
         runs = tracker.net_runs_
         cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
         wrong = f" (on {tracker.net_wrong_way_} the hand pointed against the arm)" if tracker.net_wrong_way_ else ""
         console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}){wrong}, replaced "
                       f"{tracker.net_replaced_}{cost}; re-centred {tracker.recentred_}")
-    if tracker.settings.rgb_seed:
+    if tracker.settings.start.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
         console.print(f"colour seed: {tracker.rgb_seeds_} start searches seeded by colour keypoints"
                       + ("" if tracker.rgb_seeds_ else " (no colour frames, or no hand found in them)"))
@@ -508,8 +515,8 @@ def _no_hand_hints(job, tracker) -> str:
         hints.append("the --box given")
     if seg.forearm == "keep":
         hints.append("--forearm keep (the arm is fitted with the hand)")
-    if st.hand_scale != "auto" and not getattr(tracker.base_hand, "calibration", None):
-        hints.append(f"the hand size {float(st.hand_scale):g} given (--hand-scale auto estimates it)")
+    if st.scale.hand_scale != "auto" and not getattr(tracker.base_hand, "calibration", None):
+        hints.append(f"the hand size {float(st.scale.hand_scale):g} given (--hand-scale auto estimates it)")
     if tracker.no_hand_ > tracker.too_few_:
         # a mirror-image hand leaves more of a real hand unexplained: tracked as the left hand, 7 of the 19
         # labelled right-hand SR305 stills were "no hand"
@@ -582,21 +589,23 @@ def _finite(v):
 
 
 def _hand_scale(text):
-    """``--hand-scale``: "auto" or a factor within the sizes "auto" searches (``TrackerSettings.scale_range``:
-    0.05 tracked nothing and blamed the segmentation)."""
+    """``--hand-scale``: "auto" or a factor, checked by :meth:`tracker.settings.ScaleSettings.check`
+    (within the sizes "auto" searches: 0.05 tracked nothing and blamed the segmentation); None when
+    not given."""
     from .errors import TrackerError
-    from .track import TrackerSettings
+    from .settings import ScaleSettings
 
+    if text is None:
+        return None
     if text.strip().lower() == "auto":
         return "auto"
     try:
         value = float(text)
     except ValueError:
-        value = float("nan")
-    lo, hi = TrackerSettings().scale_range
-    if not lo <= value <= hi:
-        raise TrackerError("--hand-scale", f"must be 'auto' or a factor in {lo:g}–{hi:g} (the hand model's size × it), "
-                                           f"got {text!r}")
+        lo, hi = ScaleSettings().range
+        raise TrackerError("--hand-scale", f"must be 'auto' or a factor in {lo:g}–{hi:g} (the hand model's size × "
+                                           f"it), got {text!r}") from None
+    _checked(ScaleSettings(hand_scale=value))
     return value
 
 
@@ -822,7 +831,7 @@ def calibrate(
     settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
                          None, None, "auto", False)
     if finger_lengths is not None:
-        settings.finger_lengths = finger_lengths
+        settings = settings.replace(scale=dict(finger_lengths=finger_lengths))
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from rich.console import Console
@@ -860,8 +869,8 @@ def calibrate(
         table.add_row(f"{name} length", f"{f:.3f}", seen)
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
-    if len(cal["scale_estimates"]) < tracker.settings.scale_frames:
-        console.print(f"warning: {len(cal['scale_estimates'])} size estimates of {tracker.settings.scale_frames} "
+    if len(cal["scale_estimates"]) < tracker.settings.scale.frames:
+        console.print(f"warning: {len(cal['scale_estimates'])} size estimates of {tracker.settings.scale.frames} "
                       "(the hand was lost or the frames ran out); a longer recording settles it better")
     console.print(f"wrote {output} ({out.handedness} hand; track on it with --hand-model {output})")
 

@@ -24,15 +24,15 @@ def bundle():
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "big"])
 def test_bad_hand_scale_refused(bad):
-    with pytest.raises(TrackerError, match="hand_scale must be a positive number or 'auto'"):
-        HandTracker(BASE, TrackerSettings().replace(hand_scale=bad))
+    with pytest.raises(TrackerError, match="scale.hand_scale: must be 'auto' or a factor"):
+        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
 
 
 @pytest.mark.parametrize("bad", [0.05, 0.59, 2.01, 50.0])
 def test_hand_scale_outside_the_searched_sizes_refused(bad):
-    with pytest.raises(TrackerError, match="hand_scale must be within scale_range 0.6–2"):
-        HandTracker(BASE, TrackerSettings().replace(hand_scale=bad))
-    HandTracker(BASE, TrackerSettings().replace(hand_scale=bad, scale_range=(0.01, 100.0)))  # the range decides
+    with pytest.raises(TrackerError, match="scale.hand_scale: must be 'auto' or a factor in 0.6–2"):
+        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
+    HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad, range=(0.01, 100.0))))  # the range decides
 
 
 def test_cli_hand_scale_option():
@@ -45,7 +45,7 @@ def test_cli_hand_scale_option():
 
 
 def test_given_scale_tracks_the_resized_hand_and_says_so():
-    tr = HandTracker(BASE, TrackerSettings().replace(hand_scale=1.2))
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.2)))
     th = np.zeros(BASE.n_dofs)
     th[7] = -0.5
     np.testing.assert_allclose(tr.hand.keypoints(th), BASE.scaled(1.2).keypoints(th), atol=1e-12)
@@ -54,7 +54,7 @@ def test_given_scale_tracks_the_resized_hand_and_says_so():
     # the model file's identity, not the resized copy's: --hand-model and --hand-scale rebuild it
     assert meta["hand_model"] == f"{BASE.name} {BASE.sha256}"
     assert meta["hand_scale"] == "1.2000 (given)" and meta["hand_check"] == ""
-    auto = HandTracker(BASE, TrackerSettings().replace(hand_scale="auto"))
+    auto = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
     assert auto.scale_ is None and tracking_metadata("rec", auto)["hand_scale"] == ""
 
 
@@ -88,7 +88,7 @@ def test_automatic_scale_recovered(bundle, scale, facing, posture):
     hand = BASE.scaled(scale)
     p = bundle.model.mean_ if posture == "mean" else POSTURES[posture]
     th, ob, _ = scene(hand, facing, p)
-    tr = HandTracker(BASE, TrackerSettings().replace(hand_scale="auto"), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     r = tr.track(ob, CAM)
     err = kp_mm(hand, th, tr.hand, r.theta)
     first = tr.scale_
@@ -123,7 +123,7 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[2]
     cam, depth, _, _ = realistic_frame(BASE, "realsense", 1.0, "forearm", 2)
     ob = observe(depth, cam)
-    tr = HandTracker(BASE, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     tr.track(ob, cam)
 
     def err(th):
@@ -134,7 +134,7 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     assert err(right) <= 10.0 and err(wrong) >= 50.0, (err(right), err(wrong))  # the scene's premise
     sil = _silhouette(_silhouette_mask(ob), ob.depth, cam, ob.frame_depth)
     tr._add_wrist(sil)
-    pts, nrm = _usable(ob.points, ob.normals, tr.settings.max_points)
+    pts, nrm = _usable(ob.points, ob.normals, tr.settings.loss.max_points)
     tr.theta = wrong.copy()
     tr._take_better_start(pts, nrm, sil, tr.hand, right)
     assert tr.size_starts_ == 1 and err(tr.theta) <= 10.0, err(tr.theta)

@@ -119,7 +119,7 @@ def test_a_process_forked_after_a_threaded_search_searches_too(bundle):
     import multiprocessing as mp
     import queue
 
-    tr = HandTracker(HAND, TrackerSettings().replace(init_threads=2), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(init=dict(threads=2)), synergies=bundle)
     (_, _, ob, _), = protocol_frames(bundle, [300])
     pts = ob.points[thin(ob.points, 400)]
     want = fit_single_frame(tr.context, pts, InitSettings.cheap())[0]
@@ -173,7 +173,7 @@ def test_halving_search_is_accurate_from_the_global_pose(bundle):
     under 1° (the issue's floor: mean ≤ 0.5°, each ≤ 2°) and never scores much worse than the
     exhaustive search on the same frame (it would when it dropped the right start)."""
     rows = np.random.default_rng(0).choice(len(E.fingerfist_postures()), 24, replace=False)[:4]  # the report's first
-    tr = E._tracker(HAND, bundle, mode="full", init_icp_iterations=30)
+    tr = E._tracker(HAND, bundle, mode="full", init=dict(icp_iterations=30))
     assert tr.settings.init.strategy == "halving"
     ex = replace(tr.settings.init, strategy="exhaustive")
     errs = []
@@ -194,7 +194,7 @@ def test_halving_search_from_no_pose_finds_the_hand(bundle):
     """No pose given: the placements from the cloud, fitted longer before the synergy grid, find an open
     hand and a partly closed one within 1° (the frame that the short fits from the placements alone
     left 20° off is the second)."""
-    tr = E._tracker(HAND, bundle, mode="full", init_icp_iterations=30)
+    tr = E._tracker(HAND, bundle, mode="full", init=dict(icp_iterations=30))
     rows = np.random.default_rng(0).choice(len(E.fingerfist_postures()), 24, replace=False)  # the report's rows
     for truth, _, ob, sil in protocol_frames(bundle, rows[[0, 6]], slots=[0, 6]):
         th, _ = tr.fit_single_frame(ob.points, mode="hierarchical", silhouette=sil, normals=ob.normals)

@@ -26,7 +26,7 @@ from tracker.track import HandTracker, TrackerSettings
 
 RECORDINGS = ("librealsense_single_depth_color_640x480.bag", "azure_kinect_recording.mkv")
 # a start search on one core: the tests compare states, not times
-SETTINGS = TrackerSettings().replace(init_threads=1)
+SETTINGS = TrackerSettings().replace(init=dict(threads=1))
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def test_real_recordings_without_a_hand_find_none(name, bundle, right):
         r = tr.track(ob, rec.camera, color=frame.color)
         assert r.status == "lost" and np.isnan(r.theta).all() and np.isnan(r.fit_mm)
         # what the start fitted left a third of its points unexplained (a hand: ≤ 15 % on the SR305 stills)
-        assert r.rejected_share > SETTINGS.no_hand_rejected
+        assert r.rejected_share > SETTINGS.loss.no_hand_rejected
     assert tr.no_hand_ == len(rec) and tr.scale_ is None and tr.lost
     assert tr._calibrations == [] and list(tr._contexts) == [1.0]
 
@@ -81,13 +81,13 @@ def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, sp
         assert not observe(empty, cam, SETTINGS.observe).mask.any()
     # the rejection itself, on the surface segmented when the plane is kept (a table with no plane rule)
     ob = observe(empty, cam, SETTINGS.observe, segmenter=Segmenter(plane="keep"))
-    assert len(ob.points) >= SETTINGS.min_points  # the torso / table was segmented and fitted
+    assert len(ob.points) >= SETTINGS.loss.min_points  # the torso / table was segmented and fitted
     tr.lost = True  # as after a loss: the next frame is a start
     r = tr.track(ob, cam)
     assert r.status == "lost" and np.isnan(r.theta).all() and r.rejected_share > 0.3
     assert tr.no_hand_ == 1 and tr.scale_ == size and tr._calibrations == calibrations
     # without the test the same frame is accepted as a hand, of the wrong size if it calibrates
-    loose = HandTracker(right, SETTINGS.replace(no_hand_rejected=0.0), synergies=bundle)
+    loose = HandTracker(right, SETTINGS.replace(loss=dict(no_hand_rejected=0.0)), synergies=bundle)
     r = loose.track(ob, cam)
     assert r.status == "reinit" and loose.no_hand_ == 0 and abs(loose.scale_ - 1.0) > 0.1
 
@@ -96,7 +96,7 @@ def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
     frames = [_scene(right, "kinect1", spec, in_view) for spec, in_view in
               (("torso", False), ("forearm,torso", True))]
     obs = [observe(d, cam, SETTINGS.observe) for d, cam in frames]
-    tr = HandTracker(right, SETTINGS.replace(finger_lengths=False), synergies=bundle)
+    tr = HandTracker(right, SETTINGS.replace(scale=dict(finger_lengths=False)), synergies=bundle)
     assert tr.calibrate_each(obs, frames[0][1]) == [1]
     assert tr.no_hand_ == 1 and abs(tr.scale_ - 1.0) < 0.04
     tr = HandTracker(right, SETTINGS, synergies=bundle)
@@ -107,11 +107,11 @@ def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
 @pytest.mark.parametrize("bad", [-0.1, 1.0, float("nan")])
 def test_the_setting_is_a_share(bad):
     with pytest.raises(TrackerError, match="no_hand_rejected"):
-        HandTracker(HandModel.load(), TrackerSettings(no_hand_rejected=bad))
+        HandTracker(HandModel.load(), TrackerSettings().replace(loss=dict(no_hand_rejected=bad)))
 
 
 def test_the_papers_method_has_no_such_test():
-    assert TrackerSettings.paper().no_hand_rejected == 0.0 and TrackerSettings().no_hand_rejected == 0.2
+    assert TrackerSettings.paper().loss.no_hand_rejected == 0.0 and TrackerSettings().loss.no_hand_rejected == 0.2
 
 
 def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
@@ -147,19 +147,19 @@ def test_a_start_needs_enough_points(right, bundle):
     ob = observe(depth, cam, SETTINGS.observe)
     assert len(ob.points) >= 600  # a whole hand: 606–2288 points on the rendered first frames
     few = ob.points[:: max(len(ob.points) // 100, 1)][:100]
-    settings = SETTINGS.replace(hand_scale=1.0)
+    settings = SETTINGS.replace(scale=dict(hand_scale=1.0))
     tr = HandTracker(right, settings, synergies=bundle)
     r = tr.step(few)
     assert r.status == "lost" and np.isnan(r.theta).all() and tr.no_hand_ == tr.too_few_ == 1 and r.points_in == 100
     assert tr.step(few).status == "lost"  # still a start
-    r = HandTracker(right, settings.replace(start_min_pixels=0), synergies=bundle).step(few)
+    r = HandTracker(right, settings.replace(loss=dict(start_min_pixels=0)), synergies=bundle).step(few)
     assert r.status == "reinit"  # fitted, as before the test
     r = tr.step(ob.points, normals=ob.normals)
     assert r.status == "reinit" and not tr.lost  # a hand found: a tracked frame is no start
     r = tr.step(few)
     assert tr.no_hand_ == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
     with pytest.raises(TrackerError, match="start_min_pixels"):
-        HandTracker(right, TrackerSettings(start_min_pixels=-1))
+        HandTracker(right, TrackerSettings().replace(loss=dict(start_min_pixels=-1)))
 
 
 def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):

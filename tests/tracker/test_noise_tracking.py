@@ -24,7 +24,7 @@ def _open_close(hand, seed, **kw):
     """The first 36 frames of open-close (the hand opens and closes into a fist) under Kinect v1
     noise, tracked from the first frame in full DoF by the default tracker at the model's size."""
     truth = make_motion("open-close", hand=hand).theta[:36]
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return E.run_sequence(hand, truth, CAM, tr, noise=KINECT, seed=seed)
 
 
@@ -44,7 +44,7 @@ def _from_truth(hand, name, frames, **kw):
     tracked from the previous frame's truth (the prediction from the two before), Kinect v1 noise,
     safety net off: what one frame's data do to a right start."""
     truth = make_motion(name, hand=hand).theta[:frames]
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0, safety_net=False).replace(**kw))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(enabled=False)).replace(**kw))
     ren = DepthRenderer(hand, CAM)
     post = ~hand.pose_mask
     out = []
@@ -64,7 +64,7 @@ def test_one_frame_from_the_truth_keeps_every_finger_with_the_band(hand):
     (edge_px=0) the silhouette term pulled the fingers' edges inwards and a finger ended 8.3° off
     (frames 18 and 34)."""
     on = _from_truth(hand, "open-close", 40)
-    off = _from_truth(hand, "open-close", 40, edge_px=0)
+    off = _from_truth(hand, "open-close", 40, observe=dict(edge_px=0))
     assert on.max() <= 6.0, on.max()
     assert off.max() > 7.0, off.max()
 
@@ -186,12 +186,12 @@ def test_restart_keeps_a_bent_back_finger_bent_forward_only_where_it_finds_data(
 def test_paper_settings_have_neither_band_nor_restart():
     """TrackerSettings.paper() stays the paper's method: no silhouette band, no finger restarts."""
     st = TrackerSettings.paper()
-    assert st.observe.edge_px == 0 and st.finger_restart_deg == 0.0
+    assert st.observe.edge_px == 0 and st.refine.finger_restart_deg == 0.0
 
 
 def _count(hand, frames, **kw):
     truth = make_motion("count", hand=hand).theta[:frames]
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return np.nan_to_num(E.run_sequence(hand, truth, CAM, tr, noise=KINECT, seed=0).error_deg, nan=np.inf)
 
 

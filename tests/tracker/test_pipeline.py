@@ -48,16 +48,18 @@ def test_paper_settings_are_the_papers_method():
     assert d.icp.silhouette_weight > 0 and d.icp.robust_mm > 0 and d.init.finger_search and d.init.search
     assert (d.icp.rigid_iterations, d.icp.icp_iterations, d.icp.gn_iterations) == (1, 4, 5)
     # a change to the paper's method changes only what it names
-    r = TrackerSettings.paper(mode="reduced", stride=4)
+    r = TrackerSettings.paper(mode="reduced", observe=dict(stride=4))
     assert r.mode == "reduced" and r.observe.stride == 4 and r.icp.robust_mm == 0 and p.observe.stride == 3
 
 
-def test_replace_routes_names_to_their_stage_and_refuses_unknown_ones():
-    s = TrackerSettings().replace(robust_mm=2.0, smooth=0, model="mesh", init_icp_iterations=7, mode="reduced")
+def test_replace_changes_groups_by_dict_and_refuses_unknown_names():
+    s = TrackerSettings().replace(icp=dict(robust_mm=2.0), observe=dict(smooth=0), correspond=dict(model="mesh"), init=dict(icp_iterations=7), mode="reduced")
     assert (s.icp.robust_mm, s.observe.smooth, s.correspond.model, s.init.icp_iterations, s.mode) == (2.0, 0, "mesh", 7, "reduced")
     assert TrackerSettings().icp.robust_mm == 8.0  # the default is untouched
-    with pytest.raises(TrackerError, match="unknown tracker setting"):
-        TrackerSettings().replace(robust=2.0)
+    with pytest.raises(TrackerError, match="IcpSettings has no field 'robust'"):
+        TrackerSettings().replace(icp=dict(robust=2.0))
+    with pytest.raises(TrackerError, match="TrackerSettings has no field 'robust_mm'"):
+        TrackerSettings().replace(robust_mm=2.0)  # the flat names of before are gone: one name per field
     s = TrackerSettings().replace(icp=IcpSettings(icp_iterations=9))
     assert s.icp.icp_iterations == 9 and s.icp.robust_mm == 8.0
 
@@ -146,7 +148,7 @@ def test_track_recording_then_write_and_read_back(bundle, tmp_path):
     ren = DepthRenderer(HAND, cam)
     depths = [ren.render(t, labels=False).depth for t in truth]
     depths[3] = np.zeros((10, 10))  # not this camera's size: tracked as empty, so lost
-    tr = HandTracker(HAND, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     seen = []
     df = track_recording(_MemoryRecording(cam, depths), tr, lambda f, r, ob: seen.append((f.index, ob is None)))
     assert list(df.columns) == [*FRAME_COLUMNS, *DOF_NAMES] and len(df) == 6
@@ -172,9 +174,9 @@ def test_track_recording_then_write_and_read_back(bundle, tmp_path):
 
 def test_stage_settings_are_checked():
     with pytest.raises(TrackerError, match="model must be one of"):
-        HandTracker(HAND, TrackerSettings().replace(model="spheres"))
-    with pytest.raises(TrackerError, match="limits must be one of"):
-        HandTracker(HAND, TrackerSettings().replace(limits="none"))
+        HandTracker(HAND, TrackerSettings().replace(correspond=dict(model="spheres")))
+    with pytest.raises(TrackerError, match="subspace.limits: must be one of"):
+        HandTracker(HAND, TrackerSettings().replace(subspace=dict(limits="none")))
     with pytest.raises(TrackerError, match="must not be negative"):
-        HandTracker(HAND, TrackerSettings().replace(robust_mm=-1.0))
+        HandTracker(HAND, TrackerSettings().replace(icp=dict(robust_mm=-1.0)))
     assert isinstance(TrackerSettings().observe, ObserveSettings) and isinstance(TrackerSettings().init, InitSettings)

@@ -28,7 +28,7 @@ def _jumped(hand, at, shift, turn_deg=0.0, frames=30):
 
 
 def _track(hand, truth, **kw):
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return E.run_sequence(hand, truth, CAM, tr), tr
 
 
@@ -37,8 +37,8 @@ def test_recentring_finds_a_hand_that_jumped_beyond_the_rejection_radius(hand):
     moved onto the cloud and the jump frame is tracked (measured 5.2°); without it no correspondence
     reaches the hand and the fit lands beside it (measured 51°)."""
     truth = _jumped(hand, 15, (0.08, 0.0, 0.0))
-    on, tr = _track(hand, truth, safety_net=False)
-    off, _ = _track(hand, truth, safety_net=False, recentre=False)
+    on, tr = _track(hand, truth, net=dict(enabled=False))
+    off, _ = _track(hand, truth, net=dict(enabled=False), predict=dict(recentre=False))
     assert tr.recentred_ == 1  # the jump only: the next prediction does not repeat it as a velocity
     assert on.status[15] == "tracked" and on.error_deg[15] <= 8.0, np.round(on.error_deg[13:20], 2)
     assert off.error_deg[15] > 20.0 or off.status[15] == "lost"
@@ -51,7 +51,7 @@ def test_safety_net_recovers_a_fast_turn_on_the_same_frame(hand):
     (measured ≤ 3.7°)."""
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0)
     on, tr = _track(hand, truth)
-    off, _ = _track(hand, truth, safety_net=False)
+    off, _ = _track(hand, truth, net=dict(enabled=False))
     assert tr.net_runs_ >= 1 and tr.net_replaced_ >= 1
     assert np.nanmax(on.error_deg[15:]) <= 5.0, np.round(on.error_deg[13:22], 2)
     assert np.nanmean(off.error_deg[15:]) > 5.0 * np.nanmean(on.error_deg[15:])
@@ -62,15 +62,16 @@ def test_easy_sequence_never_calls_the_search(hand):
     the estimates equal tracking without it exactly."""
     truth = make_motion("open-close", hand=hand, frames=30).theta
     on, tr = _track(hand, truth)
-    off, _ = _track(hand, truth, safety_net=False)
+    off, _ = _track(hand, truth, net=dict(enabled=False))
     assert tr.net_runs_ == 0
     np.testing.assert_array_equal(on.theta, off.theta)
 
 
 def test_paper_method_has_no_net_and_no_recentring():
     s = TrackerSettings.paper()
-    assert not s.safety_net and not s.recentre and s.unseen_prior == 0
-    assert TrackerSettings().safety_net and TrackerSettings().recentre and TrackerSettings().unseen_prior > 0
+    assert not s.net.enabled and not s.predict.recentre and s.refine.unseen_prior == 0
+    d = TrackerSettings()
+    assert d.net.enabled and d.predict.recentre and d.refine.unseen_prior > 0
 
 
 def test_track_summary_reports_the_net(tmp_path):
@@ -101,7 +102,7 @@ def test_reduced_mode_keeps_its_subspace(hand):
 
     bundle = load_bundle("fingerfist")
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0, frames=20)
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(mode="reduced"), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
     r = E.run_sequence(hand, truth, CAM, tr)
     assert tr.net_runs_ == 0
     post = r.theta[:, ~hand.pose_mask] - bundle.model.mean_
@@ -191,7 +192,7 @@ def test_net_searches_postures_from_the_tracked_pose_first(hand):
     tr.theta, tr.prev, tr.last_good, tr.lost = wrong, wrong, wrong, False
     ob = observe(ren.render(truth[40], labels=False).depth, CAM, tr.settings.observe)
     err = {}
-    for label, kw in (("off", {"safety_net": False}), ("placed", {"net_anchored": False}), ("anchored", {})):
+    for label, kw in (("off", {"net": {"enabled": False}}), ("placed", {"net": {"anchored": False}}), ("anchored", {})):
         t = copy.deepcopy(tr)
         t.settings = t.settings.replace(**kw)
         err[label] = posture_error_deg(t.track(ob, CAM).theta, truth[40], hand.pose_mask)
@@ -214,13 +215,13 @@ def test_net_ignores_a_false_wrist_cue(hand):
     truth = make_motion("rotate", hand=hand).theta[:36]
 
     def turn_deg(kw):
-        tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw), synergies=bundle)
+        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw), synergies=bundle)
         r = E.run_sequence(hand, truth, CAM, tr)
         R = np.einsum("fij,fkj->fik", euler_to_matrix(r.theta[:, 3:6]), euler_to_matrix(truth[:, 3:6]))
         return np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
 
     assert turn_deg({}).max() <= 5.0
-    assert turn_deg({"net_wrist_cue": True}).max() > 90.0
+    assert turn_deg({"net": {"wrist": {"cue": True}}}).max() > 90.0
 
 
 def test_unseen_joints_are_pulled_to_the_synergies(hand):
@@ -234,7 +235,7 @@ def test_unseen_joints_are_pulled_to_the_synergies(hand):
     truth = make_motion("grasp-back", hand=hand).theta[:60]
     err = {}
     for prior in (0.0, 0.5):
-        tr = HandTracker(hand, TrackerSettings(hand_scale=1.0, unseen_prior=prior), synergies=bundle)
+        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), refine=dict(unseen_prior=prior)), synergies=bundle)
         r = E.run_sequence(hand, truth, CAM, tr)
         err[prior] = float(np.mean(r.error_deg[35:]))
         assert (tr.unseen_frames_ > 10) is (prior > 0)
@@ -250,7 +251,7 @@ def test_unseen_prior_moves_only_joints_without_data(hand):
     from synergy.bundle import load_bundle
 
     bundle = load_bundle("fingerfist")
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     theta = hand.zero()
     theta[2] = 0.6
     theta[hand.dof_index("index2_flex")] = -1.5
@@ -279,7 +280,7 @@ def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
     from tracker.observe import observe
 
     bundle = load_bundle("fingerfist")
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     theta = hand.zero()
     theta[2] = 0.6
     post = np.flatnonzero(~hand.pose_mask)
@@ -303,7 +304,7 @@ def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
 
     truth = make_motion("grasp-back", hand=hand).theta[45]
     frame = render(hand, truth, CAM)
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     assert tr.track(observe(frame.depth, CAM), CAM).status == "reinit"
     assert tr.unseen_frames_ == 1
 
@@ -362,7 +363,7 @@ def test_a_cue_at_the_end_of_a_kept_forearm_does_not_replace_a_right_fist(hand, 
         return E.run_scene(hand, shown, truth, cam_preset(cam_name), tr, clutter=scene,
                            noise=NoiseModel.preset(noise_name), seed=noise_seed, color=False)["keypoint_mm"]
 
-    on, off = run(), run(net_wrist_fit_mm=np.inf)
+    on, off = run(), run(net=dict(wrist=dict(fit_mm=np.inf)))
     assert np.sum(on[24:] <= 20.0) > np.sum(off[24:] <= 20.0), (np.round(on, 1), np.round(off, 1))
     assert np.max(on[24:]) <= np.max(off[24:]), (np.round(on, 1), np.round(off, 1))
     if every:

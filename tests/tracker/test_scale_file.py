@@ -70,13 +70,13 @@ def test_a_calibrated_file_is_tracked_as_it_is_unless_auto_is_asked(tmp_path):
     path = calibrated_hand(_Calibrated).save(tmp_path / "me.yaml")
     hand = HandModel.load(path, right=False)
     auto = TrackerSettings()
-    assert settings_for_hand(hand, auto).hand_scale == 1.0  # the default "auto" is not asked for
-    assert settings_for_hand(hand, auto, hand_scale_asked=True).hand_scale == "auto"
-    assert settings_for_hand(hand, auto.replace(hand_scale=1.0), hand_scale_asked=True).hand_scale == 1.0
+    assert settings_for_hand(hand, auto).scale.hand_scale == 1.0  # the default "auto" is not asked for
+    assert settings_for_hand(hand, auto, hand_scale_asked=True).scale.hand_scale == "auto"
+    assert settings_for_hand(hand, auto.replace(scale=dict(hand_scale=1.0)), hand_scale_asked=True).scale.hand_scale == 1.0
     with pytest.raises(TrackerError, match=r"me.yaml: is a calibrated hand .* --hand-scale 1.25 would scale it again"):
-        settings_for_hand(hand, auto.replace(hand_scale=1.25), hand_scale_asked=True)
+        settings_for_hand(hand, auto.replace(scale=dict(hand_scale=1.25)), hand_scale_asked=True)
     # the model file's hand: the settings as they are
-    assert settings_for_hand(BASE, auto).hand_scale == "auto"
+    assert settings_for_hand(BASE, auto).scale.hand_scale == "auto"
     tr = HandTracker(hand, settings_for_hand(hand, auto))
     meta = tracking_metadata("rec", tr)
     assert meta["hand_model"] == f"default-calibrated {hand.sha256}" and meta["hand_model_file"] == str(path)
@@ -105,13 +105,13 @@ def test_tracking_on_the_calibrated_file_matches_the_automatic_run(bundle, tmp_p
         return tr, run_scene(BASE, shown, truth, cam, tr, clutter="forearm,torso", noise=noise, seed=3)
 
     auto, r_auto = run(BASE, TrackerSettings())
-    assert len(auto.scale_estimates_) == auto.settings.scale_frames and abs(auto.scale_ / 1.2 - 1) <= 0.03
+    assert len(auto.scale_estimates_) == auto.settings.scale.frames and abs(auto.scale_ / 1.2 - 1) <= 0.03
     path = calibrated_hand(auto, recording="scene", frames=range(5)).save(tmp_path / "me.yaml")
     hand = HandModel.load(path, right=False)
     filed, r_file = run(hand, settings_for_hand(hand, TrackerSettings()))
     assert filed.scale_ == 1.0 and filed.scale_estimates_ == []
     e_auto, e_file = np.nanmean(r_auto["keypoint_mm"]), np.nanmean(r_file["keypoint_mm"])
-    _, r_model = run(BASE, TrackerSettings(hand_scale=1.0))
+    _, r_model = run(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     print(f"\nkeypoint error: auto {e_auto:.2f}, hand file {e_file:.2f}, "
           f"model size {np.nanmean(r_model['keypoint_mm']):.2f} mm")
     assert e_file <= e_auto + 0.5 and e_file <= 5.0

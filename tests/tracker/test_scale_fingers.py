@@ -39,7 +39,7 @@ def test_stretched_samples_lie_on_the_shaped_hand():
     """The samples of the model-sized context stretched along the resized fingers lie on the shaped
     hand's capsules (as those of a context built for it would), with its normals; the palm's are
     where they were."""
-    tr = HandTracker(BASE, TrackerSettings(hand_scale=1.0))
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     ctx = tr.context_for(1.2)
     c = shaped_context(ctx, BASE, 1.2, TRUE)
     assert shaped_context(ctx, BASE, 1.2, {}) is ctx
@@ -64,7 +64,7 @@ def test_finger_factors_recovered_on_a_rendered_hand(bundle):
     open back) fitted with the model's finger lengths: every factor within 4 % (measured: 0.5–1.5 %,
     the index worst; each shrunk towards 1 by the frames' disagreement); assuming 1 would be up to 10 % off."""
     shown = HandShape(1.0, TRUE).apply(BASE)
-    tr = HandTracker(BASE, TrackerSettings(hand_scale=1.0), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     ctx = tr.context_for(1.0)
     frames = []
     for facing, post in (("palm", POSTURES["open"]), ("palm", bundle.model.mean_), ("back", POSTURES["open"])):
@@ -90,9 +90,9 @@ def test_tracker_finds_finger_lengths_after_the_size(bundle):
 
     shown = HandShape(1.2, TRUE).apply(BASE)
     truth = make_motion("open-close", hand=shown, frames=30).theta[:8]
-    tr = HandTracker(BASE, TrackerSettings(hand_scale="auto", finger_lengths=True), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", finger_lengths=True)), synergies=bundle)
     r = run_scene(BASE, shown, truth, preset("kinect1"), tr)
-    assert len(tr.scale_estimates_) == tr.settings.scale_frames and abs(tr.scale_ / 1.2 - 1.0) <= 0.03
+    assert len(tr.scale_estimates_) == tr.settings.scale.frames and abs(tr.scale_ / 1.2 - 1.0) <= 0.03
     got = tr.finger_scales_
     print("\nfinger factors found / true - 1:", {f: round(got[f] / TRUE[f] - 1.0, 3) for f in TRUE},
           "keypoints", np.round(r["keypoint_mm"], 1))
@@ -103,7 +103,7 @@ def test_tracker_finds_finger_lengths_after_the_size(bundle):
 
 
 def test_finger_lengths_on_by_default_and_off_in_the_papers_method():
-    assert TrackerSettings().finger_lengths and not TrackerSettings.paper().finger_lengths
+    assert TrackerSettings().scale.finger_lengths and not TrackerSettings.paper().scale.finger_lengths
 
 
 @pytest.mark.slow
@@ -148,7 +148,7 @@ def test_calibrate_each_recovers_size_and_fingers_from_stills(bundle):
 
     shown = HandShape(1.2, TRUE).apply(BASE)
     obs = [scene(shown, facing, post)[1] for facing in ("palm", "back") for post in (POSTURES["open"], bundle.model.mean_)]
-    tr = HandTracker(BASE, TrackerSettings(hand_scale="auto"), synergies=bundle)
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     assert tr.calibrate_each(obs, CAM) == [0, 1, 2, 3]
     got = tr.finger_scales_
     err = {f: round(got[f] / TRUE[f] - 1.0, 3) for f in TRUE}
@@ -173,9 +173,9 @@ def test_calibrate_each_refuses_frames_without_a_hand():
 
     empty = SimpleNamespace(points=np.zeros((0, 3)), normals=None, mask=None, silhouette=None, depth=None,
                             frame_depth=None)
-    tr = HandTracker(BASE, TrackerSettings(hand_scale="auto"))
+    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
     with pytest.raises(TrackerError, match="no hand found in any of the 2 frames"):
         tr.calibrate_each([empty, empty], None)
     assert tr.scale_ is None
     with pytest.raises(TrackerError, match="hand_scale='auto'"):
-        HandTracker(BASE, TrackerSettings(hand_scale=1.0)).calibrate_each([empty], None)
+        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0))).calibrate_each([empty], None)

@@ -210,7 +210,7 @@ def test_tracker_gives_the_window_only_while_tracking(hand):
     """No window before the first frame; after a tracked frame, the predicted hand's box holds the
     rendered hand (the window holds it with its margin)."""
     cam, depth, color, labels, _, _ = _scene(hand, "realsense", 1.0, "+forearm", 0)
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0), synergies=load_bundle("fingerfist"))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=load_bundle("fingerfist"))
     assert tr.segment_window(cam) is None
     res = tr.track(observe(depth, cam, color=color), cam, color=color)
     assert res.status != "lost"
@@ -219,7 +219,7 @@ def test_tracker_gives_the_window_only_while_tracking(hand):
     assert rows.start <= yy.min() and yy.max() < rows.stop and cols.start <= xx.min() and xx.max() < cols.stop
     inside = (yy >= prow.start) & (yy < prow.stop) & (xx >= pcol.start) & (xx < pcol.stop)
     assert inside.mean() >= 0.9, inside.mean()
-    tr.settings.observe.window_m = 0.0
+    tr.settings = tr.settings.replace(observe=dict(window_m=0.0))
     assert tr.segment_window(cam) is None
 
 

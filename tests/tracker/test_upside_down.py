@@ -64,7 +64,7 @@ def jump_scene(hand):
 def _track(hand, obs, **kw):
     # tracked at the model's size: every fit of the bigger hand scores high, so the score test's
     # threshold is high too (2.5 × the scene's level), as on the real frames
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(**kw))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return [tr.track(ob, CAM) for ob in obs], tr
 
 
@@ -77,7 +77,7 @@ def test_a_jump_to_a_hand_turned_round_is_caught_on_its_frame(hand, jump_scene):
     search scored with the cue replaces the fit (status "reinit") and every frame from there is
     within 10° (measured ≤ 3°)."""
     truth, obs = jump_scene
-    off, tr_off = _track(hand, obs, net_wrist_mm=0.0, net_far_share=0.0)
+    off, tr_off = _track(hand, obs, net=dict(far_share=0.0, wrist=dict(cost_mm=0.0)))
     on, tr = _track(hand, obs)
     assert tr_off.net_runs_ == 0
     assert all(r.status == "tracked" for r in off[JUMP:])
@@ -102,7 +102,7 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
     truth = make_motion("rotate", hand=hand).theta
     ren = DepthRenderer(hand, preset("kinect1"))
     # each frame tested in full: frames 124 and 125 are a pose apart that the recheck would not test again
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0, net_wrist_every=1))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(wrist=dict(every=1))))
     cues = 0
     for f in (34, 41, 124, 125):
         ob = observe(ren.render(truth[f], labels=False).depth, preset("kinect1"), tr.settings.observe)
@@ -124,7 +124,7 @@ def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
     cam = preset("kinect1")
     truth = make_motion("count", hand=hand).theta
     ob = observe(DepthRenderer(hand, cam).render(truth[40], labels=False).depth, cam, TrackerSettings().observe)
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     tr._search_level = 10.0
     wrong = truth[40].copy()
     wrong[~hand.pose_mask] = truth[80][~hand.pose_mask]
@@ -133,7 +133,7 @@ def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
         s = score(tr.context, th, tr.context.matcher(th, ob.points, ob.normals))
         why[name] = tr._doubtful(th, th, s, None, ob.points)
     assert why == {"right": "", "wrong": "far"}, why
-    tr.settings = tr.settings.replace(net_far_share=0.0)
+    tr.settings = tr.settings.replace(net=dict(far_share=0.0))
     assert tr._doubtful(wrong, wrong, 0.0, None, ob.points) == ""
 
 
@@ -190,7 +190,7 @@ def test_the_nets_shared_distances_decide_as_the_full_test(hand):
 
     cam = preset("kinect1")
     truth = make_motion("count", hand=hand).theta
-    tr = HandTracker(hand, TrackerSettings(hand_scale=1.0))
+    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     verdicts = set()
     for f, other in ((40, 80), (10, 60), (70, 20)):
         ob = observe(DepthRenderer(hand, cam).render(truth[f], labels=False).depth, cam, tr.settings.observe)
@@ -203,7 +203,7 @@ def test_the_nets_shared_distances_decide_as_the_full_test(hand):
             s = score(tr.context, th, corr, sil)
             assert score(tr.context, th, corr, sil, data_mm=near) == s
             for far_share, level in itertools.product((0.1, 0.0), (0.0, s / 3.0, s)):
-                tr.settings = tr.settings.replace(net_far_share=far_share)
+                tr.settings = tr.settings.replace(net=dict(far_share=far_share))
                 tr._search_level = level
                 full = tr._doubtful(th, truth[f], s, None, ob.points)
                 assert tr._doubtful(th, truth[f], s, None, ob.points, near_mm=near) == full
@@ -218,7 +218,7 @@ def test_the_wrist_test_runs_in_full_only_when_its_inputs_changed(hand, jump_sce
     jump is still caught on its frame, and the full test ran on fewer frames (measured 5 of 15; ~0.9 ms
     saved on each frame skipped with an arm in view)."""
     truth, obs = jump_scene
-    every, tr_every = _track(hand, obs, net_wrist_every=1)
+    every, tr_every = _track(hand, obs, net=dict(wrist=dict(every=1)))
     cached, tr = _track(hand, obs)
     for a, b in zip(every, cached):
         np.testing.assert_array_equal(a.theta, b.theta)
@@ -227,15 +227,15 @@ def test_the_wrist_test_runs_in_full_only_when_its_inputs_changed(hand, jump_sce
     # every frame after the first is tested (the jump frame too: it was tracked, then replaced)
     assert tr_every.wrist_tests_ == len(obs) - 1
     # in full: the first after each start (frames 1 and 7), then at least every net_wrist_every-th
-    assert len(obs) / tr.settings.net_wrist_every <= tr.wrist_tests_ < tr_every.wrist_tests_
+    assert len(obs) / tr.settings.net.wrist.every <= tr.wrist_tests_ < tr_every.wrist_tests_
 
 
 def test_a_wrist_test_setting_out_of_range_is_refused():
     from tracker.errors import TrackerError
 
-    for bad in ({"net_wrist_every": 0}, {"net_wrist_moved": (15.0,)}, {"net_wrist_moved": (-1.0, 15.0)}):
-        with pytest.raises(TrackerError, match="net_wrist_every"):
-            TrackerSettings().replace(**bad).check()
+    for bad in ({"every": 0}, {"moved": (15.0,)}, {"moved": (-1.0, 15.0)}):
+        with pytest.raises(TrackerError, match="net.wrist: every must be ≥ 1"):
+            TrackerSettings().replace(net=dict(wrist=bad)).check()
     for bad in (-1.0, float("nan")):
-        with pytest.raises(TrackerError, match="net_wrist_fit_mm"):
-            TrackerSettings().replace(net_wrist_fit_mm=bad).check()
+        with pytest.raises(TrackerError, match="net.wrist.fit_mm"):
+            TrackerSettings().replace(net=dict(wrist=dict(fit_mm=bad))).check()

@@ -117,7 +117,7 @@ def segments(n, length, seed=0):
 def _tracker(hand, bundle, paper=False, **kw):
     """A tracker with our defaults, or with ``TrackerSettings.paper()``, changed by ``kw``; at the
     model's size (``hand_scale=1.0``: these experiments render our own hand)."""
-    base = TrackerSettings.paper() if paper else TrackerSettings(hand_scale=1.0)
+    base = TrackerSettings.paper() if paper else TrackerSettings().replace(scale=dict(hand_scale=1.0))
     return HandTracker(hand, base.replace(**kw), synergies=bundle)
 
 
@@ -142,21 +142,23 @@ def _over_segments(hand, bundle, camera, truths, noise=None, **settings):
 def experiment_icp(hand, bundle, camera, segs, iterations=(0, 1, 2, 3, 4, 6, 8), mode="full"):
     """Fig. 8: posture error and time vs non-rigid ICP iterations (1 rigid + k), stride 3."""
     truths = _segment_truths(bundle, segs)
-    return [(k, *_over_segments(hand, bundle, camera, truths, mode=mode, icp_iterations=k, target_points=None)[1:])
+    return [(k, *_over_segments(hand, bundle, camera, truths, mode=mode, icp=dict(icp_iterations=k),
+                                  observe=dict(target_points=None))[1:])
             for k in iterations]
 
 
 def experiment_density(hand, bundle, camera, segs, strides=(1, 2, 3, 4, 6), mode="full"):
     """Fig. 9: posture error and time vs sampling density (every k-th pixel in x and y), 1+4 ICP."""
     truths = _segment_truths(bundle, segs)
-    return [(k, 1.0 / k ** 2, *_over_segments(hand, bundle, camera, truths, mode=mode, stride=k, target_points=None)[1:])
+    return [(k, 1.0 / k ** 2, *_over_segments(hand, bundle, camera, truths, mode=mode,
+                                                  observe=dict(stride=k, target_points=None))[1:])
             for k in strides]
 
 
 # the tracking variants compared throughout: label → settings
 VARIANTS = {"full, paper's method (our start)": {"paper": True, "mode": "full", "init": InitSettings()},
             "full": {"mode": "full"}, "reduced": {"mode": "reduced"},
-            "reduced, 2 steps projected": {"mode": "reduced", "projected_steps": 2},
+            "reduced, 2 steps projected": {"mode": "reduced", "icp": {"projected_steps": 2}},
             "hierarchical": {"mode": "hierarchical"}}
 
 
@@ -166,7 +168,7 @@ def experiment_modes(hand, bundle, camera, segs, noise=None, model="capsules", v
     truths = _segment_truths(bundle, segs)
     res = {}
     for label, kw in variants.items():
-        trackers, e, t = _over_segments(hand, bundle, camera, truths, noise=noise, model=model, **kw)
+        trackers, e, t = _over_segments(hand, bundle, camera, truths, noise=noise, correspond=dict(model=model), **kw)
         res[label] = {"error_deg": e, "ms": t, "fps": 1000.0 / t}
         if label == "reduced":
             recon = [np.mean(posture_error_deg(tr.reduced.project(truth), truth, hand.pose_mask)[10:])
@@ -196,7 +198,8 @@ def experiment_reduced_pcs(hand, bundle, camera, segs, counts=(6, 8, 10, 12, 14)
     m = bundle.model
     rows = []
     for k in counts:
-        trackers, e, t = _over_segments(hand, bundle, camera, truths, mode="reduced", n_pcs=k, variance=None)
+        trackers, e, t = _over_segments(hand, bundle, camera, truths, mode="reduced",
+                                        subspace=dict(n_pcs=k, variance=None))
         proj = np.mean([np.mean(posture_error_deg(tr.reduced.project(tt), tt, hand.pose_mask)[10:])
                         for tr, tt in zip(trackers, truths)])
         orac = np.mean([np.mean(posture_error_deg(subspace_oracle(hand, tr.reduced, tt[10:]), tt[10:], hand.pose_mask))
@@ -214,7 +217,7 @@ def experiment_scenarios(hand, bundle, camera, names=SCENARIO_NAMES, modes=("ful
                          settings=None):
     """Our synthetic scenarios (tracker.sim.motions: finger counting, random postures, fast sweeps, a turn
     from palm to back, a grasp seen from the back) tracked from their first frame by our default tracker
-    changed by ``settings`` (e.g. ``{"safety_net": False}``): mean posture error, share of frames ≤ 5°,
+    changed by ``settings`` (e.g. ``{"net": {"enabled": False}}``): mean posture error, share of frames ≤ 5°,
     share lost, share of frames the safety net ran on and fps (frames over the tracker's whole time,
     the net's searches included), per mode."""
     out = {}
@@ -249,7 +252,7 @@ def experiment_occlusion(hand, camera, frames=45, seed=0):
     truth = with_path(th[:, 6:], hand, 30.0, path)
     res = {}
     for label in ("full", "reduced", "reduced, 2 steps projected"):
-        tr = _tracker(hand, gb, n_pcs=n_pcs, variance=None, **VARIANTS[label])
+        tr = _tracker(hand, gb, subspace=dict(n_pcs=n_pcs, variance=None), **VARIANTS[label])
         r = run_sequence(hand, truth, camera, tr, lead=5)
         res[label] = r.mean_error
     res["n_pcs"] = n_pcs
@@ -277,8 +280,8 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(P), n, replace=False)
     ren = DepthRenderer(hand, camera)
-    trackers = {"ours": _tracker(hand, bundle, mode="full", init_icp_iterations=icp),
-                "paper": _tracker(hand, bundle, paper=True, mode="full", init_icp_iterations=icp)}
+    trackers = {"ours": _tracker(hand, bundle, mode="full", init=dict(icp_iterations=icp)),
+                "paper": _tracker(hand, bundle, paper=True, mode="full", init=dict(icp_iterations=icp))}
     out = {k: [] for k, *_ in methods}
     sec = {k: [] for k, *_ in methods}
     for i, row in enumerate(rows):
@@ -320,7 +323,7 @@ REALISTIC_SCALES = (0.8, 1.0, 1.5)
 REALISTIC_FINGER_SPREAD = 0.1
 #: The tracker of the realistic scenes: today's defaults with the hand size calibrated from the
 #: first frames (the rendered hands are not the model's size).
-REALISTIC_SETTINGS = {"hand_scale": "auto"}
+REALISTIC_SETTINGS = {"scale": {"hand_scale": "auto"}}
 FIRST_FRAME_MM = 20.0  # a first frame counts as found when its mean keypoint error is at most this
 
 
@@ -414,7 +417,7 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
                 r = run_scene(hand, shown, truth, cam, tracker, clutter=spec, noise=nm, seed=seed + j, color=color)
                 ke = r["keypoint_mm"]
                 fitted = np.isfinite(ke)
-                auto = tracker.settings.hand_scale == "auto"
+                auto = tracker.settings.scale.hand_scale == "auto"
                 rows.append({
                     "scene": scene, "clutter": spec or "none", "sensor": sensor, "scale": float(scale),
                     "color": bool(color),
@@ -505,7 +508,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             tr.reset()
         else:
             tr = HandTracker(HandModel.load(TRACKING_HAND, right=True),
-                             TrackerSettings().replace(hand_scale=sizes.get(recording, "auto")), synergies=bundle)
+                             TrackerSettings().replace(scale=dict(hand_scale=sizes.get(recording, "auto"))), synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)
         sizes.setdefault(recording, tr.scale_)

@@ -107,7 +107,7 @@ def _realistic_intro(frames) -> list:
     """The realistic scenes' protocol (markdown lines)."""
     return [
          f"Motion open-close, {frames} frames per sequence, tracked from the first frame by today's default tracker "
-         "with the hand size calibrated (`TrackerSettings(hand_scale=\"auto\")`: the first frame, refined over the "
+         "with the hand size calibrated (`TrackerSettings().replace(scale=dict(hand_scale=\"auto\"))`: the first frame, refined over the "
          "next two), fingerfist bundle, default segmentation with the colour frame, gating by the predicted hand. "
          f"The rendered and the tracked hand are the tracker's (`{TRACKING_HAND}`: the paper's hand with its finger bases "
          "on the human metacarpal arc); the rendered one is it × scale with each finger's length × its own factor (drawn in 0.9–1.1, "
@@ -256,7 +256,7 @@ def _context(quick):
                            scen=("count", "grasp-back") if quick else SCENARIO_NAMES, kinect=NoiseModel.preset("kinect1"))
 
 
-NO_NET = {"safety_net": False}
+NO_NET = {"net": {"enabled": False}}
 #: The report's parts, each a function of the shared context, the longest first (workers take them in order).
 STEPS = {
     "realistic kinect1": lambda c: experiment_realistic(c.human, c.bundle, frames=realistic_frames(c.quick),
