@@ -476,8 +476,8 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
         "frames": None if frames is None else [int(f) for f in frames],
         # each frame fitted from its own start (HandTracker.calibrate_each), or tracked frame to frame
         "each_frame": bool(getattr(tracker, "calibrated_each_", False)),
-        "settings": {"scale_frames": int(st.scale_frames), "scale_refine": st.scale_refine,
-                     "finger_lengths": bool(st.finger_lengths), "scale_range": [float(v) for v in st.scale_range]},
+        "settings": {"scale_frames": int(st.scale.frames), "scale_refine": st.scale.refine,
+                     "finger_lengths": bool(st.scale.finger_lengths), "scale_range": [float(v) for v in st.scale.range]},
         "tool": f"{GENERATOR} {generator_version()} (tracker.scale.calibrated_hand)",
         "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
