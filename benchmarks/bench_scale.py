@@ -75,7 +75,7 @@ def prepared(tracker, ob, cam):
     """The cloud, normals and silhouette (with the wrist cue) as the tracker's first step makes them."""
     sil = Silhouette(ob.mask, ob.depth, cam)
     sil.frame_depth = ob.frame_depth
-    tracker._add_wrist(sil)
+    tracker.cue.add(sil)
     keep = np.isfinite(ob.points).all(1)
     return ob.points[keep], None if ob.normals is None else ob.normals[keep], sil
 

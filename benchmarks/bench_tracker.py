@@ -205,7 +205,7 @@ def main():
                 best[label] = (ms, e, tr)
     for label, _ in rows:
         ms, e, tr = best[label]
-        net = f"  (net ran on {tr.net_runs_} frames)" if tr is not None and tr.settings.net.enabled and tr.net_runs_ else ""
+        net = f"  (net ran on {tr.stats.net_runs} frames)" if tr is not None and tr.settings.net.enabled and tr.stats.net_runs else ""
         print(f"  {label:<74} {ms:>9.2f} {1000 / ms:>7.0f} {e:>13.2f}°{net}")
     for net in ("on", "off"):
         fps = {mode: 1000 / best[f"{label}, ours, safety net {net}" + (" (default; reduced: far test only)"

@@ -323,20 +323,20 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
                   f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
-    if tracker.no_hand_:
+    if tracker.stats.no_hand:
         # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
         # (LossSettings.start_min_pixels, no_hand_rejected)
-        st, few, out = tracker.settings, tracker.too_few_, tracker.size_out_
+        st, few, out = tracker.settings, tracker.stats.too_few, tracker.stats.size_out
         why = [f"{few} with fewer than {st.loss.start_min_pixels} pixels to start from"] if few else []
-        if tracker.no_hand_ > few + out:
-            why.append(f"{tracker.no_hand_ - few - out} whose fit rejected more than {st.loss.no_hand_rejected:.0%} of the points")
+        if tracker.stats.no_hand > few + out:
+            why.append(f"{tracker.stats.no_hand - few - out} whose fit rejected more than {st.loss.no_hand_rejected:.0%} of the points")
         if out:
             lo, hi = st.scale.range
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
-        console.print(f"no hand: on {tracker.no_hand_} frame{'s' * (tracker.no_hand_ != 1)} what was segmented is no "
+        console.print(f"no hand: on {tracker.stats.no_hand} frame{'s' * (tracker.stats.no_hand != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
     if len(df) and not found.any():
-        why = ("nothing segmented looks like a hand" if tracker.no_hand_
+        why = ("nothing segmented looks like a hand" if tracker.stats.no_hand
                else "nothing segmented where a hand can be")
         console.print(f"warning: no hand found in any frame of {recording}: {why} ({_no_hand_hints(job, tracker)})")
     if tracker.base_hand.calibration and tracker.settings.scale.hand_scale != "auto":
@@ -357,19 +357,19 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")
     elif tracker.scale_ is not None and found.any():
         console.print(f"hand size: {run.meta['hand_scale']}")
-    if tracker.size_starts_:
-        console.print(f"start: the fit replaced on {tracker.size_starts_} of the size-refining frames by their own "
+    if tracker.stats.size_starts:
+        console.print(f"start: the fit replaced on {tracker.stats.size_starts} of the size-refining frames by their own "
                       "search's, which scored better")
     if tracker.settings.net.enabled and tracker.settings.mode != "reduced" and len(df):
-        runs = tracker.net_runs_
-        cost = f", {tracker.net_ms_ / runs:.0f} ms per run" if runs else ""
-        wrong = f" (on {tracker.net_wrong_way_} the hand pointed against the arm)" if tracker.net_wrong_way_ else ""
+        runs = tracker.stats.net_runs
+        cost = f", {tracker.stats.net_ms / runs:.0f} ms per run" if runs else ""
+        wrong = f" (on {tracker.stats.net_wrong_way} the hand pointed against the arm)" if tracker.stats.net_wrong_way else ""
         console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}){wrong}, replaced "
-                      f"{tracker.net_replaced_}{cost}; re-centred {tracker.recentred_}")
+                      f"{tracker.stats.net_replaced}{cost}; re-centred {tracker.stats.recentred}")
     if tracker.settings.start.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
-        console.print(f"colour seed: {tracker.rgb_seeds_} start searches seeded by colour keypoints"
-                      + ("" if tracker.rgb_seeds_ else " (no colour frames, or no hand found in them)"))
+        console.print(f"colour seed: {tracker.stats.rgb_seeds} start searches seeded by colour keypoints"
+                      + ("" if tracker.stats.rgb_seeds else " (no colour frames, or no hand found in them)"))
     if tracker.hand_check_ is not None and tracker.hand_check_.other_fits_better:
         console.print(f"warning: {rec.handedness} hand tracked, but {tracker.hand_check_}")
     console.print(f"wrote {output}")
@@ -517,7 +517,7 @@ def _no_hand_hints(job, tracker) -> str:
         hints.append("--forearm keep (the arm is fitted with the hand)")
     if st.scale.hand_scale != "auto" and not getattr(tracker.base_hand, "calibration", None):
         hints.append(f"the hand size {float(st.scale.hand_scale):g} given (--hand-scale auto estimates it)")
-    if tracker.no_hand_ > tracker.too_few_:
+    if tracker.stats.no_hand > tracker.stats.too_few:
         # a mirror-image hand leaves more of a real hand unexplained: tracked as the left hand, 7 of the 19
         # labelled right-hand SR305 stills were "no hand"
         hints.append(f"that the hand is the {tracker.base_hand.handedness} one (--hand)")

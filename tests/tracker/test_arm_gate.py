@@ -41,6 +41,6 @@ def test_a_closing_fist_does_not_follow_the_forearm():
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
     gated, tracker = _track(hand, truth, shown, TrackerSettings().observe.arm_gate_mm)
     assert gated[20:].max() < 3.5 and gated.max() < 5.0, np.round(gated, 1)
-    assert tracker.net_runs_ == 0
+    assert tracker.stats.net_runs == 0
     plain, tracker = _track(hand, truth, shown, None)
-    assert plain[27:].max() > 7.0 and tracker.net_replaced_ >= 1, np.round(plain, 1)  # the case is real
+    assert plain[27:].max() > 7.0 and tracker.stats.net_replaced >= 1, np.round(plain, 1)  # the case is real

@@ -107,7 +107,7 @@ def test_automatic_scale_recovered(bundle, scale, facing, posture):
 
 def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit(bundle):
     """While the size is refined (``scale_refine="search"``) each frame's own search is compared with
-    the tracked fit (:meth:`HandTracker._take_better_start`): a tracked hand turned round (180° in the
+    the tracked fit (:meth:`tracker.sizing.SizeCalibration.take_better_start`): a tracked hand turned round (180° in the
     image about its centre, as a first frame searched at a wrong size can leave it) is replaced by the
     search's right fit, and a right tracked hand is kept against that turned-round candidate. Realistic
     SR305 frame (forearm, 1.0×), depth only."""
@@ -133,12 +133,12 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     wrong = _turned(tr.hand, right)
     assert err(right) <= 10.0 and err(wrong) >= 50.0, (err(right), err(wrong))  # the scene's premise
     sil = _silhouette(_silhouette_mask(ob), ob.depth, cam, ob.frame_depth)
-    tr._add_wrist(sil)
+    tr.cue.add(sil)
     pts, nrm = _usable(ob.points, ob.normals, tr.settings.loss.max_points)
     tr.theta = wrong.copy()
-    tr._take_better_start(pts, nrm, sil, tr.hand, right)
-    assert tr.size_starts_ == 1 and err(tr.theta) <= 10.0, err(tr.theta)
+    tr.sizing.take_better_start(tr, pts, nrm, sil, tr.hand, right)
+    assert tr.stats.size_starts == 1 and err(tr.theta) <= 10.0, err(tr.theta)
     assert tr.prev is None and np.array_equal(tr.last_good, tr.theta)
     tr.theta = right.copy()
-    tr._take_better_start(pts, nrm, sil, tr.hand, wrong)
-    assert tr.size_starts_ == 1 and np.array_equal(tr.theta, right)
+    tr.sizing.take_better_start(tr, pts, nrm, sil, tr.hand, wrong)
+    assert tr.stats.size_starts == 1 and np.array_equal(tr.theta, right)

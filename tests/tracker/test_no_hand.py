@@ -50,8 +50,8 @@ def test_real_recordings_without_a_hand_find_none(name, bundle, right):
         assert r.status == "lost" and np.isnan(r.theta).all() and np.isnan(r.fit_mm)
         # what the start fitted left a third of its points unexplained (a hand: ≤ 15 % on the SR305 stills)
         assert r.rejected_share > SETTINGS.loss.no_hand_rejected
-    assert tr.no_hand_ == len(rec) and tr.scale_ is None and tr.lost
-    assert tr._calibrations == [] and list(tr._contexts) == [1.0]
+    assert tr.stats.no_hand == len(rec) and tr.scale_ is None and tr.lost
+    assert tr.sizing.calibrations_ == [] and tr.context_sizes() == [1.0]
 
 
 def _scene(hand, sensor, spec, in_view):
@@ -74,7 +74,7 @@ def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, sp
     with_hand, cam = _scene(right, sensor, "forearm,torso", True)
     r = tr.track(observe(with_hand, cam, SETTINGS.observe), cam)
     assert r.status == "reinit" and r.rejected_share < 0.1 and abs(tr.scale_ - 1.0) < 0.04
-    size, calibrations = tr.scale_, list(tr._calibrations)
+    size, calibrations = tr.scale_, list(tr.sizing.calibrations_)
     empty, cam = _scene(right, sensor, spec, False)
     if spec == "table":
         # depth only, the table is the frame's support plane and left out: nothing is segmented at all
@@ -85,11 +85,11 @@ def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, sp
     tr.lost = True  # as after a loss: the next frame is a start
     r = tr.track(ob, cam)
     assert r.status == "lost" and np.isnan(r.theta).all() and r.rejected_share > 0.3
-    assert tr.no_hand_ == 1 and tr.scale_ == size and tr._calibrations == calibrations
+    assert tr.stats.no_hand == 1 and tr.scale_ == size and tr.sizing.calibrations_ == calibrations
     # without the test the same frame is accepted as a hand, of the wrong size if it calibrates
     loose = HandTracker(right, SETTINGS.replace(loss=dict(no_hand_rejected=0.0)), synergies=bundle)
     r = loose.track(ob, cam)
-    assert r.status == "reinit" and loose.no_hand_ == 0 and abs(loose.scale_ - 1.0) > 0.1
+    assert r.status == "reinit" and loose.stats.no_hand == 0 and abs(loose.scale_ - 1.0) > 0.1
 
 
 def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
@@ -98,7 +98,7 @@ def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
     obs = [observe(d, cam, SETTINGS.observe) for d, cam in frames]
     tr = HandTracker(right, SETTINGS.replace(scale=dict(finger_lengths=False)), synergies=bundle)
     assert tr.calibrate_each(obs, frames[0][1]) == [1]
-    assert tr.no_hand_ == 1 and abs(tr.scale_ - 1.0) < 0.04
+    assert tr.stats.no_hand == 1 and abs(tr.scale_ - 1.0) < 0.04
     tr = HandTracker(right, SETTINGS, synergies=bundle)
     with pytest.raises(TrackerError, match="no hand found in any of the 1 frames"):
         tr.calibrate_each(obs[:1], frames[0][1])
@@ -150,14 +150,14 @@ def test_a_start_needs_enough_points(right, bundle):
     settings = SETTINGS.replace(scale=dict(hand_scale=1.0))
     tr = HandTracker(right, settings, synergies=bundle)
     r = tr.step(few)
-    assert r.status == "lost" and np.isnan(r.theta).all() and tr.no_hand_ == tr.too_few_ == 1 and r.points_in == 100
+    assert r.status == "lost" and np.isnan(r.theta).all() and tr.stats.no_hand == tr.stats.too_few == 1 and r.points_in == 100
     assert tr.step(few).status == "lost"  # still a start
     r = HandTracker(right, settings.replace(loss=dict(start_min_pixels=0)), synergies=bundle).step(few)
     assert r.status == "reinit"  # fitted, as before the test
     r = tr.step(ob.points, normals=ob.normals)
     assert r.status == "reinit" and not tr.lost  # a hand found: a tracked frame is no start
     r = tr.step(few)
-    assert tr.no_hand_ == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
+    assert tr.stats.no_hand == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
     with pytest.raises(TrackerError, match="start_min_pixels"):
         HandTracker(right, TrackerSettings().replace(loss=dict(start_min_pixels=-1)))
 
@@ -175,7 +175,8 @@ def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):
     tr = HandTracker(right, SETTINGS, synergies=bundle)
     r = tr.track(observe(depth, cam, SETTINGS.observe, segmenter=boxed), cam)
     assert r.status == "lost" and np.isnan(r.theta).all()
-    assert tr.no_hand_ == tr.size_out_ == 1 and tr.scale_ is None
+    assert tr.stats.no_hand == tr.stats.size_out == 1 and tr.scale_ is None
     r = tr.track(observe(depth, cam, SETTINGS.observe), cam)
-    assert r.status == "reinit" and 1.2 <= tr.scale_ <= 1.35 and tr.size_out_ == 1
-    assert not tr._size_out(1.3) and tr._size_out(0.6) and tr._size_out(1.99) and not tr._size_out(1.97)
+    assert r.status == "reinit" and 1.2 <= tr.scale_ <= 1.35 and tr.stats.size_out == 1
+    out = tr.loss.size_out
+    assert not out(1.3) and out(0.6) and out(1.99) and not out(1.97)

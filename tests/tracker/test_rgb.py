@@ -122,7 +122,7 @@ def test_colour_seed_reaches_the_start_search(hand, scene):
         tr = HandTracker(hand, TrackerSettings.paper(start=dict(rgb_seed=on, check_hand=False)), keypoint_detector=det)
         res = tr.track(ob, CAM, color=r.color)
         errs[on] = _kp_error_mm(hand, res.theta, truth)
-        assert tr.rgb_seeds_ == det.calls == int(on)
+        assert tr.stats.rgb_seeds == det.calls == int(on)
         if on:
             assert res.status == "reinit"
             tr.track(ob, CAM, color=r.color)
@@ -152,7 +152,7 @@ def _noisy_first_frame(hand, motion, frame):
         ob = observe(depth, CAM, tr.settings.observe, color=r.color)
         th = tr.track(ob, CAM, color=r.color).theta
         errs[on] = float(np.linalg.norm(hand.keypoints(th) - shown.keypoints(truth), axis=-1).mean() * 1000)
-        seeds[on], kept[on] = tr.rgb_seeds_, tr.rgb_kept_
+        seeds[on], kept[on] = tr.stats.rgb_seeds, tr.stats.rgb_kept
     return errs, seeds, kept
 
 

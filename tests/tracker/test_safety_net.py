@@ -39,7 +39,7 @@ def test_recentring_finds_a_hand_that_jumped_beyond_the_rejection_radius(hand):
     truth = _jumped(hand, 15, (0.08, 0.0, 0.0))
     on, tr = _track(hand, truth, net=dict(enabled=False))
     off, _ = _track(hand, truth, net=dict(enabled=False), predict=dict(recentre=False))
-    assert tr.recentred_ == 1  # the jump only: the next prediction does not repeat it as a velocity
+    assert tr.stats.recentred == 1  # the jump only: the next prediction does not repeat it as a velocity
     assert on.status[15] == "tracked" and on.error_deg[15] <= 8.0, np.round(on.error_deg[13:20], 2)
     assert off.error_deg[15] > 20.0 or off.status[15] == "lost"
 
@@ -52,7 +52,7 @@ def test_safety_net_recovers_a_fast_turn_on_the_same_frame(hand):
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0)
     on, tr = _track(hand, truth)
     off, _ = _track(hand, truth, net=dict(enabled=False))
-    assert tr.net_runs_ >= 1 and tr.net_replaced_ >= 1
+    assert tr.stats.net_runs >= 1 and tr.stats.net_replaced >= 1
     assert np.nanmax(on.error_deg[15:]) <= 5.0, np.round(on.error_deg[13:22], 2)
     assert np.nanmean(off.error_deg[15:]) > 5.0 * np.nanmean(on.error_deg[15:])
 
@@ -63,7 +63,7 @@ def test_easy_sequence_never_calls_the_search(hand):
     truth = make_motion("open-close", hand=hand, frames=30).theta
     on, tr = _track(hand, truth)
     off, _ = _track(hand, truth, net=dict(enabled=False))
-    assert tr.net_runs_ == 0
+    assert tr.stats.net_runs == 0
     np.testing.assert_array_equal(on.theta, off.theta)
 
 
@@ -104,7 +104,7 @@ def test_reduced_mode_keeps_its_subspace(hand):
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0, frames=20)
     tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
     r = E.run_sequence(hand, truth, CAM, tr)
-    assert tr.net_runs_ == 0
+    assert tr.stats.net_runs == 0
     post = r.theta[:, ~hand.pose_mask] - bundle.model.mean_
     C = bundle.model.all_components_[: tr.n_pcs]
     ok = np.isfinite(post).all(1) & (r.status == "tracked")
@@ -165,7 +165,7 @@ def test_no_wrist_cue_on_a_rendered_hand_without_arm(hand, monkeypatch):
         raw.append(np.nan if cue is None else wrist_cost_mm(cue, hand, truth[f]))
         sil = Silhouette(ob.mask, ob.depth, CAM)
         sil.frame_depth = ob.frame_depth
-        tr._add_wrist(sil)
+        tr.cue.add(sil)
         assert sil.wrist is None
         assert score(tr.context, truth[f], tr.context.matcher(truth[f], ob.points, ob.normals), sil) <= 1.0
     assert np.nanmax(raw) > 10.0, raw  # the cue as before is wrong on some of these frames
@@ -192,14 +192,17 @@ def test_net_searches_postures_from_the_tracked_pose_first(hand):
     tr.theta, tr.prev, tr.last_good, tr.lost = wrong, wrong, wrong, False
     ob = observe(ren.render(truth[40], labels=False).depth, CAM, tr.settings.observe)
     err = {}
-    for label, kw in (("off", {"net": {"enabled": False}}), ("placed", {"net": {"anchored": False}}), ("anchored", {})):
+    for label in ("off", "placed", "anchored"):
         t = copy.deepcopy(tr)
-        t.settings = t.settings.replace(**kw)
+        if label == "off":
+            t.settings = t.settings.replace(net=dict(enabled=False))
+        if label == "placed":  # the part's own settings: the searches from placements only
+            t.net.settings = t.net.settings.replace(anchored=False)
         err[label] = posture_error_deg(t.track(ob, CAM).theta, truth[40], hand.pose_mask)
         if label == "anchored":
-            assert (t.net_runs_, t.net_anchored_) == (1, 1)
+            assert (t.stats.net_runs, t.stats.net_anchored) == (1, 1)
         if label == "placed":
-            assert (t.net_runs_, t.net_anchored_, t.net_placed_) == (1, 0, 1)
+            assert (t.stats.net_runs, t.stats.net_anchored, t.stats.net_placed) == (1, 0, 1)
     assert err["off"] > 10.0 and err["anchored"] <= 0.5 * err["off"], err
 
 
@@ -238,7 +241,7 @@ def test_unseen_joints_are_pulled_to_the_synergies(hand):
         tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), refine=dict(unseen_prior=prior)), synergies=bundle)
         r = E.run_sequence(hand, truth, CAM, tr)
         err[prior] = float(np.mean(r.error_deg[35:]))
-        assert (tr.unseen_frames_ > 10) is (prior > 0)
+        assert (tr.stats.unseen_frames > 10) is (prior > 0)
     assert err[0.5] <= 0.7 * err[0.0] and err[0.5] <= 9.0, err
 
 
@@ -258,13 +261,13 @@ def test_unseen_prior_moves_only_joints_without_data(hand):
     seen_nodes = [k for k, n in enumerate(hand.node_names) if n not in ("index2", "index3", "index_tip")]
     nodes = np.repeat(seen_nodes, 5)
     corr = SimpleNamespace(nodes=nodes, valid=np.ones(len(nodes), bool))
-    out = tr._unseen_pulled(theta, corr)
+    out = tr.prior(tr.hand, theta, corr, tr.limits)
     moved = np.flatnonzero(out != theta)
     assert [hand.dof_names[k] for k in moved] == ["index2_flex", "index3_flex"]
     # the conditional mean of PIP given a straight finger is near the bundle's, far from -1.5 rad
     assert -1.5 < out[hand.dof_index("index2_flex")] < -0.5
     everything = SimpleNamespace(nodes=np.arange(hand.n_nodes).repeat(5), valid=np.ones(5 * hand.n_nodes, bool))
-    np.testing.assert_array_equal(tr._unseen_pulled(theta, everything), theta)
+    np.testing.assert_array_equal(tr.prior(tr.hand, theta, everything, tr.limits), theta)
 
 
 def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
@@ -297,16 +300,16 @@ def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
     x, mu = theta[post], np.asarray(m.mean_)
     want = mu[hid] - np.linalg.solve(P[np.ix_(hid, hid)], P[np.ix_(hid, ~hid)] @ (x[~hid] - mu[~hid]))
     want = np.clip(want, tr.limits[post[hid], 0], tr.limits[post[hid], 1])
-    full = tr._unseen_pulled(theta, corr, 1.0)
+    full = tr.prior(tr.hand, theta, corr, tr.limits, 1.0)
     np.testing.assert_allclose(full[post[hid]], want, atol=1e-9)
     np.testing.assert_array_equal(np.delete(full, post[hid]), np.delete(theta, post[hid]))
-    np.testing.assert_allclose(tr._unseen_pulled(theta, corr)[post[hid]], (x[hid] + want) / 2, atol=1e-9)
+    np.testing.assert_allclose(tr.prior(tr.hand, theta, corr, tr.limits)[post[hid]], (x[hid] + want) / 2, atol=1e-9)
 
     truth = make_motion("grasp-back", hand=hand).theta[45]
     frame = render(hand, truth, CAM)
     tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     assert tr.track(observe(frame.depth, CAM), CAM).status == "reinit"
-    assert tr.unseen_frames_ == 1
+    assert tr.stats.unseen_frames == 1
 
 
 def test_track_unseen_prior_option(tmp_path):

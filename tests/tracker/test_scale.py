@@ -162,13 +162,13 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
     tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", trust_mm=0.0, frames=3)), synergies=bundle)
     status = [tr.track(ob, CAM).status for _ in range(4)]
     assert status[:3] == ["reinit"] * 3 and status[3] == "tracked", status
-    assert len(tr._calibrations) == 3
-    best = min(tr._calibrations)[1]
+    assert len(tr.sizing.calibrations_) == 3
+    best = min(tr.sizing.calibrations_)[1]
     assert tr.scale_estimates_[0] == best and len(tr.scale_estimates_) == 2
     assert abs(tr.scale_ / 1.2 - 1.0) <= 0.03
     # trusted at once: one calibration
     tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
-    assert [tr.track(ob, CAM).status for _ in range(2)] == ["reinit", "tracked"] and len(tr._calibrations) == 1
+    assert [tr.track(ob, CAM).status for _ in range(2)] == ["reinit", "tracked"] and len(tr.sizing.calibrations_) == 1
 
 
 @pytest.mark.slow

@@ -1,6 +1,6 @@
 """A tracked hand turned upside down (fingers pointing up the arm, the wrist at the fingertips) must not
 pass as tracked: the safety net's doubt test reads the frame's wrist cue where an arm stands behind it
-(:meth:`tracker.track.HandTracker._wrong_way`), and its comparison then scores with the cue.
+(:meth:`tracker.net.SafetyNet.wrong_way`), and its comparison then scores with the cue.
 
 Found on the 19 labelled SR305 stills tracked as one recording: at the jump between the two
 recordings the fit converged from the old pose to a hand turned over, whose score was low (a flat
@@ -21,6 +21,7 @@ from tracker.sim.hands import HandShape
 from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
+from tracker.net import SafetyNet
 from tracker.track import HandTracker, TrackerSettings
 
 CAM = preset("sr305")
@@ -79,11 +80,11 @@ def test_a_jump_to_a_hand_turned_round_is_caught_on_its_frame(hand, jump_scene):
     truth, obs = jump_scene
     off, tr_off = _track(hand, obs, net=dict(far_share=0.0, wrist=dict(cost_mm=0.0)))
     on, tr = _track(hand, obs)
-    assert tr_off.net_runs_ == 0
+    assert tr_off.stats.net_runs == 0
     assert all(r.status == "tracked" for r in off[JUMP:])
     assert min(_turn_deg(r.theta, t) for r, t in zip(off[JUMP:], truth[JUMP:])) > 150.0
     assert (on[JUMP].status, on[JUMP].net) == ("reinit", "replaced")
-    assert tr.net_wrong_way_ >= 1
+    assert tr.stats.net_wrong_way >= 1
     assert max(_turn_deg(r.theta, t) for r, t in zip(on[JUMP:], truth[JUMP:])) <= 10.0
     # before the jump the two trackers are the same: the wrist test found nothing to doubt
     for a, b in zip(on[:JUMP], off[:JUMP]):
@@ -108,8 +109,8 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
         ob = observe(ren.render(truth[f], labels=False).depth, preset("kinect1"), tr.settings.observe)
         sil = Silhouette(ob.mask if ob.silhouette is None else ob.silhouette, ob.depth, preset("kinect1"))
         sil.frame_depth = ob.frame_depth
-        cues += tr._frame_cue(sil) is not None
-        assert not tr._wrong_way(truth[f], sil), f
+        cues += tr.cue.of(sil) is not None
+        assert not tr.net.wrong_way(tr.hand, truth[f], sil), f
     assert cues >= 1, cues  # a false cue is there (frame 34): the arm's length is what rules it out
 
 
@@ -125,16 +126,16 @@ def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
     truth = make_motion("count", hand=hand).theta
     ob = observe(DepthRenderer(hand, cam).render(truth[40], labels=False).depth, cam, TrackerSettings().observe)
     tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
-    tr._search_level = 10.0
+    tr.net.search_level = 10.0
     wrong = truth[40].copy()
     wrong[~hand.pose_mask] = truth[80][~hand.pose_mask]
     why = {}
     for name, th in (("right", truth[40]), ("wrong", wrong)):
         s = score(tr.context, th, tr.context.matcher(th, ob.points, ob.normals))
-        why[name] = tr._doubtful(th, th, s, None, ob.points)
+        why[name] = tr.net.doubtful(tr.context, th, th, s, None, ob.points)
     assert why == {"right": "", "wrong": "far"}, why
-    tr.settings = tr.settings.replace(net=dict(far_share=0.0))
-    assert tr._doubtful(wrong, wrong, 0.0, None, ob.points) == ""
+    no_far = SafetyNet(tr.settings.net.replace(far_share=0.0), tr.cue)
+    assert no_far.doubtful(tr.context, wrong, wrong, 0.0, None, ob.points) == ""
 
 
 def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
@@ -181,7 +182,7 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
 
 
 def test_the_nets_shared_distances_decide_as_the_full_test(hand):
-    """The net measures the tracked fit's points against the model once (:meth:`HandTracker._safety_net`
+    """The net measures the tracked fit's points against the model once (:class:`tracker.net.SafetyNet`
     passes them to both the score and the far-points test); the score and the verdict with them
     equal those measured anew, bit for bit, on right and wrong postures, with the far test on and off, with and without a level
     that makes the score test decide (the score test reads the level only above ``net_score_mm``)."""
@@ -203,10 +204,10 @@ def test_the_nets_shared_distances_decide_as_the_full_test(hand):
             s = score(tr.context, th, corr, sil)
             assert score(tr.context, th, corr, sil, data_mm=near) == s
             for far_share, level in itertools.product((0.1, 0.0), (0.0, s / 3.0, s)):
-                tr.settings = tr.settings.replace(net=dict(far_share=far_share))
-                tr._search_level = level
-                full = tr._doubtful(th, truth[f], s, None, ob.points)
-                assert tr._doubtful(th, truth[f], s, None, ob.points, near_mm=near) == full
+                net = SafetyNet(tr.settings.net.replace(far_share=far_share), tr.cue)
+                net.search_level = level
+                full = net.doubtful(tr.context, th, truth[f], s, None, ob.points)
+                assert net.doubtful(tr.context, th, truth[f], s, None, ob.points, near_mm=near) == full
                 verdicts.add(full)
     assert {"", "far", "score"} <= verdicts, verdicts
 
@@ -225,9 +226,9 @@ def test_the_wrist_test_runs_in_full_only_when_its_inputs_changed(hand, jump_sce
         assert a.status == b.status
     assert (cached[JUMP].status, cached[JUMP].net) == ("reinit", "replaced")
     # every frame after the first is tested (the jump frame too: it was tracked, then replaced)
-    assert tr_every.wrist_tests_ == len(obs) - 1
+    assert tr_every.stats.wrist_tests == len(obs) - 1
     # in full: the first after each start (frames 1 and 7), then at least every net_wrist_every-th
-    assert len(obs) / tr.settings.net.wrist.every <= tr.wrist_tests_ < tr_every.wrist_tests_
+    assert len(obs) / tr.settings.net.wrist.every <= tr.stats.wrist_tests < tr_every.stats.wrist_tests
 
 
 def test_a_wrist_test_setting_out_of_range_is_refused():

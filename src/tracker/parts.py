@@ -1,0 +1,264 @@
+"""The small named parts of :class:`tracker.track.HandTracker`'s per-frame pipeline, each built from
+its settings group and testable alone: the frame's wrist cue (:class:`WristCue`), re-centring
+(:class:`Recentring`), the unseen-joint prior (:class:`UnseenPrior`), the coupling restarts
+(:class:`FingerRestart`) and the loss / "no hand" tests (:class:`LossCheck`). Every part has the one
+interface :class:`FramePart`: its counts go to the tracker's :class:`TrackerStats`, ``reset()``
+forgets what it learnt of the sequence. The safety net (:mod:`tracker.net`) and the size calibration
+(:mod:`tracker.sizing`) are parts too.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ._wrist_kernels import surface_past_outline
+from .correspond import Silhouette
+from .coupling import restart_uncoupled
+from .icp import centre_shift, posed_samples
+from .wrist import arm_behind, wrist_cue
+
+
+@dataclass
+class TrackerStats:
+    """What a tracker did so far, counted over its frames (as Open3D's ``RegistrationResult`` reports a fit).
+
+    net_runs, net_replaced, net_ms : safety-net searches, how often their estimate won, their time (ms)
+    net_anchored, net_placed : searches from the tracked pose, and from placements in the cloud
+    net_wrong_way, wrist_tests : frames doubtful for a hand pointing against the arm; wrong-way tests
+        run in full
+    recentred : predictions moved onto the cloud
+    unseen_frames : frames whose unseen joints were pulled (``refine.unseen_prior``)
+    no_hand, too_few, size_out : starts that found no hand; of them, regions too small to start from,
+        and sizes at an end of ``scale.range``
+    size_starts : size-refining searches whose fit replaced the tracked one
+    rgb_seeds, rgb_kept : start searches seeded by colour keypoints; how often the seed alone won
+    """
+
+    net_runs: int = 0
+    net_replaced: int = 0
+    net_ms: float = 0.0
+    net_anchored: int = 0
+    net_placed: int = 0
+    net_wrong_way: int = 0
+    wrist_tests: int = 0
+    recentred: int = 0
+    unseen_frames: int = 0
+    no_hand: int = 0
+    too_few: int = 0
+    size_out: int = 0
+    size_starts: int = 0
+    rgb_seeds: int = 0
+    rgb_kept: int = 0
+
+
+class FramePart(Protocol):
+    """A named part of the per-frame pipeline: built from its settings, counting into ``stats``."""
+
+    stats: TrackerStats
+
+    def reset(self) -> None:
+        """Forget the sequence (a fresh start follows)."""
+
+
+class WristCue:
+    """The frame's wrist cue (:func:`tracker.wrist.wrist_cue`) when an arm's worth of surface lies
+    behind it (:func:`tracker.wrist.arm_behind`), found once per frame and kept on its silhouette
+    (``enabled``: :attr:`tracker.settings.StartSettings.wrist_cue`)."""
+
+    def __init__(self, enabled: bool, stats: TrackerStats | None = None):
+        self.enabled, self.stats = enabled, stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def of(self, sil):
+        """The cue of the frame of ``sil``, or None (found once per frame: kept on the silhouette as
+        ``arm_cue``, which :func:`tracker.init.score` does not read)."""
+        if sil is None or not self.enabled:
+            return None
+        if not hasattr(sil, "arm_cue"):
+            frame = getattr(sil, "frame_depth", None)
+            cue = None
+            if frame is not None and not sil.empty:
+                # the net tests every tracked frame: a hand with no surface right past its outline (a
+                # hand alone) has no wrist line, which the silhouette's distance transform tells
+                # (compiled, stops at the first such pixel: ~5 µs; wrist_cue takes ~0.2 ms there)
+                if surface_past_outline(sil.dist, frame, int(sil.v0), int(sil.u0), 2.0):
+                    cue = wrist_cue(sil.mask, frame, sil.camera)
+            sil.arm_cue = cue if cue is None or arm_behind(cue, sil.mask, frame, sil.camera) else None
+        return sil.arm_cue
+
+    def add(self, sil):
+        """Put the frame's cue on ``sil`` where :func:`tracker.init.score` finds it (``sil.wrist``; added
+        only when a search is about to run: tracking does not score by it)."""
+        if sil is not None and self.enabled and not hasattr(sil, "wrist"):
+            sil.wrist = self.of(sil)
+
+
+class Recentring:
+    """The prediction moved onto the cloud when their centres are farther apart than the rejection
+    radius ``reject_mm`` (a hand faster than the prediction: no correspondence would reach it). The
+    cloud is the near side of the hand, so only the model's camera-facing samples are its counterpart."""
+
+    def __init__(self, reject_mm: float, stats: TrackerStats | None = None):
+        self.reject_mm, self.stats = reject_mm, stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def __call__(self, hand, samples, pred, pts):
+        """``pred`` itself, or a moved copy (``samples``: the context's score samples)."""
+        shift = centre_shift(pts, posed_samples(hand, samples, pred))
+        if shift is None or np.linalg.norm(shift) * 1000.0 <= self.reject_mm:
+            return pred
+        self.stats.recentred += 1
+        out = pred.copy()
+        out[:3] += shift
+        return out
+
+
+class UnseenPrior:
+    """Joints without data pulled towards their most likely values given the seen ones: the synergy
+    model's Gaussian conditional mean (:attr:`tracker.settings.RefineSettings.unseen_prior`). Off (θ
+    unchanged) without synergies, in reduced mode or with ``unseen_prior`` 0."""
+
+    def __init__(self, hand, synergies, settings, mode: str, stats: TrackerStats | None = None):
+        self.settings, self.stats = settings, stats or TrackerStats()
+        self.on = bool(settings.unseen_prior) and synergies is not None and mode != "reduced"
+        self.moves_, self.mean_, self.cov_ = _unseen_parts(hand, synergies) if synergies is not None else (None,) * 3
+
+    def reset(self):
+        pass
+
+    def __call__(self, hand, theta, corr, limits, share=None) -> np.ndarray:
+        """θ with the posture DoF that no data point constrains (fewer than ``unseen_points`` valid pairs
+        of ``corr`` on the parts it moves) moved ``unseen_prior`` (``share`` when given) of the way to
+        the conditional mean given the other posture DoF. Unchanged when every DoF, or none, is seen
+        (nothing to condition on)."""
+        if not self.on:
+            return theta
+        counts = np.bincount(corr.nodes[corr.valid], minlength=hand.n_nodes)
+        hid = self.moves_ @ counts < self.settings.unseen_points
+        if not hid.any() or hid.all():
+            return theta
+        seen, mu, S = ~hid, self.mean_, self.cov_
+        post = np.flatnonzero(~hand.pose_mask)
+        x = theta[post]
+        cond = mu[hid] + S[np.ix_(hid, seen)] @ np.linalg.solve(S[np.ix_(seen, seen)], x[seen] - mu[seen])
+        out = np.array(theta, float)
+        idx = post[hid]
+        share = self.settings.unseen_prior if share is None else share
+        out[idx] = np.clip(x[hid] + share * (cond - x[hid]), limits[idx, 0], limits[idx, 1])
+        self.stats.unseen_frames += 1
+        return out
+
+
+def _unseen_parts(hand, synergies):
+    """``(moves, mean, covariance)`` of :class:`UnseenPrior`: ``moves (20, nodes)`` is 1 where a posture
+    DoF moves a node (the node it drives and every node below it); the covariance is the synergy
+    model's over all its components, with a small ridge (1e-4 rad²) so that the seen joints' block is
+    always invertible."""
+    moves = hand.dof_moves[~hand.pose_mask].astype(float)
+    m = synergies.model
+    C, lam = np.asarray(m.all_components_, float), np.asarray(m.all_explained_variance_, float)
+    S = C.T @ (lam[:, None] * C) + 1e-4 * np.eye(C.shape[1])
+    return moves, np.asarray(m.mean_, float), S
+
+
+class FingerRestart:
+    """A tracked fit whose fingers break their last joints' coupling refitted from the coupled angles,
+    kept when it scores clearly better (:func:`tracker.coupling.restart_uncoupled`;
+    :class:`tracker.settings.RefineSettings` ``finger_restart_deg``, ``finger_bent_back_deg``; off in
+    reduced mode)."""
+
+    def __init__(self, settings, mode: str, stats: TrackerStats | None = None):
+        self.settings, self.stats = settings, stats or TrackerStats()
+        self.on = bool(settings.finger_restart_deg) and mode != "reduced"
+
+    def reset(self):
+        pass
+
+    def __call__(self, hand, theta, corr, refit, score, limits):
+        """``(θ, corr)``: ``refit(start)`` fits from a start, ``score(θ, corr)`` judges."""
+        if not self.on:
+            return theta, corr
+        st = self.settings
+        theta, corr, _ = restart_uncoupled(hand, theta, corr, refit, score, limits, tolerance_deg=st.finger_restart_deg,
+                                           bent_back_deg=st.finger_bent_back_deg or None)
+        return theta, corr
+
+
+class LossCheck:
+    """When a frame is lost, and when a start found no hand (:class:`tracker.settings.LossSettings`;
+    ``scale_range``: the sizes an automatic calibration searches)."""
+
+    def __init__(self, settings, scale_range=(0.6, 2.0), stats: TrackerStats | None = None):
+        self.settings, self.scale_range, self.stats = settings, scale_range, stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def too_small(self, n_points, sil) -> bool:
+        """Whether a start's region is too small to start a hand from (``start_min_pixels``): 26 DoF fitted
+        to a few dozen points fit anything. The region's pixels, not its points (a coarse stride, Fig. 9's
+        1/36, samples a whole hand sparsely); its points without a mask."""
+        if not self.settings.start_min_pixels:
+            return False
+        region = n_points if sil is None or sil.empty else int(np.count_nonzero(sil.mask))
+        return region < self.settings.start_min_pixels
+
+    def found_nothing(self, corr) -> bool:
+        """Whether a start's fit (its pairs ``corr``) rejects more than ``no_hand_rejected`` of its points:
+        what it fitted is no hand."""
+        limit = self.settings.no_hand_rejected
+        return bool(limit) and len(corr.valid) > 0 and corr.rejected_share > limit
+
+    def size_out(self, s) -> bool:
+        """Whether a calibrated size ``s`` lies at an end of ``scale_range`` (within 1 %): what was
+        fitted is beyond the sizes of hands (a shoulder left in by a ``--box`` fitted at 2.0×, the
+        range's end; the 19 SR305 stills: 1.21–1.31×). Off with ``no_hand_rejected`` 0."""
+        lo, hi = self.scale_range
+        return bool(self.settings.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
+
+    def no_hand_sized(self, s, corr) -> bool:
+        """Whether a calibrating start (size ``s``, pairs ``corr``) found no hand: its size at an end of the
+        range (counted in ``stats.size_out``) or its fit's rejections."""
+        out = self.size_out(s)
+        self.stats.size_out += out
+        return out or self.found_nothing(corr)
+
+    def kept(self, fit_mm, rejected) -> bool:
+        """Whether a fit is good enough to track from (not lost): ``lost_fit_mm``, ``lost_rejected``."""
+        st = self.settings
+        return bool(np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected)
+
+
+def silhouette_mask(observation):
+    """The mask an observation's silhouette term fits: its mask widened by the sensor's dropout band
+    (:func:`tracker.observe.dropout_band`) where it has one."""
+    return observation.mask if observation.silhouette is None else observation.silhouette
+
+
+def frame_silhouette(mask, depth, camera, frame_depth):
+    """The :class:`~tracker.correspond.Silhouette` of a frame (None without a mask, depth or camera),
+    carrying the whole frame's depth for the wrist cue."""
+    if mask is None or camera is None or depth is None:
+        return None
+    sil = Silhouette(mask, depth, camera)
+    sil.frame_depth = frame_depth
+    return sil
+
+
+def usable_points(points, normals, max_points):
+    """Finite points (at most ``max_points``, evenly spread) and their normals; NaN normals (unknown)
+    stay: the normal test is skipped for them."""
+    pts = np.asarray(points, float).reshape(-1, 3)
+    keep = np.isfinite(pts).all(1)
+    if max_points and keep.sum() > max_points:
+        idx = np.flatnonzero(keep)
+        keep[:] = False
+        keep[idx[np.linspace(0, len(idx) - 1, max_points).astype(int)]] = True
+    nrm = None if normals is None else np.asarray(normals, float).reshape(-1, 3)[keep]
+    return pts[keep], nrm
