@@ -1,5 +1,7 @@
-"""Numba kernel: model→data silhouette pairs (pose the model samples, keep the front-facing ones,
-project them, look up the distance transform and fetch the nearest silhouette pixel's 3-D point)."""
+"""Numba kernels of the silhouette (:class:`tracker.correspond.Silhouette`): its distance transform
+(:func:`feature_transform`, also the segmentation's and the wrist cue's) and the model→data
+silhouette pairs (pose the model samples, keep the front-facing ones, project them, look up the
+distance transform and fetch the nearest silhouette pixel's 3-D point)."""
 from __future__ import annotations
 
 import math
@@ -7,17 +9,22 @@ import math
 import numpy as np
 from numba import njit
 
+from ._correspond_kernels import MIN_DEPTH_M
+from ._segment_kernels import nearest_rows
+
 
 @njit(cache=True)
-def silhouette_pairs_kernel(G, nodes, local, local_n, fx, fy, cx, cy, dist, iv, iu, depth, v0, u0, tol,
-                            out_nodes, out_local, out_tgt):
-    """One pass over the samples (``nodes (P,)``, ``local``/``local_n (P,3)`` in the node frames
-    ``G (N,4,4)``). Each sample facing the camera (P·N < 0, z > 1e-3) whose pixel (rounded half to
-    even) lies more than ``tol`` px from the silhouette — ``dist`` at the pixel clipped into the
-    window starting at ``(v0, u0)`` plus the length of the clipping — and whose nearest silhouette
+def silhouette_pairs_kernel(G, samples, sil, tol, out_nodes, out_local, out_tgt):
+    """One pass over the ``samples`` (:class:`~tracker._kernel_arrays.SampleArrays`: ``nodes (P,)``,
+    ``local``/``local_n (P,3)`` in the node frames ``G (N,4,4)``). Each sample facing the camera
+    (P·N < 0, z > :data:`MIN_DEPTH_M`) whose pixel (rounded half to even) lies more than ``tol`` px
+    from the silhouette ``sil`` (:class:`~tracker._kernel_arrays.SilhouetteArrays`) — ``dist`` at the
+    pixel clipped into the window starting at ``(v0, u0)`` plus the length of the clipping — and whose nearest silhouette
     pixel has finite depth is written, in sample order, to ``out_nodes``/``out_local``/``out_tgt``
     (the target is that pixel back-projected at the sample's depth, or the pixel's own depth when
     that is farther). Returns the number written."""
+    nodes, local, local_n = samples.nodes, samples.local, samples.local_n
+    fx, fy, cx, cy, dist, iv, iu, depth, v0, u0 = sil
     h, w = dist.shape
     n = 0
     for p in range(nodes.shape[0]):
@@ -30,7 +37,7 @@ def silhouette_pairs_kernel(G, nodes, local, local_n, fx, fy, cx, cy, dist, iv, 
         nx = g[0, 0] * m0 + g[0, 1] * m1 + g[0, 2] * m2
         ny = g[1, 0] * m0 + g[1, 1] * m1 + g[1, 2] * m2
         nz = g[2, 0] * m0 + g[2, 1] * m1 + g[2, 2] * m2
-        if not (px * nx + py * ny + pz * nz < 0.0 and pz > 1e-3):
+        if not (px * nx + py * ny + pz * nz < 0.0 and pz > MIN_DEPTH_M):
             continue
         u = np.int64(np.rint(fx * px / pz + cx)) - u0
         v = np.int64(np.rint(fy * py / pz + cy)) - v0
@@ -58,3 +65,53 @@ def silhouette_pairs_kernel(G, nodes, local, local_n, fx, fy, cx, cy, dist, iv, 
         out_tgt[n, 2] = d
         n += 1
     return n
+
+
+@njit(cache=True)
+def feature_transform(mask, dist, iv, iu):
+    """The exact Euclidean distance of every pixel to the nearest ``mask`` pixel (0 on the mask) into
+    ``dist`` and that pixel's row and column into ``iv``/``iu``: what
+    ``scipy.ndimage.distance_transform_edt(~mask, return_indices=True)`` returns (the same distances;
+    of several equally near mask pixels either may be named), in two separable passes (Felzenszwalb &
+    Huttenlocher 2012: per column the nearest mask pixel, then per row the lower envelope of the
+    parabolas). Returns False (outputs unset) when the mask is empty. Every tracked frame builds its
+    silhouette's transform; scipy's takes ~4× as long."""
+    H, W = mask.shape
+    # per column: the nearest mask pixel's row (−1: none; the upper one on ties, as scipy's)
+    gr = np.empty((H, W), np.int32)
+    if not nearest_rows(mask, gr):
+        return False
+    # per row: the lower envelope of u ↦ (u − q)² + (v − gr[v, q])² over the columns q with a mask pixel
+    cols = np.empty(W, np.int64)
+    fs = np.empty(W)
+    zs = np.empty(W + 1)
+    for v in range(H):
+        k = -1
+        for q in range(W):
+            r = gr[v, q]
+            if r < 0:
+                continue
+            fq = float((v - r) * (v - r) + q * q)
+            while k >= 0:
+                s = (fq - fs[k]) / (2.0 * (q - cols[k]))
+                if s <= zs[k]:
+                    k -= 1
+                else:
+                    break
+            k += 1
+            cols[k] = q
+            fs[k] = fq
+            zs[k] = -np.inf if k == 0 else (fq - fs[k - 1]) / (2.0 * (q - cols[k - 1]))
+            zs[k + 1] = np.inf
+        j = 0
+        for u in range(W):
+            while zs[j + 1] < u:
+                j += 1
+            q = cols[j]
+            rv = gr[v, q]
+            du = u - q
+            dv = v - rv
+            dist[v, u] = np.sqrt(float(du * du + dv * dv))
+            iv[v, u] = rv
+            iu[v, u] = q
+    return True

@@ -9,6 +9,17 @@ from numba import njit
 
 from ._segment_kernels import city_block, component_labels, surface_labels
 
+#: the wrist cue's cost (:func:`tracker.wrist.wrist_cost_mm`): a hand whose wrist is behind the camera
+#: costs the reach and this many turns; the arm's image direction counts from this length (a unit
+#: vector's, less for an arm seen end-on), the hand's wrist → middle-base span from this many metres
+BEHIND_CAMERA_TURNS = 1.5
+MIN_ARM_DIRECTION = 0.3
+MIN_FINGER_SPAN_M = 1e-6
+MIN_DEPTH_M = 1e-3
+MM = 1000.0
+#: the nodes whose origins are the wrist and the middle finger's base (keypoints 0 and 9)
+WRIST_NODE, MIDDLE_BASE_NODE = 0, 9
+
 
 @njit(cache=True)
 def surface_past_outline(dist, frame, v0, u0, reach_px):
@@ -193,3 +204,21 @@ def count_near(mask, depth, y0, y1, x0, x1, u, v, r, z, step_m):
             if (y - v) ** 2 + (x - u) ** 2 <= rr and not mask[y, x] and abs(depth[y, x] - z) <= step_m:
                 n += 1
     return n
+
+
+@njit(cache=True, inline="always")
+def wrist_cost_at(G, point, direction, reach_mm, turn_mm):
+    """:func:`tracker.wrist.wrist_cost_mm` with the hand's node frames ``G`` (keypoints 0, the wrist, and
+    9, the middle finger's base, are nodes 0 and 9's origins): the same operations in order."""
+    w0, w1, w2 = G[WRIST_NODE, 0, 3], G[WRIST_NODE, 1, 3], G[WRIST_NODE, 2, 3]
+    if w2 <= MIN_DEPTH_M:
+        return reach_mm + BEHIND_CAMERA_TURNS * turn_mm
+    far = np.hypot(w0 / w2 - point[0] / point[2], w1 / w2 - point[1] / point[2]) * point[2] * MM
+    cost = max(far - reach_mm, 0.0)
+    a0, a1 = direction[0], direction[1]
+    f0, f1 = G[MIDDLE_BASE_NODE, 0, 3] - w0, G[MIDDLE_BASE_NODE, 1, 3] - w1
+    na = np.sqrt(a0 * a0 + a1 * a1)
+    nf = np.sqrt(f0 * f0 + f1 * f1)
+    if na > MIN_ARM_DIRECTION and nf > MIN_FINGER_SPAN_M:
+        cost += turn_mm * max((a0 * f0 + a1 * f1) / (na * nf), 0.0)
+    return cost

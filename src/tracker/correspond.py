@@ -15,8 +15,8 @@ from scipy.spatial import cKDTree
 from handmodel._geometry_kernels import closest_points_facing
 from handmodel.geometry import surface_samples
 
-from ._icp_kernels import feature_transform
-from ._silhouette_kernels import silhouette_pairs_kernel
+from ._kernel_arrays import SampleArrays, SilhouetteArrays
+from ._silhouette_kernels import feature_transform, silhouette_pairs_kernel
 from .errors import TrackerError
 from .settings_base import SettingsGroup
 
@@ -237,20 +237,23 @@ class Silhouette:
         feature_transform(sub, self.dist, self.iv, self.iu)
 
 
-def silhouette_pairs(samples, theta, sil, tolerance_px=1.5):
+#: a model sample projecting this far (px) outside the silhouette gets a silhouette pair: the
+#: silhouette's edge is known to a pixel or so
+SILHOUETTE_TOLERANCE_PX = 1.5
+
+
+def silhouette_pairs(samples, theta, sil, tolerance_px=SILHOUETTE_TOLERANCE_PX):
     """Model→data pairs for front-facing model points that project outside the hand silhouette
     (by more than ``tolerance_px``): each is pulled to the 3-D point of the nearest silhouette pixel
     (a 3-D version of htrack's 2-D silhouette term). Returns (nodes, local offsets, targets)."""
     empty = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
     if sil.empty:
         return empty
-    cam = sil.camera
     G = samples.hand.node_frames(theta)
     n = len(samples.nodes)
     nodes, local, tgt = np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3))
-    k = silhouette_pairs_kernel(G, samples.nodes, samples.local, samples.local_n, float(cam.fx), float(cam.fy),
-                                float(cam.cx), float(cam.cy), sil.dist, sil.iv, sil.iu, sil.depth, int(sil.v0),
-                                int(sil.u0), float(tolerance_px), nodes, local, tgt)
+    k = silhouette_pairs_kernel(G, SampleArrays.of(samples), SilhouetteArrays.of(sil), float(tolerance_px), nodes,
+                                local, tgt)
     return nodes[:k], local[:k], tgt[:k]
 
 

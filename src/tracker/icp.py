@@ -24,11 +24,30 @@ from handmodel.rigid import euler_to_matrix, horn, matrix_to_euler
 from handmodel.solver import SolverSettings, solve
 from handmodel.subspace import Subspace
 
-from . import _icp_kernels as K
+from . import _correspond_kernels as CK
+from . import _fit_kernels as FK
+from . import _observe_kernels as OK
+from ._kernel_arrays import (
+    ENTRY_CLAMP,
+    ENTRY_NONE,
+    ENTRY_THROUGH,
+    CapsuleArrays,
+    FitTerms,
+    GaussNewton,
+    HandArrays,
+    MatchRules,
+    Pairs,
+    ProjectionArrays,
+    SampleArrays,
+    SilhouetteArrays,
+    StageArrays,
+    WristLine,
+)
 from .correspond import (
     M2D_CAP_MM,
     M2D_TOLERANCE_MM,
     M2D_TOLERANCE_PX,
+    SILHOUETTE_TOLERANCE_PX,
     CapsuleModel,
     Correspondences,
     Matcher,
@@ -242,7 +261,7 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         samples=None, silhouette=None, wrist=None, moments=True, stats=None):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
 
-    The whole loop runs in one compiled call (:func:`tracker._icp_kernels.fit_kernel`) when
+    The whole loop runs in one compiled call (:func:`tracker._fit_kernels.fit_kernel`) when
     ``matcher`` is a :class:`~tracker.correspond.Matcher` on the capsule model; any other matcher
     goes through :func:`fit_reference`, the same steps as a Python loop. ``moments``: the
     Gauss-Newton steps work on per-node moment sums of the pairs (cost independent of the number of
@@ -280,61 +299,60 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
         return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
                              samples=samples, silhouette=silhouette, wrist=wrist)
-    solver = st.solver()
-    cs = matcher.settings
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    P = len(pts)
     nrm = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
     sil_on = silhouette is not None and samples is not None and st.silhouette_weight > 0 and not silhouette.empty
-    if sil_on:
-        cam = silhouette.camera
-        sil_args = (samples.nodes, samples.local, samples.local_n, float(cam.fx), float(cam.fy), float(cam.cx),
-                    float(cam.cy), silhouette.dist, silhouette.iv, silhouette.iu, silhouette.depth,
-                    int(silhouette.v0), int(silhouette.u0))
-    else:
-        sil_args = _NO_SILHOUETTE
-    wl_node, wl_local, wl_normal = wrist_line(hand, wrist, st)
-    out_p, out_n = np.zeros((P, 3)), np.zeros((P, 3))
-    out_seg, out_d = np.empty(P, np.int64), np.empty(P)
-    out_node, out_valid = np.empty(P, np.int64), np.empty(P, np.bool_)
-    th = K.fit_kernel(np.array(hand.check_theta(theta), float), *hand.kernel_args(),
-                      *matcher.surface.caps.kernel_args(), pts, nrm, _CAMERA_CENTRE, bool(cs.facing_only),
-                      cs.reject_mm / 1000.0, float(cs.normal_agreement) if normals is not None else -1.0,
-                      int(n_rigid), st.local_mm / 1000.0, *_stage_arrays(hand, stages, solver),
-                      int(solver.iterations), int(solver.max_halvings), float(solver.tol),
-                      bool(solver.joint_limit_avoidance), bool(solver.clamp), float(solver.clamp_margin),
-                      float(st.robust_mm), bool(st.point_to_plane), bool(moments),
-                      sil_on, *sil_args, 1.5, float(st.silhouette_weight),
-                      wl_node >= 0, max(wl_node, 0), wl_local, wl_normal, float(st.wrist_line_weight),
-                      st.wrist_line_mm / 1000.0,
-                      out_p, out_n, out_seg, out_d, out_node, out_valid,
-                      np.zeros(5, np.int64) if stats is None else stats)
-    return th, Correspondences(out_p, out_node, out_n, out_d, out_valid, pts)
+    solver = st.solver()
+    terms = FitTerms(float(st.robust_mm), bool(st.point_to_plane), bool(moments), st.local_mm / 1000.0, sil_on,
+                     float(st.silhouette_weight), SILHOUETTE_TOLERANCE_PX, int(n_rigid))
+    out = Pairs.empty(len(pts))
+    th = FK.fit_kernel(np.array(hand.check_theta(theta), float), HandArrays.of(hand),
+                       CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
+                       *_stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
+                       SampleArrays.of(samples) if sil_on else _NO_SAMPLES,
+                       SilhouetteArrays.of(silhouette) if sil_on else _NO_SILHOUETTE,
+                       wrist_line(hand, wrist, st), out, np.zeros(5, np.int64) if stats is None else stats)
+    return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
 
 
 def wrist_line(hand, cue, settings):
-    """``(node, offset, plane normal)`` of the wrist-line pair (:class:`IcpSettings`
-    ``wrist_line_weight``): the model's wrist crease as a point of its node and the plane of the wrist
-    ``cue`` (:func:`tracker.wrist.arm_line_normal`); node −1 when the term is off or there is no cue."""
+    """The wrist-line pair (:class:`IcpSettings` ``wrist_line_weight``) as
+    :class:`~tracker._kernel_arrays.WristLine`: the model's wrist crease as a point of its node and
+    the plane of the wrist ``cue`` (:func:`tracker.wrist.arm_line_normal`); off when the term is off
+    or there is no cue."""
     if cue is None or not settings.wrist_line_weight > 0:
-        return -1, _NO_POINT, _NO_POINT
+        return WristLine(False, 0, _NO_POINT, _NO_POINT, float(settings.wrist_line_weight),
+                         settings.wrist_line_mm / 1000.0)
     node, local = hand.wrist_crease_local()
-    return node, np.asarray(local, np.float64), arm_line_normal(cue)
+    return WristLine(True, int(node), np.asarray(local, np.float64), arm_line_normal(cue),
+                     float(settings.wrist_line_weight), settings.wrist_line_mm / 1000.0)
 
 
+def match_rules(matcher, normals):
+    """The pairs' rules of ``matcher`` (:class:`tracker.correspond.Matcher`) as
+    :class:`~tracker._kernel_arrays.MatchRules`; no normal test without data ``normals``."""
+    cs = matcher.settings
+    return MatchRules(_CAMERA_CENTRE, bool(cs.facing_only), cs.reject_mm / 1000.0,
+                      float(cs.normal_agreement) if normals is not None else -1.0)
+
+
+#: re-centring needs this many camera-facing model samples to say where the hand is
+MIN_FACING_SAMPLES = 10
 _NO_ROWS = np.zeros((0, 3))
 _NO_POINT = np.zeros(3)
 _CAMERA_CENTRE = np.zeros(3)
 # stand-ins of the silhouette arrays' types when the term is off (one compiled version serves both)
-_NO_SILHOUETTE = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), 1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)),
-                  np.zeros((1, 1), np.int32), np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
-_ENTRIES = {"none": K.ENTRY_NONE, "clamp": K.ENTRY_CLAMP, "through": K.ENTRY_THROUGH}
+_NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+_NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
+                                  np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
+_ENTRIES = {"none": ENTRY_NONE, "clamp": ENTRY_CLAMP, "through": ENTRY_THROUGH}
 _PACKED: dict = {}
 
 
 def _stage_arrays(hand, stages, solver):
-    """The stages as the padded arrays of :func:`tracker._icp_kernels.fit_kernel` (kept per list of
-    stages and settings: a tracker fits with the same stages every frame)."""
+    """The stages as the padded arrays of :func:`tracker._fit_kernels.fit_kernel`, ``(StageArrays,
+    ProjectionArrays)`` (kept per list of stages and settings: a tracker fits with the same stages
+    every frame)."""
     key = (tuple(stages), solver.damping, solver.pose_damping, hand.n_dofs)
     hit = _PACKED.get(key)
     if hit is not None:
@@ -366,8 +384,9 @@ def _stage_arrays(hand, stages, solver):
             pr_on[s], pr_m[s], pr_M[s, :, :k], pr_mu[s] = True, k, pj.M, pj.mu
             pr_lo[s, :k], pr_hi[s, :k] = pj.lo, pj.hi
             pr_eye[s] = pj.M.shape == (n, n) and np.array_equal(pj.M, np.eye(n))
-    out = (st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_local, np.asarray(hand.pose_mask, np.bool_),
-           pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye)
+    out = (StageArrays(st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_local,
+                       np.asarray(hand.pose_mask, np.bool_)),
+           ProjectionArrays(pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye))
     if len(_PACKED) > 64:
         _PACKED.clear()
     _PACKED[key] = out
@@ -379,18 +398,18 @@ def posed_samples(hand, samples, theta):
     (``samples.pose(theta)`` in one compiled call: the tracker poses the predicted hand every frame
     for the gate and the re-centring)."""
     P, N = np.empty((len(samples.nodes), 3)), np.empty((len(samples.nodes), 3))
-    K.pose_samples(np.ascontiguousarray(theta, dtype=np.float64), *hand.kernel_args(), samples.nodes,
-                   samples.local, samples.local_n, P, N)
+    CK.pose_samples(np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(hand), SampleArrays.of(samples),
+                    P, N)
     return P, N
 
 
 def centre_shift(points, samples_posed):
     """The shift (m, ``(3,)``) that moves the camera-facing model samples' per-axis median onto the
     data ``points``' (``samples_posed``: ``(P, N)`` from :func:`posed_samples`), or None with fewer
-    than 10 facing samples (too little of the hand faces the camera to say where it is)."""
+    than :data:`MIN_FACING_SAMPLES` facing samples (too little of the hand faces the camera to say where it is)."""
     P, N = samples_posed
     shift = np.empty(3)
-    if K.centre_shift(np.ascontiguousarray(points, dtype=np.float64), P, N, shift) < 10:
+    if OK.centre_shift(np.ascontiguousarray(points, dtype=np.float64), P, N, shift) < MIN_FACING_SAMPLES:
         return None
     return shift
 
@@ -403,38 +422,30 @@ def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=M2D_TOLERANCE
     :class:`tracker.correspond.ModelSamples` (posed with their own hand)."""
     if silhouette.empty:
         return float(cap_mm)
-    cam = silhouette.camera
-    return float(K.model_to_data_mean(np.ascontiguousarray(theta, dtype=np.float64), *samples.hand.kernel_args(),
-                                      samples.nodes, samples.local, float(cam.fx), float(cam.fy), float(cam.cx),
-                                      float(cam.cy), silhouette.dist, np.asarray(silhouette.depth, np.float64),
-                                      int(silhouette.v0), int(silhouette.u0), float(tolerance_mm),
-                                      float(tolerance_px), float(cap_mm)))
+    return float(CK.model_to_data_mean(np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(samples.hand),
+                                       SampleArrays.of(samples),
+                                       SilhouetteArrays.of(silhouette, depth=np.asarray(silhouette.depth, np.float64)),
+                                       float(tolerance_mm), float(tolerance_px), float(cap_mm)))
 
 
 def capsule_pass(hand, matcher, theta, points, normals, segments=None):
     """``(Correspondences, segments)``: ``matcher``'s pass at θ (a
     :class:`tracker.correspond.Matcher` on the capsule model) and the primitive each point was matched
-    to (−1: none); with ``segments``, the local pass of :func:`tracker._icp_kernels.match_same`
+    to (−1: none); with ``segments``, the local pass of :func:`tracker._correspond_kernels.match_same`
     instead (every point kept on its primitive there)."""
-    cs = matcher.settings
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    P = len(pts)
     nrm = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
-    out_p, out_n, out_d = np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P)
-    out_node, out_valid = np.zeros(P, np.int64), np.empty(P, np.bool_)
-    out_seg = np.empty(P, np.int64) if segments is None else np.array(segments, np.int64)
-    args = (np.ascontiguousarray(hand.node_frames(np.asarray(theta, float))), *matcher.surface.caps.kernel_args(),
-            pts, nrm, _CAMERA_CENTRE, bool(cs.facing_only), cs.reject_mm / 1000.0,
-            float(cs.normal_agreement) if normals is not None else -1.0, out_p, out_n, out_seg, out_d, out_node,
-            out_valid)
+    out = Pairs.empty(len(pts), None if segments is None else np.array(segments, np.int64))
+    caps = CapsuleArrays.of(matcher.surface.caps)
+    args = (np.ascontiguousarray(hand.node_frames(np.asarray(theta, float))), caps, pts, nrm,
+            match_rules(matcher, normals), out)
     if segments is None:
-        K.match(*args)
+        CK.match(*args)
     else:
-        K.match_same(*args)
+        CK.match_same(*args)
         # the node of a primitive (match names it; match_same keeps what it was given)
-        seg_node = matcher.surface.caps.kernel_args()[0]
-        out_node[:] = np.where(out_seg >= 0, seg_node[np.maximum(out_seg, 0)], 0)
-    return Correspondences(out_p, out_node, out_n, out_d, out_valid, pts), out_seg
+        out.node[:] = np.where(out.seg >= 0, caps.node[np.maximum(out.seg, 0)], 0)
+    return Correspondences(out.p, out.node, out.n, out.d, out.valid, pts), out.seg
 
 
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
@@ -463,7 +474,8 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
     st = settings or IcpSettings()
     solver = st.solver()
     capsules = isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)
-    wl_node, wl_local, wl_normal = wrist_line(hand, wrist, st)
+    line = wrist_line(hand, wrist, st)
+    wl_node, wl_local, wl_normal = (line.node if line.on else -1), line.local, line.normal
     corr = pairs = sil_last = None
     last = None  # (θ, segments) of the pass before: where and onto which primitives it matched
     for _ in range(n_rigid):

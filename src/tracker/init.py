@@ -24,7 +24,15 @@ from handmodel.geometry import surface_samples
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from .coupling import recoupled, uncoupled
-from ._icp_kernels import data_cost_mean, search_score
+from ._kernel_arrays import (
+    CapsuleArrays,
+    HandArrays,
+    SampleArrays,
+    ScoreTerms,
+    SilhouetteArrays,
+    WristCueArrays,
+)
+from ._search_kernels import data_cost_mean, search_score
 from .correspond import (
     DATA_CAP_MM,
     M2D_CAP_MM,
@@ -240,27 +248,27 @@ def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> flo
 
 
 def _score_compiled(ctx, theta, corr, silhouette, samples, cue) -> float:
-    """:func:`score` by :func:`tracker._icp_kernels.search_score` (``samples`` None: no model→data term;
-    ``cue`` None: no wrist cost)."""
-    if samples is not None:
-        cam = silhouette.camera
-        m2d = (True, MODEL_TO_DATA_WEIGHT, samples.nodes, samples.local, float(cam.fx), float(cam.fy), float(cam.cx),
-               float(cam.cy), silhouette.dist, np.asarray(silhouette.depth, np.float64), int(silhouette.v0),
-               int(silhouette.u0), M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM)
-    else:
-        m2d = (False, MODEL_TO_DATA_WEIGHT, *_NO_M2D)
-    wrist = ((True, np.asarray(cue.point, np.float64), np.asarray(cue.direction, np.float64)) if cue is not None
-             else (False, _ZERO3, _ZERO3))
-    return float(search_score(np.array(ctx.hand.check_theta(theta), float), *ctx.hand.kernel_args(),
-                              *ctx.matcher.surface.caps.kernel_args(),
+    """:func:`score` by :func:`tracker._search_kernels.search_score` (``samples`` None: no model→data
+    term; ``cue`` None: no wrist cost)."""
+    on = samples is not None
+    terms = ScoreTerms(REJECTED_PAIR_MM, DATA_CAP_MM, on, MODEL_TO_DATA_WEIGHT, M2D_TOLERANCE_MM, M2D_TOLERANCE_PX,
+                       M2D_CAP_MM)
+    sil = (SilhouetteArrays.of(silhouette, depth=np.asarray(silhouette.depth, np.float64)) if on
+           else _NO_SILHOUETTE)
+    wrist = (WristCueArrays(True, np.asarray(cue.point, np.float64), np.asarray(cue.direction, np.float64),
+                            WRIST_REACH_MM, WRIST_TURN_MM) if cue is not None
+             else WristCueArrays(False, _ZERO3, _ZERO3, WRIST_REACH_MM, WRIST_TURN_MM))
+    return float(search_score(np.array(ctx.hand.check_theta(theta), float), HandArrays.of(ctx.hand),
+                              CapsuleArrays.of(ctx.matcher.surface.caps),
                               np.ascontiguousarray(corr.points, dtype=np.float64),
-                              np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM, DATA_CAP_MM,
-                              *m2d, *wrist, WRIST_REACH_MM, WRIST_TURN_MM))
+                              np.ascontiguousarray(corr.valid, dtype=np.bool_), terms,
+                              SampleArrays.of(samples) if on else _NO_SAMPLES, sil, wrist))
 
 
 # stand-ins of the model→data arrays' types when the term is off (one compiled version serves both)
-_NO_M2D = (np.zeros(0, np.int64), np.zeros((0, 3)), 1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1)), 0, 0,
-           M2D_TOLERANCE_MM, M2D_TOLERANCE_PX, M2D_CAP_MM)
+_NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+_NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
+                                  np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
 _ZERO3 = np.zeros(3)
 
 
@@ -276,7 +284,7 @@ def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None, frames=None) -> 
         # compiled (a search scores hundreds of fits; the numpy path below is its definition)
         surf = ctx.matcher.surface
         G = frames if frames is not None and surf.hand is ctx.hand else surf.hand.node_frames(theta)
-        return float(data_cost_mean(np.ascontiguousarray(G, dtype=np.float64), *surf.caps.kernel_args(),
+        return float(data_cost_mean(np.ascontiguousarray(G, dtype=np.float64), CapsuleArrays.of(surf.caps),
                                     np.ascontiguousarray(corr.points, dtype=np.float64),
                                     np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM, DATA_CAP_MM))
     if data_mm is not None:

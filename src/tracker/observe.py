@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._icp_kernels import gate_kernel, observe_window
+from ._observe_kernels import SMOOTH_MAX_DIFF_M, gate_kernel, observe_window
 from ._segment_kernels import dropout_band_kernel
 from .errors import TrackerError
 from .segment import Segmenter, bounds
@@ -271,7 +271,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     cap = ((h + stride - 1) // stride) * ((w + stride - 1) // stride)
     dsm, pts, nrm = np.empty((h, w)), np.empty((cap, 3)), np.empty((cap, 3))
     k = observe_window(dw, mw, float(camera.fx), float(camera.fy), float(camera.cx - x0), float(camera.cy - y0),
-                       int(st.smooth), 0.01, float(st.normal_max_jump), stride, (-y0) % stride, (-x0) % stride,
+                       int(st.smooth), SMOOTH_MAX_DIFF_M, float(st.normal_max_jump), stride, (-y0) % stride, (-x0) % stride,
                        dsm, pts, nrm)
     out_d = np.full((H, W), np.nan)
     out_d[y0:y1, x0:x1] = np.where(mw, dsm, np.nan)

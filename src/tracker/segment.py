@@ -47,7 +47,7 @@ import matplotlib.colors as mcolors
 import numpy as np
 from scipy import ndimage
 
-from ._icp_kernels import feature_transform
+from ._silhouette_kernels import feature_transform
 from ._segment_kernels import (
     back_points,
     plane_pixels,

@@ -22,8 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._icp_kernels import feature_transform
+from ._silhouette_kernels import feature_transform
 from ._wrist_kernels import (
+    BEHIND_CAMERA_TURNS,
+    MIN_ARM_DIRECTION,
+    MIN_DEPTH_M,
+    MIN_FINGER_SPAN_M,
+    MM,
     count_near,
     longest_line,
     near_line,
@@ -252,13 +257,13 @@ def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_m
     # across the image only (at the cue's depth): the mask's end can lie on forearm receding from the
     # camera, centimetres behind the wrist joint, while where it is in the image is sharp
     w, p = kp[0], np.asarray(cue.point, float)
-    if w[2] <= 1e-3:
-        return reach_mm + 1.5 * turn_mm
-    far = float(np.hypot(w[0] / w[2] - p[0] / p[2], w[1] / w[2] - p[1] / p[2]) * p[2]) * 1000.0
+    if w[2] <= MIN_DEPTH_M:
+        return reach_mm + BEHIND_CAMERA_TURNS * turn_mm
+    far = float(np.hypot(w[0] / w[2] - p[0] / p[2], w[1] / w[2] - p[1] / p[2]) * p[2]) * MM
     cost = max(far - reach_mm, 0.0)
     arm = np.asarray(cue.direction[:2], float)
     fingers = (kp[9] - kp[0])[:2]
     na, nf = float(np.linalg.norm(arm)), float(np.linalg.norm(fingers))
-    if na > 0.3 and nf > 1e-6:
+    if na > MIN_ARM_DIRECTION and nf > MIN_FINGER_SPAN_M:
         cost += turn_mm * max(float(arm @ fingers) / (na * nf), 0.0)
     return cost

@@ -10,7 +10,10 @@ from hypothesis import given, settings, strategies as st
 from handmodel import HandModel
 from handmodel import _geometry_kernels as GK
 from handmodel import _solver_kernels as SK
-from tracker import _icp_kernels as K
+from tracker import _fit_kernels as K
+from tracker._kernel_arrays import HandArrays
+from tracker._search_kernels import pairwise_sum
+from tracker._silhouette_kernels import feature_transform
 from tracker.correspond import CorrespondSettings, Matcher, Silhouette, local_offsets
 from tracker.icp import IcpSettings, cauchy_weights, fit, fit_reference, search_schedule
 from tracker.observe import observe
@@ -90,8 +93,8 @@ def _check_stage_by_stage(tr, start, pts, nrm, sil, stages, **kw):
 
 
 @pytest.mark.parametrize("mode,ours,extra", [("full", True, {}), ("full", False, {}), ("reduced", True, {}),
-                                             ("reduced", False, {}), ("reduced", True, {"projected_steps": 2}),
-                                             ("hierarchical", True, {}), ("full", True, {"point_to_plane": True})])
+                                             ("reduced", False, {}), ("reduced", True, {"icp": {"projected_steps": 2}}),
+                                             ("hierarchical", True, {}), ("full", True, {"icp": {"point_to_plane": True}})])
 def test_compiled_loop_gives_the_reference_result(bundle, frames, mode, ours, extra):
     """Every mode and stage entry (clamp, through, projected steps), both estimations, point-to-plane:
     the whole fit gives the reference's θ and correspondences on (nearly) every frame, and every
@@ -169,7 +172,7 @@ def test_moment_sums_give_the_per_pair_energy_and_normal_equations(bundle, frame
     w = cauchy_weights(c.distance[v], 8.0)
     n, N = HAND.n_dofs, HAND.n_nodes
     G0 = HAND.node_frames(start)
-    mom = np.zeros((N, 23))
+    mom = np.zeros((N, K.N_MOMENTS))
     K.node_moments(nodes, loc, tg, w, G0, N, mom)
     rng = np.random.default_rng(0)
     G, wa, wo = np.empty((N, 4, 4)), np.empty((n, 3)), np.empty((n, 3))
@@ -179,9 +182,9 @@ def test_moment_sums_give_the_per_pair_energy_and_normal_equations(bundle, frame
         e_pair = SK.normal_equations(th, *HAND.kernel_args(), nodes, loc, tg, w, np.zeros((0, 3)), G, wa, wo, A, b,
                                      np.empty((n, 3)), np.empty(n, np.int64), np.empty(3), np.empty(3))
         A2, b2 = np.empty((n, n)), np.empty(n)
-        e_mom = K.moment_normal_equations(HAND.parents, HAND.dof_ptr, HAND.dof_idx, HAND.dof_types, mom, G0, G, wa,
-                                          wo, A2, b2, np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3)))
-        e_at = K.moment_energy_at(th, *HAND.kernel_args(), mom, G0, G, wa, wo, np.empty((3, 3)), np.empty(3))
+        e_mom = K.moment_normal_equations(HandArrays.of(HAND), mom, G0, G, wa, wo, A2, b2, np.empty(n, np.int64),
+                                          np.empty((n, 3)), np.empty((n, 3)))
+        e_at = K.moment_energy_at(th, HandArrays.of(HAND), mom, G0, G, wa, wo, np.empty((3, 3)), np.empty(3))
         assert e_pair > 1.0
         assert abs(e_mom - e_pair) <= 1e-10 * e_pair and abs(e_at - e_pair) <= 1e-10 * e_pair
         np.testing.assert_allclose(A2, A, rtol=0, atol=1e-10 * np.abs(A).max())
@@ -285,11 +288,11 @@ def test_feature_transform_is_scipys():
         m[rng.integers(H), rng.integers(W)] = True
         want = ndimage.distance_transform_edt(~m)
         d, iv, iu = np.empty((H, W)), np.empty((H, W), np.int32), np.empty((H, W), np.int32)
-        assert K.feature_transform(m, d, iv, iu)
+        assert feature_transform(m, d, iv, iu)
         np.testing.assert_array_equal(d, want)
         assert m[iv, iu].all()
         np.testing.assert_array_equal(np.sqrt((iv - np.arange(H)[:, None]) ** 2.0 + (iu - np.arange(W)) ** 2.0), d)
-    assert not K.feature_transform(np.zeros((3, 4), bool), d, iv, iu)
+    assert not feature_transform(np.zeros((3, 4), bool), d, iv, iu)
 
 
 def test_silhouette_matches_scipys_transform(frames):
@@ -340,7 +343,7 @@ def test_pairwise_sum_is_numpys_sum_bit_for_bit(n, seed):
     a = rng.random(n + 7) * 30.0 * (rng.random(n + 7) < 0.7) + rng.random(n + 7) * 1e-3
     lo = int(rng.integers(0, 8))
     n = min(n, len(a) - lo)
-    assert K.pairwise_sum(a, lo, n) == np.add.reduce(a[lo:lo + n])
+    assert pairwise_sum(a, lo, n) == np.add.reduce(a[lo:lo + n])
 
 
 def _moved_fit(truth, pts, rng, shift_m, turn_rad, share):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from handmodel import HandModel
-from tracker import _icp_kernels as K
+from tracker import _fit_kernels as K
 from tracker.correspond import Silhouette
 from tracker.icp import capsule_pass, fit, fit_reference, posed_samples
 from tracker.observe import observe

@@ -14,7 +14,7 @@ from PIL import Image
 from scipy import ndimage
 
 from tests.conftest import shared
-from tracker._icp_kernels import feature_transform
+from tracker._silhouette_kernels import feature_transform
 from tracker._wrist_kernels import (
     arm_entry,
     count_near,
