@@ -26,6 +26,7 @@ from .c3d import read_c3d
 from .calibrate import Calibration, calibrate, golden_section, sample_frames
 from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
+from .prior import PosturePrior, resolve_prior
 from .smoothing import lowpass_markers
 
 #: A joint on a limit in more than this share of frames is reported.
@@ -49,6 +50,11 @@ IP_COUPLING = 2.0 / 3.0
 #: a flat valley (hand16 in a fist: PIP +23°, DIP −37° moves its two finger markers by 1.2 and
 #: 0.6 mm on the true hand, within the noise).
 IP_COUPLING_SD_DEG = 10.0
+#: A joint whose markers give less than this share of its information (posterior variance with the
+#: priors over that without, median over frames) is "weakly observed: prior-driven".
+PRIOR_DRIVEN_SHARE = 0.5
+#: The posture prior ``prior='auto'`` uses where the markers leave a joint weakly observed.
+DEFAULT_PRIOR = "fingerfist"
 #: SD (degrees/s²) of the weak prior on each finger joint's angular acceleration that ties a
 #: trajectory's frames together when the markers are low-passed (:func:`refine_trajectory`). A power
 #: grasp closes at ~900°/s²; a joint the markers fix keeps a 30° swing at 4 Hz (~19000°/s²) within ~2°.
@@ -101,11 +107,14 @@ def _solve(hm, nodes, local, tg, weights):
                       restarts=1)
 
 
-def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None):
+def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None, prior_driven=None):
     """Per-trial diagnostics of a conversion (fills ``df['quality']``; returns a dict for ``df.attrs``).
 
-    ``residuals`` is ``(F, M)`` per-marker distances (mm, NaN where missing); ``rep`` the solver report.
+    ``residuals`` is ``(F, M)`` per-marker distances (mm, NaN where missing); ``rep`` the solver report;
+    ``prior_driven`` the joints the markers leave weakly observed (:func:`prior_driven`): named as
+    such, and a limit they sit on is the prior's or the IK's guess, not a reason to refuse the trial.
     """
+    prior_driven = dict(prior_driven or {})
     solved = rep.iterations >= 0
     rms = rep.rms_mm
     floor = float(np.nanmedian(rms[solved])) if solved.any() else float("nan")
@@ -120,7 +129,7 @@ def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None):
     share = rep.at_limit[solved].mean(0) if solved.any() else np.zeros(len(dofs))
     limits = {d: round(float(v), 4) for d, v in zip(dofs, share) if v > 0 and d not in dofs[:6]}
     warnings = []
-    pinned = {d: v for d, v in limits.items() if v > LIMIT_SHARE_WARN}
+    pinned = {d: v for d, v in limits.items() if v > LIMIT_SHARE_WARN and d not in prior_driven}
     if pinned:
         warnings.append("on a joint limit in more than 5 % of frames: "
                         + ", ".join(f"{d} {100 * v:.0f} %" for d, v in sorted(pinned.items(), key=lambda x: -x[1])))
@@ -142,7 +151,8 @@ def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None):
             warnings.append(f"marker {worst[0]} fits worst (median {worst[1][0]:.1f} mm vs {med:.1f} mm): "
                             "misplaced, mislabelled or on a loose spot?")
     return {"noise_floor_mm": _r(floor), "poor_threshold_mm": _r(thr), "poor_share": round(poor_share, 4),
-            "marker_residuals_mm": per_marker, "limit_share": limits, "jumps": jumps, "warnings": warnings}
+            "marker_residuals_mm": per_marker, "limit_share": limits, "jumps": jumps, "warnings": warnings,
+            "prior_driven": prior_driven}
 
 
 def _r(x, nd=3):
@@ -154,7 +164,8 @@ def verdict(diag) -> str:
     """'poor' (do not use without a look), 'check' (warnings) or 'good'."""
     h = diag.get("handedness", {})
     if (diag.get("poor_share", 0) > POOR_TRIAL_SHARE or h.get("verdict") == "wrong hand"
-            or any(v > 0.25 for v in diag.get("limit_share", {}).values()) or diag.get("calibration_overfit")):
+            or any(v > 0.25 for k, v in diag.get("limit_share", {}).items() if k not in diag.get("prior_driven", {}))
+            or diag.get("calibration_overfit")):
         return "poor"
     return "check" if diag.get("warnings") else "good"
 
@@ -217,19 +228,51 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     True
     """
     pairs = ip_coupling_pairs(hand, skip)
+    if not len(pairs) or not sd_deg:
+        return np.array(theta, float)
+    return refine_with_prior(hand, nodes, local, targets, theta, weights, noise_mm=noise_mm,
+                             rows=(dip_prior_rows(pairs, hand.n_dofs, ratio, sd_deg), np.zeros(len(pairs))),
+                             coupled=(pairs, ratio), iterations=iterations)
+
+
+def prior_rows(hand, prior=None, *, dip_sd_deg=None, ratio=IP_COUPLING, skip=()):
+    """The stacked linear residual rows ``(P, c)`` (``r = P θ − c``) of the IK's posture priors: a
+    :class:`~synergy.prior.PosturePrior` and the DIP prior (:func:`dip_prior_rows`), either or both."""
+    P, c = [np.zeros((0, hand.n_dofs))], [np.zeros(0)]
+    if prior is not None:
+        Pp, cp = prior.rows(hand)
+        P.append(Pp)
+        c.append(cp)
+    pairs = ip_coupling_pairs(hand, skip) if dip_sd_deg else np.zeros((0, 2), np.int64)
+    if len(pairs):
+        P.append(dip_prior_rows(pairs, hand.n_dofs, ratio, dip_sd_deg))
+        c.append(np.zeros(len(pairs)))
+    return np.vstack(P), np.concatenate(c)
+
+
+def refine_with_prior(hand, nodes, local, targets, theta, weights, *, noise_mm, rows, coupled=None, mean=None,
+                      iterations=12):
+    """Marker IK (markers with SD ``noise_mm`` per coordinate) plus linear Gaussian prior rows
+    ``rows = (P, c)`` (residual ``P θ − c``, see :func:`prior_rows`), per frame.
+
+    Starts from ``theta`` (``(F, n)``, NaN rows left alone), from the same posture with each DIP set
+    to ``ratio`` × PIP where ``coupled = (pairs, ratio)``, and from the posture ``mean`` (20 angles)
+    at each frame's pose where given; a damped Gauss-Newton from each, the lowest cost kept per
+    frame; limits are the model's. Returns ``theta`` refined.
+    """
+    P, c0 = (np.asarray(x, float) for x in rows)
     th = np.array(theta, float)
     ok = np.isfinite(th).all(1)
-    if not ok.any() or not len(pairs) or not sd_deg:
+    if not ok.any() or not len(P):
         return th
     lim = np.asarray(hand.limits, float)
     y, ww = _weighted_targets(targets, ok, nodes, weights, noise_mm)
     n = hand.n_dofs
-    P = dip_prior_rows(pairs, n, ratio, sd_deg)
 
     def cost_and_terms(t):
         p = 1000.0 * hand.points(t, nodes, local)
         r = ww[..., None] * (p - y)
-        rp = t @ P.T
+        rp = t @ P.T - c0
         return np.sum(r ** 2, (1, 2)) + np.sum(rp ** 2, 1), r, rp
 
     def solve_from(t):
@@ -253,17 +296,98 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
         return t, c
 
     t0 = th[ok]
-    coupled = t0.copy()
-    coupled[:, pairs[:, 1]] = ratio * coupled[:, pairs[:, 0]]
+    starts = [t0]
+    if coupled is not None and len(coupled[0]):
+        pairs, ratio = coupled
+        s = t0.copy()
+        s[:, pairs[:, 1]] = ratio * s[:, pairs[:, 0]]
+        starts.append(s)
+    if mean is not None:
+        s = t0.copy()
+        s[:, ~hand.pose_mask] = mean
+        starts.append(s)
     with threadpool_limits(limits=1, user_api="blas"):  # 26×26 systems per frame: threads only contend
-        a, ca = solve_from(t0)
-        b, cb = solve_from(coupled)
-    th[ok] = np.where((cb < ca)[:, None], b, a)
+        best, cb = solve_from(starts[0])
+        for s in starts[1:]:
+            t, cs = solve_from(s)
+            # ties go to the earlier start (the IK's own solution, then the DIP-coupled one)
+            best = np.where((cs < cb)[:, None], t, best)
+            cb = np.minimum(cs, cb)
+    th[ok] = best
     return th
 
 
+def posterior_sd(hand, nodes, local, theta, weights, present, *, noise_mm, rows=None):
+    """Posterior SD (radians) of every coordinate per frame from the IK's normal equations at
+    ``theta``: ``diag((JᵀJ/σ² + PᵀP)⁻¹)^½`` with markers of SD ``noise_mm`` per coordinate
+    (``present``: ``(F, M)`` which markers a frame has) and the prior rows ``(P, c)`` if given.
+    A direction the markers leave free has an infinite SD (reported as ``inf``).
+
+    >>> h = HandModel.load()
+    >>> n, l = np.arange(h.n_nodes), np.tile([0.0, 0.0, 0.01], (h.n_nodes, 1))
+    >>> th = np.zeros((1, 26)); th[0, 2] = 0.5
+    >>> sd = posterior_sd(h, n, l, th, None, np.ones((1, h.n_nodes), bool), noise_mm=0.5)
+    >>> bool(np.degrees(sd[0, 6:]).max() < 5)
+    True
+    """
+    th = np.asarray(theta, float)
+    out = np.full(th.shape, np.nan)
+    ok = np.isfinite(th).all(1)
+    if not ok.any():
+        return out
+    w = np.ones(len(nodes)) if weights is None else np.asarray(weights, float)
+    ww = (w[None, :] * np.asarray(present, bool)[ok]) / float(noise_mm)
+    J = (1000.0 * ww[..., None, None] * hand.jacobian(th[ok], nodes, local)).reshape(int(ok.sum()), -1, th.shape[1])
+    H = J.transpose(0, 2, 1) @ J
+    if rows is not None and len(rows[0]):
+        H = H + rows[0].T @ rows[0]
+    # the symmetric eigen-decomposition: a null direction (a joint no marker moves) is an infinite
+    # variance, not the ridge's arbitrary one
+    s, U = np.linalg.eigh(H)
+    tiny = s <= 1e-10 * np.maximum(s[:, -1:], 1e-30)
+    inv = np.where(tiny, 0.0, 1.0 / np.where(tiny, 1.0, s))
+    var = np.einsum("fij,fj->fi", U ** 2, inv)
+    var = np.where(np.einsum("fij,fj->fi", U ** 2, tiny.astype(float)) > 1e-6, np.inf, var)
+    out[ok] = np.sqrt(var)
+    return out
+
+
+def prior_driven(sd_with, sd_without, names, share=PRIOR_DRIVEN_SHARE):
+    """The posture joints whose markers give less than ``share`` of their information (median over
+    frames of ``sd_with² / sd_without²``, both SDs per frame): name → ``[sd_with°, sd_without°]``."""
+    ok = np.isfinite(sd_with).all(1)
+    out = {}
+    if not ok.any():
+        return out
+    with np.errstate(divide="ignore", invalid="ignore"):
+        data_share = np.nanmedian((sd_with[ok] / sd_without[ok]) ** 2, axis=0)
+    for j, name in enumerate(names):
+        if j < 6 or not data_share[j] < share:
+            continue
+        out[name] = [_r(np.degrees(np.median(sd_with[ok, j])), 2), _r(np.degrees(np.median(sd_without[ok, j])), 1)]
+    return out
+
+
+def default_prior(hand, nodes, local, theta, weights, present, *, noise_mm, rows=None, frames=200):
+    """The ``'auto'`` choice of :func:`markers_to_angles`: :data:`DEFAULT_PRIOR` when, at the IK's
+    solution ``theta`` (a sample of ``frames`` solved frames), it would decide some posture joint
+    (:func:`prior_driven`: the markers give less than half its information), else None (a set that
+    observes every joint keeps its markers' angles, bit for bit)."""
+    ok = np.flatnonzero(np.isfinite(theta).all(1))
+    if not ok.size:
+        return None
+    at = ok[np.linspace(0, ok.size - 1, min(frames, ok.size)).round().astype(int)]
+    cand = resolve_prior(DEFAULT_PRIOR)
+    with_prior = prior_rows(hand, cand)
+    if rows is not None and len(rows[0]):
+        with_prior = np.vstack([with_prior[0], rows[0]]), np.concatenate([with_prior[1], rows[1]])
+    sd_w = posterior_sd(hand, nodes, local, theta[at], weights, present[at], noise_mm=noise_mm, rows=with_prior)
+    sd_0 = posterior_sd(hand, nodes, local, theta[at], weights, present[at], noise_mm=noise_mm, rows=rows)
+    return cand if prior_driven(sd_w, sd_0, hand.dof_names) else None
+
+
 def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, rate, accel_sd_deg_s2=None,
-                      ip_sd_deg=IP_COUPLING_SD_DEG, ratio=IP_COUPLING, iterations=6, skip=()):
+                      ip_sd_deg=IP_COUPLING_SD_DEG, ratio=IP_COUPLING, iterations=6, skip=(), posture_rows=None):
     """Marker IK of a whole trajectory at once, with a weak prior on each finger joint's angular
     acceleration (SD ``accel_sd_deg_s2``) beside the DIP prior of :func:`refine_with_coupling`.
 
@@ -273,7 +397,8 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
     prior lets the neighbouring frames decide (a low-pass at ~3 Hz along such directions only).
     Starts from ``theta`` (``(F, n)``, NaN rows for frames not solved; consecutive solved frames are
     tied); Levenberg-Marquardt on the sparse banded system; limits are the model's; fingers in
-    ``skip`` get no DIP prior. Returns ``theta`` refined.
+    ``skip`` get no DIP prior. ``posture_rows = (P, c)`` (:func:`prior_rows`) replaces the DIP prior by these
+    posture priors. Returns ``theta`` refined.
 
     >>> h = HandModel.load()
     >>> th = np.zeros((5, 26)); th[:, 2] = 0.5; th[:, 9] = np.linspace(-0.5, -0.3, 5)
@@ -300,14 +425,16 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
                            (np.r_[rows, rows, rows], np.r_[cols0, cols0 + n, cols0 + 2 * n])),
                           shape=(len(rows), F * n))
     DtD = (D.T @ D).tocsr()
-    pairs = ip_coupling_pairs(hand, skip) if ip_sd_deg else np.zeros((0, 2), np.int64)
-    P = dip_prior_rows(pairs, n, ratio, ip_sd_deg)
+    if posture_rows is None:
+        pairs = ip_coupling_pairs(hand, skip) if ip_sd_deg else np.zeros((0, 2), np.int64)
+        posture_rows = dip_prior_rows(pairs, n, ratio, ip_sd_deg), np.zeros(len(pairs))
+    P, c0 = (np.asarray(x, float) for x in posture_rows)
     lim = np.asarray(hand.limits, float)
     y, ww = _weighted_targets(targets, at, nodes, weights, noise_mm)
 
     def cost_of(t):
         r = ww[..., None] * (1000.0 * hand.points(t, nodes, local) - y)
-        rp = t @ P.T
+        rp = t @ P.T - c0
         dt = D @ t.ravel()
         return float(np.sum(r ** 2) + np.sum(rp ** 2) + dt @ dt), r, rp
 
@@ -343,7 +470,7 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
 def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibration="trial",
                       settings=None, poor_residual_mm: float | None = None, min_markers: int = 4, smooth_hz=None,
                       check_hand="stop", static=None, ip_coupling_sd_deg=IP_COUPLING_SD_DEG,
-                      accel_sd_deg_s2=ACCEL_SD_DEG_S2):
+                      accel_sd_deg_s2=ACCEL_SD_DEG_S2, prior="auto"):
     """Joint angles of every frame of a trial.
 
     Parameters
@@ -368,12 +495,18 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     accel_sd_deg_s2 : SD (degrees/s²) of the weak prior on the finger joints' angular acceleration
         (:func:`refine_trajectory`, :data:`ACCEL_SD_DEG_S2`), applied with ``smooth_hz`` (a smooth
         trajectory asked for); None or 0, or no ``smooth_hz``, solves every frame on its own
+    prior : the Gaussian posture prior (:class:`~synergy.prior.PosturePrior`, a bundle name such as
+        ``'fingerfist'`` or a path), None for none, or ``'auto'``: :data:`DEFAULT_PRIOR` where the
+        markers leave a posture joint weakly observed (:func:`default_prior`), else none. Its rows
+        stand beside the markers divided by the trial's own noise, so well-observed joints follow
+        the markers and weakly observed ones the prior
 
     Returns
     -------
     pandas.DataFrame
         ``frame, time_s``, the 26 DoF columns (radians, metres), ``residual_mm``, ``markers``,
-        ``quality`` (ok / poor / gap); ``df.attrs`` holds the metadata (rate, source, units,
+        ``quality`` (ok / poor / gap), and ``<dof>_sd`` for each posture DoF (radians: the posterior
+        SD from the IK's normal equations, with the priors used); ``df.attrs`` holds the metadata (rate, source, units,
         marker set, hand, calibration, extra markers) and ``diagnostics`` (noise floor, per-marker
         residuals, share of frames on each limit, handedness check, warnings, ``verdict``).
     """
@@ -443,23 +576,31 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     # the frames' own fits do not (DFKI glove median 0.61 → 0.77 mm, 95th 1.53 → 2.39 mm; ART
     # 1.60 → 1.70 mm), so it comes with the low-pass, when a smooth trajectory is what was asked for
     accel_sd_deg_s2 = accel_sd_deg_s2 if smooth_hz else None
-    if ip_coupling_sd_deg or accel_sd_deg_s2:
-        solved0 = rep.iterations >= 0
-        # per-coordinate noise of the markers as fitted (smoothed, if asked), from the trial's own
-        # median residual (a frame's 3-D RMS) with the DoFs' share of it restored (3M coordinates,
-        # n DoF). A larger value (e.g. the calibration's raw-frame residual) lets the prior bend
-        # well-observed DIPs: ROM trials of simulated subjects 1.7 → 5.3° RMS
-        res = float(np.nanmedian(rep.rms_mm[solved0])) if solved0.any() else 1.0
-        m3 = 3 * float(np.median(n_present[solved0])) if solved0.any() else 3.0 * len(nodes)
-        noise = max(res * np.sqrt(m3 / max(m3 - hm.n_dofs, 1.0) / 3.0), 0.01)
-        th_out = np.where(solved0[:, None], theta, np.nan)
-        if ip_coupling_sd_deg:
-            th_out = refine_with_coupling(hm, nodes, local, targets, th_out, weights, noise_mm=noise,
-                                          sd_deg=ip_coupling_sd_deg, skip=dip_fixed_fingers(ms))
+    solved0 = rep.iterations >= 0
+    present = np.isfinite(targets[..., 0])
+    # per-coordinate noise of the markers as fitted (smoothed, if asked), from the trial's own
+    # median residual (a frame's 3-D RMS) with the DoFs' share of it restored (3M coordinates,
+    # n DoF). A larger value (e.g. the calibration's raw-frame residual) lets the prior bend
+    # well-observed DIPs: ROM trials of simulated subjects 1.7 → 5.3° RMS
+    res = float(np.nanmedian(rep.rms_mm[solved0])) if solved0.any() else 1.0
+    m3 = 3 * float(np.median(n_present[solved0])) if solved0.any() else 3.0 * len(nodes)
+    noise = max(res * np.sqrt(m3 / max(m3 - hm.n_dofs, 1.0) / 3.0), 0.01)
+    skip = dip_fixed_fingers(ms)
+    th_ik = np.where(solved0[:, None], theta, np.nan)
+    dip_rows = prior_rows(hm, None, dip_sd_deg=ip_coupling_sd_deg, skip=skip)
+    if isinstance(prior, str) and prior == "auto":
+        prior = default_prior(hm, nodes, local, th_ik, weights, present, noise_mm=noise, rows=dip_rows)
+    prior = resolve_prior(prior)
+    rows = prior_rows(hm, prior, dip_sd_deg=ip_coupling_sd_deg, skip=skip)
+    if len(rows[0]) or accel_sd_deg_s2:
+        th_out = th_ik
+        if len(rows[0]):
+            pairs = ip_coupling_pairs(hm, skip) if ip_coupling_sd_deg else np.zeros((0, 2), np.int64)
+            th_out = refine_with_prior(hm, nodes, local, targets, th_out, weights, noise_mm=noise, rows=rows,
+                                       coupled=(pairs, IP_COUPLING), mean=None if prior is None else prior.mean)
         if accel_sd_deg_s2:
             th_out = refine_trajectory(hm, nodes, local, targets, th_out, weights, noise_mm=noise, rate=rate,
-                                       accel_sd_deg_s2=accel_sd_deg_s2, ip_sd_deg=ip_coupling_sd_deg,
-                                       skip=dip_fixed_fingers(ms))
+                                       accel_sd_deg_s2=accel_sd_deg_s2, posture_rows=rows)
         theta = np.where(solved0[:, None], th_out, theta)
         if solved0.any():
             # the report as the solver would give it for the refined postures (weighted RMS, limits)
@@ -469,6 +610,9 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
             tol = 2 * settings.clamp_margin + 1e-9
             rep.at_limit[solved0] = ((np.abs(theta[solved0] - lim[:, 0]) <= tol)
                                      | (np.abs(theta[solved0] - lim[:, 1]) <= tol))
+    th_sd = np.where(solved0[:, None], theta, np.nan)
+    sd_with = posterior_sd(hm, nodes, local, th_sd, weights, present, noise_mm=noise, rows=rows)
+    sd_without = posterior_sd(hm, nodes, local, th_sd, weights, present, noise_mm=noise)
     F = len(targets)
     first = int(getattr(data, "first_frame", 0) or 0)
     df = pd.DataFrame(theta, columns=hm.dof_names)
@@ -476,11 +620,20 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     df.insert(0, "frame", np.arange(F) + first)
     df["residual_mm"] = rep.rms_mm
     df["markers"] = n_present
+    post = np.flatnonzero(~hm.pose_mask)
+    for j in post:
+        df[f"{hm.dof_names[j]}_sd"] = sd_with[:, j]
     solved = rep.iterations >= 0
     res = np.full(targets.shape[:2], np.nan)
     if solved.any():
         res[solved] = 1000.0 * np.linalg.norm(hm.points(theta[solved], nodes, local) - targets[solved], axis=-1)
-    diag = diagnose(df, res, [m.label for m in ms.markers], rep, rate=rate, poor_residual_mm=poor_residual_mm)
+    driven = prior_driven(sd_with, sd_without, hm.dof_names)
+    diag = diagnose(df, res, [m.label for m in ms.markers], rep, rate=rate, poor_residual_mm=poor_residual_mm,
+                    prior_driven=driven)
+    with np.errstate(all="ignore"):
+        diag["posterior_sd_deg"] = {hm.dof_names[j]: [_r(np.degrees(np.nanmedian(sd_with[solved, j])), 2),
+                                                      _r(np.degrees(np.nanmedian(sd_without[solved, j])), 2)]
+                                    for j in post} if solved.any() else {}
     diag["warnings"] = warnings + diag["warnings"]
     if hand_check:
         diag["handedness"] = {k: (_r(v) if isinstance(v, float) else v) for k, v in hand_check.items()}
@@ -491,6 +644,7 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         "markerset": ms.name, "hand": hand, "hand_model": base.name, "calibration": cal.to_dict(),
         "extra_markers": extra, "frames": F, "smooth_hz": smooth_hz,
         "dip_prior": {"ratio": IP_COUPLING, "sd_deg": ip_coupling_sd_deg} if ip_coupling_sd_deg else None,
+        "posture_prior": None if prior is None else prior.to_dict(), "marker_noise_mm": _r(noise),
         "accel_prior_sd_deg_s2": float(accel_sd_deg_s2) if accel_sd_deg_s2 else None,
         "gap_fraction": float(np.isnan(targets[..., 0]).mean()), "diagnostics": diag,
     })

@@ -5,7 +5,7 @@ third-party data. Every motion returns θ per frame (26 DoF, metres/radians) for
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from pathlib import Path
 
@@ -33,6 +33,11 @@ CALIBRATION_MOTIONS = {
     "rom": ("calibration", "range of motion: every joint sweeps its range at its own pace (flexion, spread, "
                            "thumb circles), so each joint moves independently of its neighbours"),
 }
+#: Motions of the weakly observed protocol (:func:`weak_protocol`), not part of ``--motions all``.
+PLAYING_MOTIONS = {
+    "fretting": ("playing", "fingers fret a guitar neck: MCP 40-70°, PIP 60-90° flexed, a new chord every "
+                            "0.35-0.7 s (each finger presses or lifts, spreads across frets), thumb behind the neck"),
+}
 
 
 def _smooth(t):
@@ -42,7 +47,7 @@ def _smooth(t):
 
 def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int = 0):
     """θ trajectory ``(F, 26)`` of a named procedural motion; returns ``(theta, task_label)``."""
-    known = {**MOTIONS, **CALIBRATION_MOTIONS}
+    known = {**MOTIONS, **CALIBRATION_MOTIONS, **PLAYING_MOTIONS}
     if name not in known:
         raise SynergyError(name, f"unknown motion (known: {', '.join(known)})")
     rng = np.random.default_rng(seed)
@@ -129,11 +134,36 @@ def motion(name: str, *, duration_s: float = 4.0, rate: float = 100.0, seed: int
                 th[:, f1] = -1.3 * wave[:, j + 1] + 0.2
                 th[:, f2] = -1.5 * wave[:, j + 2] + 0.05
                 th[:, f3] = -0.9 * wave[:, j + 3] + 0.05
+    elif name == "fretting":
+        th[:] = _fretting(t, rng, col, fingers, rate)
     # natural variability and a moving, turning hand in the lab (metres)
     th[:, 6:] += rng.normal(0, 0.02, (1, 20)) + 0.01 * np.sin(2 * np.pi * (u[:, None] * rng.uniform(0.5, 2, 20) + rng.random(20)))
     th[:, 0:3] = [0.3, 0.2, 1.0] + 0.05 * np.sin(2 * np.pi * (u[:, None] * [0.5, 0.7, 0.3] + rng.random(3)))
     th[:, 3:6] = rng.uniform(-0.5, 0.5, 3) + 0.3 * np.sin(2 * np.pi * (u[:, None] * [0.4, 0.3, 0.5] + rng.random(3)))
     return th, known[name][0]
+
+
+def _fretting(t, rng, col, fingers, rate):
+    """θ of :data:`PLAYING_MOTIONS` ``fretting``: piecewise-constant chords, blended over ~0.1 s."""
+    th = np.zeros((len(t), len(col)))
+    ends = np.cumsum(rng.uniform(0.35, 0.7, int(t[-1] / 0.35) + 2))
+    chord = np.searchsorted(ends, t)
+    n = chord.max() + 1
+    for k, f in enumerate(fingers):
+        press = rng.random(n) < 0.6
+        th[:, col[f"{f}1_flex"]] = np.where(press, -rng.uniform(0.85, 1.2, n), -rng.uniform(0.7, 0.9, n))[chord]
+        th[:, col[f"{f}2_flex"]] = np.where(press, -rng.uniform(1.25, 1.55, n), -rng.uniform(1.05, 1.25, n))[chord]
+        th[:, col[f"{f}3_flex"]] = np.where(press, -rng.uniform(0.1, 0.6, n), -rng.uniform(0.3, 0.7, n))[chord]
+        th[:, col[f"{f}1_abd"]] = (rng.uniform(-0.15, 0.15, n) + 0.1 - 0.07 * k)[chord]
+    th[:, col["thumb1_abd"]] = 0.3
+    th[:, col["thumb1_flex"]] = -0.5 + 0.1 * np.sin(2 * np.pi * 0.3 * t)
+    th[:, col["thumb2_flex"]] = -0.3
+    th[:, col["thumb3_flex"]] = -0.2
+    half = max(int(0.05 * rate), 1)
+    win = np.hanning(2 * half + 3)[1:-1]
+    win /= win.sum()
+    pad = np.pad(th, ((half, half), (0, 0)), mode="edge")
+    return np.stack([np.convolve(pad[:, j], win, mode="valid") for j in range(th.shape[1])], axis=1)
 
 
 @dataclass
@@ -197,6 +227,39 @@ def subject_protocol(markerset, seed, *, noise_mm=0.5, bone_range=0.2, marker_sh
     trial = simulate_markers(th, markerset, seed=seed + 4, **kw)
     return rom, static, trial, th, bones, shift
 
+#: The weakly observed protocol's proximal-phalanx markers and where they truly sit along the bone
+#: (~10 mm past the knuckle) while the marker set says 0.5.
+WEAK_PROXIMAL = {"IPP": 0.2, "MPP": 0.2, "RPP": 0.2, "PPP": 0.2}
+
+
+def moved_markers(markerset, along):
+    """``markerset`` with each segment marker in ``along`` (label → fraction of its bone) moved there."""
+    ms = markerset if isinstance(markerset, MarkerSet) else load_markerset(markerset)
+    out = tuple(replace(m, landmark={**m.landmark, "along": along[m.label]}) if m.label in along else m
+                for m in ms.markers)
+    return replace(ms, markers=out, name=f"{ms.name} (moved)")
+
+
+def weak_protocol(seed, motion_name="fretting", *, markerset="hand19", noise_mm=0.5, duration_s=4.0,
+                  bone_range=0.2, marker_shift_mm=2.0, along=None):
+    """The weakly observed protocol of issue 40: 19 skin markers (``hand19``: 4 on the wrist and back
+    of the hand, 3 per digit) whose proximal-phalanx markers truly sit at ``along`` (default
+    :data:`WEAK_PROXIMAL`, 0.2 of the bone) while the set says 0.5, a subject unlike the model
+    (:func:`random_subject`), ``noise_mm`` noise, no static trial: one ``motion_name`` trial
+    (``fretting`` or ``power_grasp``). Returns ``(trial, theta)``; convert with the set as written.
+
+    >>> tr, th = weak_protocol(0, duration_s=0.5)
+    >>> tr.points.shape, th.shape
+    ((50, 19, 3), (50, 26))
+    """
+    truth = moved_markers(markerset, WEAK_PROXIMAL if along is None else along)
+    bones, shift = random_subject(truth, bone_range=bone_range, marker_shift_mm=marker_shift_mm, seed=seed)
+    th, task = motion(motion_name, duration_s=duration_s, seed=seed + 11)
+    tr = simulate_markers(th, truth, noise_mm=noise_mm, seed=seed + 12, bone_scales=bones, marker_shift=shift,
+                          motion_name=motion_name, task=task)
+    return tr, th
+
+
 def simulate_markers(theta, markerset, *, hand="left", scale=1.0, noise_mm=0.0, gap_fraction=0.0, rate=100.0,
                      seed=0, motion_name="", task="", bone_scales=None, marker_shift=None):
     """Markers of ``markerset`` on the (scaled) default hand following ``theta``; noise and gaps.
@@ -249,7 +312,7 @@ def write_trials(out, names, *, trials=2, markers="hand16", hand="left", duratio
     ``tasks.yaml``. Existing trial files are never overwritten. ``on_trial()`` is called after each
     trial. Returns one row per trial: file name, motion, task, frames, gap %."""
     out = Path(out)
-    known = {**MOTIONS, **CALIBRATION_MOTIONS}
+    known = {**MOTIONS, **CALIBRATION_MOTIONS, **PLAYING_MOTIONS}
     rows, task_rules = [], []
     for n in names:
         for k in range(trials):
