@@ -190,7 +190,7 @@ def main():
     for mode, label in [("reduced", f"reduced ({k} PCs)"), ("hierarchical", "hierarchical")]:
         rows.append((f"{label}, ours, safety net off, a pass per stage",
                      lambda mode=mode: run(hand, bundle, cam, truth, obs, mode, True, net=dict(enabled=False),
-                                           icp=dict(stages_per_pass=1))))
+                                           icp=dict(local=dict(stages_per_pass=1)))))
     rows += [(f"reduced ({k} PCs), ours, 2 steps projected",
               lambda: run(hand, bundle, cam, truth, obs, "reduced", True, icp=dict(projected_steps=2),
                                 net=dict(enabled=False))),
@@ -222,7 +222,7 @@ def main():
                                   ("full", True, "full, ours (net off)", {"net": {"enabled": False}}),
                                   ("reduced", True, f"reduced ({k} PCs), ours", {"net": {"enabled": False}}),
                                   ("reduced", True, f"reduced ({k} PCs), ours, a pass per stage",
-                                   {"net": {"enabled": False}, "icp": {"stages_per_pass": 1}}),
+                                   {"net": {"enabled": False}, "icp": {"local": {"stages_per_pass": 1}}}),
                                   ("hierarchical", True, "hierarchical, ours (net off)", {"net": {"enabled": False}})]:
         taken, failed, evals, passes, local = steps(hand, bundle, cam, obs, mode, ours, **kw)
         print(f"  {label:<44} {passes:4.1f} / {local:4.1f} / {taken:6.2f} / {failed:5.2f} / {evals:6.1f}")

@@ -16,7 +16,7 @@ in the subspace loses nothing by it, one with all DoF does); the parts of a fit 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -60,6 +60,33 @@ from .wrist import arm_line_normal
 
 
 @dataclass(frozen=True)
+class LocalPassSettings(SettingsGroup):
+    """Local passes between the closest-point searches (:class:`IcpSettings`: ``stages_per_pass``,
+    ``local_mm``)."""
+
+    stages_per_pass: int = 3
+    mm: float = 1.0
+
+    def check(self):
+        if self.stages_per_pass < 1 or not self.mm >= 0:
+            raise TrackerError("settings", f"stages_per_pass must be ≥ 1 and local_mm ≥ 0, got {self.stages_per_pass}"
+                               f" and {self.mm}")
+
+
+@dataclass(frozen=True)
+class WristLineSettings(SettingsGroup):
+    """The wrist-line pair of a start's last fits (:class:`IcpSettings`: ``wrist_line_weight``,
+    ``wrist_line_mm``)."""
+
+    weight: float = 0.01
+    mm: float = 3.0
+
+    def check(self):
+        if not self.weight >= 0 or not self.mm >= 0:
+            raise TrackerError("settings", "wrist_line_weight and wrist_line_mm must not be negative")
+
+
+@dataclass(frozen=True)
 class IcpSettings(SettingsGroup):
     """Iterations and the estimation of one ICP fit.
 
@@ -70,7 +97,7 @@ class IcpSettings(SettingsGroup):
     term (0 = off, the paper's). ``point_to_plane``: point-to-plane data residuals. Reduced tracking:
     ``projected_steps`` last iterations with all DoF, projected onto the PCs (0 = the paper's α-only
     fit). Hierarchical tracking: ``coarse_iterations`` in the synergy subspace first.
-    ``stages_per_pass``, ``local_mm``: after a search of every primitive for each data point's
+    ``local`` (:class:`LocalPassSettings`, read as ``stages_per_pass``, ``local_mm``): after a search of every primitive for each data point's
     closest (the rigid step's counted as a stage), up to ``stages_per_pass`` − 1 synergy-subspace
     stages take a local pass — each point re-projected onto the primitive it was matched to, the
     silhouette pairs kept — while the model moved less than ``local_mm`` since the pass before
@@ -79,7 +106,7 @@ class IcpSettings(SettingsGroup):
     passes lose nothing (the experiments' fingerfist segments, reduced: 2.527° either way, 3 searches
     a frame instead of 6; the occluded grasp with 3 grasp PCs: 1.816° either way), with all DoF they
     do (0.650° → 0.658°), so full stages always search.
-    ``wrist_line_weight``: in a fit given the frame's wrist cue (:func:`fit`'s ``wrist``,
+    ``wrist_line`` (:class:`WristLineSettings`, read as ``wrist_line_weight``, ``wrist_line_mm``): in a fit given the frame's wrist cue (:func:`fit`'s ``wrist``,
     :func:`tracker.wrist.wrist_cue`; a start's last fits, :func:`tracker.init.fit_single_frame`), one
     more pair holds the model's wrist crease
     (:meth:`HandModel.wrist_crease`) on the arm's centre line in the image
@@ -99,24 +126,28 @@ class IcpSettings(SettingsGroup):
     point_to_plane: bool = False
     projected_steps: int = 0
     coarse_iterations: int = 1
-    stages_per_pass: int = 3
-    local_mm: float = 1.0
-    wrist_line_weight: float = 0.01
-    wrist_line_mm: float = 3.0
+    local: LocalPassSettings = field(default_factory=LocalPassSettings)
+    wrist_line: WristLineSettings = field(default_factory=WristLineSettings)
+
+    # the nested groups' fields, read where the fit reads them
+    stages_per_pass = property(lambda self: self.local.stages_per_pass)
+    local_mm = property(lambda self: self.local.mm)
+    wrist_line_weight = property(lambda self: self.wrist_line.weight)
+    wrist_line_mm = property(lambda self: self.wrist_line.mm)
 
     @classmethod
     def paper(cls):
         """1 rigid + 4 non-rigid iterations × 5 Gauss-Newton steps, λ 1 on posture and 0 on pose, plain
         least squares, no silhouette or wrist-line term, one search per stage."""
         return cls(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0, pose_damping=0.0,
-                   robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, stages_per_pass=1, wrist_line_weight=0.0)
+                   robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, local=LocalPassSettings(stages_per_pass=1),
+                   wrist_line=WristLineSettings(weight=0.0))
 
     def check(self):
         if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:
             raise TrackerError("settings", "icp_iterations and rigid_iterations must be ≥ 0, gn_iterations ≥ 1")
-        if self.stages_per_pass < 1 or not self.local_mm >= 0:
-            raise TrackerError("settings", f"stages_per_pass must be ≥ 1 and local_mm ≥ 0, got {self.stages_per_pass}"
-                               f" and {self.local_mm}")
+        self.local.check()
+        self.wrist_line.check()
         if (self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0
                 or not self.wrist_line_weight >= 0 or not self.wrist_line_mm >= 0):
             raise TrackerError("settings", "projected_steps, robust_mm, silhouette_weight, wrist_line_weight and "

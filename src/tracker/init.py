@@ -50,6 +50,29 @@ from .wrist import WRIST_REACH_MM, WRIST_TURN_MM, wrist_cost_mm
 
 
 @dataclass(frozen=True)
+class HalvingSettings(SettingsGroup):
+    """The successive-halving schedule of the single-frame search (:class:`InitSettings` ``strategy``
+    "halving"): every start fitted briefly on ``rank_points`` points (``rank_icp`` ICP iterations of
+    ``rank_gn`` Gauss-Newton steps), the best ``keep[0]`` longer on the coarse cloud, the best
+    ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; at most ``finger_sweeps``
+    sweeps of finger-wise restarts; the winner polished with ``polish_icp`` on the full cloud.
+    """
+
+    rank_points: int = 300
+    rank_icp: int = 2
+    rank_gn: int = 2
+    keep: tuple = (12, 3)
+    refine_points: int = 1500
+    refine_icp: int = 8
+    polish_icp: int = 4
+    finger_sweeps: int = 3
+
+    def check(self):
+        if min(self.keep, default=0) < 1 or len(self.keep) != 2:
+            raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
+
+
+@dataclass(frozen=True)
 class InitSettings(SettingsGroup):
     """The single-frame search.
 
@@ -64,13 +87,11 @@ class InitSettings(SettingsGroup):
     compiled fit releases the GIL; each fit is independent, so the result is the same for any count);
     0 = the cores this process may use, at most 4 (:func:`search_threads`).
 
-    ``strategy``: ``"halving"`` (default, successive halving) fits every start briefly on
-    ``rank_points`` points (``rank_icp`` ICP iterations of ``rank_gn`` Gauss-Newton steps,
-    :meth:`FitContext.fit_many`), fits the best ``keep[0]`` longer on ``coarse_points``, the best
-    ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; the finger-wise restarts
-    rank all fingers' shapes at once and refit only the promising ones (at most ``finger_sweeps``
-    sweeps); the winner is converged with all DoF (``icp_iterations`` on ``refine_points``, then
-    ``polish_icp`` on the full cloud); ``finger_pairs``: the restarts also set two neighbouring
+    ``strategy``: ``"halving"`` (default, successive halving: ``halving``, :class:`HalvingSettings`,
+    whose fields read as this object's too, ``rank_points`` …) ranks every start briefly
+    (:meth:`FitContext.fit_many`), the coarse stage on ``coarse_points``; the finger-wise restarts
+    rank all fingers' shapes at once and refit only the promising ones; the winner is converged with
+    all DoF (``icp_iterations`` on ``refine_points``, then ``polish_icp`` on the full cloud); ``finger_pairs``: the restarts also set two neighbouring
     fingers at once while the fit scores poorly (:func:`finger_pair_variants`, ``PAIR_SCORE_MM``;
     3× the restarts' starts). ``refit_pose``: a given ``theta0`` may be off (a previous frame's), so
     it is also fitted longer and both go on. ``"exhaustive"``: the earlier search, every
@@ -86,17 +107,20 @@ class InitSettings(SettingsGroup):
     placements: int = 3
     coarse_points: int = 800
     strategy: str = "halving"
-    rank_points: int = 300
-    rank_icp: int = 2
-    rank_gn: int = 2
-    keep: tuple = (12, 3)
-    refine_points: int = 1500
-    refine_icp: int = 8
-    polish_icp: int = 4
-    finger_sweeps: int = 3
+    halving: HalvingSettings = field(default_factory=HalvingSettings)
     refit_pose: bool = False
     finger_pairs: bool = True
     threads: int = 0
+
+    # the halving schedule's fields, read where the search reads them
+    rank_points = property(lambda self: self.halving.rank_points)
+    rank_icp = property(lambda self: self.halving.rank_icp)
+    rank_gn = property(lambda self: self.halving.rank_gn)
+    keep = property(lambda self: self.halving.keep)
+    refine_points = property(lambda self: self.halving.refine_points)
+    refine_icp = property(lambda self: self.halving.refine_icp)
+    polish_icp = property(lambda self: self.halving.polish_icp)
+    finger_sweeps = property(lambda self: self.halving.finger_sweeps)
 
     @classmethod
     def cheap(cls, **changes) -> InitSettings:
@@ -105,8 +129,9 @@ class InitSettings(SettingsGroup):
         theta0=last, extra=(last,))``): fewer starts go on after the ranking, shorter refinements on
         fewer points, one sweep of finger-wise restarts and no pair restarts (they would add half
         again to the safety net's searches while tracking, for the few frames whose fingers swapped)."""
-        return replace(cls(icp_iterations=10, rank_points=200, keep=(6, 2), refine_points=800, refine_icp=6,
-                           polish_icp=2, finger_sweeps=1, finger_pairs=False), **changes)
+        halving = HalvingSettings(rank_points=200, keep=(6, 2), refine_points=800, refine_icp=6, polish_icp=2,
+                                  finger_sweeps=1)
+        return cls(icp_iterations=10, halving=halving, finger_pairs=False).replace(**changes)
 
     @classmethod
     def paper(cls):
@@ -116,8 +141,7 @@ class InitSettings(SettingsGroup):
     def check(self):
         if self.strategy not in STRATEGIES:
             raise TrackerError("settings", f"init strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
-        if min(self.keep, default=0) < 1 or len(self.keep) != 2:
-            raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
+        self.halving.check()
         if int(self.threads) < 0:
             raise TrackerError("settings", f"init threads must be ≥ 0 (0 = the cores available), got {self.threads!r}")
 

@@ -1,9 +1,10 @@
 """The small named parts of :class:`tracker.track.HandTracker`'s per-frame pipeline, each built from
 its settings group and testable alone: the frame's wrist cue (:class:`WristCue`), re-centring
 (:class:`Recentring`), the unseen-joint prior (:class:`UnseenPrior`), the coupling restarts
-(:class:`FingerRestart`) and the loss / "no hand" tests (:class:`LossCheck`). Every part has the one
-interface :class:`FramePart`: its counts go to the tracker's :class:`TrackerStats`, ``reset()``
-forgets what it learnt of the sequence. The safety net (:mod:`tracker.net`) and the size calibration
+(:class:`FingerRestart`), the loss / "no hand" tests (:class:`LossCheck`), the gate and the prediction
+(:class:`Gate`, :class:`Prediction`) and the start search (:class:`StartSearch`, :class:`ColourSeed`).
+Every part has the one interface :class:`FramePart`: its counts go to the tracker's
+:class:`TrackerStats`, ``reset()`` forgets what it learnt of the sequence. The safety net (:mod:`tracker.net`) and the size calibration
 (:mod:`tracker.sizing`) are parts too.
 """
 from __future__ import annotations
@@ -17,6 +18,9 @@ from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
 from .coupling import restart_uncoupled
 from .icp import centre_shift, posed_samples
+from .init import fit_single_frame
+from .observe import past_wrist, predicted_near
+from .rgb import RgbSeed
 from .wrist import arm_behind, wrist_cue
 
 
@@ -262,3 +266,151 @@ def usable_points(points, normals, max_points):
         keep[idx[np.linspace(0, len(idx) - 1, max_points).astype(int)]] = True
     nrm = None if normals is None else np.asarray(normals, float).reshape(-1, 3)[keep]
     return pts[keep], nrm
+
+
+class Gate:
+    """While tracking, the points near the hand predicted for the frame only
+    (:func:`tracker.observe.predicted_near`, ``observe.gate_mm``; a table, torso or object the
+    segmentation left cannot pull the fit), and those past its wrist out of the fit
+    (:func:`tracker.observe.past_wrist`, ``observe.arm_gate_mm``; ``arm``: only where the safety net's
+    far-points test runs, which sees the hand cut off past a wrong wrist)."""
+
+    def __init__(self, observe, min_points: int, arm: bool, stats: TrackerStats | None = None):
+        self.observe, self.min_points, self.stats = observe, min_points, stats or TrackerStats()
+        self.on = observe.gate_mm > 0
+        # without the net's far-points test nothing would see the hand cut off past a wrong wrist
+        # (fast and turning hands alone without the net: 32.0 -> 35.4 and 26.7 -> 32.0 deg)
+        self.arm = arm and observe.arm_gate_mm is not None
+
+    def reset(self):
+        pass
+
+    def __call__(self, hand, samples, pred, pts):
+        """``(keep, arm)``: the points near the hand at ``pred`` (all True when the prediction is not
+        trusted), and those of them past its wrist (None when off, not trusted, none is past or too few
+        would remain)."""
+        ob = self.observe
+        P, N = posed_samples(hand, samples, pred)
+        near = predicted_near(pts, P, ob.gate_mm / 1000.0, normals=N, min_share=ob.gate_min_share,
+                              min_points=self.min_points)
+        if near is None:
+            return np.ones(len(pts), bool), None
+        if not self.arm:
+            return near, None
+        axis = hand.joint_frames(pred)[0, :3, 1]
+        arm = near & past_wrist(pts, hand.wrist_crease(pred), axis, ob.arm_gate_mm / 1000.0)
+        if not arm.any() or np.count_nonzero(near & ~arm) < max(self.min_points, 1):
+            return near, None
+        return near, arm
+
+
+class ColourSeed:
+    """Start searches seeded by the hand fitted to the colour keypoints (:class:`tracker.rgb.RgbSeed`,
+    ``start.rgb_seed``; ``detector``: instead of MediaPipe)."""
+
+    def __init__(self, detector=None, stats: TrackerStats | None = None):
+        self.rgb, self.stats = RgbSeed(detector), stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def start(self, hand, color, depth, camera) -> tuple:
+        """``(θ,)`` fitted to the frame's colour keypoints, or ``()`` (no colour, no hand found)."""
+        if color is None or depth is None or camera is None:
+            return ()
+        th = self.rgb(hand, color, depth, camera)
+        if th is None:
+            return ()
+        self.stats.rgb_seeds += 1
+        return (th,)
+
+    def refine(self, refit, seed, theta, corr):
+        """The seed refitted by the tracking ICP (``refit(seed)``) kept over the search's winner when the
+        depth fits it at least as well (fit error no higher, no more than 5 % more points rejected).
+        Not by :func:`tracker.init.score`: a hand turned over explains the depth about as well, and the
+        score's wrist cue can favour it; the colour image sees which way the hand faces."""
+        th, c = refit(seed)
+        if (np.all(np.isfinite(th)) and c.fit_error_mm() <= corr.fit_error_mm()
+                and c.valid.mean() >= corr.valid.mean() - 0.05):
+            self.stats.rgb_kept += 1
+            return th, c
+        return theta, corr
+
+
+class Prediction:
+    """The start of a tracked frame's fit and the points it fits (:class:`tracker.settings.PredictSettings`):
+    the last θ moved on by its last change, the points gated by the hand predicted there (``gate``)
+    and the prediction moved onto the cloud when it missed it (``recentring``)."""
+
+    def __init__(self, settings, gate: Gate, recentring: Recentring, stats: TrackerStats | None = None):
+        self.settings, self.gate, self.recentring = settings, gate, recentring
+        self.stats = stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def theta(self, theta, prev, hand, limits, components=None) -> np.ndarray:
+        """The last θ plus ``share`` × its last change (``prev`` → ``theta``), except the global rotation
+        (as the original code); with ``components`` (reduced mode's PCs) the posture moves along them
+        only (hierarchical mode predicts all DoF: motion outside the synergies is real motion there)."""
+        out = theta.copy()
+        if self.settings.share and prev is not None:
+            step = (theta - prev) * float(self.settings.share)
+            step[3:6] = 0.0
+            post = ~hand.pose_mask
+            if components is not None:
+                step[post] = (step[post] @ components.T) @ components
+            out = out + step
+            out[post] = np.clip(out[post], limits[post, 0], limits[post, 1])
+        return out
+
+    def points(self, hand, samples, pred, pts, nrm):
+        """``(pred, recentred, fit_points, fit_normals, points, normals)``: the prediction (re-centred or
+        not), the points the fit takes and those the safety net tests and searches."""
+        recentred = False
+        # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
+        # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
+        keep, arm = self.gate(hand, samples, pred, pts) if self.gate.on else (None, None)
+        if self.settings.recentre and (keep is None or keep.all()):
+            moved = self.recentring(hand, samples, pred, pts)
+            recentred, pred = moved is not pred, moved
+            if recentred and keep is not None:
+                keep, arm = self.gate(hand, samples, pred, pts)
+        if keep is not None:
+            # the safety net searches the gated cloud too (a start search on the whole cloud would
+            # find the clutter); the gate keeps every point when it does not trust the prediction
+            pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+        all_pts, all_nrm = pts, nrm
+        if arm is not None:
+            # the arm left past the predicted wrist is out of the fit (a closing fist followed it down
+            # the arm) but not out of the net's tests and search: past a wrong prediction's wrist lies
+            # the hand itself, which only the points far from the fit then tell
+            fit_keep = ~arm[keep]
+            pts, nrm = all_pts[fit_keep], None if all_nrm is None else all_nrm[fit_keep]
+        return pred, recentred, pts, nrm, all_pts, all_nrm
+
+
+class StartSearch:
+    """A frame fitted without one before it (the first, after a loss): the single-frame search
+    (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ and the colour seed
+    (``colour``), its last fits holding the hand's wrist crease on the arm's line (the frame's ``cue``;
+    :class:`tracker.icp.IcpSettings` ``wrist_line_weight``)."""
+
+    def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None):
+        self.init, self.cue, self.colour, self.stats = init, cue, colour, stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def __call__(self, ctx, pts, nrm, sil, last_good, refit, color=None, depth=None, camera=None):
+        """``(θ, corr)`` on ``ctx``'s hand; ``refit(start)``: the tracking ICP the colour seed is refined by."""
+        extra = () if last_good is None else (last_good,)
+        seed = () if self.colour is None else self.colour.start(ctx.hand, color, depth, camera)
+        self.cue.add(sil)
+        # a size calibration's fits do not hold the crease (it moved a real recording's calibrated size,
+        # 1.276 → 1.256, and tips by up to 40 px), nor the net's, whose result is compared with the tracked fit's
+        theta, corr = fit_single_frame(ctx, pts, self.init, silhouette=sil, normals=nrm, extra=extra + seed,
+                                       wrist=self.cue.of(sil))
+        if seed:
+            theta, corr = self.colour.refine(refit, seed[0], theta, corr)
+        return theta, corr

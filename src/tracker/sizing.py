@@ -9,15 +9,92 @@ import math
 
 import numpy as np
 
+from handmodel.dofs import anatomical_limits
+from handmodel.subspace import Subspace, hierarchical_schedule
+
+from .correspond import Matcher, ModelSamples
 from .errors import TrackerError
-from .init import score, thin
+from .init import FitContext, finger_shapes, score, search_threads, thin
 from .parts import TrackerStats, frame_silhouette, silhouette_mask, usable_points
-from .scale import calibrate_scale, finger_scales, hand_side, parabola_scale, rescaled, size_score
+from .scale import (
+    calibrate_scale,
+    finger_scales,
+    hand_side,
+    parabola_scale,
+    rescaled,
+    resized_context,
+    size_score,
+)
 
 #: A size-refining frame's search may replace the tracked fit (:meth:`SizeCalibration.take_better_start`)
 #: when its size differs from the tracked fit's by more than this (log; 6 %, as
 #: :func:`tracker.scale.calibrate_scale` searches again when the size moved so far).
 SIZE_RESTART_LOG = 0.06
+
+
+def fit_context(hand, settings, synergies=None):
+    """The parts of every fit of ``hand`` (:class:`tracker.init.FitContext`) and the number of PCs."""
+    lim = np.array(hand.limits, float)
+    if settings.subspace.limits == "anatomical":
+        lim = anatomical_limits(hand)
+    elif settings.subspace.limits == "data" and synergies is not None:
+        post = ~hand.pose_mask
+        lim[post, 0] = synergies.model.joint_min_
+        lim[post, 1] = synergies.model.joint_max_
+    full = Subspace.full(hand, lim)
+    reduced, ladder, n_pcs, model = None, [], None, None
+    if synergies is not None:
+        model = synergies.model
+        sub = settings.subspace
+        n_pcs = int(sub.n_pcs) if sub.n_pcs is not None else model.n_components_for(sub.variance or 0.99)
+        if not 1 <= n_pcs <= model.all_components_.shape[0]:
+            raise TrackerError("synergies", f"{n_pcs} PCs requested, the bundle has {model.all_components_.shape[0]}")
+        reduced = synergies.subspace(n_pcs, hand=hand)
+        # the ladder's last stage is `full` itself: the fit tells all-DoF stages by identity
+        ladder = hierarchical_schedule(hand, model.all_components_, model.mean_, model.pc_min_, model.pc_max_,
+                                       steps=settings.subspace.hierarchy, n_pcs=n_pcs)[:-1] + [full]
+    matcher = Matcher(hand, settings.correspond)
+    samples = ModelSamples(hand) if settings.icp.silhouette_weight > 0 else None
+    # the start search scores both directions even when the fit itself has no silhouette term
+    ctx = FitContext(hand, lim, matcher, settings.icp, full, reduced, ladder, model, samples, finger_shapes(hand, lim),
+                     score_samples=ModelSamples(hand, spacing=0.006), threads=search_threads(settings.init.threads))
+    return ctx, n_pcs
+
+
+class HandSizes:
+    """The :class:`tracker.init.FitContext` of each hand size, made once per size from the model-sized
+    hand's (:func:`tracker.scale.resized_context`; building one anew samples the surface again, ~30×
+    the time); ``n_pcs``: the PCs of the reduced modes."""
+
+    def __init__(self, base_hand, settings, synergies=None):
+        self.base_hand, self.settings, self.synergies = base_hand, settings, synergies
+        self._contexts = {}
+        self._base = None  # the model-sized hand's (FitContext, n_pcs): every size is made from it
+
+    def __call__(self, scale):
+        """The context of the hand scaled by ``scale``."""
+        key = round(float(scale), 5)
+        if key not in self._contexts:
+            if self._base is None:
+                self._base = fit_context(self.base_hand, self.settings, self.synergies)
+            ctx, n_pcs = self._base
+            if key != 1.0:
+                ctx = resized_context(ctx, self.base_hand.scaled(key), key)
+            self._contexts[key] = (ctx, n_pcs)
+        return self._contexts[key][0]
+
+    @property
+    def n_pcs(self):
+        return None if self._base is None else self._base[1]
+
+    def keep(self, *sizes):
+        """Drop the contexts of every size but ``sizes``."""
+        keep = {round(float(x), 5) for x in sizes}
+        self._contexts = {k: v for k, v in self._contexts.items() if k in keep}
+
+    def sizes(self) -> list:
+        """The sizes whose contexts are kept."""
+        return list(self._contexts)
 
 
 class SizeCalibration:
@@ -66,7 +143,7 @@ class SizeCalibration:
                                          scale_range=st.range)
         if tr.loss.no_hand_sized(s, corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
-            tr.keep_contexts(1.0 if self.scale_ is None else self.scale_)
+            tr.sizes.keep(1.0 if self.scale_ is None else self.scale_)
             return theta, corr, False
         q = size_score(tr.context_for(s), theta, corr, sil)
         self.calibrations_.append((q, s))
@@ -81,7 +158,7 @@ class SizeCalibration:
             theta, corr = tr.context.fit(rescaled(old, tr.hand, theta), pts, "full", 1, self.init.icp_iterations,
                                          silhouette=sil, normals=nrm)
         # the sizes the search probed are not needed again
-        tr.keep_contexts(best)
+        tr.sizes.keep(best)
         return theta, corr, True
 
     def refine(self, tr, pts, nrm, sil):
@@ -108,7 +185,7 @@ class SizeCalibration:
         est = float(np.clip(est, *st.range))
         keep_key = round(float(np.median(self.scale_estimates_ + [est])), 5)
         # the sizes the search probed are not needed again
-        tr.keep_contexts(keep_key, s)
+        tr.sizes.keep(keep_key, s)
         self.scale_estimates_.append(est)
         new = float(np.median(self.scale_estimates_))
         if round(new, 5) != round(s, 5):
@@ -186,7 +263,7 @@ class SizeCalibration:
         self.calibrations_, self._open = [], False
         self.scale_, self.scale_estimates_ = s, [float(e) for e in est]
         tr.use_scale(s)
-        tr.keep_contexts(s)
+        tr.sizes.keep(s)
         if st.finger_lengths:
             self._frames = [(p, n, sil, tr.fit_single_frame(p, silhouette=sil, normals=n)[0], tr.hand)
                             for p, n, sil in frames]

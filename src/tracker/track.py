@@ -10,23 +10,25 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from handmodel.dofs import anatomical_limits
 from handmodel.rigid import wrapped_angles
-from handmodel.subspace import Subspace, hierarchical_schedule
 
-from .correspond import Matcher, ModelSamples
 from .errors import TrackerError
 from .icp import fit, posed_samples, tracking_schedule
-from .init import FitContext, finger_shapes, fit_single_frame, score, search_threads
+from .init import fit_single_frame, score
 from .net import SafetyNet
-from .observe import hand_window, past_wrist, predicted_near
+from .observe import hand_window
 from .parts import (
+    ColourSeed,
     FingerRestart,
+    Gate,
     LossCheck,
+    Prediction,
     Recentring,
+    StartSearch,
     TrackerStats,
     UnseenPrior,
     WristCue,
@@ -34,10 +36,9 @@ from .parts import (
     silhouette_mask,
     usable_points,
 )
-from .rgb import RgbSeed
-from .scale import resized_context, shaped_context
+from .scale import shaped_context
 from .settings import TrackerSettings
-from .sizing import SizeCalibration
+from .sizing import HandSizes, SizeCalibration, fit_context
 
 
 @dataclass
@@ -101,34 +102,6 @@ def _output_theta(theta) -> np.ndarray:
     return out
 
 
-def fit_context(hand, settings: TrackerSettings, synergies=None):
-    """The parts of every fit of ``hand`` (:class:`tracker.init.FitContext`) and the number of PCs."""
-    lim = np.array(hand.limits, float)
-    if settings.subspace.limits == "anatomical":
-        lim = anatomical_limits(hand)
-    elif settings.subspace.limits == "data" and synergies is not None:
-        post = ~hand.pose_mask
-        lim[post, 0] = synergies.model.joint_min_
-        lim[post, 1] = synergies.model.joint_max_
-    full = Subspace.full(hand, lim)
-    reduced, ladder, n_pcs, model = None, [], None, None
-    if synergies is not None:
-        model = synergies.model
-        n_pcs = int(settings.subspace.n_pcs) if settings.subspace.n_pcs is not None else model.n_components_for(settings.subspace.variance or 0.99)
-        if not 1 <= n_pcs <= model.all_components_.shape[0]:
-            raise TrackerError("synergies", f"{n_pcs} PCs requested, the bundle has {model.all_components_.shape[0]}")
-        reduced = synergies.subspace(n_pcs, hand=hand)
-        # the ladder's last stage is `full` itself: the fit tells all-DoF stages by identity
-        ladder = hierarchical_schedule(hand, model.all_components_, model.mean_, model.pc_min_, model.pc_max_,
-                                       steps=settings.subspace.hierarchy, n_pcs=n_pcs)[:-1] + [full]
-    matcher = Matcher(hand, settings.correspond)
-    samples = ModelSamples(hand) if settings.icp.silhouette_weight > 0 else None
-    # the start search scores both directions even when the fit itself has no silhouette term
-    ctx = FitContext(hand, lim, matcher, settings.icp, full, reduced, ladder, model, samples, finger_shapes(hand, lim),
-                     score_samples=ModelSamples(hand, spacing=0.006), threads=search_threads(settings.init.threads))
-    return ctx, n_pcs
-
-
 class HandTracker:
     """Track one hand through a sequence of point clouds (camera frame, metres).
 
@@ -153,7 +126,7 @@ class HandTracker:
     scale_, scale_estimates_, finger_scales_, finger_spread_, calibrated_each_ : the size
         (:class:`tracker.sizing.SizeCalibration`)
     hand_check_ : :class:`HandCheck` of the first frame (``start.check_hand``), else None
-    rgb_ : the :class:`tracker.rgb.RgbSeed` with ``start.rgb_seed``, else None
+    colour : the :class:`tracker.parts.ColourSeed` with ``start.rgb_seed``, else None
     """
 
     def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None, keypoint_detector=None):
@@ -166,15 +139,17 @@ class HandTracker:
         self.stats = TrackerStats()
         self.cue = WristCue(st.start.wrist_cue, self.stats)
         self.net = SafetyNet(st.net, self.cue, self.stats)
+        self.gate = Gate(st.observe, st.loss.min_points, st.net.enabled and st.mode != "reduced", self.stats)
         self.recentring = Recentring(st.correspond.reject_mm, self.stats)
+        self.prediction = Prediction(st.predict, self.gate, self.recentring, self.stats)
         self.prior = UnseenPrior(hand, synergies, st.refine, st.mode, self.stats)
         self.restart = FingerRestart(st.refine, st.mode, self.stats)
         self.loss = LossCheck(st.loss, st.scale.range, self.stats)
         self.sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, self.stats)
-        self.rgb_ = RgbSeed(keypoint_detector) if st.start.rgb_seed else None
+        self.colour = ColourSeed(keypoint_detector, self.stats) if st.start.rgb_seed else None
+        self.search = StartSearch(st.init, self.cue, self.colour, self.stats)
         self.hand_check_ = None
-        self._contexts = {}
-        self._base = None  # the model-sized hand's (FitContext, n_pcs): every size is made from it
+        self.sizes = HandSizes(hand, st, synergies)
         self.use_scale(1.0 if self.sizing.scale_ is None else self.sizing.scale_)
         self.reset()
 
@@ -185,32 +160,12 @@ class HandTracker:
     calibrated_each_ = property(lambda self: self.sizing.calibrated_each_)
 
     def context_for(self, scale):
-        """The :class:`tracker.init.FitContext` of the hand scaled by ``scale`` (made once per size):
-        the model-sized hand's context resized (:func:`tracker.scale.resized_context`; building one
-        anew samples the surface again, ~30× the time)."""
-        key = round(float(scale), 5)
-        if key not in self._contexts:
-            if self._base is None:
-                self._base = fit_context(self.base_hand, self.settings, self.synergies)
-            ctx, n_pcs = self._base
-            if key != 1.0:
-                ctx = resized_context(ctx, self.base_hand.scaled(key), key)
-            self._contexts[key] = (ctx, n_pcs)
-        return self._contexts[key][0]
-
-    def keep_contexts(self, *sizes):
-        """Drop the contexts (:meth:`context_for`) of every size but ``sizes``."""
-        keep = {round(float(x), 5) for x in sizes}
-        self._contexts = {k: v for k, v in self._contexts.items() if k in keep}
-
-    def context_sizes(self) -> list:
-        """The sizes whose contexts are kept (the others were dropped after a calibration's probes)."""
-        return list(self._contexts)
+        """The :class:`tracker.init.FitContext` of the hand scaled by ``scale`` (:class:`tracker.sizing.HandSizes`)."""
+        return self.sizes(scale)
 
     def use_scale(self, scale):
         """Track the hand at ``scale`` (with the finger lengths found, if any) from now on."""
-        self.context_for(scale)
-        self.context, self.n_pcs = self._contexts[round(float(scale), 5)]
+        self.context, self.n_pcs = self.sizes(scale), self.sizes.n_pcs
         if self.sizing.finger_scales_:
             self.context = shaped_context(self.context, self.base_hand, scale, self.sizing.finger_scales_)
         self.hand = self.context.hand
@@ -246,21 +201,9 @@ class HandTracker:
         return used
 
     def predict(self) -> np.ndarray:
-        """The start of the next frame: the last θ plus ``predict.share`` × its last change, except the
-        global rotation (as the original code); in reduced mode the posture moves along the synergies
-        only (hierarchical mode predicts all DoF: motion outside the synergies is real motion there)."""
-        theta = self.theta.copy()
-        st = self.settings
-        if st.predict.share and self.prev is not None:
-            step = (self.theta - self.prev) * float(st.predict.share)
-            step[3:6] = 0.0
-            post = ~self.hand.pose_mask
-            if st.mode == "reduced":
-                C = self.synergies.model.all_components_[: self.n_pcs]
-                step[post] = (step[post] @ C.T) @ C
-            theta = theta + step
-            theta[post] = np.clip(theta[post], self.limits[post, 0], self.limits[post, 1])
-        return theta
+        """The start of the next frame (:meth:`tracker.parts.Prediction.theta`)."""
+        C = self.synergies.model.all_components_[: self.n_pcs] if self.settings.mode == "reduced" else None
+        return self.prediction.theta(self.theta, self.prev, self.hand, self.limits, C)
 
     def track(self, observation, camera, color=None) -> FrameResult:
         """Track one :class:`tracker.observe.Observation` (``color``: its registered colour frame)."""
@@ -286,7 +229,8 @@ class HandTracker:
             self.lost = True
             return self._result(None, "lost", n_in, t0, rejected=1.0)
         if self.sizing.calibrating() or self.lost or self.theta is None:
-            frame = self._start(pts, nrm, sil, n_in, t0, color, frame_depth if frame_depth is not None else depth, camera)
+            whole = frame_depth if frame_depth is not None else depth
+            frame = self._start(pts, nrm, sil, n_in, t0, color, whole, camera)
         else:
             frame = self._follow(pts, nrm, sil)
         if isinstance(frame, FrameResult):  # a start that found no hand
@@ -296,7 +240,8 @@ class HandTracker:
         # replacement half the way, as tracked frames: it starts from the tracked fit too, and all the way
         # there made the hard cases' fast sweeps 7.6 -> 8.7 deg (Kinect v1 noise 14.0 -> 16.1) and the
         # turn 6.5 -> 7.1 with noise
-        theta = self.prior(self.hand, theta, corr, self.limits, 1.0 if status == "reinit" and net != "replaced" else None)
+        share = 1.0 if status == "reinit" and net != "replaced" else None
+        theta = self.prior(self.hand, theta, corr, self.limits, share)
         if self.settings.start.check_hand and self.hand_check_ is None and status == "reinit":
             self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
         return self._decide(theta, corr, status, net, recentred, far_lost, pts, nrm, sil, n_in, t0)
@@ -308,21 +253,12 @@ class HandTracker:
         if self.sizing.calibrating():
             self.cue.add(sil)
             theta, corr, found = self.sizing.calibrate(self, pts, nrm, sil)
-            if not found:
-                return self._no_hand(corr, n_in, t0)
         else:
-            extra = () if self.last_good is None else (self.last_good,)
-            seed = self._rgb_start(color, depth, camera)
-            self.cue.add(sil)
-            # the start's last fits hold its crease on the arm's centre line (IcpSettings.wrist_line_weight);
-            # not a size calibration's (it moved a real recording's calibrated size, 1.276 → 1.256, and
-            # tips by up to 40 px) nor the net's, whose result is compared with the tracked fit's
-            theta, corr = self.fit_single_frame(pts, silhouette=sil, normals=nrm, extra=extra + seed,
-                                                wrist=self.cue.of(sil))
-            if seed:
-                theta, corr = self._rgb_refine(seed[0], theta, corr, pts, nrm, sil)
-            if self.loss.found_nothing(corr):
-                return self._no_hand(corr, n_in, t0)
+            refit = partial(self._fit, pts=pts, nrm=nrm, sil=sil)  # the colour seed's refinement
+            theta, corr = self.search(self.context, pts, nrm, sil, self.last_good, refit, color, depth, camera)
+            found = not self.loss.found_nothing(corr)
+        if not found:
+            return self._no_hand(corr, n_in, t0)
         self.prev = None
         self.net.reset()
         if self.settings.net.enabled:
@@ -333,35 +269,11 @@ class HandTracker:
     def _follow(self, pts, nrm, sil):
         """A tracked frame: predict (gate, re-centre), fit, the coupling restarts, check (the safety net)."""
         st, ctx = self.settings, self.context
-        pred = self.predict()
-        recentred = False
-        all_pts, all_nrm = pts, nrm
-        # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
-        # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
-        keep, arm = self._gate(pred, pts) if st.observe.gate_mm > 0 else (None, None)
-        if st.predict.recentre and (keep is None or keep.all()):
-            moved = self.recentring(self.hand, ctx.score_samples, pred, pts)
-            recentred, pred = moved is not pred, moved
-            if recentred and keep is not None:
-                keep, arm = self._gate(pred, pts)
-        if keep is not None:
-            # the safety net searches the gated cloud too (a start search on the whole cloud would
-            # find the clutter); the gate keeps every point when it does not trust the prediction
-            pts, nrm = pts[keep], None if nrm is None else nrm[keep]
-            all_pts, all_nrm = pts, nrm
-        if arm is not None:
-            # the arm left past the predicted wrist is out of the fit (a closing fist followed it down
-            # the arm) but not out of the net's tests and search: past a wrong prediction's wrist lies
-            # the hand itself, which only the points far from the fit then tell
-            fit_keep = ~arm[keep]
-            pts, nrm = all_pts[fit_keep], None if all_nrm is None else all_nrm[fit_keep]
-
-        def tracking_fit(start):
-            return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
-                       normals=nrm, samples=ctx.samples, silhouette=sil)
-
-        theta, corr = tracking_fit(pred)
-        theta, corr = self.restart(self.hand, theta, corr, tracking_fit, lambda t, c: score(ctx, t, c, sil), self.limits)
+        pred, recentred, pts, nrm, all_pts, all_nrm = self.prediction.points(self.hand, ctx.score_samples,
+                                                                             self.predict(), pts, nrm)
+        theta, corr = self._fit(pred, pts, nrm, sil)
+        theta, corr = self.restart(self.hand, theta, corr, partial(self._fit, pts=pts, nrm=nrm, sil=sil),
+                                   partial(score, ctx, silhouette=sil), self.limits)
         status, net, far_lost = "tracked", "", False
         if st.net.enabled and st.mode != "reduced":
             theta, corr, pts, nrm, net = self.net(ctx, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil,
@@ -418,26 +330,11 @@ class HandTracker:
         P, _ = posed_samples(self.hand, self.context.score_samples, self.predict())
         return hand_window(P, camera, st.observe.window_m)
 
-    def _gate(self, pred, pts):
-        """``(keep, arm)``: :func:`tracker.observe.gate` of the points by the hand predicted at ``pred``
-        (all True when the prediction is not trusted or nothing is far), and those of the kept ones
-        past its wrist (:func:`tracker.observe.past_wrist`; None when off, without the safety net, when
-        the prediction is not trusted, none is past or too few would remain)."""
-        st = self.settings
-        P, N = posed_samples(self.hand, self.context.score_samples, pred)
-        near = predicted_near(pts, P, st.observe.gate_mm / 1000.0, normals=N, min_share=st.observe.gate_min_share,
-                              min_points=st.loss.min_points)
-        if near is None:
-            return np.ones(len(pts), bool), None
-        if st.observe.arm_gate_mm is None or not st.net.enabled or st.mode == "reduced":
-            # without the net's far-points test nothing would see the hand cut off past a wrong wrist
-            # (fast and turning hands alone without the net: 32.0 -> 35.4 and 26.7 -> 32.0 deg)
-            return near, None
-        axis = self.hand.joint_frames(pred)[0, :3, 1]
-        arm = near & past_wrist(pts, self.hand.wrist_crease(pred), axis, st.observe.arm_gate_mm / 1000.0)
-        if not arm.any() or np.count_nonzero(near & ~arm) < max(st.loss.min_points, 1):
-            return near, None
-        return near, arm
+    def _fit(self, start, pts, nrm, sil):
+        """The tracking ICP from ``start`` (:func:`tracker.icp.fit`, this frame's stages)."""
+        ctx, st = self.context, self.settings
+        return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
+                   normals=nrm, samples=ctx.samples, silhouette=sil)
 
     def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
         """The single-frame search with the mirror-image hand (same size) against this frame's fit."""
@@ -446,31 +343,8 @@ class HandTracker:
         th, c = fit_single_frame(ctx, pts, self.settings.init, silhouette=sil, normals=nrm)
         return HandCheck(score(self.context, theta, corr, sil), score(ctx, th, c, sil), other.handedness)
 
-    def _rgb_start(self, color, depth, camera) -> tuple:
-        """``(θ,)`` fitted to the colour keypoints of this frame, or ``()`` (no ``rgb_seed``, no
-        colour, no hand found)."""
-        if self.rgb_ is None or color is None or depth is None or camera is None:
-            return ()
-        th = self.rgb_(self.hand, color, depth, camera)
-        if th is None:
-            return ()
-        self.stats.rgb_seeds += 1
-        return (th,)
-
-    def _rgb_refine(self, seed, theta, corr, pts, nrm, sil):
-        """The colour seed refined by the tracking ICP alone, kept over the search's winner when the
-        depth fits it at least as well (fit error no higher, no more than 5 % more points rejected).
-        Not by :func:`tracker.init.score`: a hand turned over explains the depth about as well, and
-        the score's wrist cue can favour it; the colour image sees which way the hand faces."""
-        ctx, st = self.context, self.settings
-        th, c = fit(self.hand, pts, seed, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
-                    normals=nrm, samples=ctx.samples, silhouette=sil)
-        if (np.all(np.isfinite(th)) and c.fit_error_mm() <= corr.fit_error_mm()
-                and c.valid.mean() >= corr.valid.mean() - 0.05):
-            self.stats.rgb_kept += 1
-            return th, c
-        return theta, corr
 
 
 # the names the tests and tools import from here
 _usable, _silhouette, _silhouette_mask = usable_points, frame_silhouette, silhouette_mask
+__all__ = ["FrameResult", "HandCheck", "HandTracker", "TrackerSettings", "TrackerStats", "fit_context"]

@@ -448,7 +448,7 @@ def test_wrist_line_pair_matches_the_reference_and_pulls_the_crease_across(bundl
     settings, against a rendered hand that the data pin down, move it only a little of the way (0.1–2 mm
     of 10): the term settles what the data leave open (a real hand unlike the model), it does not
     override them. A cue that stays within ``wrist_line_mm`` of the crease changes nothing."""
-    tr = _tracker(bundle, True, icp=dict(wrist_line_weight=weight, wrist_line_mm=free_mm))
+    tr = _tracker(bundle, True, icp=dict(wrist_line=dict(weight=weight, mm=free_mm)))
     start, pts, nrm, sil = frames[3]
     truth = frames[4][0]  # the frame's own truth (each frame's start is the frame before's)
     cue, _ = _cue_beside(truth, 0.010)

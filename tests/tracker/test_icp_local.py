@@ -73,7 +73,7 @@ def test_reduced_fit_searches_less_and_reaches_the_same_fit(bundle, frames):
     surface sample within 1 mm, every joint within 1°, the fit error within 0.03 mm (measured: 0.63 mm,
     0.72°, 0.022 mm at most; either fit is sometimes the closer one)."""
     full, red, red_search = _tracker(bundle), _tracker(bundle, mode="reduced"), \
-        _tracker(bundle, mode="reduced", icp=dict(stages_per_pass=1))
+        _tracker(bundle, mode="reduced", icp=dict(local=dict(stages_per_pass=1)))
     n = len(frames)
     s_full, s_red, s_search = (np.zeros(5, np.int64) for _ in range(3))
     samples = full.context.score_samples
@@ -97,7 +97,7 @@ def test_a_large_motion_searches_again(bundle, frames):
     start, pts, nrm, sil = frames[0]
     off = start.copy()
     off[:3] += [0.02, 0.0, 0.0]
-    red, red_search = _tracker(bundle, mode="reduced"), _tracker(bundle, mode="reduced", icp=dict(stages_per_pass=1))
+    red, red_search = _tracker(bundle, mode="reduced"), _tracker(bundle, mode="reduced", icp=dict(local=dict(stages_per_pass=1)))
     stats = np.zeros(5, np.int64)
     a, _ = _fit(fit, red, off, pts, nrm, sil, stats=stats)
     b, _ = _fit(fit, red_search, off, pts, nrm, sil)

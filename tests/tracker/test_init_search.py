@@ -231,11 +231,11 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
     assert err_n > 2.0 * err
 
 
-@pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"keep": (0, 3)}, "keep"),
-                                          ({"keep": (4,)}, "keep"), ({"threads": -1}, "threads")])
+@pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"halving": {"keep": (0, 3)}}, "keep"),
+                                          ({"halving": {"keep": (4,)}}, "keep"), ({"threads": -1}, "threads")])
 def test_bad_search_settings_are_refused(bundle, change, word):
     tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
-    st = replace(InitSettings(), **change)
+    st = InitSettings().replace(**change)
     with pytest.raises(TrackerError, match=word) as e:
         fit_single_frame(tr.context, np.zeros((50, 3)) + [0.0, 0.0, 0.7], st)
     assert "\n" not in str(e.value)

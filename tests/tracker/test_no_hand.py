@@ -51,7 +51,7 @@ def test_real_recordings_without_a_hand_find_none(name, bundle, right):
         # what the start fitted left a third of its points unexplained (a hand: ≤ 15 % on the SR305 stills)
         assert r.rejected_share > SETTINGS.loss.no_hand_rejected
     assert tr.stats.no_hand == len(rec) and tr.scale_ is None and tr.lost
-    assert tr.sizing.calibrations_ == [] and tr.context_sizes() == [1.0]
+    assert tr.sizing.calibrations_ == [] and tr.sizes.sizes() == [1.0]
 
 
 def _scene(hand, sensor, spec, in_view):
