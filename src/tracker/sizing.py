@@ -234,8 +234,11 @@ class SizeCalibration:
         tr.use_scale(s)
 
     def calibrate_each(self, tr, observations, camera, min_points, max_points):
-        """Calibrate on frames each fitted from its own start (see :meth:`tracker.track.HandTracker.calibrate_each`);
-        returns the indices of the frames used."""
+        """Calibrate on frames each fitted from its own start: each frame's size found alone, the size
+        their median, and with ``finger_lengths`` each finger's length from every frame's start search
+        at that size (postures apart tell lengths apart best). Frames with fewer than ``min_points``
+        points, or whose fit found no hand, are skipped; the size is kept however few frames it came
+        from. Returns the indices of the frames used."""
         st = self.settings
         if not self.auto:
             raise TrackerError("calibration", "calibrate_each needs hand_scale='auto'")

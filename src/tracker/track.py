@@ -11,6 +11,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 
@@ -94,6 +95,30 @@ class FrameResult:
     stats: TrackerStats | None = None  # the tracker's counts after this frame
 
 
+class FrameFit(NamedTuple):
+    """A frame's fit on its way through :meth:`HandTracker.step`: θ and its pairs, the status so far
+    (``"reinit"`` for a start or the net's replacement), what the net did, whether the prediction was
+    re-centred, whether the fit left the cloud far away (reduced mode), and the points it fitted."""
+
+    theta: np.ndarray
+    corr: object
+    status: str
+    net: str
+    recentred: bool
+    far_lost: bool
+    points: np.ndarray
+    normals: np.ndarray | None
+
+
+def check_hand(ctx, settings, synergies, pts, nrm, sil, theta, corr) -> HandCheck:
+    """:class:`HandCheck` of a frame's fit (``theta``, ``corr`` on ``ctx``'s hand) against the single-frame
+    search with the mirror-image hand (same size)."""
+    other = ctx.hand.mirrored()
+    octx, _ = fit_context(other, settings, synergies)
+    th, c = fit_single_frame(octx, pts, settings.init, silhouette=sil, normals=nrm)
+    return HandCheck(score(ctx, theta, corr, sil), score(octx, th, c, sil), other.handedness)
+
+
 def _output_theta(theta) -> np.ndarray:
     """A copy of θ as a frame's result gives it: the global rotation in [−π, π) (the tracker's own θ
     keeps its turns: its fits start from it)."""
@@ -105,13 +130,9 @@ def _output_theta(theta) -> np.ndarray:
 class HandTracker:
     """Track one hand through a sequence of point clouds (camera frame, metres).
 
-    The tracker is state (θ, the last frame's θ, lost or not, the hand at its size) plus named parts,
-    each built from its settings group: :class:`tracker.sizing.SizeCalibration` (``sizing``),
-    :class:`tracker.net.SafetyNet` (``net``), :class:`tracker.parts.Recentring` (``recentring``),
-    :class:`tracker.parts.UnseenPrior` (``prior``), :class:`tracker.parts.FingerRestart` (``restart``),
-    :class:`tracker.parts.LossCheck` (``loss``) and the frame's :class:`tracker.parts.WristCue` (``cue``);
-    they count into one :class:`tracker.parts.TrackerStats` (``stats``, also on every
-    :class:`FrameResult`).
+    State (θ, the last θ, lost or not, the hand at its size) plus named parts built from the settings
+    groups (:mod:`tracker.parts`, :class:`tracker.net.SafetyNet`, :class:`tracker.sizing.SizeCalibration`),
+    counting into one :class:`tracker.parts.TrackerStats` (``stats``, also on every :class:`FrameResult`).
 
     Parameters
     ----------
@@ -188,13 +209,9 @@ class HandTracker:
         return fit_single_frame(self.context, points, self.settings.init, **kw)
 
     def calibrate_each(self, observations, camera):
-        """Calibrate the hand (``hand_scale="auto"``) on frames that are each fitted from their own
-        start: stills, or postures far apart in time, which tracking from frame to frame would not
-        follow. Each frame's size is found alone, the size is their median, and with
-        ``finger_lengths`` each finger's length comes from every frame's start search at that size.
-        Frames with fewer than ``min_points`` points, or whose fit found no hand, are skipped. The
-        tracker then tracks on the calibrated hand from a fresh start, and keeps it. Returns the
-        indices of the frames used (measurements: ``docs/tracker.md``)."""
+        """Calibrate the hand (``"auto"``) on frames each fitted from its own start (stills, postures far
+        apart in time): :meth:`tracker.sizing.SizeCalibration.calibrate_each`; then track on it from a
+        fresh start. Returns the indices of the frames used (measurements: ``docs/tracker.md``)."""
         used = self.sizing.calibrate_each(self, observations, camera, self.settings.loss.min_points,
                                           self.settings.loss.max_points)
         self.reset()
@@ -235,16 +252,16 @@ class HandTracker:
             frame = self._follow(pts, nrm, sil)
         if isinstance(frame, FrameResult):  # a start that found no hand
             return frame
-        theta, corr, status, net, recentred, far_lost, pts, nrm = frame
         # refine: a start has no earlier frame that holds its unseen joints: all the way. The net's
         # replacement half the way, as tracked frames: it starts from the tracked fit too, and all the way
         # there made the hard cases' fast sweeps 7.6 -> 8.7 deg (Kinect v1 noise 14.0 -> 16.1) and the
         # turn 6.5 -> 7.1 with noise
-        share = 1.0 if status == "reinit" and net != "replaced" else None
-        theta = self.prior(self.hand, theta, corr, self.limits, share)
-        if self.settings.start.check_hand and self.hand_check_ is None and status == "reinit":
-            self.hand_check_ = self._check_hand(pts, nrm, sil, theta, corr)
-        return self._decide(theta, corr, status, net, recentred, far_lost, pts, nrm, sil, n_in, t0)
+        share = 1.0 if frame.status == "reinit" and frame.net != "replaced" else None
+        frame = frame._replace(theta=self.prior(self.hand, frame.theta, frame.corr, self.limits, share))
+        if self.settings.start.check_hand and self.hand_check_ is None and frame.status == "reinit":
+            self.hand_check_ = check_hand(self.context, self.settings, self.synergies, frame.points, frame.normals,
+                                          sil, frame.theta, frame.corr)
+        return self._decide(frame, sil, n_in, t0)
 
     def _start(self, pts, nrm, sil, n_in, t0, color, depth, camera):
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
@@ -264,7 +281,7 @@ class HandTracker:
         if self.settings.net.enabled:
             # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
             self.net.search_level = score(self.context, theta, corr, sil)
-        return theta, corr, "reinit", "", False, False, pts, nrm
+        return FrameFit(theta, corr, "reinit", "", False, False, pts, nrm)
 
     def _follow(self, pts, nrm, sil):
         """A tracked frame: predict (gate, re-centre), fit, the coupling restarts, check (the safety net)."""
@@ -286,26 +303,28 @@ class HandTracker:
             # (a rendered hand in front of the body, segmented with the body: 284 of 2329 points
             # kept by the gate, fitted onto the torso 270 mm away and reported tracked)
             far_lost = True
-        return theta, corr, status, net, recentred, far_lost, pts, nrm
+        return FrameFit(theta, corr, status, net, recentred, far_lost, pts, nrm)
 
-    def _decide(self, theta, corr, status, net, recentred, far_lost, pts, nrm, sil, n_in, t0) -> FrameResult:
+    def _decide(self, frame: FrameFit, sil, n_in, t0) -> FrameResult:
         """Keep the fit (tracked, and the size refined by it) or lose the frame."""
+        theta, corr, status = frame.theta, frame.corr, frame.status
         fit_mm, rejected = corr.fit_error_mm(), corr.rejected_share
-        if self.loss.kept(fit_mm, rejected) and not far_lost:
+        if self.loss.kept(fit_mm, rejected) and not frame.far_lost:
             self.prev, self.theta = (self.theta if status == "tracked" else None), theta
-            if recentred and self.prev is not None:
+            if frame.recentred and self.prev is not None:
                 # the jump was no velocity: the next prediction must not repeat it
                 self.prev = self.prev.copy()
                 self.prev[:3] = theta[:3]
             self.last_good = theta
             self.lost = False
             if status == "tracked" and self.sizing.refining():
-                self.sizing.refine(self, pts, nrm, sil)
+                self.sizing.refine(self, frame.points, frame.normals, sil)
         else:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         # a fit on something else gives no θ (as a start that found no hand: the frame's row must not
         # read as a hand's pose)
-        return self._result(None if far_lost else theta, status, n_in, t0, fit_mm, corr.used, float(rejected), net)
+        return self._result(None if frame.far_lost else theta, status, n_in, t0, fit_mm, corr.used, float(rejected),
+                            frame.net)
 
     def _result(self, theta, status, n_in, t0, fit_mm=float("nan"), used=0, rejected=1.0, net="") -> FrameResult:
         out = np.full(self.hand.n_dofs, np.nan) if theta is None else _output_theta(theta)
@@ -336,15 +355,8 @@ class HandTracker:
         return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
                    normals=nrm, samples=ctx.samples, silhouette=sil)
 
-    def _check_hand(self, pts, nrm, sil, theta, corr) -> HandCheck:
-        """The single-frame search with the mirror-image hand (same size) against this frame's fit."""
-        other = self.hand.mirrored()
-        ctx, _ = fit_context(other, self.settings, self.synergies)
-        th, c = fit_single_frame(ctx, pts, self.settings.init, silhouette=sil, normals=nrm)
-        return HandCheck(score(self.context, theta, corr, sil), score(ctx, th, c, sil), other.handedness)
-
 
 
 # the names the tests and tools import from here
 _usable, _silhouette, _silhouette_mask = usable_points, frame_silhouette, silhouette_mask
-__all__ = ["FrameResult", "HandCheck", "HandTracker", "TrackerSettings", "TrackerStats", "fit_context"]
+__all__ = ["FrameResult", "HandCheck", "HandTracker", "TrackerSettings", "TrackerStats", "check_hand", "fit_context"]
