@@ -61,8 +61,10 @@ from .wrist import arm_line_normal
 
 @dataclass(frozen=True)
 class LocalPassSettings(SettingsGroup):
-    """Local passes between the closest-point searches (:class:`IcpSettings`: ``stages_per_pass``,
-    ``local_mm``)."""
+    """Local passes: after a search of every primitive for each data point's closest (the rigid step's
+    counted as a stage), up to ``stages_per_pass`` − 1 synergy-subspace stages re-project each point onto
+    the primitive it was matched to, the silhouette pairs kept, while the model moved less than ``mm``
+    (mm) since the pass before (1 = a search per stage, the paper's; 3 and 1.0)."""
 
     stages_per_pass: int = 3
     mm: float = 1.0
@@ -75,8 +77,10 @@ class LocalPassSettings(SettingsGroup):
 
 @dataclass(frozen=True)
 class WristLineSettings(SettingsGroup):
-    """The wrist-line pair of a start's last fits (:class:`IcpSettings`: ``wrist_line_weight``,
-    ``wrist_line_mm``)."""
+    """In a fit given the frame's wrist cue (a start's last fits), one more pair holds the model's wrist
+    crease on the arm's centre line in the image (:func:`tracker.wrist.arm_line_normal`), weighing like
+    ``weight`` of the valid data pairs (0 = off, the paper's; 0.01), while the crease lies more than
+    ``mm`` across from that line (mm; 3.0), and only up to it."""
 
     weight: float = 0.01
     mm: float = 3.0
@@ -88,32 +92,20 @@ class WristLineSettings(SettingsGroup):
 
 @dataclass(frozen=True)
 class IcpSettings(SettingsGroup):
-    """Iterations and the estimation of one ICP fit.
+    """Iterations and the estimation of one ICP fit (why each default: ``docs/tracker.md``).
 
-    ``rigid_iterations`` + ``icp_iterations`` per tracked frame (the paper: 1 + 4), each non-rigid one
-    ``gn_iterations`` Gauss-Newton steps (5) with damping ``damping`` on posture and ``pose_damping``
-    on the global pose (λ for residuals in mm; the paper's 1 and 0). ``robust_mm``: Cauchy scale of the
-    data-term weights (0 = plain least squares, the paper's). ``silhouette_weight``: the model→data
-    term (0 = off, the paper's). ``point_to_plane``: point-to-plane data residuals. Reduced tracking:
-    ``projected_steps`` last iterations with all DoF, projected onto the PCs (0 = the paper's α-only
-    fit). Hierarchical tracking: ``coarse_iterations`` in the synergy subspace first.
-    ``local`` (:class:`LocalPassSettings`, read as ``stages_per_pass``, ``local_mm``): after a search of every primitive for each data point's
-    closest (the rigid step's counted as a stage), up to ``stages_per_pass`` − 1 synergy-subspace
-    stages take a local pass — each point re-projected onto the primitive it was matched to, the
-    silhouette pairs kept — while the model moved less than ``local_mm`` since the pass before
-    (:func:`tracking_schedule`; 1 = a search per stage, the paper's). The search is the costly part of a
-    stage (~42 µs of 500 points against ~12 µs for the local pass); in the synergy subspace the local
-    passes lose nothing (the experiments' fingerfist segments, reduced: 2.527° either way, 3 searches
-    a frame instead of 6; the occluded grasp with 3 grasp PCs: 1.816° either way), with all DoF they
-    do (0.650° → 0.658°), so full stages always search.
-    ``wrist_line`` (:class:`WristLineSettings`, read as ``wrist_line_weight``, ``wrist_line_mm``): in a fit given the frame's wrist cue (:func:`fit`'s ``wrist``,
-    :func:`tracker.wrist.wrist_cue`; a start's last fits, :func:`tracker.init.fit_single_frame`), one
-    more pair holds the model's wrist crease
-    (:meth:`HandModel.wrist_crease`) on the arm's centre line in the image
-    (:func:`tracker.wrist.arm_line_normal`), weighing like this share of the valid data pairs (0 = off;
-    the paper has no such term), while the crease lies more than ``wrist_line_mm`` across from that line,
-    and only up to it: the cue's own error (the true crease 0–3 mm off the line on most rendered frames
-    with a forearm). Across the arm only: where the mask ends along it is the segmenter's cut.
+    rigid_iterations, icp_iterations : rigid, then non-rigid iterations per tracked frame (the paper: 1 + 4)
+    gn_iterations : Gauss-Newton steps per non-rigid iteration (5)
+    damping, pose_damping : λ on posture and on the global pose (residuals in mm; the paper's 1 and 0)
+    robust_mm : Cauchy scale of the data-term weights (mm; 0 = plain least squares, the paper's; 8)
+    silhouette_weight : the model→data term's weight (0 = off, the paper's; 1)
+    point_to_plane : point-to-plane data residuals (False)
+    projected_steps : reduced mode: last iterations with all DoF, projected onto the PCs (0 = the paper's α-only)
+    coarse_iterations : hierarchical mode: iterations in the synergy subspace first (1)
+    local : local passes between closest-point searches (:class:`LocalPassSettings`, read as
+        ``stages_per_pass``, ``local_mm``; :func:`tracking_schedule`)
+    wrist_line : a start's wrist-line pair (:class:`WristLineSettings`, read as ``wrist_line_weight``,
+        ``wrist_line_mm``; :func:`fit`'s ``wrist``)
     """
 
     rigid_iterations: int = 1

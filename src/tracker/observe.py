@@ -31,25 +31,22 @@ from .settings_base import SettingsGroup
 
 @dataclass(frozen=True)
 class ObserveSettings(SettingsGroup):
-    """Sampling of the hand's points: every ``stride``-th pixel in x and y, or, with ``target_points``,
-    the largest stride ≤ ``stride`` that keeps about that many points (a distant hand sampled densely
-    enough, a near one not oversampled); ``smooth``: radius (px) of the edge-preserving depth
-    smoothing before sampling (0 = off, the paper's); ``normal_max_jump``: depth step (m) across which
-    no normal is computed. ``gate_mm``: while tracking, points farther than this from the hand
-    predicted for the frame are dropped before correspondence (:func:`gate`; 0 = off), unless less
-    than ``gate_min_share`` of the predicted hand's surface has data that near (the prediction
-    missed a fast motion); ``arm_gate_mm``: when the gate trusts the prediction, points more than this
-    past the predicted hand's end at the wrist (toward the forearm) are left out of the fit too
-    (:func:`past_wrist`; None = off, and off without the tracker's safety net, whose far-points test
-    they stay in: :meth:`tracker.track.HandTracker.step` says why). ``edge_px``: pixels without depth
-    this close to the hand (4-connected steps) count as hand in the silhouette the model→data terms
-    see (:func:`dropout_band`; 0 = the segmented mask alone; 1 by measurement: 2 widened a noise-free
-    render's mask all round, where the whole background has no depth, and cost fast sweeps 10.3 -> 8.9
-    deg and a grasp seen from the back 4.7 -> 3.4, while the Kinect-noise count and open/close stay
-    2.7 deg). ``window_m``: while
-    tracking, the frame is segmented only in the predicted hand's image box grown by this many metres
-    (at the hand's nearest depth) on every side (:func:`hand_window`, which says why 8 cm; 0 = always
-    the whole frame)."""
+    """How a frame becomes the hand's points (why each default: ``docs/tracker.md``).
+
+    stride : every stride-th pixel in x and y (px; 3)
+    target_points : the largest stride ≤ ``stride`` that keeps about this many points (None: ``stride``; 600)
+    smooth : radius of the edge-preserving depth smoothing before sampling (px; 0 = off, the paper's; 1)
+    normal_max_jump : depth step across which no normal is computed (m; 0.01)
+    gate_mm : while tracking, points farther than this from the predicted hand are dropped
+        (:func:`gate`; 0 = off; 30) …
+    gate_min_share : … unless less than this share of the predicted surface has data that near (0.5)
+    arm_gate_mm : points more than this past the predicted wrist are left out of the fit (:func:`past_wrist`;
+        None = off; off without the safety net; 2)
+    edge_px : pixels without depth this close to the mask count as hand in the silhouette
+        (:func:`dropout_band`; 0 = the mask alone; 1)
+    window_m : while tracking, the frame is segmented only in the predicted hand's image box grown by this
+        (m; :func:`hand_window`; 0 = the whole frame; 0.08)
+    """
 
     stride: int = 3
     target_points: int | None = 600
