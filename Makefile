@@ -11,6 +11,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m tracker.compile  # numba's kernels for this machine, once (minutes), not at the first tracker track
 	touch $(STAMP)
 
 # The whole workflow on data the project generates itself: simulated mocap (C3D) → per-task synergy

@@ -460,6 +460,16 @@ def _keypoints_by_frame(path, names, n_frames):
     return {int(f): k for f, k in zip(frames, xyz) if np.isfinite(k).all() and (k[:, 2] > 0).all()}, meta
 
 
+@app.command("compile")
+@_errors
+def compile_kernels():
+    """Compile the tracker's kernels for this machine once (numba's cache, a few minutes; run it after
+    pip install, as make does): the first tracker track then starts at once."""
+    from .compile import main as compile_main
+
+    compile_main()
+
+
 # the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer
 # at the top (the lab's libraries load when a command runs), so registering them keeps --help fast
 from tracker import track_cli  # noqa: E402

@@ -112,6 +112,8 @@ def track(
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob
 
+    _say_if_compiling()
+
     job = TrackJob(recording=str(recordings[0]), output=str(output), settings=settings, synergies=synergies,
                    registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
                    keypoints=None if keypoints is None else str(keypoints),
@@ -123,6 +125,16 @@ def track(
         _track_many(recordings, output, job, dask, overwrite)
         return
     _track_one(job, recordings[0], output, keypoints, overlay, mode, paper)
+
+
+def _say_if_compiling():
+    """One line on stderr when numba's cache holds no compiled kernels (a fresh install): this call
+    compiles them first, which takes minutes."""
+    from .compile import cold_message
+
+    message = cold_message()
+    if message:
+        typer.echo(message, err=True)
 
 
 def _hand_side(hand):
@@ -736,6 +748,8 @@ def live(
     from .recording import RecordingWriter
     from .run import TrackJob, run_job
 
+    _say_if_compiling()
+
     source = RealSenseSource(playback, serial=serial, width=width, height=height, fps=fps, color=color,
                              max_frames=frames, max_seconds=seconds, handedness=hand)
     err = Console(stderr=True, markup=False)
@@ -839,6 +853,8 @@ def calibrate(
 
     from .cli import _progress
     from .run import TrackJob, calibrate_job
+
+    _say_if_compiling()
 
     job = TrackJob(recording=str(recording), output="", settings=settings, synergies=synergies,
                    registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
