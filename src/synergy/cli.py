@@ -89,6 +89,7 @@ def fit(
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="C3D input: skip the handedness check."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
     dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="C3D input: SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off; recorded in the manifest)."),
+    prior: str = typer.Option("auto", "--prior", help="C3D input: posture prior of the marker IK: auto (the fingerfist bundle where the markers leave a joint weakly observed), none, or a bundle NAME / path (recorded in the manifest)."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
     dask: Optional[str] = typer.Option(None, "--dask", help="Convert files and compute statistics as Dask tasks: local, local:N or a scheduler address."),
     version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),
@@ -107,6 +108,7 @@ def fit(
     from synergy.errors import SynergyError
     from synergy.calibrate import load_calibration
     from synergy.fit import bundle_from_trials, check_inputs, group_by_task, quality_problems, read_trial, task_labels
+    from synergy.prior import prior_option
     from synergy.tasks import load_task_map
 
     _check_variance(variance)
@@ -127,6 +129,7 @@ def fit(
                    calibration=load_calibration(subject) if subject is not None else "trial")
     if dip_prior_sd is not None:  # otherwise read_trial's default, the same as synergy angles'
         read_kw["dip_prior_sd"] = dip_prior_sd
+    read_kw["prior"] = prior_option(prior)
     if markersets:  # user folders named here join the shipped sets and $SYNERGY_MARKERSETS
         from synergy.markers import available_markersets, load_markerset, user_markerset_dirs
 

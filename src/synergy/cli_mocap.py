@@ -109,16 +109,31 @@ def describe_trial(name, df) -> list:
         line += f", bones {f.min():.2f}–{f.max():.2f}× the model"
     h = cal.get("held_out") or {}
     if h.get("frames"):
-        line += (f"; held-out residual {h['residual_mm']:.2f} mm (scale only "
-                 f"{h['scale_only_residual_mm']:.2f} mm)")
+        # one residual everywhere: the median over frames of a frame's RMS marker distance (the
+        # table's "med mm"), here on the calibration's held-out frames, for both hands it compared
+        used = "scale only" if cal.get("method", "").startswith("hand scale") and "not used" in cal.get("method", "") \
+            else "calibrated"
+        line += (f"; held-out residual ({h['frames']} frames) {h['residual_mm']:.2f} mm calibrated, "
+                 f"{h['scale_only_residual_mm']:.2f} mm hand scale only (this table: the {used} hand)")
     out.append(line)
+    pp = df.attrs.get("posture_prior")
+    sd = d.get("posterior_sd_deg") or {}
+    if pp:
+        out.append(f"  posture prior: {escape(pp['name'])} (floor {pp['floor_deg']:g}°), against a marker noise of "
+                   f"{df.attrs.get('marker_noise_mm') or float('nan'):.2f} mm")
+    if d.get("prior_driven"):
+        out.append("  weakly observed: prior-driven: " + ", ".join(
+            f"{escape(k)} SD {v[0]:.1f}° (markers alone {v[1]:.0f}°)" for k, v in d["prior_driven"].items()))
+    elif sd:
+        worst = max(sd.items(), key=lambda kv: kv[1][0] if kv[1][0] is not None else -1)
+        out.append(f"  every joint observed by the markers (largest posterior SD: {escape(worst[0])} {worst[1][0]:.1f}°)")
     mr = d.get("marker_residuals_mm", {})
     if mr:
         worst = sorted(mr.items(), key=lambda kv: -(kv[1][0] or 0))[:4]
         out.append("  worst markers (median/95th mm): " + ", ".join(f"{k} {v[0]:.1f}/{v[1]:.1f}" for k, v in worst))
     hc = d.get("handedness")
     if hc:
-        out.append(f"  hand check: {hc['chosen']} {hc['residual_mm']:.2f} mm, other hand {hc['other_residual_mm']:.2f} mm"
+        out.append(f"  hand check (hand scale only): {hc['chosen']} {hc['residual_mm']:.2f} mm, other hand {hc['other_residual_mm']:.2f} mm"
                    f" ({hc['verdict']})")
     for w in d.get("warnings", []):
         out.append(f"  [yellow]warning:[/yellow] {escape(w)}")
@@ -242,9 +257,10 @@ def angles(
     subject: Optional[Path] = typer.Option(None, "--subject", help="Subject calibration from 'synergy calibrate'."),
     static: Optional[Path] = typer.Option(None, "--static", help="Calibrate (hand scale) on this static trial instead of each trial."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Use the model as it is."),
-    plot: bool = typer.Option(False, "--plot", help="Also write a PNG per trial: angles and per-marker residuals."),
+    plot: bool = typer.Option(False, "--plot", help="Also write a PNG per trial: angles with their posterior SD band and per-marker residuals."),
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="Convert even if the other hand fits clearly better."),
     dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off)."),
+    prior: str = typer.Option("auto", "--prior", help="Posture prior: auto (the fingerfist bundle where the markers leave a joint weakly observed), none, or a bundle NAME / path (recorded in the CSV)."),
 ):
     """Convert C3D trials to joint-angle tables (marker IK), with a summary per trial."""
     from handmodel.fileio import check_output
@@ -268,6 +284,9 @@ def angles(
     if hand is not None and hand not in ("left", "right"):
         raise SynergyError("--hand", f"must be left or right, got {hand!r}")
     coupling = {} if dip_prior_sd is None else {"ip_coupling_sd_deg": dip_prior_sd or None}
+    from synergy.prior import prior_option
+
+    coupling["prior"] = prior_option(prior)
     ms = load_markerset(markers) if markers is not None else None
     targets = [(f, out / f"{f.stem}.csv") for f in files]
     for f, dst in targets:
@@ -333,8 +352,9 @@ def angles(
 
 
 def plot_trial(df, path: Path) -> Path:
-    """PNG of a converted trial: the 20 joint angles over time (one panel per digit) and each
-    marker's residual (median and 95th percentile); written atomically, never overwritten."""
+    """PNG of a converted trial: the 20 joint angles over time (one panel per digit) with a band of
+    ±1 posterior SD, and each marker's residual (median and 95th percentile); written atomically,
+    never overwritten."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -350,7 +370,11 @@ def plot_trial(df, path: Path) -> Path:
     t = df["time_s"].to_numpy()
     for ax, f in zip(axes.flat[:5], ("thumb", "index", "middle", "ring", "pinky")):
         for c in ("1_abd", "1_flex", "2_flex", "3_flex"):
-            ax.plot(t, np.degrees(df[f"{f}{c}"].to_numpy()), lw=1, label=c)
+            y = np.degrees(df[f"{f}{c}"].to_numpy())
+            (line,) = ax.plot(t, y, lw=1, label=c)
+            if f"{f}{c}_sd" in df:  # ±1 posterior SD (tables written before issue 40 have none)
+                sd = np.degrees(df[f"{f}{c}_sd"].to_numpy())
+                ax.fill_between(t, y - sd, y + sd, color=line.get_color(), alpha=0.2, lw=0)
         poor = df["quality"].to_numpy() != "ok"
         if poor.any():
             ax.plot(t[poor], np.zeros(poor.sum()), "|", color="red", ms=8, label="poor/gap")
@@ -367,8 +391,9 @@ def plot_trial(df, path: Path) -> Path:
     ax.set_ylabel("marker residual (mm)")
     ax.legend(fontsize=7)
     d = df.attrs.get("diagnostics", {})
+    pp = (df.attrs.get("posture_prior") or {}).get("name") or "none"
     fig.suptitle(f"{Path(df.attrs.get('source', '')).name}: {d.get('verdict', '')}, noise floor "
-                 f"{d.get('noise_floor_mm') or float('nan'):.2f} mm")
+                 f"{d.get('noise_floor_mm') or float('nan'):.2f} mm; bands ±1 posterior SD (posture prior: {pp})")
     with atomic_path(path, overwrite=False) as tmp:
         fig.savefig(tmp, dpi=80, format="png")
     plt.close(fig)

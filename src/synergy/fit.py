@@ -68,13 +68,15 @@ class Trial:
                                  "residual_median_mm": c["residual_median_mm"],
                                  "residual_p95_mm": c["residual_p95_mm"], "ok_share": c["ok_share"],
                                  "verdict": c["verdict"], "dip_prior": c.get("dip_prior")}
+            if c.get("posture_prior"):  # recorded only when used: manifests without it read as before
+                out["conversion"]["posture_prior"] = c["posture_prior"]
         return out
 
 
 def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None = None,
                markers: str | MarkerSet | None = None, hand: str | None = None, smooth_hz=None,
                calibration="trial", check_hand: bool = True, markersets: Sequence[MarkerSet] | None = None,
-               dip_prior_sd: float | None = IP_COUPLING_SD_DEG) -> Trial:
+               dip_prior_sd: float | None = IP_COUPLING_SD_DEG, prior="auto") -> Trial:
     """Read the posture frames of one file.
 
     Formats: ``csv`` (joint-angle table: columns named by DoF, ``#`` metadata lines;
@@ -89,7 +91,8 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
     ``calibration`` is passed to :func:`~synergy.angles.markers_to_angles` (a subject
     :class:`~synergy.calibrate.Calibration` also names the set and hand to use);
     ``check_hand`` False skips the handedness check; ``dip_prior_sd`` is the SD (degrees) of the IK's
-    weak DIP = 2/3 PIP prior (:data:`~synergy.angles.IP_COUPLING_SD_DEG`; 0 or None: off). A trial
+    weak DIP = 2/3 PIP prior (:data:`~synergy.angles.IP_COUPLING_SD_DEG`; 0 or None: off); ``prior``
+    the IK's posture prior (:func:`~synergy.angles.markers_to_angles`: 'auto', None or a bundle). A trial
     with a wrong hand is converted and judged poor, not refused: :func:`quality_problems` decides.
     ``Trial.conversion`` records it all, the DIP prior included.
     """
@@ -102,7 +105,7 @@ def read_trial(path: str | os.PathLike, fmt: str = "auto", *, task: str | None =
         X = read_schroeder26(p)
     else:
         X, stored_task, conversion = _read_c3d_postures(p, markers, hand, smooth_hz, calibration, check_hand,
-                                                        markersets, dip_prior_sd)
+                                                        markersets, dip_prior_sd, prior)
         task = task or stored_task
     return Trial(p.as_posix(), X, POSTURE_DOF_NAMES, task, sha256_file(p), conversion)
 
@@ -204,13 +207,15 @@ def _choose(data, p: Path, markers, hand, calibration, check_hand, markersets):
     return ms, hand, rep
 
 
-def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_hand, markersets, dip_prior_sd):
+def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_hand, markersets, dip_prior_sd,
+                       prior="auto"):
     """C3D → marker IK → the frames of good quality; the task label stored in the file, if any; and
     the record of the conversion (:attr:`Trial.conversion`)."""
     data = read_c3d(p)
     ms, hand, rep = _choose(data, p, markers, hand, calibration, check_hand, markersets)
     table = markers_to_angles(data, ms, hand=hand, smooth_hz=smooth_hz, calibration=calibration,
-                              check_hand="warn" if check_hand else None, ip_coupling_sd_deg=dip_prior_sd or None)
+                              check_hand="warn" if check_hand else None, ip_coupling_sd_deg=dip_prior_sd or None,
+                              prior=prior)
     d = table.attrs["diagnostics"]
     r = table["residual_mm"].to_numpy()
     with np.errstate(all="ignore"):
@@ -221,6 +226,7 @@ def _read_c3d_postures(p: Path, markers, hand, smooth_hz, calibration, check_han
         "residual_median_mm": med, "residual_p95_mm": p95, "ok_share": float((table["quality"] == "ok").mean()),
         "verdict": d["verdict"], "warnings": list(d["warnings"]), "reasons": poor_reasons(d),
         "calibration": table.attrs["calibration"].get("method", ""), "dip_prior": table.attrs["dip_prior"],
+        "posture_prior": (table.attrs["posture_prior"] or {}).get("name"),
     }
     table = table[table["quality"] == "ok"]
     if table.empty:
@@ -240,7 +246,9 @@ def poor_reasons(diag: dict) -> list:
                    f"{h['residual_mm']:.1f} mm as {h['chosen']}; give --hand {other})")
     if diag.get("poor_share", 0) > POOR_TRIAL_SHARE:
         out.append(f"{100 * diag['poor_share']:.0f} % of frames poor (residual > {diag['poor_threshold_mm']:.1f} mm)")
-    pinned = sorted(((v, k) for k, v in diag.get("limit_share", {}).items() if v > 0.25), reverse=True)
+    driven = diag.get("prior_driven", {})
+    pinned = sorted(((v, k) for k, v in diag.get("limit_share", {}).items() if v > 0.25 and k not in driven),
+                    reverse=True)
     if pinned:
         out.append("on a joint limit in > 25 % of frames: " + ", ".join(f"{k} {100 * v:.0f} %" for v, k in pinned[:3])
                    + (f" (+{len(pinned) - 3} more)" if len(pinned) > 3 else ""))

@@ -95,3 +95,11 @@ def resolve_prior(prior, *, floor_deg=FLOOR_DEG):
     if isinstance(prior, str) and prior.lower() in ("none", "off", ""):
         return None
     return PosturePrior.from_bundle(prior, floor_deg=floor_deg)
+
+
+def prior_option(text):
+    """The ``--prior`` option of ``synergy angles`` / ``synergy fit``: ``'auto'``, None for
+    ``none``, else the named bundle's prior, loaded now so that a wrong name stops before the work."""
+    if text is None or text.lower() == "auto":
+        return "auto"
+    return resolve_prior(text)

@@ -1,0 +1,121 @@
+"""The marker IK's posture prior (issue 40), prior off / auto / on side by side (angles RMS of the 20
+posture DoF against the simulated truth, degrees; joints on a limit the truth never comes within 2° of).
+
+Protocols (all with 0.5 mm noise, a subject unlike the model):
+- ``weak``: :func:`synergy.simulate.weak_protocol` — hand19 with the proximal-phalanx markers at 0.2 of
+  the bone while the set says 0.5, no static trial, a 4 s fretting or power-grasp trial calibrated on
+  itself (automatic calibration, as ``synergy angles`` does), markers low-passed at 6 Hz; and the same
+  trial converted with the oracle calibration (the subject's true bones and marker places) to tell
+  calibration error from IK ambiguity.
+- ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
+  ROM + static to calibrate, power grasp to convert, 6 Hz).
+
+Run: .venv/bin/python benchmarks/bench_marker_prior.py [--protocols weak subjects] [--seeds 0-15]
+     (≈ 10 s CPU per weak trial, ≈ 4 s per subject and prior setting, one core)
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from handmodel import HandModel
+from handmodel.dofs import anatomical_limits
+from synergy.angles import AUTO_GAIN, markers_to_angles
+from synergy.calibrate import Calibration, calibrate
+from synergy.markers import load_markerset
+from synergy.simulate import WEAK_PROXIMAL, moved_markers, subject_protocol, weak_protocol
+
+SMOOTH_HZ = 6.0
+PRIORS = (("off", None), ("auto", "auto"), ("on", "fingerfist"))
+
+
+def rms_deg(df, theta):
+    est = df[HandModel.load().dof_names].to_numpy()
+    ok = np.isfinite(est).all(1)
+    return float(np.degrees(np.sqrt(np.mean((est[ok, 6:] - theta[ok, 6:]) ** 2))))
+
+
+def false_limits(df, theta, hand):
+    lim = anatomical_limits(hand)
+    out = []
+    for dof, share in df.attrs["diagnostics"]["limit_share"].items():
+        j = hand.dof_names.index(dof)
+        if share > 0.05 and np.abs(theta[:, j, None] - lim[j][None, :]).min() >= np.radians(2):
+            out.append(dof)
+    return out
+
+
+def oracle(ms, hand, trial):
+    truth = moved_markers(ms, WEAK_PROXIMAL)
+    _, local = truth.attachments(hand.scaled(1.0, trial.bone_scales))
+    offsets = {m.label: local[i] + np.asarray(trial.marker_shift[m.label]) for i, m in enumerate(truth.markers)}
+    return Calibration(scale=1.0, bone_scales=dict(trial.bone_scales), offsets=offsets, method="oracle",
+                       hand="left", markerset=ms.name, median_residual_mm=0.5)
+
+
+def seeds_arg(text):
+    out = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b or a) + 1))
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--protocols", nargs="+", default=["weak", "subjects"])
+    ap.add_argument("--seeds", type=seeds_arg, default=list(range(16)))
+    ap.add_argument("--weak-seeds", type=seeds_arg, default=list(range(4)))
+    args = ap.parse_args()
+    hand = HandModel.load()
+    kw = {"smooth_hz": SMOOTH_HZ, "check_hand": None}
+    cols = " ".join(f"{n:>6}" for n, _ in PRIORS)
+    if "weak" in args.protocols:
+        ms = load_markerset("hand19")
+        print(f"weak protocol (hand19, proximal markers at 0.2, no static): angles RMS (°) prior {cols} | oracle "
+              f"calibration {cols} | auto chose, false limits (off/on)")
+        for motion in ("fretting", "power_grasp"):
+            for seed in args.weak_seeds:
+                tr, th = weak_protocol(seed, motion)
+                cal = calibrate(tr, ms, hand, require_gain=AUTO_GAIN)
+                orc = oracle(ms, hand, tr)
+                got, orc_got, chose, lims = [], [], "", []
+                for name, pr in PRIORS:
+                    df = markers_to_angles(tr, ms, calibration=cal, prior=pr, **kw)
+                    got.append(rms_deg(df, th))
+                    orc_got.append(rms_deg(markers_to_angles(tr, ms, calibration=orc, prior=pr, **kw), th))
+                    if name == "auto":
+                        chose = (df.attrs["posture_prior"] or {}).get("name") or "none"
+                    if name != "auto":
+                        lims.append(",".join(false_limits(df, th, hand)) or "-")
+                print(f"{motion:12} {seed:3d} " + " ".join(f"{x:6.2f}" for x in got) + " | "
+                      + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {chose} {'/'.join(lims)}", flush=True)
+    if "subjects" in args.protocols:
+        for markers in ("hand16", "hand19"):
+            ms = load_markerset(markers)
+            rows = []
+            print(f"{markers} subjects (ROM + static, power grasp): angles RMS (°) prior {cols} | auto chose")
+            for seed in args.seeds:
+                rom, static, trial, th, _, _ = subject_protocol(markers, seed, noise_mm=0.5)
+                cal = calibrate(rom, ms, hand, static=static)
+                got, chose = [], ""
+                for name, pr in PRIORS:
+                    df = markers_to_angles(trial, ms, calibration=cal, prior=pr, **kw)
+                    got.append(rms_deg(df, th))
+                    if name == "auto":
+                        chose = (df.attrs["posture_prior"] or {}).get("name") or "none"
+                rows.append(got)
+                print(f"{markers:7} {seed:3d} " + " ".join(f"{x:6.2f}" for x in got) + f" | {chose}", flush=True)
+            a = np.array(rows)
+            print(f"# {markers}: max " + " ".join(f"{x:6.2f}" for x in a.max(0)) + ", seeds over 2°: "
+                  + " ".join(str(int((a[:, k] > 2.0).sum())) for k in range(a.shape[1])), flush=True)
+
+
+if __name__ == "__main__":
+    main()
