@@ -1,5 +1,6 @@
 """The synthetic lab's commands: ``tracker synth`` (render a motion into a recording folder with
-ground truth) and ``tracker experiments`` (the paper's experiments, written as a report).
+ground truth), ``tracker experiments`` (the paper's experiments, written as a report) and
+``tracker train-detector`` (the hand-part detector trained on our renders, :mod:`tracker.sim.train_detector`).
 
 ``register(app, wrap)`` adds them to the ``tracker`` typer app. The library modules (numba, pandas,
 matplotlib behind them) are imported inside the commands, not at the top, so that ``tracker --help``
@@ -198,14 +199,69 @@ def experiments(
     Console(markup=False).print(t)
 
 
+def train_detector(
+    output: Path = typer.Option(..., "-o", "--output", help="Folder to write hand-parts-VERSION.npz into."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the training scenes, pixels, features and trees (the "
+                             "held-out scenes use other seeds)."),
+    crops: int = typer.Option(600, "--crops", min=1, help="Training crops drawn by the renderer."),
+    trees: int = typer.Option(3, "--trees", min=1, help="Trees in the forest."),
+    depth: int = typer.Option(20, "--depth", min=1, help="Largest tree depth."),
+    features: int = typer.Option(400, "--features", min=2, help="Offset pairs the trees choose from."),
+    heldout: int = typer.Option(200, "--heldout", min=1, help="Held-out synthetic crops evaluated."),
+    real_data: Optional[Path] = typer.Option(None, "--real-data", help="Folder of labelled real SR305 stills "
+                                             "(../shared/data/realsense_sr305_lada): evaluated, never trained on."),
+    version: str = typer.Option("1.0.0", "--version", help="Version in the file name and manifest."),
+    jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="Cores for fitting the trees."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a model file of that version."),
+):
+    """Train the hand-part detector on rendered depth crops, evaluate it on held-out scenes (and the
+    labelled real stills with --real-data) and write the sealed model with its manifest."""
+    import re
+    import sys
+
+    from handmodel.fileio import check_output
+
+    from ..errors import TrackerError
+
+    if not re.fullmatch(r"\d+\.\d+\.\d+", version):
+        raise TrackerError("--version", f"must be MAJOR.MINOR.PATCH, got {version!r}")
+    if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
+        raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
+    if (output / f"hand-parts-{version}.npz").exists() and not overwrite:
+        raise TrackerError(str(output / f"hand-parts-{version}.npz"), "exists (use --overwrite or --version)")
+    check_output(output, folder=True)
+    from rich.console import Console
+
+    from .train_detector import TrainSettings, build
+
+    err = Console(stderr=True, markup=False)
+    settings = TrainSettings(n_crops=crops, n_trees=trees, max_depth=depth, n_features=features, jobs=jobs,
+                             max_features=min(40, features))
+    command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
+    path, manifest = build(output, seed=seed, settings=settings, heldout=heldout, real_data=real_data,
+                           version=version, command=command, progress=err.print, overwrite=overwrite)
+    m = manifest["metrics"]
+    h = m["heldout"]
+    out = Console(markup=False)
+    out.print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, {manifest['training']['seconds']['total']:.0f} s)")
+    out.print(f"held-out synthetic ({h['crops']} crops): keypoints found {100 * h['found_share']:.0f} %, "
+              f"median {h['px_median']} px / {h['mm_median']} mm, mean {h['mm_mean']} mm; "
+              f"part accuracy {100 * h['hand_part_accuracy']:.0f} %")
+    if "real_sr305" in m:
+        r = m["real_sr305"]
+        out.print(f"real SR305 stills ({r['frames']}): tips median {r['tips_px_median']} px, "
+                  f"{r['tips_within_15px']}/{r['tips']} tips within 15 px")
+
+
 def register(app: typer.Typer, wrap=None) -> None:
-    """Add the ``synth`` and ``experiments`` commands to the ``tracker`` app.
+    """Add the ``synth``, ``experiments`` and ``train-detector`` commands to the ``tracker`` app.
 
     ``wrap`` decorates each command (the app's one-line error handler); ``None`` adds them as they are.
     """
     wrap = wrap or (lambda fn: fn)
     app.command("experiments")(wrap(experiments))  # before synth: the order of ``tracker --help``
     app.command("synth")(wrap(synth))
+    app.command("train-detector")(wrap(train_detector))
 
 
 def _print_realistic(rows, output):

@@ -1,0 +1,83 @@
+"""The hand-part detector on one core: ms per frame for the detection alone, for the detection plus
+the start fitted to its keypoints (``tracker.detector.fit_start``), and today's start search
+(``HandTracker.track`` on a first frame at size 1, the tracker's defaults) as the peer, on the same
+frames in the same run; and the shipped model's install weight.
+
+Frames: SR305 640×480 renders drawn by the detector's own data recipe with held-out seeds (hand,
+clutter, noise), the hand's segmentation by the tracker (``observe``) as the mask.
+
+Run: .venv/bin/python benchmarks/bench_detector.py [--frames 10] [--no-peer]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+from handmodel import HandModel  # noqa: E402
+from synergy.bundle import load_bundle  # noqa: E402
+from tracker import TRACKING_HAND  # noqa: E402
+from tracker.cameras import preset  # noqa: E402
+from tracker.detector import detect, detector_path, fit_start, load_detector  # noqa: E402
+from tracker.observe import observe  # noqa: E402
+from tracker.sim.dataset import DataRecipe, draw_scene  # noqa: E402
+from tracker.track import HandTracker, TrackerSettings  # noqa: E402
+
+
+def frames(n: int, seed: int = 777):
+    """Whole SR305 frames (the crop window larger than the image), left hands at 0.4–0.9 m."""
+    recipe = DataRecipe(**{**load_detector().manifest["recipe"], "window_m": 10.0, "p_right": 0.0,
+                           "sensors": {"sr305": 1.0}, "distance_m": (0.4, 0.9), "orientations": "user"})
+    out = []
+    for i in range(n):
+        c = draw_scene(recipe, np.random.default_rng([seed, i]))
+        if c.depth.shape == (480, 640):
+            out.append(c)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument("--no-peer", action="store_true")
+    a = ap.parse_args()
+    cam = preset("sr305")
+    hand = HandModel.load(TRACKING_HAND)
+    bundle = load_bundle("fingerfist")
+    data = frames(a.frames)
+    obs = [observe(c.depth, cam) for c in data]
+    detect(data[0].depth, cam, obs[0].mask)  # compile
+    rows = {}
+    t_det, t_start, t_peer = [], [], []
+    for c, ob in zip(data, obs):
+        t0 = time.perf_counter()
+        d = detect(c.depth, cam, ob.mask)
+        t1 = time.perf_counter()
+        fit_start(d, hand, bundle)
+        t2 = time.perf_counter()
+        t_det.append(1000 * (t1 - t0))
+        t_start.append(1000 * (t2 - t0))
+        if not a.no_peer:
+            tr = HandTracker(hand, TrackerSettings().replace(hand_scale=1.0), synergies=bundle)
+            t3 = time.perf_counter()
+            tr.track(ob, cam)
+            t_peer.append(1000 * (time.perf_counter() - t3))
+    rows["detect (mask from observe)"] = t_det
+    rows["detect + fit_start (synergies)"] = t_start
+    if t_peer:
+        rows["peer: today's start search (HandTracker.track, first frame, size 1)"] = t_peer
+    print(f"{len(data)} SR305 frames, one core")
+    print(f"{'variant':70s} {'median ms':>10s} {'max ms':>8s}")
+    for k, v in rows.items():
+        print(f"{k:70s} {np.median(v):10.1f} {np.max(v):8.1f}")
+    p = detector_path()
+    print(f"model {p.name}: {p.stat().st_size / 1e6:.2f} MB on disk, {load_detector().arrays['thresholds'].size} nodes")
+
+
+if __name__ == "__main__":
+    main()
