@@ -21,9 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
-#: what a first call on a fresh install costs (measured: ``tracker compile`` on this project's 2-core
-#: machine, shared; a free machine takes less)
-COMPILE_MINUTES = "3–6"
+#: what a first call on a fresh install costs: a first ``tracker track`` of one still with an empty
+#: cache took 123 s of CPU, 394 s wall on this project's shared 2-core machine (2026-11-28)
+COMPILE_MINUTES = "2–7"
 #: the packages whose numba kernels are counted
 PACKAGES = ("handmodel", "tracker")
 #: a kernel every tracking run calls: no cache entry for it means the kernels were never compiled

@@ -1,0 +1,123 @@
+"""Start-up as a user meets it: a fresh process from its start to the first frame's result, warm numba
+cache, next to ``python -c "import numpy, scipy"`` in the same run (the floor any numpy/scipy tool pays).
+
+Rows (each a fresh process, ``--repeats`` times, interleaved; median wall and median CPU — user + sys
+of the child — since on a shared machine wall time also measures the other jobs):
+
+- ``python -c "import numpy, scipy"``: the reference;
+- ``tracker --help``;
+- ``import tracker.run``: what every tracking command loads;
+- process start → first frame's result: ``tracker.run.run_job`` on one still (one SR305 frame of
+  ``../shared/data/realsense_sr305_lada``, or a rendered frame without it), defaults (size
+  calibration, start search), the time of the first result as seen from the parent;
+- ``tracker track`` of that still: the whole command, outputs written.
+
+One untimed run first warms numba's cache (``tracker compile`` does it at install). The kernels are
+this tree's (``src`` first on the path).
+
+Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STILL = ROOT.parent / "shared" / "data" / "realsense_sr305_lada" / "20210326-230536_110.png"
+
+# the child: the time after its imports, and each frame's result time, as json on stdout
+DRIVER = r"""
+import json, sys, time
+from tracker.run import TrackJob, run_job
+t_import = time.time()
+stamps = []
+run_job(TrackJob(sys.argv[1], sys.argv[2], overwrite=True), on_frame=lambda frame, r, ob: stamps.append(time.time()))
+print(json.dumps({"import": t_import, "stamps": stamps}))
+"""
+
+
+def env():
+    e = dict(os.environ)
+    e["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + e.get("PYTHONPATH", "")
+    return e
+
+
+def timed(cmd):
+    """``(wall s, cpu s, stdout)`` of one child process (cpu: the child's user + sys)."""
+    before = os.times()
+    t0 = time.time()
+    p = subprocess.run(cmd, env=env(), capture_output=True, text=True)
+    wall = time.time() - t0
+    after = os.times()
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(map(str, cmd))} failed:\n{p.stderr[-2000:]}")
+    cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
+    return wall, cpu, p.stdout, t0
+
+
+def make_still(folder: Path) -> Path:
+    """A one-frame recording: the SR305 still, or a rendered frame when the data is not beside the checkout."""
+    rec = folder / "still"
+    if STILL.is_file():
+        src = folder / "png"
+        src.mkdir()
+        shutil.copy(STILL, src / STILL.name)
+        timed([sys.executable, "-m", "tracker.cli", "import", str(src), "-o", str(rec), "--camera", "sr305",
+               "--hand", "right"])
+        return rec
+    timed([sys.executable, "-m", "tracker.cli", "synth", "--motion", "grasp-back", "--noise", "realsense",
+           "--camera", "sr305", "--frames", "1", "-o", str(rec)])
+    return rec
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    py = sys.executable
+    with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp:
+        tmp = Path(tmp)
+        rec = make_still(tmp)
+        out = tmp / "out.csv"
+        rows = {
+            'python -c "import numpy, scipy" (reference)': [py, "-c", "import numpy, scipy"],
+            "tracker --help": [py, "-m", "tracker.cli", "--help"],
+            "import tracker.run": [py, "-c", "import tracker.run"],
+            "process start -> first frame's result (one still)": [py, "-c", DRIVER, str(rec), str(out)],
+            "tracker track of one still (whole command)": [py, "-m", "tracker.cli", "track", str(rec), "-o",
+                                                           str(out), "--overwrite"],
+        }
+        timed(rows["tracker track of one still (whole command)"])  # warms the cache
+        walls = {k: [] for k in rows}
+        cpus = {k: [] for k in rows}
+        first = []
+        for _ in range(args.repeats):
+            for label, cmd in rows.items():
+                wall, cpu, stdout, t0 = timed(cmd)
+                if label.startswith("process start"):
+                    res = json.loads(stdout.strip().splitlines()[-1])
+                    first.append((res["import"] - t0, res["stamps"][0] - t0))
+                    wall = res["stamps"][0] - t0
+                walls[label].append(wall)
+                cpus[label].append(cpu)
+    print(f"bench_startup: median of {args.repeats} fresh processes each, warm numba cache, "
+          f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
+    print(f"  {'':58s} {'wall s':>8s} {'CPU s':>8s}")
+    for label in rows:
+        print(f"  {label:58s} {statistics.median(walls[label]):8.2f} {statistics.median(cpus[label]):8.2f}")
+    imp = statistics.median(a for a, _ in first)
+    frame = statistics.median(b - a for a, b in first)
+    print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration and start search "
+          f"included) {frame:.2f} s (wall, medians); CPU of the whole child above")
+
+
+if __name__ == "__main__":
+    main()
