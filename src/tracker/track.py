@@ -355,7 +355,4 @@ class HandTracker:
                    normals=nrm, samples=ctx.samples, silhouette=sil)
 
 
-
-# the names the tests and tools import from here
-_usable, _silhouette, _silhouette_mask = usable_points, frame_silhouette, silhouette_mask
 __all__ = ["FrameResult", "HandCheck", "HandTracker", "TrackerSettings", "TrackerStats", "check_hand", "fit_context"]

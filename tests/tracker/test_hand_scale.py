@@ -116,7 +116,7 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     from tracker.sim import experiments as E
     from tracker.sim.hands import HandShape
     from tracker.sim.motions import make_motion
-    from tracker.track import _silhouette, _silhouette_mask, _usable
+    from tracker.parts import frame_silhouette, silhouette_mask, usable_points
     from test_upside_down import _turned
 
     shown = HandShape(1.0, E.realistic_fingers(1.0, 0)).apply(BASE)
@@ -132,9 +132,9 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     right = tr.theta.copy()
     wrong = _turned(tr.hand, right)
     assert err(right) <= 10.0 and err(wrong) >= 50.0, (err(right), err(wrong))  # the scene's premise
-    sil = _silhouette(_silhouette_mask(ob), ob.depth, cam, ob.frame_depth)
+    sil = frame_silhouette(silhouette_mask(ob), ob.depth, cam, ob.frame_depth)
     tr.cue.add(sil)
-    pts, nrm = _usable(ob.points, ob.normals, tr.settings.loss.max_points)
+    pts, nrm = usable_points(ob.points, ob.normals, tr.settings.loss.max_points)
     tr.theta = wrong.copy()
     tr.sizing.take_better_start(tr, pts, nrm, sil, tr.hand, right)
     assert tr.stats.size_starts == 1 and err(tr.theta) <= 10.0, err(tr.theta)

@@ -19,7 +19,8 @@ from tracker.icp import IcpSettings, cauchy_weights, fit, fit_reference, search_
 from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings, _usable
+from tracker.parts import usable_points
+from tracker.track import HandTracker, TrackerSettings
 
 HAND = HandModel.load()
 # Kinect v1 intrinsics (the tests do not depend on the camera-preset module)
@@ -47,7 +48,7 @@ def frames(bundle):
     out = []
     for f in range(1, len(truth)):
         ob = observe(ren.render(truth[f], labels=False).depth, CAM, TrackerSettings.paper().observe)
-        pts, nrm = _usable(ob.points, ob.normals, 0)
+        pts, nrm = usable_points(ob.points, ob.normals, 0)
         out.append((truth[f - 1], pts, nrm, Silhouette(ob.mask, ob.depth, CAM)))
     return out
 

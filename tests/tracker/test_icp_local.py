@@ -11,7 +11,8 @@ from tracker.icp import capsule_pass, fit, fit_reference, posed_samples
 from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings, _usable
+from tracker.parts import usable_points
+from tracker.track import HandTracker, TrackerSettings
 
 HAND = HandModel.load()
 
@@ -33,7 +34,7 @@ def frames(bundle):
     out = []
     for f in range(1, len(truth)):
         ob = observe(ren.render(truth[f], labels=False).depth, cam, TrackerSettings.paper().observe)
-        pts, nrm = _usable(ob.points, ob.normals, 0)
+        pts, nrm = usable_points(ob.points, ob.normals, 0)
         out.append((truth[f - 1], pts, nrm, Silhouette(ob.mask, ob.depth, cam)))
     return out
 
