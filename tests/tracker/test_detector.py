@@ -248,6 +248,7 @@ def _one_error(r, *parts):
 
 def test_train_detector_bad_input_is_one_line(tmp_path):
     _one_error(_cli("-o", tmp_path, "--version", "one"), "--version")
+    _one_error(_cli("-o", tmp_path, "--orientations", "up"), "--orientations")
     _one_error(_cli("-o", tmp_path, "--real-data", tmp_path / "nowhere"), "labels.json")
     (tmp_path / "hand-parts-1.0.0.npz").write_bytes(b"x")
     _one_error(_cli("-o", tmp_path), "exists")
@@ -255,3 +256,17 @@ def test_train_detector_bad_input_is_one_line(tmp_path):
     f.write_text("x")
     r = _cli("-o", f)
     assert r.exit_code == 2 and r.stderr.count("\n") == 1, r.output
+
+
+@pytest.mark.slow
+def test_training_is_reproducible_from_its_seed():
+    from tracker.detector import arrays_sha256
+    from tracker.sim.dataset import DataRecipe
+    from tracker.sim.train_detector import TrainSettings, train
+
+    s = TrainSettings(n_crops=12, n_trees=1, n_features=40, max_features=10, push_crops=4, jobs=1)
+    (a, i), (b, j) = train(DataRecipe(), s, 5), train(DataRecipe(), s, 5)
+    assert arrays_sha256(a) == arrays_sha256(b)
+    assert i["training_matrix_sha256"] == j["training_matrix_sha256"]
+    c, k = train(DataRecipe(), s, 6)
+    assert k["training_matrix_sha256"] != i["training_matrix_sha256"]

@@ -210,6 +210,8 @@ def train_detector(
     heldout: int = typer.Option(200, "--heldout", min=1, help="Held-out synthetic crops evaluated."),
     real_data: Optional[Path] = typer.Option(None, "--real-data", help="Folder of labelled real SR305 stills "
                                              "(../shared/data/realsense_sr305_lada): evaluated, never trained on."),
+    orientations: str = typer.Option("sphere", "--orientations", help="Hand orientations drawn: sphere (any) or "
+                                     "user (palm, back or side to the camera, turned ±90°, tilted ±50°)."),
     version: str = typer.Option("1.0.0", "--version", help="Version in the file name and manifest."),
     jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="Cores for fitting the trees."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a model file of that version."),
@@ -225,6 +227,8 @@ def train_detector(
 
     if not re.fullmatch(r"\d+\.\d+\.\d+", version):
         raise TrackerError("--version", f"must be MAJOR.MINOR.PATCH, got {version!r}")
+    if orientations not in ("sphere", "user"):
+        raise TrackerError("--orientations", f"must be sphere or user, got {orientations!r}")
     if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
         raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
     if (output / f"hand-parts-{version}.npz").exists() and not overwrite:
@@ -232,13 +236,14 @@ def train_detector(
     check_output(output, folder=True)
     from rich.console import Console
 
+    from .dataset import DataRecipe
     from .train_detector import TrainSettings, build
 
     err = Console(stderr=True, markup=False)
     settings = TrainSettings(n_crops=crops, n_trees=trees, max_depth=depth, n_features=features, jobs=jobs,
                              max_features=min(40, features))
     command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
-    path, manifest = build(output, seed=seed, settings=settings, heldout=heldout, real_data=real_data,
+    path, manifest = build(output, seed=seed, recipe=DataRecipe(orientations=orientations), settings=settings, heldout=heldout, real_data=real_data,
                            version=version, command=command, progress=err.print, overwrite=overwrite)
     m = manifest["metrics"]
     h = m["heldout"]
