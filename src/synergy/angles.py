@@ -53,6 +53,9 @@ IP_COUPLING_SD_DEG = 10.0
 #: A joint whose markers give less than this share of its information (posterior variance with the
 #: priors over that without, median over frames) is "weakly observed: prior-driven".
 PRIOR_DRIVEN_SHARE = 0.5
+#: A posture prior named for a conversion weighs in its automatic calibration (without a static
+#: trial or neutral frames) as this many postures in all.
+CALIBRATION_PRIOR_FRAMES = 1.0
 #: The posture prior ``prior='auto'`` uses where the markers leave a joint weakly observed.
 DEFAULT_PRIOR = "fingerfist"
 #: SD (degrees/s²) of the weak prior on each finger joint's angular acceleration that ties a
@@ -541,7 +544,12 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         # it to the priors, and then the simpler hand is the safer one). It sees the markers as this
         # conversion does (smoothed only if asked): a short trial low-passed holds few independent
         # samples, and its calibration then fails the held-out check (a 0.5 s grasp at 6 Hz)
-        cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN, smooth_hz=smooth_hz)
+        # without a static trial, the trial's own open-hand frames (if any) stand in for one; a
+        # posture prior asked for by name also holds the calibration frames' mean posture (weighed
+        # as one posture: docs/experiments/marker-prior.md)
+        named = None if isinstance(prior, str) and prior == "auto" else resolve_prior(prior)
+        cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN, smooth_hz=smooth_hz,
+                        neutral=static is None, posture_prior=named, prior_frames=CALIBRATION_PRIOR_FRAMES)
     elif calibration is None:
         cal = Calibration(method="none")
     elif isinstance(calibration, Calibration):

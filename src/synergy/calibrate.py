@@ -59,6 +59,13 @@ BONE_SD = 0.25
 #: at 100 Hz drops to ~0.2 mm (simulated subjects, power-grasp angles: hand16 1.38–3.81° → see the
 #: README's calibration table).
 SMOOTH_HZ = 6.0
+#: Without a static trial, frames whose finger flexions (MCP, PIP, DIP; the scale-only hand's IK) all
+#: stay below this (degrees) are taken as the flat hand (:func:`neutral_frames`) …
+NEUTRAL_DEG = 30.0
+#: … held to it with this SD (degrees; a static trial's is 3°): a relaxed open hand is not exactly flat.
+NEUTRAL_SD_DEG = 8.0
+#: … when at least this many such frames exist (of up to 30 taken, the most open ones).
+NEUTRAL_MIN_FRAMES = 5
 
 
 @dataclass
@@ -193,6 +200,27 @@ def split_frames(points, count, held_out=0.25, blocks=8):
 
 
 # ------------------------------------------------------------------------------------ joint centres
+def neutral_frames(model, nodes, local, targets, weights, *, frames=300, limit_deg=None, take=30):
+    """The trial's most neutral frames (indices into ``targets``): solved on the (scale-only) hand,
+    the frames whose largest finger flexion (MCP, PIP, DIP of the four fingers) stays below
+    ``limit_deg`` (default :data:`NEUTRAL_DEG`), the ``take`` most open first; fewer than
+    :data:`NEUTRAL_MIN_FRAMES` is none."""
+    limit_deg = NEUTRAL_DEG if limit_deg is None else limit_deg
+    sel = sample_frames(targets, frames)
+    if not len(sel):
+        return np.zeros(0, np.int64)
+    th, rep = fit_points(model, nodes, local, targets[sel], weights=weights,
+                         settings=SolverSettings(iterations=15, damping=0.1), restarts=1)
+    names = list(model.dof_names)
+    flex = [names.index(f"{f}{k}_flex") for f in ("index", "middle", "ring", "pinky") for k in (1, 2, 3)
+            if f"{f}{k}_flex" in names]
+    worst = np.degrees(np.abs(th[:, flex])).max(1)
+    worst[rep.iterations < 0] = np.inf
+    order = np.argsort(worst)
+    keep = order[worst[order] < limit_deg][:take]
+    return np.sort(sel[keep]) if len(keep) >= NEUTRAL_MIN_FRAMES else np.zeros(0, np.int64)
+
+
 def _joint_centre_bones(hand, markerset, nodes, local, targets):
     """Bone factors from markers sitting at the joint centres at both ends of a bone."""
     at_centre = {int(n): i for i, (n, l) in enumerate(zip(nodes, local)) if not np.any(l)}
@@ -248,7 +276,8 @@ def _descends(hand, node, base):
 def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iterations=3, scale_range=(0.6, 1.6),
               settings=None, orient_bases=True, subject=True, held_out=0.25, bone_sd=BONE_SD, offset_scale=1.0,
               data_sd_mm=1.0, iterations=25, static=None, static_posture=None, static_sd_deg=3.0,
-              require_gain=None, smooth_hz=SMOOTH_HZ) -> Calibration:
+              require_gain=None, smooth_hz=SMOOTH_HZ, posture_prior=None, prior_frames=None,
+              neutral=False) -> Calibration:
     """Estimate the subject's hand from a trial (``data``: marker data with ``labels``/``points``).
 
     Parameters
@@ -269,6 +298,11 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
         the flat hand) to fit together with ``data`` (a static + range-of-motion pair)
     smooth_hz : zero-phase low-pass cut-off (Hz) of the markers before calibrating (see
         :data:`SMOOTH_HZ`); None or 0 fits the raw markers
+    neutral : without a static trial, use the trial's most neutral frames (:func:`neutral_frames`)
+        as one, held to the flat hand with :data:`NEUTRAL_SD_DEG`
+    posture_prior, prior_frames : without a static trial (or neutral frames), a
+        :class:`~synergy.prior.PosturePrior` on the calibration frames' postures, weighed as
+        ``prior_frames`` postures in all (None: as many as the frames)
 
     Returns a :class:`Calibration`; ``Calibration.model(hand)`` is the calibrated model and its
     ``scale`` and ``offsets`` go to :meth:`MarkerSet.attachments`.
@@ -344,9 +378,21 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
                     st = lowpass_markers(st, float(getattr(static, "rate", 0) or 0), smooth_hz)
                 tg_static = st[sample_frames(st, 30)]
                 cal.static_source = str(getattr(static, "path", "") or "")
+            elif neutral:
+                # no static trial: the trial's own open-hand frames, if it has any, fix the joints'
+                # zeros that a marker on the last bone of a chain leaves to its place on the bone
+                model0 = hand.scaled(cal.scale)
+                n0, l0 = ms.attachments(model0, right, scale=cal.scale)
+                at = neutral_frames(model0, n0, l0, targets, weights)
+                if len(at):
+                    tg_static, static_sd_deg = targets[at], NEUTRAL_SD_DEG
+                    cal.static_source = f"{len(at)} neutral frames of the trial"
+                    cal.method += f" + {len(at)} neutral frames as the flat hand"
             refine_subject(hand, ms, right, cal.scale, tg, targets[held], weights, bone_sd=bone_sd,
                             offset_scale=offset_scale, data_sd_mm=data_sd_mm, iterations=iterations, cal=cal,
-                            tg_static=tg_static, static_posture=static_posture, static_sd_deg=static_sd_deg)
+                            tg_static=tg_static, static_posture=static_posture, static_sd_deg=static_sd_deg,
+                            posture_prior=None if tg_static is not None else posture_prior,
+                            prior_frames=prior_frames)
             h = cal.held_out
             if cal.overfit or (require_gain is not None and h["frames"]
                                and not h["residual_mm"] < require_gain * h["scale_only_residual_mm"]):

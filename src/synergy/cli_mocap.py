@@ -218,7 +218,7 @@ def calibrate(
     st = read_c3d(static) if static is not None else None
     with _console(stderr=True).status("calibrating"):
         cal = run(data, msh, base, right=hand == "right", frames=frames, held_out=held_out, static=st,
-                  smooth_hz=smooth_hz or None)
+                  smooth_hz=smooth_hz or None, neutral=st is None)
     con = _console()
     con.print(f"[bold]{escape(trial.name)}[/bold]: {cal.method}")
     rows = [("hand scale", f"{cal.scale:.3f}", "")]

@@ -217,7 +217,8 @@ def _median(x):
 
 
 def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_sd, offset_scale, data_sd_mm,
-                    iterations, cal, tg_static=None, static_posture=None, static_sd_deg=3.0, rounds=3):
+                    iterations, cal, tg_static=None, static_posture=None, static_sd_deg=3.0, rounds=3,
+                    posture_prior=None, prior_frames=None):
     """Route 2 of the module docstring, on top of the hand scale in ``cal``; fills ``cal``.
     Frames of a static trial (``tg_static``) are fitted with their posture pulled to
     ``static_posture`` (default: the model's zero, a flat hand): a marker on the last bone of a
@@ -249,6 +250,12 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
         th_w = np.concatenate([th_w, ws])
         cal.method += " + static posture"
     n_tr = int(ok.sum())
+    if posture_prior is not None:
+        post = ~model0.pose_mask
+        share = 1.0 if prior_frames is None else min(float(prior_frames) / n_tr, 1.0)
+        th_ref[:n_tr, post] = posture_prior.mean
+        th_w[:n_tr, post] = np.sqrt(share) / np.radians(posture_prior.sd_deg)
+        cal.method += f" + posture prior {posture_prior.name}"
     s = None
     for rnd in range(rounds):
         if s is not None:
