@@ -16,6 +16,7 @@ _LAZY = {
     "read_c3d": "c3d",
     "markers_to_angles": "angles", "read_angles_csv": "angles", "write_angles_csv": "angles",
     "read_trial": "fit", "fit_trials": "fit", "bundle_from_trials": "fit",
+    "PosturePrior": "prior",
 }
 
 __all__ = sorted(["SynergyError", *_LAZY])
