@@ -5,9 +5,10 @@ Protocols (all with 0.5 mm noise, a subject unlike the model):
 - ``weak``: :func:`synergy.simulate.weak_protocol` — hand19 with the proximal-phalanx markers at 0.2 of
   the bone while the set says 0.5, no static trial, a 4 s fretting or power-grasp trial calibrated on
   itself (automatic calibration, as ``synergy angles`` does: with the trial's neutral frames, if any),
-  markers low-passed at 6 Hz; "before" is the calibration without neutral frames and no posture prior
-  (the code before issue 40); "named" is ``--prior fingerfist`` (the prior in the automatic
-  calibration, where the trial has no neutral frames, and in the IK); and the same trial converted with the oracle calibration (the
+  markers low-passed at 6 Hz: the default (``prior='auto'``: neutral frames, else the prior in the
+  calibration; the prior in the IK where a joint is weakly observed), ``prior=None`` and
+  ``prior='fingerfist'``; "before" is the calibration without neutral frames and no posture prior
+  (the code before issue 40); and the same trial converted with the oracle calibration (the
   subject's true bones and marker places) to tell calibration error from IK ambiguity.
 - ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
   ROM + static to calibrate, power grasp to convert, 6 Hz).
@@ -80,33 +81,24 @@ def main():
     cols = " ".join(f"{n:>6}" for n, _ in PRIORS)
     if "weak" in args.protocols:
         ms = load_markerset("hand19")
-        print(f"weak protocol (hand19, proximal markers at 0.2, no static): angles RMS (°) before | prior {cols} "
-              f"named |"
-              f" oracle calibration {cols} | neutral frames, auto chose, false limits (before/off/on)")
+        print("weak protocol (hand19, proximal markers at 0.2, no static): angles RMS (°) before | default "
+              "(auto) | prior none | prior fingerfist | oracle calibration: none, fingerfist | neutral frames, "
+              "auto's IK prior | false limits (before/default/none/fingerfist)")
         for motion in ("fretting", "power_grasp"):
             for seed in args.weak_seeds:
                 tr, th = weak_protocol(seed, motion)
                 old = calibrate(tr, ms, hand, require_gain=AUTO_GAIN)
-                df = markers_to_angles(tr, ms, calibration=old, prior=None, **kw)
-                before = rms_deg(df, th)
-                lims = [",".join(false_limits(df, th, hand)) or "-"]
-                cal = calibrate(tr, ms, hand, require_gain=AUTO_GAIN, neutral=True)
+                runs = [markers_to_angles(tr, ms, calibration=old, prior=None, **kw)]
+                runs += [markers_to_angles(tr, ms, prior=pr, **kw) for pr in ("auto", None, "fingerfist")]
                 orc = oracle(ms, hand, tr)
-                got, orc_got, chose = [], [], ""
-                for name, pr in PRIORS:
-                    df = markers_to_angles(tr, ms, calibration=cal, prior=pr, **kw)
-                    got.append(rms_deg(df, th))
-                    orc_got.append(rms_deg(markers_to_angles(tr, ms, calibration=orc, prior=pr, **kw), th))
-                    if name == "auto":
-                        chose = (df.attrs["posture_prior"] or {}).get("name") or "none"
-                    if name != "auto":
-                        lims.append(",".join(false_limits(df, th, hand)) or "-")
-                # what `synergy angles --prior fingerfist` gives: the named prior in the automatic
-                # calibration too (where the trial has no neutral frames) and in the IK
-                named = rms_deg(markers_to_angles(tr, ms, prior="fingerfist", **kw), th)
-                neutral = cal.static_source.split(" ")[0] if cal.static_source else "0"
-                print(f"{motion:12} {seed:3d} {before:6.2f} | " + " ".join(f"{x:6.2f}" for x in got) + f" {named:6.2f} | "
-                      + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {neutral} {chose} {'/'.join(lims)}", flush=True)
+                orc_got = [rms_deg(markers_to_angles(tr, ms, calibration=orc, prior=pr, **kw), th)
+                           for pr in (None, "fingerfist")]
+                src = runs[1].attrs["calibration"].get("static_source", "")
+                neutral = src.split(" ")[0] if src else "0"
+                chose = (runs[1].attrs["posture_prior"] or {}).get("name") or "none"
+                lims = "/".join(",".join(false_limits(df, th, hand)) or "-" for df in runs)
+                print(f"{motion:12} {seed:3d} " + " | ".join(f"{rms_deg(df, th):6.2f}" for df in runs) + " | "
+                      + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {neutral} {chose} | {lims}", flush=True)
     if "subjects" in args.protocols:
         for markers in ("hand16", "hand19"):
             ms = load_markerset(markers)

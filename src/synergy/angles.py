@@ -53,8 +53,8 @@ IP_COUPLING_SD_DEG = 10.0
 #: A joint whose markers give less than this share of its information (posterior variance with the
 #: priors over that without, median over frames) is "weakly observed: prior-driven".
 PRIOR_DRIVEN_SHARE = 0.5
-#: A posture prior named for a conversion weighs in its automatic calibration (without a static
-#: trial or neutral frames) as this many postures in all.
+#: The posture prior (``'auto'``: :data:`DEFAULT_PRIOR`) weighs in a conversion's automatic calibration
+#: without a static trial or neutral frames as this many postures in all.
 CALIBRATION_PRIOR_FRAMES = 1.0
 #: The posture prior ``prior='auto'`` uses where the markers leave a joint weakly observed.
 DEFAULT_PRIOR = "fingerfist"
@@ -502,7 +502,9 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         ``'fingerfist'`` or a path), None for none, or ``'auto'``: :data:`DEFAULT_PRIOR` where the
         markers leave a posture joint weakly observed (:func:`default_prior`), else none. Its rows
         stand beside the markers divided by the trial's own noise, so well-observed joints follow
-        the markers and weakly observed ones the prior
+        the markers and weakly observed ones the prior. With ``calibration='trial'`` and no static
+        trial or neutral frames, the prior (``'auto'``: :data:`DEFAULT_PRIOR`) also holds the
+        calibration frames' postures (:data:`CALIBRATION_PRIOR_FRAMES`)
 
     Returns
     -------
@@ -544,10 +546,10 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         # it to the priors, and then the simpler hand is the safer one). It sees the markers as this
         # conversion does (smoothed only if asked): a short trial low-passed holds few independent
         # samples, and its calibration then fails the held-out check (a 0.5 s grasp at 6 Hz)
-        # without a static trial, the trial's own open-hand frames (if any) stand in for one; a
-        # posture prior asked for by name also holds the calibration frames' mean posture (weighed
-        # as one posture: docs/experiments/marker-prior.md)
-        named = None if isinstance(prior, str) and prior == "auto" else resolve_prior(prior)
+        # without a static trial, the trial's own open-hand frames (if any) stand in for one; a trial
+        # without those (a fretting hand) has the posture prior hold its calibration frames' postures,
+        # weighed as one posture (fretting: 6.8-16.0° -> 5.6-7.1°, docs/experiments/marker-prior.md)
+        named = resolve_prior(DEFAULT_PRIOR if isinstance(prior, str) and prior == "auto" else prior)
         cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN, smooth_hz=smooth_hz,
                         neutral=static is None, posture_prior=named, prior_frames=CALIBRATION_PRIOR_FRAMES)
     elif calibration is None:

@@ -32,6 +32,7 @@ Examples
 from __future__ import annotations
 
 import hashlib
+from copy import deepcopy
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -378,7 +379,8 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
                     st = lowpass_markers(st, float(getattr(static, "rate", 0) or 0), smooth_hz)
                 tg_static = st[sample_frames(st, 30)]
                 cal.static_source = str(getattr(static, "path", "") or "")
-            elif neutral:
+            plain = deepcopy(cal)
+            if static is None and neutral:
                 # no static trial: the trial's own open-hand frames, if it has any, fix the joints'
                 # zeros that a marker on the last bone of a chain leaves to its place on the bone
                 model0 = hand.scaled(cal.scale)
@@ -388,14 +390,24 @@ def calibrate(data, markerset, hand, *, right=False, frames=150, offset_iteratio
                     tg_static, static_sd_deg = targets[at], NEUTRAL_SD_DEG
                     cal.static_source = f"{len(at)} neutral frames of the trial"
                     cal.method += f" + {len(at)} neutral frames as the flat hand"
-            refine_subject(hand, ms, right, cal.scale, tg, targets[held], weights, bone_sd=bone_sd,
-                            offset_scale=offset_scale, data_sd_mm=data_sd_mm, iterations=iterations, cal=cal,
-                            tg_static=tg_static, static_posture=static_posture, static_sd_deg=static_sd_deg,
-                            posture_prior=None if tg_static is not None else posture_prior,
-                            prior_frames=prior_frames)
+
+            def fit_subject(c, tg_st, sd_deg):
+                refine_subject(hand, ms, right, c.scale, tg, targets[held], weights, bone_sd=bone_sd,
+                               offset_scale=offset_scale, data_sd_mm=data_sd_mm, iterations=iterations, cal=c,
+                               tg_static=tg_st, static_posture=static_posture, static_sd_deg=sd_deg,
+                               posture_prior=None if tg_st is not None else posture_prior,
+                               prior_frames=prior_frames)
+                h = c.held_out
+                return c.overfit or bool(require_gain is not None and h["frames"]
+                                         and not h["residual_mm"] < require_gain * h["scale_only_residual_mm"])
+
+            failed = fit_subject(cal, tg_static, static_sd_deg)
+            if failed and static is None and tg_static is not None:
+                # open frames that are not flat enough (a spread hand) bend the subject: without them
+                cal = plain
+                failed = fit_subject(cal, None, static_sd_deg)
             h = cal.held_out
-            if cal.overfit or (require_gain is not None and h["frames"]
-                               and not h["residual_mm"] < require_gain * h["scale_only_residual_mm"]):
+            if failed:
                 why = ("it does not generalise" if cal.overfit else
                        f"held-out residual {h['residual_mm']:.2f} mm vs {h['scale_only_residual_mm']:.2f} mm "
                        "with the hand scale alone")

@@ -89,7 +89,7 @@ def fit(
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="C3D input: skip the handedness check."),
     smooth_hz: Optional[float] = typer.Option(None, "--smooth-hz", help="C3D input: low-pass the markers (Hz) before IK."),
     dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="C3D input: SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off; recorded in the manifest)."),
-    prior: str = typer.Option("auto", "--prior", help="C3D input: posture prior of the marker IK: auto (the fingerfist bundle where the markers leave a joint weakly observed), none, or a bundle NAME / path (recorded in the manifest)."),
+    prior: str = typer.Option("auto", "--prior", help="C3D input: posture prior of the marker IK: auto (the fingerfist bundle where the markers leave a joint weakly observed, and in the calibration of a trial without open-hand frames), none, or a bundle NAME / path (recorded in the manifest)."),
     registry: Optional[Path] = typer.Option(None, "-o", "--registry", help="Output registry folder (default: first SYNERGY_PATH folder)."),
     dask: Optional[str] = typer.Option(None, "--dask", help="Convert files and compute statistics as Dask tasks: local, local:N or a scheduler address."),
     version: Optional[str] = typer.Option(None, "--version", help="Bundle version X.Y.Z (default: next patch)."),

@@ -260,7 +260,7 @@ def angles(
     plot: bool = typer.Option(False, "--plot", help="Also write a PNG per trial: angles with their posterior SD band and per-marker residuals."),
     no_hand_check: bool = typer.Option(False, "--no-hand-check", help="Convert even if the other hand fits clearly better."),
     dip_prior_sd: Optional[float] = typer.Option(None, "--dip-prior-sd", help="SD (degrees) of the weak DIP = 2/3 PIP prior that decides DIPs the markers leave open (default 10; 0: off)."),
-    prior: str = typer.Option("auto", "--prior", help="Posture prior: auto (the fingerfist bundle where the markers leave a joint weakly observed), none, or a bundle NAME / path (recorded in the CSV)."),
+    prior: str = typer.Option("auto", "--prior", help="Posture prior: auto (the fingerfist bundle where the markers leave a joint weakly observed, and in the calibration of a trial without a static trial or open-hand frames), none, or a bundle NAME / path (recorded in the CSV)."),
 ):
     """Convert C3D trials to joint-angle tables (marker IK), with a summary per trial."""
     from handmodel.fileio import check_output
