@@ -1,6 +1,6 @@
 """The hand-part detector on one core: ms per frame for the detection alone, for the detection plus
 the start fitted to its keypoints (``tracker.detector.fit_start``), and today's start search
-(``HandTracker.track`` on a first frame at size 1, the tracker's defaults) as the peer, on the same
+(``FrameTracker.track`` on a first frame at size 1, the tracker's defaults) as the peer, on the same
 frames in the same run; and the shipped model's install weight.
 
 Frames: SR305 640×480 renders drawn by the detector's own data recipe with held-out seeds (hand,
@@ -26,7 +26,7 @@ from tracker.cameras import preset  # noqa: E402
 from tracker.detector import detect, detector_path, fit_start, load_detector  # noqa: E402
 from tracker.observe import observe  # noqa: E402
 from tracker.sim.dataset import DataRecipe, draw_scene  # noqa: E402
-from tracker.track import HandTracker, TrackerSettings  # noqa: E402
+from tracker.track import FrameTracker, TrackerSettings  # noqa: E402
 
 
 def frames(n: int, seed: int = 777):
@@ -64,14 +64,14 @@ def main():
         t_det.append([1000 * (b - a) for a, b in zip(t0, t1)])
         t_start.append([1000 * (b - a) for a, b in zip(t0, t2)])
         if not a.no_peer:
-            tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+            tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
             t3 = [f() for f in clock]
             tr.track(ob, cam)
             t_peer.append([1000 * (f() - t) for f, t in zip(clock, t3)])
     rows["detect (mask from observe)"] = t_det
     rows["detect + fit_start (synergies)"] = t_start
     if t_peer:
-        rows["peer: today's start search (HandTracker.track, first frame, size 1)"] = t_peer
+        rows["peer: today's start search (FrameTracker.track, first frame, size 1)"] = t_peer
     print(f"{len(data)} SR305 frames, one core")
     print(f"{'variant':70s} {'median ms':>10s} {'max ms':>8s} {'CPU median ms':>14s}")
     for k, v in rows.items():

@@ -43,7 +43,7 @@ from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
 from tracker.init import search_threads
-from tracker.track import HandTracker, TrackerSettings, fit_context
+from tracker.track import FrameTracker, TrackerSettings, fit_context
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realsense_sr305_lada"
 
@@ -120,14 +120,14 @@ def main(argv=None):
     settings = TrackerSettings().replace(scale=dict(hand_scale="auto"), init=dict(threads=1))
     frames = realistic_frames(hand, limit)
     # compile once (numba) before anything is timed
-    warm = HandTracker(hand, settings, synergies=bundle)
+    warm = FrameTracker(hand, settings, synergies=bundle)
     pts, nrm, sil = prepared(warm, *frames[0][1:3])
     calibrate_scale(warm.context_for, pts, settings.init, silhouette=sil, normals=nrm)
 
     rows = []
     print(f"{'frame':34s} {'ours s':>7s} {'err %':>7s}   {'peer s':>7s} {'err %':>7s}")
     for label, ob, cam, true in frames:
-        tr = HandTracker(hand, settings, synergies=bundle)
+        tr = FrameTracker(hand, settings, synergies=bundle)
         pts, nrm, sil = prepared(tr, ob, cam)
         (s, _, _), t = timed(calibrate_scale, tr.context_for, pts, settings.init, silhouette=sil, normals=nrm)
         row = [t, s / true - 1.0, np.nan, np.nan]
@@ -153,14 +153,14 @@ def main(argv=None):
     n_thr = search_threads(0)
     timings = {}
     for k in sorted({1, n_thr}):
-        tr = HandTracker(right, settings.replace(init=dict(threads=k)), synergies=bundle)
+        tr = FrameTracker(right, settings.replace(init=dict(threads=k)), synergies=bundle)
         c0, w0 = time.process_time(), time.perf_counter()
         ob = observe(depth, cam, settings.observe)
         res = tr.track(ob, cam)
         timings[k] = (time.process_time() - c0, time.perf_counter() - w0)
     t_first = timings[1][0]
     pts, nrm, sil = prepared(tr, ob, cam)
-    given = HandTracker(right, settings.replace(scale=dict(hand_scale=tr.scale_)), synergies=bundle)
+    given = FrameTracker(right, settings.replace(scale=dict(hand_scale=tr.scale_)), synergies=bundle)
     c0 = time.process_time()
     given.track(observe(depth, cam, settings.observe), cam)
     t_given = time.process_time() - c0

@@ -1,5 +1,5 @@
 """Tracking with segmentation on realistic scenes: each frame's ``observe`` (the hand segmented from
-the depth and colour frame in the predicted hand's window, :meth:`HandTracker.segment_window`, points
+the depth and colour frame in the predicted hand's window, :meth:`FrameTracker.segment_window`, points
 and normals) plus the tracker's step, CPU time of one core, next to the tracker's step alone on the
 same frames (the peer: what the per-frame loop costs without finding the hand) and to the same loop
 with the whole-frame segmenter (``observe`` without a window, timed on the same frames). Scenes as the realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0×
@@ -41,7 +41,7 @@ from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
 from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
           ("realsense", "forearm,box"))
@@ -70,7 +70,7 @@ def track_pass(hand, bundle, cam, frames):
     """One pass over a scene's frames with a fresh tracker: per frame the CPU ms of ``observe``, of the
     step, of the whole-frame ``observe``, and whether the window was used."""
     # one core: a start search's fits one after the other too (InitSettings.threads)
-    tr = HandTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
     out = []
     for depth, color in frames:
         t0 = time.process_time()

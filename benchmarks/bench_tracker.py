@@ -7,7 +7,7 @@ Ours also with a closest-point pass per stage (``stages_per_pass=1``, as the pap
 the synergy stages share passes (:func:`tracker.icp.tracking_schedule`). Then a line "at equal settings"
 (ours, the net on and off alike) saying which mode is faster, the closest-point passes and Gauss-Newton
 steps per frame (taken, failed, energy evaluations), and where a frame's time goes in
-:meth:`tracker.track.HandTracker.step`, per mode.
+:meth:`tracker.track.FrameTracker.step`, per mode.
 
 Times are CPU seconds of this process (every library on one thread, so that is the time on one core):
 on a shared machine wall-clock medians measure the other jobs. Even CPU time grows when other jobs
@@ -43,7 +43,7 @@ from tracker.init import InitSettings
 from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 
 def frames(hand, bundle, cam, n):
@@ -63,7 +63,7 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
     and the tracker."""
     # the rendered hand is the model's size
     base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
+    tr = FrameTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
     ms, err = [], []
     for t, ob in zip(truth, obs):
         t0 = time.process_time()
@@ -73,10 +73,10 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
     return float(np.median(ms[10:])), float(np.mean(err[10:])), tr
 
 
-# the parts of HandTracker.step timed by the breakdown: (label, object, attribute)
-PARTS = [("silhouette", track_module, "Silhouette"), ("gate", HandTracker, "_gate"),
-         ("re-centre", HandTracker, "_recentred"), ("ICP fit", track_module, "fit"),
-         ("net test", HandTracker, "_safety_net")]
+# the parts of FrameTracker.step timed by the breakdown: (label, object, attribute)
+PARTS = [("silhouette", track_module, "Silhouette"), ("gate", FrameTracker, "_gate"),
+         ("re-centre", FrameTracker, "_recentred"), ("ICP fit", track_module, "fit"),
+         ("net test", FrameTracker, "_safety_net")]
 
 
 @contextmanager
@@ -99,9 +99,9 @@ def timed_parts(acc):
 
 
 def breakdown(hand, bundle, cam, obs, mode, ours=True):
-    """Mean CPU ms per tracked frame of each part of ``HandTracker.step`` (frames after the 10th)."""
+    """Mean CPU ms per tracked frame of each part of ``FrameTracker.step`` (frames after the 10th)."""
     base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1)), synergies=bundle)
+    tr = FrameTracker(hand, base.replace(mode=mode, init=dict(threads=1)), synergies=bundle)
     for ob in obs[:10]:
         tr.track(ob, cam)
     acc, total = {}, 0.0
@@ -121,7 +121,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
     failed (no energy drop after the halvings; each ends its stage), the trial steps' energy
     evaluations, the closest-point searches and the local passes (:func:`tracker.icp.fit`'s ``stats``)."""
     base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper(init=InitSettings())
-    tr = HandTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
+    tr = FrameTracker(hand, base.replace(mode=mode, init=dict(threads=1), **kw), synergies=bundle)
     stats = np.zeros(5, np.int64)
     for ob in obs[:10]:
         tr.track(ob, cam)
@@ -133,7 +133,7 @@ def steps(hand, bundle, cam, obs, mode, ours=True, **kw):
 
 def peer(hand, bundle, cam, truth, obs):
     """The paper's ICP loop with scipy least_squares for every non-rigid step (full DoF)."""
-    tr = HandTracker(hand, TrackerSettings.paper(mode="full", init=dict(threads=1)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings.paper(mode="full", init=dict(threads=1)), synergies=bundle)
     match = tr.context.matcher
     lo, hi = tr.limits[:, 0], tr.limits[:, 1]
     theta = truth[0].copy()

@@ -19,10 +19,10 @@ PAPER_HAND = "default"
 # name -> the module (under tracker) that owns it
 _LAZY = {
     "HandTracker": "stream", "HandResult": "stream",
-    "TrackerSettings": "track",
+    "TrackerSettings": "settings", "FrameTracker": "track",
     "Segmenter": "segment",
     "Camera": "cameras", "preset": "cameras",
-    "Recording": "recording", "RecordingWriter": "recording",
+    "Recording": "recording", "RecordingWriter": "recording", "open_recording": "recording",
     "observe": "observe", "Observation": "observe", "ObserveSettings": "observe",
     "CorrespondSettings": "correspond", "IcpSettings": "icp", "InitSettings": "init",
     "TrackJob": "run", "run_job": "run", "read_tracking": "run", "write_tracking": "run",

@@ -215,7 +215,7 @@ def gate_kernel(points, model, model_n, use_normals, radius, min_share, min_poin
 @njit(cache=True)
 def centre_shift(points, model, model_n, shift):
     """The per-axis median of the data ``points`` minus that of the camera-facing model samples into
-    ``shift`` (what :meth:`tracker.track.HandTracker._recentred` compares with the rejection radius);
+    ``shift`` (what :meth:`tracker.track.FrameTracker._recentred` compares with the rejection radius);
     returns the number of facing samples (the shift is left unset below 1)."""
     nM = model.shape[0]
     facing = np.empty(nM, np.bool_)

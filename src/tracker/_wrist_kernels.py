@@ -1,5 +1,5 @@
 """Numba kernels of the safety net's wrist test (:mod:`tracker.wrist`,
-:meth:`tracker.track.HandTracker._frame_cue`): the per-frame image work that scipy's calls paid mostly
+:meth:`tracker.track.FrameTracker._frame_cue`): the per-frame image work that scipy's calls paid mostly
 in call overhead on a hand's window of a few thousand pixels. Each computes exactly what the numpy /
 scipy expression in its docstring does (tests/tracker/test_wrist.py compares them)."""
 from __future__ import annotations

@@ -227,7 +227,7 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     ``observe(depth, camera, stride=1)``); ``segmenter``: a :class:`tracker.segment.Segmenter` (its
     defaults when None); ``color``: the registered colour frame, for skin segmentation. ``window``:
     ``(window, predicted)`` from :func:`hand_window` while tracking
-    (:meth:`tracker.track.HandTracker.segment_window`): the hand is segmented in ``window`` alone
+    (:meth:`tracker.track.FrameTracker.segment_window`): the hand is segmented in ``window`` alone
     (:meth:`tracker.segment.Segmenter.in_window`), and in the whole frame when that result looks
     wrong (the hand runs out of the window, or is not where it was predicted);
     ``Observation.window`` says which was used."""

@@ -1,4 +1,4 @@
-"""The small named parts of :class:`tracker.track.HandTracker`'s per-frame pipeline, each built from
+"""The small named parts of :class:`tracker.track.FrameTracker`'s per-frame pipeline, each built from
 its settings group and testable alone: the frame's wrist cue (:class:`WristCue`), re-centring
 (:class:`Recentring`), the unseen-joint prior (:class:`UnseenPrior`), the coupling restarts
 (:class:`FingerRestart`), the loss / "no hand" tests (:class:`LossCheck`), the gate and the prediction

@@ -351,6 +351,20 @@ RECORDING_FILE_SUFFIXES = (".bag", ".db3", ".mcap", ".mkv")
 RECORDINGS_EXTRA = "pip install 'synergistic-hand-tracking[recordings]'"
 
 
+def open_recording(path, *, topic: str | None = None, color_topic: str | None = None,
+                   handedness: str | None = None) -> Recording:
+    """Open a recording for reading: our folder, a RealSense or ROS bag, an Azure Kinect ``.mkv``.
+
+    The public entry point (``tracker.open_recording``); :meth:`Recording.open` is the reader.
+
+    >>> open_recording("no/such/folder")
+    Traceback (most recent call last):
+    ...
+    tracker.errors.RecordingError: no/such/folder: no such recording folder
+    """
+    return Recording.open(path, topic=topic, color_topic=color_topic, handedness=handedness)
+
+
 def is_recording_file(path) -> bool:
     """True for a path :func:`open_recording_file` reads: a file with one of
     :data:`RECORDING_FILE_SUFFIXES`, or a ROS2 bag folder (``metadata.yaml`` and no ``recording.yaml``)."""

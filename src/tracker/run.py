@@ -37,7 +37,7 @@ from .errors import TrackerError
 from .observe import observe
 from .recording import Recording
 from .scale import calibrated_hand, shaped_hand
-from .track import HandTracker, TrackerSettings
+from .track import FrameTracker, TrackerSettings
 
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
 STATUSES = ("tracked", "lost", "reinit")
@@ -45,7 +45,7 @@ STATUSES = ("tracked", "lost", "reinit")
 
 def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
     """The tracker's :func:`tracker.observe.observe` of one recorded ``frame`` (in the hand's predicted
-    window unless ``window`` is False: :meth:`HandTracker.segment_window`), or None when the frame has
+    window unless ``window`` is False: :meth:`FrameTracker.segment_window`), or None when the frame has
     no usable depth image (missing, wrong size). ``tracker track``, ``tracker calibrate`` and
     ``tracker live`` observe their frames through it, so the same frames give the same hand."""
     depth = frame.depth
@@ -57,7 +57,7 @@ def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
 
 def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.DataFrame:
     """Track every frame of ``recording`` (anything with ``camera`` that iterates frames with
-    ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`HandTracker`).
+    ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`FrameTracker`).
 
     A frame without a usable depth image (missing, wrong size, or a folder recording's file that
     cannot be read: :meth:`tracker.recording.Recording.frames_or_problems`, the frame's ``problem``) is
@@ -338,7 +338,7 @@ class TrackRun:
 
     df: pd.DataFrame
     meta: dict
-    tracker: HandTracker
+    tracker: FrameTracker
     recording: object
     wall_s: float
     overlays: list
@@ -364,7 +364,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         raise TrackerError(job.save_hand, "nothing to save: this run does not calibrate the hand (its size is "
                                           f"{'in the hand file' if hand.calibration else 'given'}; "
                                           "--hand-scale auto estimates it)")
-    tracker = HandTracker(hand, settings, synergies=bundle)
+    tracker = FrameTracker(hand, settings, synergies=bundle)
     cam = rec.camera
     overlay = None if job.overlay is None else Path(job.overlay)
     if overlay is not None:
@@ -481,11 +481,11 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
     and the frame indices tracked. A recording that ends first, or in which no frame could be
     calibrated, is refused when there is no size at all; fewer estimates than ``scale_frames`` are
     written as they are (the record lists them). ``each``: the first ``max_frames`` frames are stills
-    or postures far apart, each fitted from its own start (:meth:`HandTracker.calibrate_each`)."""
+    or postures far apart, each fitted from its own start (:meth:`FrameTracker.calibrate_each`)."""
     rec = open_job_recording(job)
     bundle = _bundle(job)
     hand = HandModel.load(job.hand_model, right=(getattr(rec, "handedness", None) or job.handedness) == "right")
-    tracker = HandTracker(hand, job.settings.replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tracker = FrameTracker(hand, job.settings.replace(scale=dict(hand_scale="auto")), synergies=bundle)
     cam, frames = rec.camera, []
 
     if each:

@@ -3,7 +3,7 @@
 The size is found by fitting: a hand of the wrong size either leaves data uncovered or puts model
 surface outside the silhouette, so short all-DoF fits at probed sizes (:func:`scale_score`) are
 compared by :func:`tracker.init.score`, and a golden-section search (:func:`fit_scale`) finds the best.
-:func:`calibrate_scale` does it on one frame without a prior; :class:`tracker.track.HandTracker`
+:func:`calibrate_scale` does it on one frame without a prior; :class:`tracker.track.FrameTracker`
 refines it over the next frames.
 
 A probe needs the :class:`tracker.init.FitContext` of the hand at that size. Building one samples the
@@ -474,7 +474,7 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
             k: {"unshrunk": _finite_or_none(a, 6), "se_log": _finite_or_none(se, 6)} for k, (a, se) in spread.items()},
         "recording": None if recording is None else _where(recording),
         "frames": None if frames is None else [int(f) for f in frames],
-        # each frame fitted from its own start (HandTracker.calibrate_each), or tracked frame to frame
+        # each frame fitted from its own start (FrameTracker.calibrate_each), or tracked frame to frame
         "each_frame": bool(getattr(tracker, "calibrated_each_", False)),
         "settings": {"scale_frames": int(st.scale.frames), "scale_refine": st.scale.refine,
                      "finger_lengths": bool(st.scale.finger_lengths), "scale_range": [float(v) for v in st.scale.range]},
@@ -496,7 +496,7 @@ def _finite_or_none(v, digits):
 
 
 def calibrated_hand(tracker, *, recording=None, frames=None):
-    """The hand a :class:`tracker.track.HandTracker` calibrated (``base_hand`` × ``scale_`` with
+    """The hand a :class:`tracker.track.FrameTracker` calibrated (``base_hand`` × ``scale_`` with
     ``finger_scales_``), with its record in ``provenance`` (:func:`calibration_record`, and the base
     model's name, SHA-256, handedness and own provenance), ready for :meth:`handmodel.HandModel.save`.
     Tracking with the saved file at ``hand_scale=1`` is tracking on this hand; the handedness is the

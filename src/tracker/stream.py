@@ -4,7 +4,7 @@
 synergy bundle in, then :meth:`HandTracker.step` once per depth image (metres, ``(H, W)``), each giving
 a :class:`HandResult`. It runs the same path as ``tracker track`` (:func:`tracker.run.run_job`): the
 frame is segmented in the predicted hand's window (:func:`tracker.observe.observe`), then fitted by
-:class:`tracker.track.HandTracker`, so a recording stepped through it gives the CSV's θ bit for bit.
+:class:`tracker.track.FrameTracker`, so a recording stepped through it gives the CSV's θ bit for bit.
 
 >>> import numpy as np
 >>> ht = HandTracker("sr305", hand="right")
@@ -29,7 +29,7 @@ from .cameras import as_camera
 from .errors import TrackerError
 from .observe import observe
 from .run import settings_for_hand
-from .track import HandTracker as _FrameTracker
+from .track import FrameTracker
 from .track import TrackerSettings
 
 HANDS = ("left", "right")
@@ -104,7 +104,7 @@ class HandTracker:
         if isinstance(synergies, str) or hasattr(synergies, "__fspath__"):
             bundle = load_bundle(synergies, registries=list(registries) if registries else None)
         model = HandModel.load(hand_model, right=hand == "right")
-        self.core = _FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
+        self.core = FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
         self.segmenter = segmenter
         if budget_ms is not None and not budget_ms > 0:
             raise TrackerError("budget_ms", f"must be a positive number of ms or None, got {budget_ms!r}")

@@ -1,4 +1,4 @@
-"""Pipeline stage ``track``: :class:`HandTracker`, the per-frame loop — observe → predict → fit →
+"""Pipeline stage ``track``: :class:`FrameTracker`, the per-frame loop — observe → predict → fit →
 check → refine → decide — as state plus named parts (:mod:`tracker.parts`, :mod:`tracker.net`,
 :mod:`tracker.sizing`), each built from its group of :class:`tracker.settings.TrackerSettings`.
 
@@ -95,7 +95,7 @@ class FrameResult:
 
 
 class FrameFit(NamedTuple):
-    """A frame's fit on its way through :meth:`HandTracker.step`: θ and its pairs, the status so far
+    """A frame's fit on its way through :meth:`FrameTracker.step`: θ and its pairs, the status so far
     (``"reinit"`` for a start or the net's replacement), what the net did, whether the prediction was
     re-centred, whether the fit left the cloud far away (reduced mode), and the points it fitted."""
 
@@ -126,7 +126,7 @@ def _output_theta(theta) -> np.ndarray:
     return out
 
 
-class HandTracker:
+class FrameTracker:
     """Track one hand through a sequence of point clouds (camera frame, metres).
 
     State (θ, the last θ, lost or not, the hand at its size) plus named parts built from the settings
@@ -355,4 +355,4 @@ class HandTracker:
                    normals=nrm, samples=ctx.samples, silhouette=sil)
 
 
-__all__ = ["FrameResult", "HandCheck", "HandTracker", "TrackerSettings", "TrackerStats", "check_hand", "fit_context"]
+__all__ = ["FrameResult", "HandCheck", "FrameTracker", "TrackerSettings", "TrackerStats", "check_hand", "fit_context"]

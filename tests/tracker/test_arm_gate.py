@@ -12,7 +12,7 @@ from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import make_motion
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 
 def _track(hand, truth, shown, arm_gate_mm):
@@ -20,7 +20,7 @@ def _track(hand, truth, shown, arm_gate_mm):
     a torso 15 cm behind (1.0× hand, noise seed 0: the benchmark's first scene), and the tracker."""
     st = TrackerSettings()
     st = st.replace(observe=dataclasses.replace(st.observe, arm_gate_mm=arm_gate_mm))
-    tracker = HandTracker(hand, st, synergies=load_bundle("fingerfist"))
+    tracker = FrameTracker(hand, st, synergies=load_bundle("fingerfist"))
     errors = []
     for f in range(len(truth)):
         cam, depth, _, _ = realistic_frame(hand, "kinect1", 1.0, "forearm,torso", f)

@@ -9,7 +9,7 @@ from tracker.errors import TrackerError
 from tracker.scale import extent_scale, rescaled
 from tracker.run import tracking_metadata
 from tracker.sim.motions import POSTURES
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 from tracker.track_cli import _hand_scale
 
 BASE = HandModel.load()
@@ -25,14 +25,14 @@ def bundle():
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "big"])
 def test_bad_hand_scale_refused(bad):
     with pytest.raises(TrackerError, match="scale.hand_scale: must be 'auto' or a factor"):
-        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
+        FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
 
 
 @pytest.mark.parametrize("bad", [0.05, 0.59, 2.01, 50.0])
 def test_hand_scale_outside_the_searched_sizes_refused(bad):
     with pytest.raises(TrackerError, match="scale.hand_scale: must be 'auto' or a factor in 0.6–2"):
-        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
-    HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad, range=(0.01, 100.0))))  # the range decides
+        FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad)))
+    FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=bad, range=(0.01, 100.0))))  # the range decides
 
 
 def test_cli_hand_scale_option():
@@ -45,7 +45,7 @@ def test_cli_hand_scale_option():
 
 
 def test_given_scale_tracks_the_resized_hand_and_says_so():
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.2)))
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.2)))
     th = np.zeros(BASE.n_dofs)
     th[7] = -0.5
     np.testing.assert_allclose(tr.hand.keypoints(th), BASE.scaled(1.2).keypoints(th), atol=1e-12)
@@ -54,7 +54,7 @@ def test_given_scale_tracks_the_resized_hand_and_says_so():
     # the model file's identity, not the resized copy's: --hand-model and --hand-scale rebuild it
     assert meta["hand_model"] == f"{BASE.name} {BASE.sha256}"
     assert meta["hand_scale"] == "1.2000 (given)" and meta["hand_check"] == ""
-    auto = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
+    auto = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
     assert auto.scale_ is None and tracking_metadata("rec", auto)["hand_scale"] == ""
 
 
@@ -88,7 +88,7 @@ def test_automatic_scale_recovered(bundle, scale, facing, posture):
     hand = BASE.scaled(scale)
     p = bundle.model.mean_ if posture == "mean" else POSTURES[posture]
     th, ob, _ = scene(hand, facing, p)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     r = tr.track(ob, CAM)
     err = kp_mm(hand, th, tr.hand, r.theta)
     first = tr.scale_
@@ -123,7 +123,7 @@ def test_a_better_start_found_while_the_size_is_refined_replaces_the_tracked_fit
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[2]
     cam, depth, _, _ = realistic_frame(BASE, "realsense", 1.0, "forearm", 2)
     ob = observe(depth, cam)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     tr.track(ob, cam)
 
     def err(th):

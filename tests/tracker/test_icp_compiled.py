@@ -20,7 +20,7 @@ from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
 from tracker.parts import usable_points
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 # Kinect v1 intrinsics (the tests do not depend on the camera-preset module)
@@ -55,7 +55,7 @@ def frames(bundle):
 
 def _tracker(bundle, ours, **kw):
     base = TrackerSettings().replace(scale=dict(hand_scale=1.0)) if ours else TrackerSettings.paper()
-    return HandTracker(HAND, base.replace(**kw), synergies=bundle)
+    return FrameTracker(HAND, base.replace(**kw), synergies=bundle)
 
 
 def _both(tr, start, pts, nrm, sil, stages=None, **kw):

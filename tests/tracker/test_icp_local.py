@@ -12,7 +12,7 @@ from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
 from tracker.parts import usable_points
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 
@@ -47,7 +47,7 @@ def _fit(fitter, tr, start, pts, nrm, sil, stats=None, **kw):
 
 
 def _tracker(bundle, **kw):
-    return HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw), synergies=bundle)
+    return FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw), synergies=bundle)
 
 
 @pytest.mark.parametrize("mode", ["reduced", "hierarchical"])

@@ -14,7 +14,7 @@ from tracker.observe import observe
 from tracker.segment import Segmenter
 from tracker.sim.motions import FACING, POSTURES, hand_centre
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 BASE = HandModel.load()
 CAM = preset("kinect1")
@@ -72,7 +72,7 @@ def test_data_cost_measures_every_point_against_the_whole_model(bundle):
     # (samples where two parts overlap lie closer to the other one)
     assert np.all(d[:-1] <= 3.05) and np.mean(np.abs(d[:-1] - 3.0) < 0.05) >= 0.8, np.round(d[:-1], 2)
     assert d[-1] == DATA_CAP_MM
-    tr = HandTracker(BASE, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings(), synergies=bundle)
     corr = matcher(th, ob.points, ob.normals)
     assert corr.points is ob.points or np.array_equal(corr.points, ob.points)
     want = np.minimum(data_to_model_mm(matcher, th, ob.points) + REJECTED_PAIR_MM * ~corr.valid, DATA_CAP_MM)
@@ -113,7 +113,7 @@ def test_upside_down_and_flipped_fits_lose(bundle, facing, posture):
     swapped, a mirror image in silhouette) — each refined by the same fit: the true one scores best,
     by a margin."""
     th, ob, sil = scene(BASE, facing, POSTURES[posture])
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     ctx = tr.context
     scores = {}
     for name, start in (("true", th), ("upside down", turned(BASE, th, (0, 0, 1))),
@@ -150,7 +150,7 @@ def test_back_facing_resized_hand_found_the_right_way_up(bundle, scale):
     (before the both-direction score and the facing-side placements: 56–68 mm, turned 180°)."""
     hand = BASE.scaled(scale)
     th, ob, _ = scene(hand, "back", bundle.model.mean_)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=scale)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=scale)), synergies=bundle)
     r = tr.track(ob, CAM)
     err = kp_mm(hand, th, tr.hand, r.theta)
     print(f"\nscale {scale} back-facing: {err:.1f} mm")
@@ -164,7 +164,7 @@ def test_the_wrong_hand_is_reported(bundle):
     _, ob, _ = scene(BASE, "palm", bundle.model.mean_)
     checks = {}
     for side, hand in (("left", BASE), ("right", BASE.mirrored())):
-        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(start=dict(check_hand=True)), synergies=bundle)
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(start=dict(check_hand=True)), synergies=bundle)
         tr.track(ob, CAM)
         checks[side] = tr.hand_check_
         print(f"\ntracked as {side}: {tr.hand_check_}")

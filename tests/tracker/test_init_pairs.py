@@ -26,7 +26,7 @@ from tracker.segment import Segmenter
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 CAM = preset("kinect1")
@@ -90,7 +90,7 @@ def test_pair_variants_set_two_neighbours_and_nothing_else(bundle):
     """Three neighbouring pairs (index-middle, middle-ring, ring-pinky) × the pair shapes of both:
     each variant differs from θ only in the two fingers' flexions (set to a shape) and abductions (the
     synergy mean's); without the ring finger's shapes only the index-middle pair is left."""
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     ctx = tr.context
     rng = np.random.default_rng(1)
     theta = np.r_[0.0, 0.0, 0.7, rng.normal(0, 0.3, 3), rng.normal(-0.4, 0.2, HAND.n_dofs - 6)]
@@ -128,7 +128,7 @@ def test_pair_restarts_separate_a_curled_finger_from_its_neighbour(bundle):
     ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM, stride=1, target_points=None,
                  smooth=0, segmenter=Segmenter(forearm="keep"))
     sil = Silhouette(ob.mask, ob.depth, CAM)
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     ctx = tr.context
     wrong = truth.copy()
     for nm, deg in (("ring1_flex", -80.0), ("ring2_flex", -85.0), ("ring3_flex", -40.0), ("pinky1_flex", -5.0),

@@ -29,7 +29,7 @@ from synergy.bundle import load_bundle
 from tracker.cameras import preset
 from tracker.images import read_depth_units, units_to_metres
 from tracker.observe import observe
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 path, out, first = sys.argv[1], sys.argv[2], sys.argv[3:]
 cam = preset("sr305")
@@ -39,7 +39,7 @@ ob = observe(depth, cam)
 
 
 def track(right):
-    tr = HandTracker(HandModel.load(right=right), TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HandModel.load(right=right), TrackerSettings(), synergies=bundle)
     res = tr.track(ob, cam)
     return np.concatenate([[tr.scale_], res.theta])
 

@@ -25,7 +25,7 @@ from tracker.observe import observe
 from tracker.segment import Segmenter
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 CAM = preset("kinect1")
@@ -63,7 +63,7 @@ def protocol_frames(bundle, rows, slots=None):
 def test_fit_many_is_one_fit_and_score_per_start(bundle):
     """Every row of the batch is what :meth:`FitContext.fit` and :func:`score` give for that start, in every
     mode, and ``gn`` is the ICP settings' Gauss-Newton count replaced (not ignored)."""
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     ctx = tr.context
     (_, start, ob, sil), = protocol_frames(bundle, [2500])
     sub = thin(ob.points, 400)
@@ -86,7 +86,7 @@ def test_fits_in_threads_are_the_fits_one_after_another(bundle):
     """A batch fitted on 3 threads gives every start's θ and score bit for bit, in the starts' order (a
     shared buffer or a shuffled result would not), and a whole start search on 2 threads is the one on
     one; a fit that raises raises out of the threaded batch."""
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     ctx = tr.context
     (_, start, ob, sil), = protocol_frames(bundle, [1200])
     sub = thin(ob.points, 300)
@@ -119,7 +119,7 @@ def test_a_process_forked_after_a_threaded_search_searches_too(bundle):
     import multiprocessing as mp
     import queue
 
-    tr = HandTracker(HAND, TrackerSettings().replace(init=dict(threads=2)), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(init=dict(threads=2)), synergies=bundle)
     (_, _, ob, _), = protocol_frames(bundle, [300])
     pts = ob.points[thin(ob.points, 400)]
     want = fit_single_frame(tr.context, pts, InitSettings.cheap())[0]
@@ -149,12 +149,12 @@ def test_threaded_search_with_an_empty_numba_cache_is_right(tmp_path):
 
     code = ("import numpy as np\n"
             "from handmodel import HandModel\nfrom synergy.bundle import load_bundle\n"
-            "from tracker.track import HandTracker, TrackerSettings\nfrom tracker.sim.render import DepthRenderer\n"
+            "from tracker.track import FrameTracker, TrackerSettings\nfrom tracker.sim.render import DepthRenderer\n"
             "from tracker.cameras import preset\nfrom tracker.observe import observe\n"
             "from tracker.init import InitSettings, fit_single_frame\n"
             "hand = HandModel.load(); cam = preset('kinect1'); th = np.zeros(hand.n_dofs); th[2] = 0.7\n"
             "ob = observe(DepthRenderer(hand, cam).render(th, labels=False).depth, cam)\n"
-            "tr = HandTracker(hand, TrackerSettings(hand_scale=1.0).replace(init_threads=2), "
+            "tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), init=dict(threads=2)), "
             "synergies=load_bundle('fingerfist'))\n"
             "print(repr(fit_single_frame(tr.context, ob.points, InitSettings.cheap())[0].tolist()))\n")
     outs = []
@@ -214,7 +214,7 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
     for n, deg in (("ring1_flex", -45.0), ("ring2_flex", -100.0), ("ring3_flex", -15.0)):
         truth[names.index(n)] = np.radians(deg)
     ob, sil = frame(truth)
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     ctx = tr.context
     wrong = truth.copy()
     for n in ("ring1_flex", "ring2_flex", "ring3_flex"):
@@ -234,7 +234,7 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
 @pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"halving": {"keep": (0, 3)}}, "keep"),
                                           ({"halving": {"keep": (4,)}}, "keep"), ({"threads": -1}, "threads")])
 def test_bad_search_settings_are_refused(bundle, change, word):
-    tr = HandTracker(HAND, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     st = InitSettings().replace(**change)
     with pytest.raises(TrackerError, match=word) as e:
         fit_single_frame(tr.context, np.zeros((50, 3)) + [0.0, 0.0, 0.7], st)

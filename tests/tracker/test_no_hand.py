@@ -22,7 +22,7 @@ from tracker.sim.experiments import REALISTIC_SENSORS
 from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 RECORDINGS = ("librealsense_single_depth_color_640x480.bag", "azure_kinect_recording.mkv")
 # a start search on one core: the tests compare states, not times
@@ -42,7 +42,7 @@ def right():
 @pytest.mark.parametrize("name", RECORDINGS)
 def test_real_recordings_without_a_hand_find_none(name, bundle, right):
     rec = Recording.open(shared("sensor_recordings", name), handedness="right")
-    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    tr = FrameTracker(right, SETTINGS, synergies=bundle)
     for frame in rec:
         ob = observe(frame.depth, rec.camera, SETTINGS.observe, color=frame.color)
         assert len(ob.points) > 500  # something was segmented: a wall, a door, a mug
@@ -70,7 +70,7 @@ def _scene(hand, sensor, spec, in_view):
 
 @pytest.mark.parametrize("sensor, spec", [("kinect1", "torso"), ("realsense", "table")])
 def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, spec, bundle, right):
-    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    tr = FrameTracker(right, SETTINGS, synergies=bundle)
     with_hand, cam = _scene(right, sensor, "forearm,torso", True)
     r = tr.track(observe(with_hand, cam, SETTINGS.observe), cam)
     assert r.status == "reinit" and r.rejected_share < 0.1 and abs(tr.scale_ - 1.0) < 0.04
@@ -87,7 +87,7 @@ def test_a_rendered_scene_without_its_hand_is_lost_and_keeps_the_size(sensor, sp
     assert r.status == "lost" and np.isnan(r.theta).all() and r.rejected_share > 0.3
     assert tr.stats.no_hand == 1 and tr.scale_ == size and tr.sizing.calibrations_ == calibrations
     # without the test the same frame is accepted as a hand, of the wrong size if it calibrates
-    loose = HandTracker(right, SETTINGS.replace(loss=dict(no_hand_rejected=0.0)), synergies=bundle)
+    loose = FrameTracker(right, SETTINGS.replace(loss=dict(no_hand_rejected=0.0)), synergies=bundle)
     r = loose.track(ob, cam)
     assert r.status == "reinit" and loose.stats.no_hand == 0 and abs(loose.scale_ - 1.0) > 0.1
 
@@ -96,10 +96,10 @@ def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
     frames = [_scene(right, "kinect1", spec, in_view) for spec, in_view in
               (("torso", False), ("forearm,torso", True))]
     obs = [observe(d, cam, SETTINGS.observe) for d, cam in frames]
-    tr = HandTracker(right, SETTINGS.replace(scale=dict(finger_lengths=False)), synergies=bundle)
+    tr = FrameTracker(right, SETTINGS.replace(scale=dict(finger_lengths=False)), synergies=bundle)
     assert tr.calibrate_each(obs, frames[0][1]) == [1]
     assert tr.stats.no_hand == 1 and abs(tr.scale_ - 1.0) < 0.04
-    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    tr = FrameTracker(right, SETTINGS, synergies=bundle)
     with pytest.raises(TrackerError, match="no hand found in any of the 1 frames"):
         tr.calibrate_each(obs[:1], frames[0][1])
 
@@ -107,7 +107,7 @@ def test_calibrate_each_skips_frames_without_a_hand(bundle, right):
 @pytest.mark.parametrize("bad", [-0.1, 1.0, float("nan")])
 def test_the_setting_is_a_share(bad):
     with pytest.raises(TrackerError, match="no_hand_rejected"):
-        HandTracker(HandModel.load(), TrackerSettings().replace(loss=dict(no_hand_rejected=bad)))
+        FrameTracker(HandModel.load(), TrackerSettings().replace(loss=dict(no_hand_rejected=bad)))
 
 
 def test_the_papers_method_has_no_such_test():
@@ -148,18 +148,18 @@ def test_a_start_needs_enough_points(right, bundle):
     assert len(ob.points) >= 600  # a whole hand: 606–2288 points on the rendered first frames
     few = ob.points[:: max(len(ob.points) // 100, 1)][:100]
     settings = SETTINGS.replace(scale=dict(hand_scale=1.0))
-    tr = HandTracker(right, settings, synergies=bundle)
+    tr = FrameTracker(right, settings, synergies=bundle)
     r = tr.step(few)
     assert r.status == "lost" and np.isnan(r.theta).all() and tr.stats.no_hand == tr.stats.too_few == 1 and r.points_in == 100
     assert tr.step(few).status == "lost"  # still a start
-    r = HandTracker(right, settings.replace(loss=dict(start_min_pixels=0)), synergies=bundle).step(few)
+    r = FrameTracker(right, settings.replace(loss=dict(start_min_pixels=0)), synergies=bundle).step(few)
     assert r.status == "reinit"  # fitted, as before the test
     r = tr.step(ob.points, normals=ob.normals)
     assert r.status == "reinit" and not tr.lost  # a hand found: a tracked frame is no start
     r = tr.step(few)
     assert tr.stats.no_hand == 2 and np.isfinite(r.theta).all()  # fitted or lost by its fit, never "no hand"
     with pytest.raises(TrackerError, match="start_min_pixels"):
-        HandTracker(right, TrackerSettings().replace(loss=dict(start_min_pixels=-1)))
+        FrameTracker(right, TrackerSettings().replace(loss=dict(start_min_pixels=-1)))
 
 
 def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):
@@ -172,7 +172,7 @@ def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):
     cam = preset("sr305")
     depth = units_to_metres(read_depth_units(shared("realsense_sr305_lada", "20210326-230536_30.png"), cam), cam)
     boxed = Segmenter(box_min=(0.1, None, None), box_max=(0.5, None, None))
-    tr = HandTracker(right, SETTINGS, synergies=bundle)
+    tr = FrameTracker(right, SETTINGS, synergies=bundle)
     r = tr.track(observe(depth, cam, SETTINGS.observe, segmenter=boxed), cam)
     assert r.status == "lost" and np.isnan(r.theta).all()
     assert tr.stats.no_hand == tr.stats.size_out == 1 and tr.scale_ is None

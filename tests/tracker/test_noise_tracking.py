@@ -14,7 +14,7 @@ from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 CAM = preset("kinect1")
 KINECT = NoiseModel.preset("kinect1")
@@ -24,7 +24,7 @@ def _open_close(hand, seed, **kw):
     """The first 36 frames of open-close (the hand opens and closes into a fist) under Kinect v1
     noise, tracked from the first frame in full DoF by the default tracker at the model's size."""
     truth = make_motion("open-close", hand=hand).theta[:36]
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return E.run_sequence(hand, truth, CAM, tr, noise=KINECT, seed=seed)
 
 
@@ -44,7 +44,7 @@ def _from_truth(hand, name, frames, **kw):
     tracked from the previous frame's truth (the prediction from the two before), Kinect v1 noise,
     safety net off: what one frame's data do to a right start."""
     truth = make_motion(name, hand=hand).theta[:frames]
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(enabled=False)).replace(**kw))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(enabled=False)).replace(**kw))
     ren = DepthRenderer(hand, CAM)
     post = ~hand.pose_mask
     out = []
@@ -191,7 +191,7 @@ def test_paper_settings_have_neither_band_nor_restart():
 
 def _count(hand, frames, **kw):
     truth = make_motion("count", hand=hand).theta[:frames]
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return np.nan_to_num(E.run_sequence(hand, truth, CAM, tr, noise=KINECT, seed=0).error_deg, nan=np.inf)
 
 

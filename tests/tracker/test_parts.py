@@ -22,7 +22,7 @@ from tracker.settings import (
     TrackerSettings,
 )
 from tracker.sim.motions import make_motion
-from tracker.track import HandTracker
+from tracker.track import FrameTracker
 
 HAND = HandModel.load()
 
@@ -137,7 +137,7 @@ def test_prediction_alone_adds_the_last_change_but_not_the_rotation():
 
 
 def test_each_frame_result_carries_the_counts_so_far():
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=SafetyNetSettings(enabled=False)))
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=SafetyNetSettings(enabled=False)))
     few = tr.step(np.zeros((5, 3)))
     assert few.status == "lost" and few.stats == TrackerStats()
     plane = np.stack(np.meshgrid(np.linspace(-0.01, 0.01, 10), np.linspace(-0.01, 0.01, 10)), -1).reshape(-1, 2)

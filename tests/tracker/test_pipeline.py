@@ -17,7 +17,7 @@ from tracker.init import InitSettings
 from tracker.observe import ObserveSettings
 from tracker.run import (FRAME_COLUMNS, keypoints_table, parse_tracking, read_tracking, track_recording,
                          tracking_csv, write_tracking)
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 
@@ -148,7 +148,7 @@ def test_track_recording_then_write_and_read_back(bundle, tmp_path):
     ren = DepthRenderer(HAND, cam)
     depths = [ren.render(t, labels=False).depth for t in truth]
     depths[3] = np.zeros((10, 10))  # not this camera's size: tracked as empty, so lost
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     seen = []
     df = track_recording(_MemoryRecording(cam, depths), tr, lambda f, r, ob: seen.append((f.index, ob is None)))
     assert list(df.columns) == [*FRAME_COLUMNS, *DOF_NAMES] and len(df) == 6
@@ -174,9 +174,9 @@ def test_track_recording_then_write_and_read_back(bundle, tmp_path):
 
 def test_stage_settings_are_checked():
     with pytest.raises(TrackerError, match="model must be one of"):
-        HandTracker(HAND, TrackerSettings().replace(correspond=dict(model="spheres")))
+        FrameTracker(HAND, TrackerSettings().replace(correspond=dict(model="spheres")))
     with pytest.raises(TrackerError, match="subspace.limits: must be one of"):
-        HandTracker(HAND, TrackerSettings().replace(subspace=dict(limits="none")))
+        FrameTracker(HAND, TrackerSettings().replace(subspace=dict(limits="none")))
     with pytest.raises(TrackerError, match="must not be negative"):
-        HandTracker(HAND, TrackerSettings().replace(icp=dict(robust_mm=-1.0)))
+        FrameTracker(HAND, TrackerSettings().replace(icp=dict(robust_mm=-1.0)))
     assert isinstance(TrackerSettings().observe, ObserveSettings) and isinstance(TrackerSettings().init, InitSettings)

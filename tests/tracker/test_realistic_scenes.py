@@ -214,13 +214,13 @@ def test_run_scene_compares_keypoints_on_the_rendered_hand(hand):
     one; the keypoint error compares the tracker's hand with the rendered one, not with the model."""
     from synergy.bundle import load_bundle
     from tracker.sim.experiments import run_scene
-    from tracker.track import HandTracker, TrackerSettings
+    from tracker.track import FrameTracker, TrackerSettings
 
     bundle = load_bundle("fingerfist")
     big = HandShape(1.3).apply(hand)
     truth = make_motion("open-close", hand=big, frames=2).theta
     cam = preset("kinect1")
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.3)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.3)), synergies=bundle)
     r = run_scene(hand, big, truth, cam, tr)
     assert r["status"][0] != "lost" and np.all(r["keypoint_mm"] < 8.0), r["keypoint_mm"]
     assert np.allclose(r["scale"], 1.3)
@@ -343,7 +343,7 @@ def test_gating_by_the_predicted_hand_keeps_leaked_clutter_out_of_the_fit(hand):
     from tracker.observe import observe
     from tracker.segment import Segmenter
     from tracker.sim.noise import NoiseModel
-    from tracker.track import HandTracker, TrackerSettings
+    from tracker.track import FrameTracker, TrackerSettings
 
     cam, nm = preset("kinect1"), NoiseModel.preset("kinect1")
     truth = make_motion("open-close", hand=hand, frames=6).theta
@@ -371,7 +371,7 @@ def test_gating_by_the_predicted_hand_keeps_leaked_clutter_out_of_the_fit(hand):
     assert min(leaked) > 0.25
     bundle = load_bundle("fingerfist")
     for gate_mm in (30.0, 0.0):
-        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(observe=dict(gate_mm=gate_mm)), synergies=bundle)
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(observe=dict(gate_mm=gate_mm)), synergies=bundle)
         res = [tr.track(ob, cam) for ob in obs]
         lost = sum(r.status == "lost" for r in res)
         assert (lost == 0) if gate_mm else (lost >= len(truth) // 2), [r.status for r in res]  # measured: 5 of 6
@@ -390,12 +390,12 @@ def test_realistic_scene_tracked_with_the_size_calibrated(hand, sensor, scale):
     from synergy.bundle import load_bundle
     from tracker.sim.experiments import REALISTIC_SENSORS, run_scene
     from tracker.sim.noise import NoiseModel
-    from tracker.track import HandTracker, TrackerSettings
+    from tracker.track import FrameTracker, TrackerSettings
 
     cam_name, noise_name = REALISTIC_SENSORS[sensor]
     shown = HandShape(scale).apply(hand)
     truth = make_motion("open-close", hand=shown, frames=5).theta
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=load_bundle("fingerfist"))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=load_bundle("fingerfist"))
     r = run_scene(hand, shown, truth, preset(cam_name), tr, clutter="forearm,torso=0.05",
                   noise=NoiseModel.preset(noise_name), seed=2)
     ke = r["keypoint_mm"]

@@ -19,7 +19,7 @@ from tracker.observe import observe
 from tracker.rgb import MediaPipeHands, RgbSeed, lift_keypoints, seed_from_keypoints
 from tracker.sim.motions import make_motion
 from tracker.sim.render import render
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 CAM = preset("kinect1")
 
@@ -119,7 +119,7 @@ def test_colour_seed_reaches_the_start_search(hand, scene):
     errs = {}
     for on in (False, True):
         det = Projected(hand, truth)
-        tr = HandTracker(hand, TrackerSettings.paper(start=dict(rgb_seed=on, check_hand=False)), keypoint_detector=det)
+        tr = FrameTracker(hand, TrackerSettings.paper(start=dict(rgb_seed=on, check_hand=False)), keypoint_detector=det)
         res = tr.track(ob, CAM, color=r.color)
         errs[on] = _kp_error_mm(hand, res.theta, truth)
         assert tr.stats.rgb_seeds == det.calls == int(on)
@@ -147,7 +147,7 @@ def _noisy_first_frame(hand, motion, frame):
     bundle = load_bundle("fingerfist")
     errs, seeds, kept = {}, {}, {}
     for on in (False, True):
-        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), start=dict(rgb_seed=on, check_hand=False)), synergies=bundle,
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), start=dict(rgb_seed=on, check_hand=False)), synergies=bundle,
                          keypoint_detector=Projected(shown, truth))
         ob = observe(depth, CAM, tr.settings.observe, color=r.color)
         th = tr.track(ob, CAM, color=r.color).theta
@@ -180,8 +180,8 @@ def test_colour_seed_without_colour_is_the_depth_only_start(hand, scene):
     truth, r = scene[25]
     ob = observe(r.depth, CAM)
     det = Projected(hand, truth)
-    a = HandTracker(hand, TrackerSettings.paper(start=dict(rgb_seed=True, check_hand=False)), keypoint_detector=det).track(ob, CAM)
-    b = HandTracker(hand, TrackerSettings.paper(start=dict(check_hand=False))).track(ob, CAM)
+    a = FrameTracker(hand, TrackerSettings.paper(start=dict(rgb_seed=True, check_hand=False)), keypoint_detector=det).track(ob, CAM)
+    b = FrameTracker(hand, TrackerSettings.paper(start=dict(check_hand=False))).track(ob, CAM)
     assert det.calls == 0
     np.testing.assert_allclose(a.theta, b.theta)
 
@@ -189,7 +189,7 @@ def test_colour_seed_without_colour_is_the_depth_only_start(hand, scene):
 def test_missing_extra_is_one_error_naming_the_install(hand, monkeypatch):
     monkeypatch.setattr(rgb, "mediapipe_available", lambda: False)
     with pytest.raises(TrackerError, match=r"pip install 'synergistic-hand-tracking\[rgb\]'"):
-        HandTracker(hand, TrackerSettings().replace(start=dict(rgb_seed=True)))
+        FrameTracker(hand, TrackerSettings().replace(start=dict(rgb_seed=True)))
     with pytest.raises(TrackerError, match=r"\[rgb\]"):
         MediaPipeHands()
 
@@ -207,8 +207,8 @@ def test_cli_rgb_seed_without_the_extra_exits_2(tmp_path, monkeypatch):
 
 def test_depth_only_path_does_not_import_mediapipe():
     code = ("import sys; import numpy as np; from handmodel.model import HandModel; "
-            "from tracker.track import HandTracker, TrackerSettings; import tracker.run, tracker.rgb, tracker.track_cli; "
-            "HandTracker(HandModel.load('default'), TrackerSettings()).step(np.zeros((0, 3))); "
+            "from tracker.track import FrameTracker, TrackerSettings; import tracker.run, tracker.rgb, tracker.track_cli; "
+            "FrameTracker(HandModel.load('default'), TrackerSettings()).step(np.zeros((0, 3))); "
             "print('mediapipe' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

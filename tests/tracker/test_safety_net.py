@@ -11,7 +11,7 @@ from tracker.cameras import preset
 from tracker.evaluate import posture_error_deg
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 CAM = preset("kinect1")
 
@@ -28,7 +28,7 @@ def _jumped(hand, at, shift, turn_deg=0.0, frames=30):
 
 
 def _track(hand, truth, **kw):
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return E.run_sequence(hand, truth, CAM, tr), tr
 
 
@@ -102,7 +102,7 @@ def test_reduced_mode_keeps_its_subspace(hand):
 
     bundle = load_bundle("fingerfist")
     truth = _jumped(hand, 15, (0.03, 0.0, 0.0), turn_deg=70.0, frames=20)
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
     r = E.run_sequence(hand, truth, CAM, tr)
     assert tr.stats.net_runs == 0
     post = r.theta[:, ~hand.pose_mask] - bundle.model.mean_
@@ -152,7 +152,7 @@ def test_no_wrist_cue_on_a_rendered_hand_without_arm(hand, monkeypatch):
     from tracker.wrist import wrist_cost_mm, wrist_cue
 
     truth = make_motion("grasp-back", hand=hand).theta
-    tr = HandTracker(hand, TrackerSettings())
+    tr = FrameTracker(hand, TrackerSettings())
     ren = DepthRenderer(hand, CAM)
     raw = []
     for f in range(40, 70, 5):
@@ -185,7 +185,7 @@ def test_net_searches_postures_from_the_tracked_pose_first(hand):
 
     truth = make_motion("count", hand=hand).theta
     ren = DepthRenderer(hand, CAM)
-    tr = HandTracker(hand, TrackerSettings())
+    tr = FrameTracker(hand, TrackerSettings())
     tr.track(observe(ren.render(truth[39], labels=False).depth, CAM, tr.settings.observe), CAM)
     wrong = truth[39].copy()
     wrong[~hand.pose_mask] = truth[100][~hand.pose_mask]
@@ -218,7 +218,7 @@ def test_net_ignores_a_false_wrist_cue(hand):
     truth = make_motion("rotate", hand=hand).theta[:36]
 
     def turn_deg(kw):
-        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw), synergies=bundle)
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw), synergies=bundle)
         r = E.run_sequence(hand, truth, CAM, tr)
         R = np.einsum("fij,fkj->fik", euler_to_matrix(r.theta[:, 3:6]), euler_to_matrix(truth[:, 3:6]))
         return np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
@@ -238,7 +238,7 @@ def test_unseen_joints_are_pulled_to_the_synergies(hand):
     truth = make_motion("grasp-back", hand=hand).theta[:60]
     err = {}
     for prior in (0.0, 0.5):
-        tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), refine=dict(unseen_prior=prior)), synergies=bundle)
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), refine=dict(unseen_prior=prior)), synergies=bundle)
         r = E.run_sequence(hand, truth, CAM, tr)
         err[prior] = float(np.mean(r.error_deg[35:]))
         assert (tr.stats.unseen_frames > 10) is (prior > 0)
@@ -254,7 +254,7 @@ def test_unseen_prior_moves_only_joints_without_data(hand):
     from synergy.bundle import load_bundle
 
     bundle = load_bundle("fingerfist")
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     theta = hand.zero()
     theta[2] = 0.6
     theta[hand.dof_index("index2_flex")] = -1.5
@@ -283,7 +283,7 @@ def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
     from tracker.observe import observe
 
     bundle = load_bundle("fingerfist")
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     theta = hand.zero()
     theta[2] = 0.6
     post = np.flatnonzero(~hand.pose_mask)
@@ -307,7 +307,7 @@ def test_unseen_joints_of_a_start_go_to_the_conditional_mean(hand):
 
     truth = make_motion("grasp-back", hand=hand).theta[45]
     frame = render(hand, truth, CAM)
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     assert tr.track(observe(frame.depth, CAM), CAM).status == "reinit"
     assert tr.stats.unseen_frames == 1
 
@@ -362,7 +362,7 @@ def test_a_cue_at_the_end_of_a_kept_forearm_does_not_replace_a_right_fist(hand, 
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
 
     def run(**kw):
-        tr = HandTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS, **kw), synergies=bundle)
+        tr = FrameTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS, **kw), synergies=bundle)
         return E.run_scene(hand, shown, truth, cam_preset(cam_name), tr, clutter=scene,
                            noise=NoiseModel.preset(noise_name), seed=noise_seed, color=False)["keypoint_mm"]
 

@@ -21,7 +21,7 @@ from tracker.scale import (
     without_wrist,
 )
 from tracker.sim.motions import POSTURES
-from tracker.track import HandTracker, TrackerSettings, fit_context
+from tracker.track import FrameTracker, TrackerSettings, fit_context
 from tracker.wrist import WristCue
 
 BASE = HandModel.load()
@@ -50,7 +50,7 @@ def rebuilt(tracker):
 def test_resized_context_is_the_rebuilt_hand(s):
     """The resized samples lie on the resized hand's capsules (the surface the fit matches against),
     as a rebuilt context's do; only the matcher and the samples change, the rest is shared."""
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     ctx = tr.context_for(s)
     ref = fit_context(BASE.scaled(s), tr.settings)[0]
     th = np.zeros(BASE.n_dofs)
@@ -75,7 +75,7 @@ def test_resized_and_rebuilt_contexts_score_alike(bundle):
     samples' randomness (measured ≤ 0.1 mm), and both rank the true size first."""
     hand = BASE.scaled(1.2)
     th, ob, sil = scene(hand, "palm", POSTURES["open"])
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     fast, slow = tr.context_for, rebuilt(tr)
     got = {}
     for name, cf in (("fast", fast), ("slow", slow)):
@@ -93,7 +93,7 @@ def test_size_score_leaves_the_wrist_cue_out():
     """The wrist cue's cost grows with the hand (its point lies up the arm, not at the wrist joint):
     the size score must not see it, the start search's score still does."""
     th, ob, sil = scene(BASE, "palm", POSTURES["open"])
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     ctx = tr.context_for(1.0)
     corr = ctx.matcher(th, ob.points, ob.normals)
     plain = size_score(ctx, th, corr, sil)
@@ -143,7 +143,7 @@ def test_one_search_calibration_agrees_with_the_earlier_one(bundle, scale, facin
     hand = BASE.scaled(scale)
     p = bundle.model.mean_ if posture == "mean" else POSTURES[posture]
     _, ob, sil = scene(hand, facing, p)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     s_fast, _, _ = calibrate_scale(tr.context_for, ob.points, tr.settings.init, silhouette=sil, normals=ob.normals)
     s_old, _, _ = calibrate_scale_searched(rebuilt(tr), ob.points, tr.settings.init, silhouette=sil,
                                            normals=ob.normals)
@@ -159,7 +159,7 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
     best-scoring one is used; then the tracker tracks and refines the size."""
     hand = BASE.scaled(1.2)
     _, ob, _ = scene(hand, "palm", POSTURES["open"])
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", trust_mm=0.0, frames=3)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", trust_mm=0.0, frames=3)), synergies=bundle)
     status = [tr.track(ob, CAM).status for _ in range(4)]
     assert status[:3] == ["reinit"] * 3 and status[3] == "tracked", status
     assert len(tr.sizing.calibrations_) == 3
@@ -167,7 +167,7 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
     assert tr.scale_estimates_[0] == best and len(tr.scale_estimates_) == 2
     assert abs(tr.scale_ / 1.2 - 1.0) <= 0.03
     # trusted at once: one calibration
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     assert [tr.track(ob, CAM).status for _ in range(2)] == ["reinit", "tracked"] and len(tr.sizing.calibrations_) == 1
 
 
@@ -192,7 +192,7 @@ def test_size_within_3_percent_in_clutter_and_noise(bundle, sensor, scale, clutt
     cam_name, noise_name = REALISTIC_SENSORS[sensor]
     shown = HandShape(scale).apply(BASE)
     truth = make_motion("open-close", hand=shown, frames=30).theta[:6]
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     r = run_scene(BASE, shown, truth, preset(cam_name), tr, clutter=clutter, noise=NoiseModel.preset(noise_name),
                   seed=3)
     print(f"\n{sensor} ×{scale} {clutter}: size {r['scale'][-1] / scale:.4f}, keypoints {np.round(r['keypoint_mm'], 1)}")

@@ -12,7 +12,7 @@ from tracker.cli import app
 from tracker.errors import TrackerError
 from tracker.run import read_tracking, settings_for_hand, tracking_metadata
 from tracker.scale import calibrated_hand
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 BASE = HandModel.load()
 
@@ -77,7 +77,7 @@ def test_a_calibrated_file_is_tracked_as_it_is_unless_auto_is_asked(tmp_path):
         settings_for_hand(hand, auto.replace(scale=dict(hand_scale=1.25)), hand_scale_asked=True)
     # the model file's hand: the settings as they are
     assert settings_for_hand(BASE, auto).scale.hand_scale == "auto"
-    tr = HandTracker(hand, settings_for_hand(hand, auto))
+    tr = FrameTracker(hand, settings_for_hand(hand, auto))
     meta = tracking_metadata("rec", tr)
     assert meta["hand_model"] == f"default-calibrated {hand.sha256}" and meta["hand_model_file"] == str(path)
     assert meta["hand_calibration"].startswith(f"this file's hand: size 1.25 × default {BASE.sha256}")
@@ -101,7 +101,7 @@ def test_tracking_on_the_calibrated_file_matches_the_automatic_run(bundle, tmp_p
     cam, noise = preset("kinect1"), NoiseModel.preset("kinect1")
 
     def run(hand, settings):
-        tr = HandTracker(hand, settings, synergies=bundle)
+        tr = FrameTracker(hand, settings, synergies=bundle)
         return tr, run_scene(BASE, shown, truth, cam, tr, clutter="forearm,torso", noise=noise, seed=3)
 
     auto, r_auto = run(BASE, TrackerSettings())

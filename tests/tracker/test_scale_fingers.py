@@ -10,7 +10,7 @@ from tracker.errors import TrackerError
 from tracker.scale import finger_bones, finger_scales, shaped_context, shaped_hand
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import POSTURES
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 BASE = HandModel.load()
 TRUE = {"thumb": 1.08, "index": 1.1, "middle": 0.95, "ring": 1.05, "pinky": 0.9}
@@ -39,7 +39,7 @@ def test_stretched_samples_lie_on_the_shaped_hand():
     """The samples of the model-sized context stretched along the resized fingers lie on the shaped
     hand's capsules (as those of a context built for it would), with its normals; the palm's are
     where they were."""
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     ctx = tr.context_for(1.2)
     c = shaped_context(ctx, BASE, 1.2, TRUE)
     assert shaped_context(ctx, BASE, 1.2, {}) is ctx
@@ -64,7 +64,7 @@ def test_finger_factors_recovered_on_a_rendered_hand(bundle):
     open back) fitted with the model's finger lengths: every factor within 4 % (measured: 0.5–1.5 %,
     the index worst; each shrunk towards 1 by the frames' disagreement); assuming 1 would be up to 10 % off."""
     shown = HandShape(1.0, TRUE).apply(BASE)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
     ctx = tr.context_for(1.0)
     frames = []
     for facing, post in (("palm", POSTURES["open"]), ("palm", bundle.model.mean_), ("back", POSTURES["open"])):
@@ -90,7 +90,7 @@ def test_tracker_finds_finger_lengths_after_the_size(bundle):
 
     shown = HandShape(1.2, TRUE).apply(BASE)
     truth = make_motion("open-close", hand=shown, frames=30).theta[:8]
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", finger_lengths=True)), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", finger_lengths=True)), synergies=bundle)
     r = run_scene(BASE, shown, truth, preset("kinect1"), tr)
     assert len(tr.scale_estimates_) == tr.settings.scale.frames and abs(tr.scale_ / 1.2 - 1.0) <= 0.03
     got = tr.finger_scales_
@@ -120,7 +120,7 @@ def test_small_hand_on_the_table_keeps_its_track_with_finger_lengths(bundle):
     fingers = realistic_fingers(0.8)
     shown = HandShape(0.8, fingers).apply(BASE)
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta
-    tr = HandTracker(BASE, TrackerSettings(), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings(), synergies=bundle)
     r = run_scene(BASE, shown, truth, preset("kinect1"), tr, clutter=REALISTIC_SCENES["+table"],
                   noise=NoiseModel.preset("kinect1"), seed=list(REALISTIC_SCENES).index("+table"))
     ke = r["keypoint_mm"]
@@ -132,7 +132,7 @@ def test_small_hand_on_the_table_keeps_its_track_with_finger_lengths(bundle):
 
 @pytest.mark.slow
 def test_calibrate_each_recovers_size_and_fingers_from_stills(bundle):
-    """``HandTracker.calibrate_each``: four stills of a hand 1.2× with fingers 0.9–1.1× (open and the
+    """``FrameTracker.calibrate_each``: four stills of a hand 1.2× with fingers 0.9–1.1× (open and the
     synergy mean, palm and back to the camera; no noise), each fitted from its own start, no pose
     given: the size within 3 %, every finger factor but the little finger's within 4 % and that within 7 %
     (measured on the earlier sessions' machine: size 1.1 %, fingers 0.0–2.8 %, the little finger worst; a
@@ -148,7 +148,7 @@ def test_calibrate_each_recovers_size_and_fingers_from_stills(bundle):
 
     shown = HandShape(1.2, TRUE).apply(BASE)
     obs = [scene(shown, facing, post)[1] for facing in ("palm", "back") for post in (POSTURES["open"], bundle.model.mean_)]
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")), synergies=bundle)
     assert tr.calibrate_each(obs, CAM) == [0, 1, 2, 3]
     got = tr.finger_scales_
     err = {f: round(got[f] / TRUE[f] - 1.0, 3) for f in TRUE}
@@ -173,9 +173,9 @@ def test_calibrate_each_refuses_frames_without_a_hand():
 
     empty = SimpleNamespace(points=np.zeros((0, 3)), normals=None, mask=None, silhouette=None, depth=None,
                             frame_depth=None)
-    tr = HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto")))
     with pytest.raises(TrackerError, match="no hand found in any of the 2 frames"):
         tr.calibrate_each([empty, empty], None)
     assert tr.scale_ is None
     with pytest.raises(TrackerError, match="hand_scale='auto'"):
-        HandTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0))).calibrate_each([empty], None)
+        FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale=1.0))).calibrate_each([empty], None)

@@ -144,13 +144,13 @@ def test_a_hand_beside_a_nearer_box_is_tracked_without_colour(hand, sensor, scal
     measured: SR305 1.0× 1.7 mm, before 70 mm, the box fitted as a hand; Kinect v1 0.8× 3.3 mm, before
     149 mm)."""
     from synergy.bundle import load_bundle
-    from tracker.track import HandTracker, TrackerSettings
+    from tracker.track import FrameTracker, TrackerSettings
 
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale, E.realistic_fingers(scale)).apply(hand)
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[:15]
-    tr = HandTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS), synergies=load_bundle("fingerfist"))
+    tr = FrameTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS), synergies=load_bundle("fingerfist"))
     r = E.run_scene(hand, shown, truth, cam, tr, clutter=E.REALISTIC_SCENES["+object"], noise=nm,
                     seed=list(E.REALISTIC_SCENES).index("+object"), color=False)
     assert np.all(r["keypoint_mm"] <= 10.0), r["keypoint_mm"]

@@ -151,13 +151,13 @@ def test_a_hand_above_a_table_is_tracked_without_colour(hand, sensor, scale):
     all 30 frames: 2.5–4.5 mm on both sensors at 0.8–1.5×; before, every frame was lost), the size
     within 3 %."""
     from synergy.bundle import load_bundle
-    from tracker.track import HandTracker, TrackerSettings
+    from tracker.track import FrameTracker, TrackerSettings
 
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale, E.realistic_fingers(scale)).apply(hand)
     truth = make_motion("open-close", hand=shown, frames=30, seed=0).theta[:15]
-    tr = HandTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS), synergies=load_bundle("fingerfist"))
+    tr = FrameTracker(hand, TrackerSettings().replace(**E.REALISTIC_SETTINGS), synergies=load_bundle("fingerfist"))
     r = E.run_scene(hand, shown, truth, cam, tr, clutter=E.REALISTIC_SCENES["+table"], noise=nm,
                     seed=list(E.REALISTIC_SCENES).index("+table"), color=False)
     ke = r["keypoint_mm"]

@@ -20,7 +20,7 @@ from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 
 def _scene(hand, sensor, scale, scene, frame):
@@ -210,7 +210,7 @@ def test_tracker_gives_the_window_only_while_tracking(hand):
     """No window before the first frame; after a tracked frame, the predicted hand's box holds the
     rendered hand (the window holds it with its margin)."""
     cam, depth, color, labels, _, _ = _scene(hand, "realsense", 1.0, "+forearm", 0)
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=load_bundle("fingerfist"))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=load_bundle("fingerfist"))
     assert tr.segment_window(cam) is None
     res = tr.track(observe(depth, cam, color=color), cam, color=color)
     assert res.status != "lost"

@@ -11,7 +11,7 @@ from tracker.sim import experiments as E
 from tracker.errors import TrackerError
 from tracker.icp import through
 from tracker.init import diverse
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()
 # Kinect v1 intrinsics (the tests do not depend on the camera-preset module)
@@ -33,7 +33,7 @@ def postures():
 
 def _run(bundle, postures, mode, start, n=40, distance=0.75, **kw):
     truth = E.sequence(postures[start:start + n], bundle.model.mean_, distance=distance)
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode=mode, **kw), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode=mode, **kw), synergies=bundle)
     return E.run_sequence(HAND, truth, CAM, tr, lead=10), truth, tr
 
 
@@ -71,7 +71,7 @@ def test_reduced_with_projected_steps_stays_in_the_subspace_and_gains(bundle, po
 
 def test_subspace_oracle_recovers_postures_inside_the_subspace(bundle, postures):
     """On postures that lie in the subspace the geometric optimum is the posture itself."""
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="reduced"), synergies=bundle)
     truth = tr.reduced.project(E.sequence(postures[1000:1012], bundle.model.mean_, lead=0))
     start = truth.copy()
     start[:, ~HAND.pose_mask] = bundle.model.mean_  # from the mean posture: the fit has to get there
@@ -93,7 +93,7 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
     th = make_motion("random", hand=HAND, frames=90, seed=3).theta
     err = {}
     for mode in ("full", "hierarchical"):
-        tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode=mode), synergies=bundle)
+        tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode=mode), synergies=bundle)
         err[mode] = E.run_sequence(HAND, th, CAM, tr).mean_error
     print(f"\nrandom postures: full {err['full']:.2f} deg, hierarchical {err['hierarchical']:.2f} deg")
     assert err["hierarchical"] <= err["full"] + 1.0
@@ -103,7 +103,7 @@ def test_hierarchical_tracking_follows_motion_outside_the_synergies(bundle):
 def test_coarse_step_through_theta_keeps_theta_feasible(bundle):
     """A posture outside the PC limits (rarer than every training posture): the subspace through it
     must admit it (α = 0), else the coarse step would clamp it back."""
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="hierarchical"), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="hierarchical"), synergies=bundle)
     sp = tr.reduced
     theta = np.zeros(HAND.n_dofs)
     theta[~HAND.pose_mask] = bundle.model.mean_ + 3.0 * (sp.hi[6] + 0.1) * bundle.model.all_components_[0]
@@ -166,7 +166,7 @@ def test_finger_search_finds_a_finger_flexed_alone(bundle):
     start[~HAND.pose_mask] = bundle.model.mean_
     err = {}
     for fs in (False, True):
-        tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(init=dict(finger_search=fs, icp_iterations=20)), synergies=bundle)
+        tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(init=dict(finger_search=fs, icp_iterations=20)), synergies=bundle)
         th, _ = tr.fit_single_frame(ob.points, theta0=start, mode="hierarchical", silhouette=sil, normals=ob.normals)
         err[fs] = float(E.posture_error_deg(th, truth, HAND.pose_mask))
     print(f"\nring finger alone: without finger search {err[False]:.2f} deg, with {err[True]:.2f} deg")
@@ -219,7 +219,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
     err = {}
     for c in (0.0, 8.0):
         # without the gate by the predicted hand, which would drop most flying pixels before the weights see them
-        tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(icp=dict(robust_mm=c), observe=dict(smooth=0, gate_mm=0.0)), synergies=bundle)
+        tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(icp=dict(robust_mm=c), observe=dict(smooth=0, gate_mm=0.0)), synergies=bundle)
         tr.theta, tr.lost = truth.copy(), False
         r = tr.track(ob, CAM)
         assert r.status == "tracked"
@@ -231,7 +231,7 @@ def test_robust_weights_resist_outliers(bundle, postures, row):
 
 def test_blank_frames_lost_then_recovered(bundle, postures):
     truth = E.sequence(postures[3000:3040], bundle.model.mean_)
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="full"), synergies=bundle)
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(mode="full"), synergies=bundle)
     r = E.run_sequence(HAND, truth, CAM, tr, lead=10, blank=(20, 30))
     assert (r.status[20:30] == "lost").all()
     back = r.error_deg[33:]
@@ -241,7 +241,7 @@ def test_blank_frames_lost_then_recovered(bundle, postures):
 
 @pytest.mark.parametrize("bad", [np.zeros((0, 3)), np.full((100, 3), np.nan), np.zeros((5, 3))])
 def test_bad_points_give_lost_not_crash(bad):
-    tr = HandTracker(HAND, TrackerSettings().replace(mode="full"))
+    tr = FrameTracker(HAND, TrackerSettings().replace(mode="full"))
     r = tr.step(bad)
     assert r.status == "lost"
 
@@ -257,7 +257,7 @@ def test_a_frame_without_points_outputs_no_theta_and_tracking_goes_on():
 
     cam = preset("kinect1")
     truth = make_motion("open-close", hand=HAND, frames=6, seed=0).theta
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0), mode="full"))
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0), mode="full"))
     ren = DepthRenderer(HAND, cam)
     first = tr.track(observe(ren.render(truth[0]).depth, cam), cam)
     assert first.status == "reinit"
@@ -272,9 +272,9 @@ def test_a_frame_without_points_outputs_no_theta_and_tracking_goes_on():
 
 def test_bad_settings():
     with pytest.raises(TrackerError, match="mode: must be full, reduced or hierarchical"):
-        HandTracker(HAND, TrackerSettings().replace(mode="fast"))
+        FrameTracker(HAND, TrackerSettings().replace(mode="fast"))
     with pytest.raises(TrackerError, match="needs a synergy bundle"):
-        HandTracker(HAND, TrackerSettings().replace(mode="reduced"))
+        FrameTracker(HAND, TrackerSettings().replace(mode="reduced"))
 
 
 # ----------------------------------------------------------------------------- silhouette pairs (numba kernel)
@@ -292,7 +292,7 @@ def test_silhouette_term_keeps_fingers_curled_away_from_the_camera():
     from tracker.sim.render import DepthRenderer
 
     truth = make_motion("grasp-back", hand=HAND).theta
-    tr = HandTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(HAND, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     ctx, ren = tr.context, DepthRenderer(HAND, CAM)
     for f in (32, 45, 55):
         ob = observe(ren.render(truth[f], labels=False).depth, CAM, tr.settings.observe)
@@ -435,7 +435,7 @@ def test_output_rotation_is_wrapped():
     hand = HandModel.load()
     th, ob, _ = scene(hand, "palm", np.zeros(hand.n_dofs - 6))
     turned = th + np.r_[0, 0, 0, np.array([6.0, -4.0, 2.0]) * np.pi, np.zeros(hand.n_dofs - 6)]
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(enabled=False), refine=dict(finger_restart_deg=0.0)))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(enabled=False), refine=dict(finger_restart_deg=0.0)))
     tr.theta, tr.lost = turned.copy(), False
     r = tr.track(ob, CAM)
     assert r.status == "tracked" and np.all(np.abs(r.theta[3:6]) <= np.pi)

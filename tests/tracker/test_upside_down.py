@@ -22,7 +22,7 @@ from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel
 from tracker.sim.render import Clutter, DepthRenderer
 from tracker.net import SafetyNet
-from tracker.track import HandTracker, TrackerSettings
+from tracker.track import FrameTracker, TrackerSettings
 
 CAM = preset("sr305")
 JUMP = 6
@@ -65,7 +65,7 @@ def jump_scene(hand):
 def _track(hand, obs, **kw):
     # tracked at the model's size: every fit of the bigger hand scores high, so the score test's
     # threshold is high too (2.5 × the scene's level), as on the real frames
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)).replace(**kw))
     return [tr.track(ob, CAM) for ob in obs], tr
 
 
@@ -103,7 +103,7 @@ def test_the_wrist_test_needs_an_arm_beyond_the_cue(hand):
     truth = make_motion("rotate", hand=hand).theta
     ren = DepthRenderer(hand, preset("kinect1"))
     # each frame tested in full: frames 124 and 125 are a pose apart that the recheck would not test again
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(wrist=dict(every=1))))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), net=dict(wrist=dict(every=1))))
     cues = 0
     for f in (34, 41, 124, 125):
         ob = observe(ren.render(truth[f], labels=False).depth, preset("kinect1"), tr.settings.observe)
@@ -125,7 +125,7 @@ def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
     cam = preset("kinect1")
     truth = make_motion("count", hand=hand).theta
     ob = observe(DepthRenderer(hand, cam).render(truth[40], labels=False).depth, cam, TrackerSettings().observe)
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     tr.net.search_level = 10.0
     wrong = truth[40].copy()
     wrong[~hand.pose_mask] = truth[80][~hand.pose_mask]
@@ -161,7 +161,7 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
     rec = import_pngs(root, tmp_path / "rec", preset("sr305"), handedness="right")
     names = [p.stem for p in natural_sorted(root.glob("*.png"))]  # the import's frame order
     cam = rec.camera
-    tr = HandTracker(HandModel.load(right=True), TrackerSettings(), synergies=load_bundle("fingerfist"))
+    tr = FrameTracker(HandModel.load(right=True), TrackerSettings(), synergies=load_bundle("fingerfist"))
     wrists, ok = [], 0
     for frame in rec:
         ob = observe(frame.depth, cam, tr.settings.observe, window=tr.segment_window(cam))
@@ -191,7 +191,7 @@ def test_the_nets_shared_distances_decide_as_the_full_test(hand):
 
     cam = preset("kinect1")
     truth = make_motion("count", hand=hand).theta
-    tr = HandTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))
     verdicts = set()
     for f, other in ((40, 80), (10, 60), (70, 20)):
         ob = observe(DepthRenderer(hand, cam).render(truth[f], labels=False).depth, cam, tr.settings.observe)

@@ -28,7 +28,7 @@ from ..correspond import ModelSamples, Silhouette
 from ..evaluate import posture_error_deg
 from ..observe import observe
 from ..init import InitSettings
-from ..track import HandTracker, TrackerSettings
+from ..track import FrameTracker, TrackerSettings
 from .hands import FINGERS, HandShape, wrist_to_middle_tip_mm
 from .motions import GlobalPath, fingerfist_path, hand_centre, make_motion, read_schroeder26, with_path
 from .noise import NoiseModel
@@ -118,7 +118,7 @@ def _tracker(hand, bundle, paper=False, **kw):
     """A tracker with our defaults, or with ``TrackerSettings.paper()``, changed by ``kw``; at the
     model's size (``hand_scale=1.0``: these experiments render our own hand)."""
     base = TrackerSettings.paper() if paper else TrackerSettings().replace(scale=dict(hand_scale=1.0))
-    return HandTracker(hand, base.replace(**kw), synergies=bundle)
+    return FrameTracker(hand, base.replace(**kw), synergies=bundle)
 
 
 def _segment_truths(bundle, segs):
@@ -410,7 +410,7 @@ def experiment_realistic(hand, bundle, *, scenes=None, sensors=None, scales=REAL
             shown = HandShape(float(scale), fingers).apply(hand)
             truth = make_motion(motion, hand=shown, frames=frames, seed=seed).theta
             for k, (scene, spec) in enumerate(scenes.items()):
-                tracker = HandTracker(hand, TrackerSettings().replace(**(REALISTIC_SETTINGS if settings is None
+                tracker = FrameTracker(hand, TrackerSettings().replace(**(REALISTIC_SETTINGS if settings is None
                                                                         else settings)), synergies=bundle)
                 # the noise's seed follows the scene's name, so a subset of scenes reproduces the full run's rows
                 j = list(REALISTIC_SCENES).index(scene) if scene in REALISTIC_SCENES else k
@@ -471,7 +471,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
     (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in). ``calibrate_each``: the
     hand is calibrated instead on each recording's first ``calibrate_each`` labelled frames, each fitted
-    from its own start (:meth:`HandTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
+    from its own start (:meth:`FrameTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
     lengths), and every frame is tracked on that hand."""
     import json
 
@@ -496,7 +496,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     if calibrate_each:
         for recording in dict.fromkeys(n.split("_")[0] for n in names):
             first = [n for n in names if n.split("_")[0] == recording][:calibrate_each]
-            tr = HandTracker(HandModel.load(TRACKING_HAND, right=True), TrackerSettings(), synergies=bundle)
+            tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True), TrackerSettings(), synergies=bundle)
             tr.calibrate_each([observe(depths[n], cam) for n in first], cam)
             calibrated[recording] = tr
     for k, name in enumerate(names):
@@ -507,7 +507,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             tr = calibrated[recording]
             tr.reset()
         else:
-            tr = HandTracker(HandModel.load(TRACKING_HAND, right=True),
+            tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True),
                              TrackerSettings().replace(scale=dict(hand_scale=sizes.get(recording, "auto"))), synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)
