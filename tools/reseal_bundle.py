@@ -1,7 +1,7 @@
 """Seal a schema-1 synergy bundle (manifest not hashed) as schema 2, keeping its arrays bit for bit.
 
 Used once for the shipped ``models/synergies/fingerfist-1.0.0.npz``: refitting it with
-``synergy fit`` (the command in its README section) reproduces the arrays only to ~1e-13 (the
+``synergy fit`` (the command in docs/synergy.md) reproduces the arrays only to ~1e-13 (the
 eigen-solver's rounding), and the tracker's reported numbers were measured with the stored arrays.
 The tool refuses a file whose arrays do not match the ``arrays_sha256`` its manifest records, so a
 tampered bundle is never blessed; it writes to a new folder and never overwrites.

@@ -8,7 +8,7 @@ Goldstein (1992) measured where, as shares of the hand length from the distal wr
 sign and order. :func:`on_mcp_arc` moves the bases of a hand there, at the hand's own size;
 ``models/hands/human.yaml`` is the default hand so moved (:func:`write_human_hand`), the hand the tracker
 fits to real depth frames (on the 19 labelled SR305 frames it meets the issue's floors on more frames
-than the straight line does; see the README).
+than the straight line does; see docs/beyond-the-paper.md).
 
 Source: B. Buchholz, T. J. Armstrong, S. A. Goldstein, "Anthropometric data for describing the
 kinematics of the human hand", Ergonomics 35(3):261–273, 1992, doi:10.1080/00140139208967812.

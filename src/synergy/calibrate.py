@@ -58,7 +58,7 @@ BONE_SD = 0.25
 #: index's middle phalanx 2.7 mm long from 150 frames and from 400, 0.3 mm from noise-free markers).
 #: Hand motion lies well below 6 Hz (the usual cut-off for human movement), 0.5 mm of white noise
 #: at 100 Hz drops to ~0.2 mm (simulated subjects, power-grasp angles: hand16 1.38–3.81° → see the
-#: README's calibration table).
+#: calibration table in docs/synergy.md).
 SMOOTH_HZ = 6.0
 #: Without a static trial, frames whose finger flexions (MCP, PIP, DIP; the scale-only hand's IK) all
 #: stay below this (degrees) are taken as the flat hand (:func:`neutral_frames`) …

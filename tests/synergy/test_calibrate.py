@@ -20,7 +20,7 @@ NOISE_MM = 0.5
 # proximal phalanx unmarked, so in a fist a finger's PIP and DIP can trade (+23°/−37° moves its
 # markers ~1 mm): the IK's weak DIP-PIP prior and its acceleration prior decide there; calibrating
 # on low-passed markers keeps the noise from lengthening middle phalanges. Seeds 0-15 of both sets
-# (benchmarks/bench_calibrate.py): hand16 ≤ 1.96°, hand19 ≤ 1.7° (README "Calibration").
+# (benchmarks/bench_calibrate.py): hand16 ≤ 1.96°, hand19 ≤ 1.7° (docs/synergy.md, "Calibration").
 ANGLE_BOUND_DEG = {"hand19": 2.0, "hand16": 2.0}
 
 

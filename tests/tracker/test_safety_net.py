@@ -376,7 +376,7 @@ def test_a_cue_at_the_end_of_a_kept_forearm_does_not_replace_a_right_fist(hand, 
 
 @pytest.mark.slow
 def test_reduced_mode_does_not_call_a_fit_on_the_body_tracked(tmp_path):
-    """Reduced mode has no safety net, but its far-points test runs: the README's rendered open-close in
+    """Reduced mode has no safety net, but its far-points test runs: the rendered open-close of docs/beyond-the-paper.md in
     front of the body (SR305 noise, forearm and torso, the hand 1.3×), tracked in reduced mode, had
     frames 107–108 segmented with the torso (2329 points, 284 kept by the gate) and fitted onto it,
     ~270 mm off, reported ``tracked`` (found by a new user). Now no tracked frame is more than 30 mm

@@ -66,7 +66,7 @@ def test_a_turning_hand_a_few_cm_in_front_of_the_body_is_found(hand, sensor, sca
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
 
 
-@pytest.mark.xfail(strict=True, reason="known limit (README): a hand turning in front of the body loses "
+@pytest.mark.xfail(strict=True, reason="known limit (docs/known-limits.md): a hand turning in front of the body loses "
                    "fingers that lean back to within 1 cm of it, and the wrist cut then takes the wrong end")
 @pytest.mark.parametrize("sensor, scale, frame", [("realsense", 1.0, 20), ("kinect1", 1.5, 25)])
 def test_a_turning_hand_a_few_cm_in_front_of_the_body_keeps_its_fingers(hand, sensor, scale, frame):

@@ -128,7 +128,7 @@ def test_occluded_grasp_reduced_beats_full():
 def test_single_frame_hierarchical_better_than_flat(bundle, postures):
     """From the global pose only (posture unknown), the report's settings. The paper reports 22° flat
     vs 0.4° hierarchical; the issue's floor is 1°. These rows hold a fist (5700) and a crossed index
-    finger (864), the two failure kinds the README lists; the rest must be well under 1°."""
+    finger (864), the two failure kinds docs/known-limits.md lists; the rest must be well under 1°."""
     res = E.experiment_single_frame(HAND, bundle, CAM, n=6, icp=30, seed=1)
     print(f"\nsingle frame rows {res['rows']}:")
     for key, *_ in E.SINGLE_METHODS:

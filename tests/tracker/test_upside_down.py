@@ -140,14 +140,14 @@ def test_points_far_from_the_tracked_hand_make_a_frame_doubtful(hand):
 
 def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
     """The 19 labelled SR305 stills (two recordings) imported and tracked as one recording with
-    defaults and the fingerfist synergies, as the README's user did
+    defaults and the fingerfist synergies, as the user of docs/recordings.md did
     (``tracker track rec -s fingerfist``): no frame has its wrist more than 45 px from the labelled
     wrist (before: 60–106 px on 15 frames, the hand upside down from frame 2 to the end; measured now
     ≤ 40 px) and at least 3 frames meet the labels' floors (every tip ≤ 15 px, the model hand's end,
     ``HandModel.wrist_crease``, ≤ 20 px from the labelled crease; before 1; on the earlier sessions'
     machine 5–6 with the wrist test alone, 7–8 with the far-points test too, with the wrist joint; on an
     AMD EPYC 4, the joint ≤ 39 px): the frames left out are postures, not orientations — the stills are
-    0.7 s apart, and which posture a jump lands on follows the processor's rounding (README, real depth
+    0.7 s apart, and which posture a jump lands on follows the processor's rounding (docs/experiments/real-frames.md, real depth
     scenes)."""
     import json
 
