@@ -138,7 +138,7 @@ def test_forked_child_gets_its_own_worker():
 
 # ----------------------------------------------------------------------------- fuzzing
 def test_seeded_fuzz_of_the_corpus(tmp_path):
-    """1500 mutants (seed 0): each one read or a C3DError, none over 10 s, the caller alive."""
+    """600 mutants (seed 0; tools/fuzz_c3d.py runs the thousands): each one read or a C3DError, none over 10 s, the caller alive."""
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is absent")
     fz = _fuzz_tool()
@@ -147,7 +147,7 @@ def test_seeded_fuzz_of_the_corpus(tmp_path):
     counts = {"read": 0, "error": 0}
     slowest = 0.0
     p = tmp_path / "m.c3d"
-    for i in range(1500):
+    for i in range(600):
         _, data = fz.mutant(files, 0, i, cache)
         p.write_bytes(data)
         t0 = time.monotonic()
@@ -161,7 +161,7 @@ def test_seeded_fuzz_of_the_corpus(tmp_path):
         slowest = max(slowest, time.monotonic() - t0)
     assert slowest < 10
     # both outcomes occur: the mutants are neither all harmless nor all rejected
-    assert counts["read"] > 200 and counts["error"] > 200
+    assert counts["read"] > 80 and counts["error"] > 80
 
 
 def test_mutants_are_reproducible():

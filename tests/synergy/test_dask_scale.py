@@ -14,8 +14,8 @@ distributed = pytest.importorskip("distributed", reason="the optional dask extra
 def test_dask_local_cluster_equals_local_fit(tmp_path):
     runner = CliRunner()
     mocap = tmp_path / "mocap"
-    r = runner.invoke(app, ["simulate", "-o", str(mocap), "--motions", "open_close,power_grasp", "--trials", "2",
-                            "--duration", "1.5"])
+    r = runner.invoke(app, ["simulate", "-o", str(mocap), "--motions", "open_close,power_grasp", "--trials", "1",
+                            "--duration", "1"])
     assert r.exit_code == 0, r.output
     files = sorted(mocap.glob("*.c3d"))
     from synergy.scale import read_trials_dask

@@ -20,7 +20,7 @@ HAND = HandModel.load()
 def mocap(tmp_path_factory):
     out = tmp_path_factory.mktemp("mocap")
     r = runner.invoke(app, ["simulate", "-o", str(out), "--motions", "open_close,power_grasp,precision_grasp",
-                            "--trials", "2", "--duration", "2", "--noise-mm", "0", "--gaps", "0", "--units", "cm",
+                            "--trials", "1", "--duration", "2", "--noise-mm", "0", "--gaps", "0", "--units", "cm",
                             "--prefix", "Subj"])
     assert r.exit_code == 0, r.output
     return out

@@ -147,16 +147,18 @@ def test_threaded_search_with_an_empty_numba_cache_is_right(tmp_path):
     import subprocess
     import sys
 
+    # the frame is rendered and observed here (warm): the child compiles what the search needs, not the renderer
+    th = np.zeros(HAND.n_dofs)
+    th[2] = 0.7
+    np.save(tmp_path / "points.npy", observe(DepthRenderer(HAND, CAM).render(th, labels=False).depth, CAM).points)
     code = ("import numpy as np\n"
             "from handmodel import HandModel\nfrom synergy.bundle import load_bundle\n"
-            "from tracker.track import FrameTracker, TrackerSettings\nfrom tracker.sim.render import DepthRenderer\n"
-            "from tracker.cameras import preset\nfrom tracker.observe import observe\n"
+            "from tracker.track import FrameTracker, TrackerSettings\n"
             "from tracker.init import InitSettings, fit_single_frame\n"
-            "hand = HandModel.load(); cam = preset('kinect1'); th = np.zeros(hand.n_dofs); th[2] = 0.7\n"
-            "ob = observe(DepthRenderer(hand, cam).render(th, labels=False).depth, cam)\n"
+            f"hand = HandModel.load(); points = np.load({str(tmp_path / 'points.npy')!r})\n"
             "tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0), init=dict(threads=2)), "
             "synergies=load_bundle('fingerfist'))\n"
-            "print(repr(fit_single_frame(tr.context, ob.points, InitSettings.cheap())[0].tolist()))\n")
+            "print(repr(fit_single_frame(tr.context, points, InitSettings.cheap())[0].tolist()))\n")
     outs = []
     for cache in (tmp_path / "cold", None):
         env = dict(os.environ, **({"NUMBA_CACHE_DIR": str(cache)} if cache else {}))
