@@ -173,17 +173,25 @@ def preset(name: str) -> Camera:
 
 def as_camera(camera) -> Camera:
     """A :class:`Camera` from a preset name, a Camera, or any object with pinhole intrinsics
-    (``width height fx fy cx cy``; ``depth_scale_m``, ``depth_encoding`` and ``name`` if it has them).
+    (``width height fx fy`` and ``cx cy``, or pyrealsense2's ``ppx ppy``; ``depth_scale_m``,
+    ``depth_encoding`` and ``name`` if it has them).
 
     >>> as_camera("kinect1").name, as_camera(as_camera("sr305")).depth_scale_m
     ('kinect1', 0.000125)
+    >>> from types import SimpleNamespace  # what pyrealsense2's video_stream_profile.get_intrinsics() has
+    >>> rs = SimpleNamespace(width=640, height=480, fx=475.9, fy=475.9, ppx=315.2, ppy=245.3)
+    >>> as_camera(rs).cx, as_camera(rs).name
+    (315.2, 'custom')
     """
     if isinstance(camera, Camera):
         return camera
     if isinstance(camera, str):
         return preset(camera)
     try:
-        return Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+        # pyrealsense2 names the principal point ppx, ppy
+        cx = camera.cx if hasattr(camera, "cx") else camera.ppx
+        cy = camera.cy if hasattr(camera, "cy") else camera.ppy
+        return Camera(camera.width, camera.height, camera.fx, camera.fy, cx, cy,
                       getattr(camera, "depth_scale_m", getattr(camera, "depth_scale", 0.001)),
                       getattr(camera, "depth_encoding", "uint16"), getattr(camera, "name", "custom"))
     except AttributeError as exc:

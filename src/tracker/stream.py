@@ -72,7 +72,7 @@ class HandTracker:
     Parameters
     ----------
     camera : a :class:`tracker.cameras.Camera`, a preset name (``"sr305"``, ``"kinect1"`` …, see
-        ``tracker.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (pyrealsense2's
+        ``tracker.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (or ``ppx ppy``: pyrealsense2's
         intrinsics do)
     hand : ``"left"`` or ``"right"``
     synergies : a synergy bundle — a name (``"fingerfist"``, ``"grasp@1.0.0"``), a ``.npz`` path, or a
