@@ -73,7 +73,7 @@ class HandTracker:
     ----------
     camera : a :class:`tracker.cameras.Camera`, a preset name (``"sr305"``, ``"kinect1"`` …, see
         ``tracker.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (or ``ppx ppy``: pyrealsense2's
-        intrinsics do)
+        intrinsics)
     hand : ``"left"`` or ``"right"``
     synergies : a synergy bundle — a name (``"fingerfist"``, ``"grasp@1.0.0"``), a ``.npz`` path, or a
         loaded :class:`synergy.bundle.Bundle`; None tracks all 26 DoF without synergies (``mode="full"``)
