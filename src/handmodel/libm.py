@@ -20,30 +20,65 @@ from __future__ import annotations
 
 import math
 
-from numba import vectorize
+import numpy as np
+from numba import njit
+
+# Compiled loops behind plain functions, not numba ufuncs (@vectorize): a ufunc's wrapper is built anew
+# in every process (~0.1 s each, 0.45 s at every import of the hand model); a cached njit loop loads
+# at its first call.
 
 
-@vectorize(["float64(float64)"], cache=True)
+@njit(cache=True)
+def _acos(x, out):
+    for i in range(x.size):
+        out[i] = math.acos(x[i]) if -1.0 <= x[i] <= 1.0 else math.nan
+
+
+@njit(cache=True)
+def _asin(x, out):
+    for i in range(x.size):
+        out[i] = math.asin(x[i]) if -1.0 <= x[i] <= 1.0 else math.nan
+
+
+@njit(cache=True)
+def _atan2(y, x, out):
+    for i in range(x.size):
+        out[i] = math.atan2(y[i], x[i])
+
+
+@njit(cache=True)
+def _power(x, p, out):
+    for i in range(x.size):
+        if x[i] < 0.0 and p[i] != math.floor(p[i]):
+            out[i] = math.nan
+        else:
+            out[i] = math.pow(x[i], p[i])
+
+
+def _apply(kernel, *args):
+    """``kernel`` over the broadcast float64 arrays ``args``: an array of their shape, a scalar for scalars."""
+    arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in args))
+    flat = [np.ascontiguousarray(a).reshape(-1) for a in arrays]
+    out = np.empty(arrays[0].shape)
+    kernel(*flat, out.reshape(-1))
+    return out[()] if out.ndim == 0 else out
+
+
 def acos(x):
     """arccos (radians; NaN outside [−1, 1])."""
-    return math.acos(x) if -1.0 <= x <= 1.0 else math.nan
+    return _apply(_acos, x)
 
 
-@vectorize(["float64(float64)"], cache=True)
 def asin(x):
     """arcsin (radians; NaN outside [−1, 1])."""
-    return math.asin(x) if -1.0 <= x <= 1.0 else math.nan
+    return _apply(_asin, x)
 
 
-@vectorize(["float64(float64, float64)"], cache=True)
 def atan2(y, x):
     """The angle of (x, y) (radians, in [−π, π])."""
-    return math.atan2(y, x)
+    return _apply(_atan2, y, x)
 
 
-@vectorize(["float64(float64, float64)"], cache=True)
 def power(x, p):
     """x ** p (NaN for a negative x and a fractional p, as numpy)."""
-    if x < 0.0 and p != math.floor(p):
-        return math.nan
-    return math.pow(x, p)
+    return _apply(_power, x, p)
