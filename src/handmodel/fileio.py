@@ -15,6 +15,29 @@ from pathlib import Path
 _SHARE = Path("share") / "synergistic-hand-tracking"
 
 
+def plain_values(value):
+    """``value`` with numpy scalars and arrays, tuples and paths turned into YAML's plain types
+    (the one conversion of our YAML writers: hand files, subject calibrations).
+
+    >>> import numpy as np
+    >>> plain_values({"a": np.float64(1.5), 2: (np.int64(3), np.array([True]))})
+    {'a': 1.5, '2': [3, [True]]}
+    """
+    import numpy as np  # here, not at the top: this module serves `--help` too
+
+    if isinstance(value, dict):
+        return {str(k): plain_values(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain_values(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return plain_values(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
 def resource_dir(kind: str) -> Path:
     """Folder of a shipped resource kind (``models``, ``data_schema``).
 

@@ -41,7 +41,7 @@ import yaml
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
-from handmodel.fileio import atomic_write_text, load_yaml, schema_errors, sha256_file
+from handmodel.fileio import atomic_write_text, load_yaml, plain_values, schema_errors, sha256_file
 from handmodel.solver import SolverSettings, fit_points
 
 from .errors import MarkerSetError, SynergyError
@@ -136,8 +136,8 @@ class Calibration:
         d["joint_positions"] = {k: [float(x) for x in v] for k, v in self.joint_positions.items()}
         d["joint_rotations"] = {k: np.asarray(v, float).tolist() for k, v in self.joint_rotations.items()}
         d["marker_shift_mm"] = {k: float(v) for k, v in self.marker_shift_mm.items()}
-        d["uncertainty"] = _plain(self.uncertainty)
-        d["held_out"] = _plain(self.held_out)
+        d["uncertainty"] = plain_values(self.uncertainty)
+        d["held_out"] = plain_values(self.held_out)
         d["scale"] = float(self.scale)
         d["median_residual_mm"] = float(self.median_residual_mm)
         return d
@@ -145,20 +145,6 @@ class Calibration:
     @classmethod
     def from_dict(cls, d) -> "Calibration":
         return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
-
-
-def _plain(x):
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x)
-    if isinstance(x, (np.integer, int)) and not isinstance(x, bool):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 # ------------------------------------------------------------------------------------------ frames

@@ -66,9 +66,9 @@ def test_save_never_overwrites_unless_asked(tmp_path, hand):
 
 def test_save_refuses_a_file_that_reads_back_different(tmp_path, hand, monkeypatch):
     # a writer bug (here: every translation rounded to 0.1 mm) must not publish a wrong hand
-    import handmodel.model as model
+    import handmodel.model_file as model_file
 
-    real = model._to_doc
+    real = model_file.hand_to_doc
 
     def rounded(*args):
         doc = real(*args)
@@ -76,7 +76,7 @@ def test_save_refuses_a_file_that_reads_back_different(tmp_path, hand, monkeypat
             j["rest"]["translation"] = [round(v, 4) for v in j["rest"]["translation"]]
         return doc
 
-    monkeypatch.setattr(model, "_to_doc", rounded)
+    monkeypatch.setattr(model_file, "hand_to_doc", rounded)
     with pytest.raises(HandModelError, match="differs from the one in memory"):
         hand.scaled(1.2345678).save(tmp_path / "h.yaml")
     assert not any(tmp_path.iterdir())
