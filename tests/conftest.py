@@ -79,6 +79,17 @@ def shared(*parts) -> Path:
 
 
 @contextlib.contextmanager
+def import_pyrealsense2():
+    """pyrealsense2, or skip the test with the reason and the install line: the extra is missing, or its
+    wheel is there but the system libusb is not (an ImportError, not a ModuleNotFoundError)."""
+    try:
+        import pyrealsense2
+    except ImportError as exc:
+        pytest.skip(f"pyrealsense2 cannot be imported ({exc}): pip install 'synergistic-hand-tracking[realsense]' "
+                    "and the system libusb (Debian: apt-get install libusb-1.0-0)", allow_module_level=True)
+    return pyrealsense2
+
+
 def played_by_librealsense(rs, bag, attempts: int = 3):
     """Every frame of a ``.bag`` as librealsense plays it: ``({stream: [frame, …]}, depth scale in m)``,
     valid inside the ``with`` (the device's extrinsics go when it is unloaded).

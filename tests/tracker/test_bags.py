@@ -4,7 +4,7 @@ and compressedDepth PNG and RVL), damaged and wrong bags as one-line errors, the
 import struct
 import sys
 
-from conftest import SHARED_DATA, played_by_librealsense
+from conftest import SHARED_DATA, import_pyrealsense2, played_by_librealsense
 
 import imageio.v3 as iio
 import numpy as np
@@ -217,8 +217,7 @@ def _quantise(metres, depth_max=10.0, z0=100.0):
 @pytest.mark.isolated  # librealsense (conftest)
 def test_real_realsense_bag_matches_pyrealsense2():
     path = _rs_bag()
-    rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (extra [realsense]) is not installed; "
-                                                    "it needs the system libusb")
+    rs = import_pyrealsense2()
     rec = Recording.open(path)
     assert isinstance(rec, BagRecording) and len(rec) == 2  # SOURCES.md §10: 2 depth frames
     assert rec.camera.shape == (480, 640) and rec.has_color
@@ -245,8 +244,7 @@ def test_real_realsense_bag_matches_pyrealsense2():
 @pytest.mark.isolated  # librealsense (conftest)
 def test_written_realsense_bag_reads_the_same_in_pyrealsense2(tmp_path):
     """Our RealSense layout is the one librealsense plays back: same intrinsics, unit and frames."""
-    rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (extra [realsense]) is not installed; "
-                                                    "it needs the system libusb")
+    rs = import_pyrealsense2()
     frames = _frames(5, seed=9)
     path = tmp_path / "written.bag"
     _write_realsense_ros1(path, frames)
