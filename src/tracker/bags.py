@@ -129,12 +129,7 @@ def check_ros1_complete(path: Path) -> int | None:
         return  # too short to tell: the reader says so
     k = len(ROS1_MAGIC)
     hlen = struct.unpack("<I", head[k:k + 4])[0]
-    header, pos, fields = head[k + 4:k + 4 + hlen], 0, {}
-    while pos + 4 <= len(header):
-        flen = struct.unpack("<I", header[pos:pos + 4])[0]
-        name, _, value = header[pos + 4:pos + 4 + flen].partition(b"=")
-        fields[name] = value
-        pos += 4 + flen
+    fields = _record_fields(head[k + 4:k + 4 + hlen])
     if fields.get(b"op") != b"\x03" or len(fields.get(b"index_pos", b"")) != 8:
         return  # a damaged header: the reader says so
     index_pos = struct.unpack("<Q", fields[b"index_pos"])[0]
@@ -144,7 +139,62 @@ def check_ros1_complete(path: Path) -> int | None:
     if index_pos >= size:
         raise RecordingError(path, f"cut short: the bag's index starts at byte {index_pos}, the file ends at "
                                    f"{size} (copy it again, or rebuild the index with `rosbag reindex`)")
+    check_ros1_records(path, index_pos, size)
     return index_pos
+
+
+def _record_fields(header: bytes) -> dict:
+    """A ROS1 record header's ``name=value`` fields (each behind its u32 length)."""
+    pos, fields = 0, {}
+    while pos + 4 <= len(header):
+        flen = struct.unpack("<I", header[pos:pos + 4])[0]
+        name, _, value = header[pos + 4:pos + 4 + flen].partition(b"=")
+        fields[name] = value
+        pos += 4 + flen
+    return fields
+
+
+def check_ros1_records(path: Path, index_pos: int, size: int) -> None:
+    """Refuse a ROS1 bag whose index records, or the chunks they point at, declare lengths past the end
+    of the file. The reader allocates what a record declares before it reads it: one length field set
+    to 0xFFFFFFF0 made it ask for 4 GB (a MemoryError, or the machine's memory) instead of saying
+    which record is damaged."""
+    chunks = []
+    try:
+        with open(path, "rb") as fh:
+            def record(pos, what):
+                fh.seek(pos)
+                raw = fh.read(4)
+                hlen = struct.unpack("<I", raw)[0] if len(raw) == 4 else None
+                if hlen is None or pos + 8 + hlen > size:
+                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares a header of "
+                                               f"{hlen if hlen is not None else '?'} bytes, past the file's end at {size}")
+                header = fh.read(hlen)
+                raw = fh.read(4)
+                dlen = struct.unpack("<I", raw)[0] if len(raw) == 4 else None
+                end = pos + 8 + hlen + (dlen or 0)
+                if dlen is None or end > size:
+                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares "
+                                               f"{dlen if dlen is not None else '?'} bytes of data, past the file's "
+                                               f"end at {size}")
+                return _record_fields(header), end
+
+            def damage(what):
+                # the index is the file's last part: a copy that stopped inside it looks the same
+                return (f"damaged or cut short inside its index (from byte {index_pos}): the record"
+                        if what == "index" else "damaged: the chunk")
+
+            pos = index_pos
+            while pos < size:
+                fields, pos = record(pos, "index")
+                if fields.get(b"op") == b"\x06" and len(fields.get(b"chunk_pos", b"")) == 8:
+                    chunks.append(struct.unpack("<Q", fields[b"chunk_pos"])[0])
+            for chunk_pos in chunks:
+                if chunk_pos >= index_pos:
+                    raise RecordingError(path, f"damaged: a chunk said to start at byte {chunk_pos}, inside the index")
+                record(chunk_pos, "chunk")
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
 
 
 class _Bag:

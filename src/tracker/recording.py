@@ -52,6 +52,10 @@ _OWN = {"recording.yaml", "truth.csv", "depth", "color", "truth_hand.yaml"}  # t
 #: 4096² float32 is 64 MiB a frame, and tracking keeps about ten such arrays, so a frame this
 #: size still fits in a few hundred MB, while an 8000×8000 frame drove ``track`` to ~10 GB.
 MAX_FRAME_SIDE = 4096
+#: The frame rates (Hz) a recording may declare: one frame a 100 s to 100 kHz (recording.schema.json
+#: says the same). A rate outside them is damage (``fps: 1.0e-300`` read as a rate made every frame
+#: time infinite), not a camera.
+FPS_RANGE = (0.01, 100000.0)
 
 
 def check_frame_size(width: int, height: int, where) -> None:
@@ -421,6 +425,9 @@ class FileRecording(Recording):
         self.path = Path(path)
         self.camera = camera
         self.fps = float(fps)
+        if not (np.isfinite(self.fps) and FPS_RANGE[0] <= self.fps <= FPS_RANGE[1]):
+            raise RecordingError(self.path, f"a frame rate of {self.fps:g} Hz is not a camera's (damaged frame rate "
+                                            "or time stamps?)")
         self.handedness = handedness
         self.truth = None
         self._theta = None
@@ -574,8 +581,8 @@ class RecordingWriter:
             fps = float(fps)
         except (TypeError, ValueError):
             raise RecordingError(self.path, f"fps must be a number, got {fps!r}") from None
-        if not (np.isfinite(fps) and fps > 0):
-            raise RecordingError(self.path, f"fps must be positive, got {fps}")
+        if not (np.isfinite(fps) and FPS_RANGE[0] <= fps <= FPS_RANGE[1]):
+            raise RecordingError(self.path, f"fps must be between {FPS_RANGE[0]:g} and {FPS_RANGE[1]:g} Hz, got {fps}")
         self.camera = as_camera(camera)
         check_frame_size(self.camera.width, self.camera.height, self.path)
         self.fps = fps

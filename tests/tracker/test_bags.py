@@ -632,3 +632,57 @@ def test_a_renamed_file_or_a_bag_cut_inside_its_index_says_so(tmp_path):
     cut.write_bytes(data[:-60])  # the index (connection and chunk records) is the file's last part
     line = _one_error_line(_cli("info", cut), cut)
     assert "damaged or cut short inside its index" in line and f"file's end at {len(data) - 60}" in line, line
+
+
+def test_lengths_past_the_end_are_refused_before_anything_is_allocated(tmp_path):
+    """An index record or a chunk declaring 0xFFFFFFF0 bytes made the reader ask for 4 GB (a MemoryError
+    under a memory cap, the machine's memory without one) before it found the file shorter: now the
+    declared sizes are checked against the file first, and the error names the record."""
+    from tracker.bags import check_ros1_complete
+
+    good, _ = _bad_bags(tmp_path)
+    data = good.read_bytes()
+    index_pos = check_ros1_complete(good)
+    hlen = struct.unpack("<I", data[index_pos:index_pos + 4])[0]
+    cases = {"index header": (index_pos, "declares a header of 4294967280 bytes"),
+             "index data": (index_pos + 4 + hlen, "declares 4294967280 bytes of data")}
+    for name, (at, want) in cases.items():
+        bad = tmp_path / f"{name.replace(' ', '_')}.bag"
+        bad.write_bytes(data[:at] + struct.pack("<I", 0xFFFFFFF0) + data[at + 4:])
+        line = _one_error_line(_cli("info", bad), bad)
+        assert "damaged or cut short inside its index" in line and want in line, line
+    # a chunk's data length (the chunk info records say where each chunk starts)
+    chunk_pos = [struct.unpack("<Q", data[k + 10:k + 18])[0] for k in _find_all(data, b"chunk_pos=")]
+    assert chunk_pos
+    c = chunk_pos[0]
+    chlen = struct.unpack("<I", data[c:c + 4])[0]
+    bad = tmp_path / "chunk.bag"
+    bad.write_bytes(data[:c + 4 + chlen] + struct.pack("<I", 0xFFFFFFF0) + data[c + 8 + chlen:])
+    line = _one_error_line(_cli("info", bad), bad)
+    assert f"damaged: the chunk at byte {c} declares 4294967280 bytes of data" in line, line
+
+
+def _find_all(data: bytes, needle: bytes):
+    k = data.find(needle)
+    while k >= 0:
+        yield k
+        k = data.find(needle, k + 1)
+
+
+def test_an_implausible_frame_rate_is_refused(tmp_path):
+    """``fps: 1.0e-300`` in recording.yaml was accepted (every frame time infinite); a rate outside
+    one frame a 100 s to 100 kHz is damage, said in one line, for the folder and for the writer."""
+    from tracker.cameras import preset
+    from tracker.recording import FPS_RANGE, RecordingWriter
+
+    rec = tmp_path / "rec"
+    assert _cli("synth", "--motion", "open-close", "--frames", "2", "-o", rec).exit_code == 0
+    yaml_path = rec / "recording.yaml"
+    text = yaml_path.read_text()
+    for fps in ("1.0e-300", "0.0", "-30", "1.0e+9", ".nan"):
+        yaml_path.write_text("\n".join(f"fps: {fps}" if ln.startswith("fps:") else ln for ln in text.splitlines()) + "\n")
+        line = _one_error_line(_cli("info", rec), yaml_path)
+        assert "fps" in line, (fps, line)
+    for fps in (FPS_RANGE[0] / 2, FPS_RANGE[1] * 2, float("nan")):
+        with pytest.raises(RecordingError, match="fps must be between"):
+            RecordingWriter(tmp_path / f"w{fps}", preset("kinect1"), fps=fps)
