@@ -78,7 +78,6 @@ def shared(*parts) -> Path:
     return p
 
 
-@contextlib.contextmanager
 def import_pyrealsense2():
     """pyrealsense2, or skip the test with the reason and the install line: the extra is missing, or its
     wheel is there but the system libusb is not (an ImportError, not a ModuleNotFoundError)."""
@@ -90,6 +89,7 @@ def import_pyrealsense2():
     return pyrealsense2
 
 
+@contextlib.contextmanager
 def played_by_librealsense(rs, bag, attempts: int = 3):
     """Every frame of a ``.bag`` as librealsense plays it: ``({stream: [frame, …]}, depth scale in m)``,
     valid inside the ``with`` (the device's extrinsics go when it is unloaded).
