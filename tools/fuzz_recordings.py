@@ -1,8 +1,9 @@
 """Fuzz the recording readers (:func:`tracker.recording.open_recording`) with mutated recordings.
 
-Formats: ``bag`` (ROS1: a RealSense-layout bag written here and the real RealSense ``.bag`` from
+Formats: ``bag`` (ROS1: a depth bag written here and the real RealSense ``.bag`` from
 ``../shared/data``), ``db3`` and ``mcap`` (ROS2, written here), ``mkv`` (the real Azure Kinect file)
-and ``png`` (our recording folder: ``recording.yaml`` and 16-bit PNGs, written here). Every mutant is
+and ``png`` (our recording folder, ``recording.yaml`` and 16-bit PNGs: one written here by
+:class:`~tracker.recording.RecordingWriter`, one made by ``tracker import`` of the real ``.mkv``). Every mutant is
 opened and every frame's depth read; it must end read or as a clean
 :class:`~tracker.errors.RecordingError` / :class:`~tracker.errors.TrackerError`, within ``--timeout``
 seconds, with no process over ``--max-rss-mb``. Mutant ``i`` of seed ``S`` and format ``F`` is
@@ -108,6 +109,12 @@ def seeds(fmt: str, work: Path, corpus: Path) -> list[Path]:
             for _ in range(3):
                 w.write_units(rng.integers(300, 4000, (30, 40)).astype(np.uint16))
         out.append(work / "folder")
+        if (corpus / REAL["mkv"]).is_file():  # what `tracker import` makes of a real file
+            from tracker.recording import import_recording_file
+
+            import_recording_file(corpus / REAL["mkv"], work / "imported", handedness="left")
+            out.append(work / "imported")
+        return out
     if fmt in REAL and (corpus / REAL[fmt]).is_file():
         out.append(corpus / REAL[fmt])
     return out
@@ -309,7 +316,7 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--timeout", type=float, default=30.0, help="seconds one mutant may take")
     ap.add_argument("--max-rss-mb", type=float, default=1024.0)
-    ap.add_argument("--cap-gb", type=float, default=3.0, help="address-space cap of a reading process")
+    ap.add_argument("--cap-gb", type=float, default=1.0, help="address-space cap (RLIMIT_AS) of a reading process")
     ap.add_argument("--corpus", type=Path, default=DEFAULT_CORPUS)
     ap.add_argument("--keep", type=Path, default=None, help="save failing mutants here")
     args = ap.parse_args(argv)

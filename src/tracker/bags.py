@@ -154,6 +154,11 @@ def _record_fields(header: bytes) -> dict:
     return fields
 
 
+#: A ROS1 record header holds a few fields (a connection's, its message definition: a few kB); a
+#: longer one is a damaged length, not read into memory.
+_MAX_RECORD_HEADER = 1 << 24
+
+
 def check_ros1_records(path: Path, index_pos: int, size: int) -> None:
     """Refuse a ROS1 bag whose index records, or the chunks they point at, declare lengths past the end
     of the file. The reader allocates what a record declares before it reads it: one length field set
@@ -166,6 +171,9 @@ def check_ros1_records(path: Path, index_pos: int, size: int) -> None:
                 fh.seek(pos)
                 raw = fh.read(4)
                 hlen = struct.unpack("<I", raw)[0] if len(raw) == 4 else None
+                if hlen is not None and hlen > _MAX_RECORD_HEADER:
+                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares a header of {hlen} bytes "
+                                               f"(a ROS record's header is a few kB)")
                 if hlen is None or pos + 8 + hlen > size:
                     raise RecordingError(path, f"{damage(what)} at byte {pos} declares a header of "
                                                f"{hlen if hlen is not None else '?'} bytes, past the file's end at {size}")
@@ -192,7 +200,19 @@ def check_ros1_records(path: Path, index_pos: int, size: int) -> None:
             for chunk_pos in chunks:
                 if chunk_pos >= index_pos:
                     raise RecordingError(path, f"damaged: a chunk said to start at byte {chunk_pos}, inside the index")
-                record(chunk_pos, "chunk")
+                fields, end = record(chunk_pos, "chunk")
+                if fields.get(b"op") != b"\x05":
+                    raise RecordingError(path, f"damaged: the index points at a chunk at byte {chunk_pos}, but the "
+                                               "record there is not a chunk")
+                # a chunk is followed by its index data records (op 0x04): anything else there means
+                # the chunk's declared size is wrong, which rosbags would read past without a word
+                try:
+                    follows = record(end, "chunk")[0] if end < index_pos else {}
+                except RecordingError:
+                    follows = {}
+                if follows.get(b"op") != b"\x04":
+                    raise RecordingError(path, f"damaged: the chunk at byte {chunk_pos} declares a size that ends at "
+                                               f"byte {end}, where no index data record starts (a wrong chunk size)")
     except OSError as exc:
         raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
 

@@ -110,6 +110,78 @@ def cut_short(path: Path):
     return (declared, size) if declared > size else None
 
 
+#: The elements a Matroska Segment holds (level 1), and those a Cluster holds: any other ID where an
+#: element must start means the size of the element before it is wrong.
+_SEGMENT_CHILDREN = {0x114D9B74: "SeekHead", 0x1549A966: "Info", 0x1654AE6B: "Tracks", 0x1C53BB6B: "Cues",
+                     0x1941A469: "Attachments", 0x1043A770: "Chapters", 0x1254C367: "Tags",
+                     0x1F43B675: "Cluster", 0xEC: "Void", 0xBF: "CRC-32"}
+_CLUSTER_CHILDREN = {0xE7: "Timecode", 0xA3: "SimpleBlock", 0xA0: "BlockGroup", 0xA7: "Position",
+                     0xAB: "PrevSize", 0x5854: "SilentTracks", 0xAF: "EncryptedBlock", 0xEC: "Void", 0xBF: "CRC-32"}
+
+
+def check_structure(path: Path) -> None:
+    """Walk the Segment's elements and each Cluster's, and refuse the file at the first element whose
+    declared size runs past its parent or is followed by no element (a damaged size field): PyAV
+    resynchronises past such damage and reads on without a word, losing or misplacing frames. A
+    file cut short (:func:`cut_short`) may end inside its last element; that is reported elsewhere.
+
+    Raises
+    ------
+    RecordingError
+        Naming the element, its byte offset and what is wrong.
+    """
+    try:
+        with open(path, "rb") as fh:
+            _walk_segment(path, fh, fh.seek(0, 2))
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _walk_segment(path: Path, fh, size: int) -> None:
+    """:func:`check_structure` on an open file of ``size`` bytes: element headers only (a recording
+    may be gigabytes; each header is read where the one before it says)."""
+    def at(pos):
+        fh.seek(pos)
+        return fh.read(16)
+
+    head = at(0) + fh.read(240)
+    ebml = _vint(head, 0, keep_marker=True)
+    hs = _vint(head, ebml[1]) if ebml else None
+    if hs is None:
+        return  # not Matroska: the container opener says so
+    i = ebml[1] + hs[1] + hs[0]
+    h = at(i)
+    seg, ss = _vint(h, 0, keep_marker=True), None
+    if seg is None or seg[0] != 0x18538067 or (ss := _vint(h, seg[1])) is None:
+        return
+    start = i + seg[1] + ss[1]
+    unknown = ss[0] == (1 << (7 * ss[1])) - 1
+    end = size if unknown else min(start + ss[0], size)
+    cut = not unknown and start + ss[0] > size
+
+    def walk(pos, stop, children, parent):
+        while pos < stop:
+            h = at(pos)
+            eid = _vint(h, 0, keep_marker=True)
+            n = _vint(h, eid[1]) if eid else None
+            if eid is None or eid[0] not in children or n is None or pos + eid[1] + n[1] > size:
+                if cut and (eid is None or n is None or pos + eid[1] + n[1] > size):
+                    return  # the copy ends inside this element's header
+                raise RecordingError(path, f"damaged: no {parent} element starts at byte {pos} (the size of the "
+                                           "element before it is wrong, or the bytes there are)")
+            name, body = children[eid[0]], pos + eid[1] + n[1]
+            if name == "Cluster" and n[0] == (1 << (7 * n[1])) - 1:
+                return  # a live recorder's Cluster of unknown size: its end is where the next one starts
+            if body + n[0] > stop and not (cut and body + n[0] > size):
+                raise RecordingError(path, f"damaged: the {name} element at byte {pos} declares {n[0]} bytes, "
+                                           f"past the end of its {parent} at byte {stop}")
+            if name == "Cluster":
+                walk(body, min(body + n[0], stop), _CLUSTER_CHILDREN, "Cluster")
+            pos = body + n[0]
+
+    walk(start, end, _SEGMENT_CHILDREN, "Segment")
+
+
 def _cut_text(path: Path) -> str:
     """"cut short: the file has N of its M bytes" for a file cut short (:func:`cut_short`), else ""."""
     cut = cut_short(path)
@@ -223,10 +295,13 @@ def open_mkv(path, *, handedness: str = "left") -> MkvRecording:
     path = Path(path)
     c = _open_container(path)
     try:
+        check_structure(path)
         s = _depth_stream(c, path)
         mode = s.metadata.get("K4A_DEPTH_MODE", "")
         w, h, fx, fy, cx, cy = depth_intrinsics(_calibration(c, path), mode, path)
         cc = s.codec_context
+        if cc is None or s.time_base is None:
+            raise RecordingError(path, "the depth track has no codec parameters or time base (a damaged track header)")
         check_frame_size(int(cc.width or 0), int(cc.height or 0), path)
         if (cc.width, cc.height) != (w, h):
             raise RecordingError(path, f"depth track is {cc.width}×{cc.height}, depth mode {mode} gives {w}×{h}")

@@ -686,3 +686,24 @@ def test_an_implausible_frame_rate_is_refused(tmp_path):
     for fps in (FPS_RANGE[0] / 2, FPS_RANGE[1] * 2, float("nan")):
         with pytest.raises(RecordingError, match="fps must be between"):
             RecordingWriter(tmp_path / f"w{fps}", preset("kinect1"), fps=fps)
+
+
+def test_a_chunk_size_that_stays_inside_the_file_still_names_the_chunk(tmp_path):
+    """A chunk's data length a few bytes short or long stays inside the file, so the bounds check passes;
+    rosbags then read past the chunk's real end without a word. A chunk is followed by its index data
+    records: the reader checks that one starts where the chunk's size says it ends."""
+    good, _ = _bad_bags(tmp_path)
+    data = good.read_bytes()
+    c = [struct.unpack("<Q", data[k + 10:k + 18])[0] for k in _find_all(data, b"chunk_pos=")][0]
+    chlen = struct.unpack("<I", data[c:c + 4])[0]
+    dlen = struct.unpack("<I", data[c + 4 + chlen:c + 8 + chlen])[0]
+    for delta in (-3, 8):
+        bad = tmp_path / f"chunk{delta}.bag"
+        bad.write_bytes(data[:c + 4 + chlen] + struct.pack("<I", dlen + delta) + data[c + 8 + chlen:])
+        line = _one_error_line(_cli("info", bad), bad)
+        assert f"damaged: the chunk at byte {c} declares a size that ends at byte {c + 8 + chlen + dlen + delta}" in line, line
+    # a header length inside the file but larger than any record's is not read into memory
+    bad = tmp_path / "header.bag"
+    bad.write_bytes(data[:c] + struct.pack("<I", (1 << 24) + 1) + data[c + 4:])
+    line = _one_error_line(_cli("info", bad), bad)
+    assert f"damaged: the chunk at byte {c} declares a header of {(1 << 24) + 1} bytes" in line, line

@@ -193,3 +193,51 @@ def test_track_warns_of_a_cut_mkv_and_tracks_what_it_holds(tmp_path):
     assert len(df) == 1
     r = _cli("track", MKV, "--no-check-hand", "--no-safety-net", "-o", tmp_path / "whole.csv")
     assert r.exit_code == 0 and "cut short" not in r.stderr, r.output  # a sound file: no warning
+
+
+def _damaged_copy(tmp_path, at, value, name="damaged.mkv"):
+    data = bytearray(_mkv().read_bytes())
+    data[at] = value
+    out = tmp_path / name
+    out.write_bytes(bytes(data))
+    return out
+
+
+def test_a_wrong_element_size_names_the_element(tmp_path):
+    """A Cluster's size one unit too large (its last byte +1) read on silently under PyAV, which
+    resynchronises; the walk over the elements stops at the first one that runs past its parent."""
+    from tracker.mkv import _vint, check_structure
+
+    data = _mkv().read_bytes()
+    pos = data.rindex(bytes.fromhex("1F43B675"), 0, data.index(bytes.fromhex("1C53BB6B"), 7000))
+    n = _vint(data, pos + 4)[1]
+    bad = _damaged_copy(tmp_path, pos + 4 + n - 1, (data[pos + 4 + n - 1] + 1) % 256)
+    check_structure(_mkv())  # the real file is sound
+    with pytest.raises(RecordingError, match=r"damaged: .* element at byte \d+ declares \d+ bytes, past the end"
+                                             r"|damaged: no (Cluster|Segment) element starts at byte"):
+        Recording.open(bad)
+
+
+def test_a_damaged_element_id_is_refused_not_read_on(tmp_path):
+    data = _mkv().read_bytes()
+    tracks = data.rindex(bytes.fromhex("1654AE6B"), 0, 7000)  # the element, after the SeekHead naming it
+    bad = _damaged_copy(tmp_path, tracks, 0x55)  # Tracks' ID no longer a Segment element
+    with pytest.raises(RecordingError, match=f"no Segment element starts at byte {tracks}"):
+        Recording.open(bad)
+
+
+def test_fuzz_mutant_without_codec_parameters_is_refused(tmp_path):
+    """Mutant 117 of the fuzzer's seed 0 left the depth track without codec parameters: an
+    AttributeError ('NoneType' has no attribute 'width') before the fix."""
+    import importlib.util
+    from pathlib import Path
+
+    _mkv()
+    tool = Path(__file__).resolve().parents[2] / "tools" / "fuzz_recordings.py"
+    spec = importlib.util.spec_from_file_location("fuzz_recordings", tool)
+    fz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fz)
+    path, _ = fz.make_mutant("mkv", [MKV], 0, 117, tmp_path)
+    with pytest.raises(RecordingError):
+        for _ in Recording.open(path):
+            pass

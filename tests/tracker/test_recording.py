@@ -311,7 +311,7 @@ def test_writer_refuses_and_checks(tmp_path):
     assert sorted(p.name for p in (tmp_path / "new" / "depth").iterdir()) == ["000000.png"]
     with pytest.raises(RecordingError, match="handedness must be left or right"):
         RecordingWriter(tmp_path / "x", SMALL, 30, "both")
-    with pytest.raises(RecordingError, match="fps must be positive"):
+    with pytest.raises(RecordingError, match="fps must be between 0.01 and 100000 Hz"):
         RecordingWriter(tmp_path / "x", SMALL, 0)
 
 
