@@ -40,7 +40,9 @@ from .scale import calibrated_hand, shaped_hand
 from .track import FrameTracker, TrackerSettings
 
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
-STATUSES = ("tracked", "lost", "reinit")
+#: A frame's status: followed from the last frame, lost (no hand), found by a fresh search, or — in
+#: real time only (:func:`track_realtime`) — predicted (its fit was pending: the last fit moved on)
+STATUSES = ("tracked", "lost", "reinit", "predicted")
 
 
 def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
@@ -74,6 +76,56 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
                      0 if ob is None else len(ob.points), r.ms, *r.theta))
         if on_frame is not None:
             on_frame(frame, r, ob)
+    return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *tracker.hand.dof_names])
+
+
+def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=None, pace: bool = False,
+                   dropped=None) -> pd.DataFrame:
+    """:func:`track_recording` in real time: each frame is observed and fitted on a worker thread
+    (:class:`tracker.realtime.FrameBudget`, or the one given as ``budget_ms``) and waited for at most
+    ``budget_ms``; a frame whose fit
+    overruns, or that comes while the worker is still on an earlier one, gets the last fit moved on
+    (:func:`tracker.realtime.predicted_theta`, status ``"predicted"``, no points, ``observation`` None
+    for ``on_frame``). With ``pace`` the frames come at the recording's own rate
+    (:func:`tracker.realtime.paced`; the late ones dropped and listed in ``dropped``), as from a sensor.
+    The rows are what was published, frame by frame, as a live user saw them."""
+    from .realtime import FrameBudget, paced, predicted_theta
+    from .track import FrameResult
+
+    cam = recording.camera
+    frames = recording.frames_or_problems() if hasattr(recording, "frames_or_problems") else recording
+    if pace:
+        frames = paced(frames, recording.fps, dropped=dropped)
+
+    def fit(frame):
+        ob = observe_frame(tracker, frame, cam, segmenter)
+        r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
+        return r, ob
+
+    # a FrameBudget given is used as it is (its budget may be changed between frames)
+    budget = budget_ms if isinstance(budget_ms, FrameBudget) else FrameBudget(budget_ms)
+    rows, fitted = [], []
+    try:
+        for frame in frames:
+            t0 = time.perf_counter()
+            done = budget(fit, frame)
+            if done is not None:
+                r, ob = done
+                fitted[:] = [*fitted[-1:], r.theta]
+            else:
+                ob, last = None, fitted[-1] if fitted else None
+                found = last is not None and np.all(np.isfinite(last))
+                theta = (predicted_theta(last, fitted[0] if len(fitted) == 2 else None) if found
+                         else np.full(tracker.hand.n_dofs, np.nan))
+                r = FrameResult(theta, "predicted" if found else "lost", float("nan"), 0, 0,
+                                (time.perf_counter() - t0) * 1000.0)
+            rows.append((frame.index, frame.time_s, r.status, r.fit_mm, r.points_used,
+                         0 if ob is None else len(ob.points), r.ms, *r.theta))
+            if on_frame is not None:
+                on_frame(frame, r, ob)
+        budget.wait()  # the last fit ends before the tracker's state is read (size, hand check)
+    finally:
+        budget.close()
     return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *tracker.hand.dof_names])
 
 
@@ -288,6 +340,8 @@ class TrackJob:
     start_s, end_s, every : a recording file's frames from ``start_s`` to ``end_s`` (s of file time),
         every ``every``-th
     save_hand : write the hand calibrated in this run to this YAML file (:func:`tracker.scale.calibrated_hand`)
+    budget_ms, pace : real time (:func:`track_realtime`): each fit waited for at most ``budget_ms`` (None:
+        every frame fitted in turn), the frames paced at the recording's rate
     hand_scale_asked : ``settings.scale.hand_scale`` was asked for (``--hand-scale``). A calibrated hand file
         (``hand_model``) is tracked as it is (size 1) unless ``"auto"`` was asked, which estimates the
         size again on it; a number other than 1 with such a file is refused (it would scale the
@@ -316,6 +370,8 @@ class TrackJob:
     every: int = 1
     save_hand: str | None = None
     hand_scale_asked: bool = False
+    budget_ms: float | None = None
+    pace: bool = False
 
 
 def open_job_recording(job: TrackJob):
@@ -345,6 +401,7 @@ class TrackRun:
     rerun: Path | None = None
     warnings: list = field(default_factory=list)
     unreadable: list = field(default_factory=list)  # the problems of frames whose files could not be read
+    dropped: list = field(default_factory=list)  # real time, paced: the frames the loop was too late for
 
 
 def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
@@ -376,7 +433,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
 
         viewer = RerunLog(cam, job.rerun, spawn=job.rerun_spawn, overwrite=job.overwrite,
                           name=f"tracker {Path(str(job.recording)).name}")
-    written, unreadable = [], []
+    written, unreadable, dropped = [], [], []
     calibration_frames, settled = [], [False]
 
     def each(frame, r, ob):
@@ -399,7 +456,11 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
 
     t_start = time.perf_counter()
     try:
-        df = track_recording(rec, tracker, each, segmenter=job.segmenter)
+        if job.budget_ms is None:
+            df = track_recording(rec, tracker, each, segmenter=job.segmenter)
+        else:
+            df = track_realtime(rec, tracker, job.budget_ms, each, segmenter=job.segmenter, pace=job.pace,
+                                dropped=dropped)
     except BaseException:
         if viewer is not None:
             viewer.abort()
@@ -423,7 +484,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         raise
     rrd = viewer.close() if viewer is not None else None
     warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
-    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable)
+    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable, dropped)
 
 
 def overlay_name(index: int) -> str:

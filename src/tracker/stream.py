@@ -15,8 +15,6 @@ frame is segmented in the predicted hand's window (:func:`tracker.observe.observ
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
-from concurrent.futures import TimeoutError as FrameTimeout
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -28,6 +26,7 @@ from . import TRACKING_HAND
 from .cameras import as_camera
 from .errors import TrackerError
 from .observe import observe
+from .realtime import FrameBudget, predicted_theta
 from .run import settings_for_hand
 from .track import FrameTracker
 from .track import TrackerSettings
@@ -106,13 +105,20 @@ class HandTracker:
         model = HandModel.load(hand_model, right=hand == "right")
         self.core = FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
         self.segmenter = segmenter
-        if budget_ms is not None and not budget_ms > 0:
-            raise TrackerError("budget_ms", f"must be a positive number of ms or None, got {budget_ms!r}")
-        self.budget_ms = budget_ms
-        self._worker = None if budget_ms is None else ThreadPoolExecutor(1, thread_name_prefix="hand-fit")
-        self._pending = None   # the frame the worker is fitting (a Future)
+        self._budget = None if budget_ms is None else FrameBudget(budget_ms)  # checks the number
         self._last = []        # the last two fitted results (oldest first): what a predicted frame extrapolates
         self._last_hand = None  # the hand model of the last fitted result
+
+    @property
+    def budget_ms(self) -> float | None:
+        """Real-time mode's wait for a fit (ms), or None; may be changed between frames."""
+        return None if self._budget is None else self._budget.budget_ms
+
+    @budget_ms.setter
+    def budget_ms(self, value: float) -> None:
+        if self._budget is None:
+            raise TrackerError("budget_ms", "this tracker was made without a budget (not in real-time mode)")
+        self._budget.budget_ms = float(value)
 
     @property
     def model(self) -> HandModel:
@@ -126,34 +132,21 @@ class HandTracker:
         cam = self.camera
         if d.shape != (cam.height, cam.width):
             raise TrackerError("depth", f"frame of shape {d.shape}, the camera's is {(cam.height, cam.width)}")
-        if self._worker is None:
+        if self._budget is None:
             return self._fit(d, color, t0)
-        if self._pending is not None and self._pending.done():
-            self._pending.result()  # a fit that failed raises here, not silently later
-            self._pending = None
-        if self._pending is not None:  # still fitting an earlier frame: this one is not fitted
-            return self._predicted(t0)
-        self._pending = self._worker.submit(self._fit, d, color, t0)
-        try:
-            r = self._pending.result(timeout=max(self.budget_ms / 1000.0 - (time.perf_counter() - t0), 0.0))
-        except FrameTimeout:
-            return self._predicted(t0)
-        self._pending = None
-        return r
+        r = self._budget(self._fit, d, color, t0)
+        return self._predicted(t0) if r is None else r
 
     def _predicted(self, t0) -> HandResult:
-        """The latest fitted hand moved on by its last change (global rotation kept, as the tracker's
-        own prediction): what a frame gets while the worker is still fitting an earlier one."""
+        """The latest fitted hand moved on by its last change (:func:`tracker.realtime.predicted_theta`):
+        what a frame gets while the worker is still fitting an earlier one."""
         if not self._last or not self._last[-1].found:
             nan = np.full_like(self._last[-1].theta if self._last else np.zeros(26), np.nan)
             kp = np.full((self.core.hand.n_nodes, 3), np.nan)
             return HandResult("lost", nan, kp, float("nan"), 0, (time.perf_counter() - t0) * 1000.0)
         last = self._last[-1]
-        theta = last.theta.copy()
-        if len(self._last) == 2 and self._last[0].found:
-            change = last.theta - self._last[0].theta
-            change[3:6] = 0.0
-            theta = theta + change
+        before = self._last[0].theta if len(self._last) == 2 and self._last[0].found else None
+        theta = predicted_theta(last.theta, before)
         return replace(last, status="predicted", theta=theta, keypoints=self._last_hand.keypoints(theta),
                        points=0, mask=None, ms=(time.perf_counter() - t0) * 1000.0)
 
@@ -173,10 +166,7 @@ class HandTracker:
     def wait(self) -> HandResult | None:
         """Real-time mode: wait for the frame the worker is fitting and return its result (None when
         it is idle) — e.g. at the end of a recording, whose last frames came while it was busy."""
-        if self._pending is None:
-            return None
-        r, self._pending = self._pending.result(), None
-        return r
+        return None if self._budget is None else self._budget.wait()
 
     def reset(self) -> None:
         """Forget the last frame: the next one is searched from scratch (a cut in the video)."""
@@ -186,8 +176,8 @@ class HandTracker:
 
     def close(self) -> None:
         """Stop the real-time worker (after the frame it is fitting)."""
-        if self._worker is not None:
-            self._worker.shutdown(wait=True)
+        if self._budget is not None:
+            self._budget.close()
 
     def __enter__(self):
         return self

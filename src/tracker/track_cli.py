@@ -8,7 +8,9 @@ parse, call :mod:`tracker.run`, print and draw progress; heavy modules are impor
 """
 from __future__ import annotations
 
+import math
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import List, Optional
 
@@ -712,6 +714,8 @@ def live(
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
     plane: str = PLANE,
+    realtime: Optional[bool] = typer.Option(None, "--realtime/--no-realtime", help="Keep up with the sensor: fits run on a worker, and a frame whose fit takes longer than --budget-ms gets the last fit moved on (status predicted); a playback is paced at its own rate [on for a camera, off for --playback]."),
+    budget_ms: Optional[float] = typer.Option(None, "--budget-ms", help="Real time: how long a frame waits for its fit (ms) [one frame period]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
     """Track the hand live from a RealSense camera (extra [realsense]) with the pipeline of tracker
@@ -724,6 +728,8 @@ def live(
         raise TrackerError("--hand", f"must be left or right, got {hand!r}")
     if (frames is not None and frames < 1) or (seconds is not None and not seconds > 0):
         raise TrackerError("live", "--frames and --seconds must be positive")
+    if budget_ms is not None and not (budget_ms > 0 and math.isfinite(budget_ms)):
+        raise TrackerError("--budget-ms", f"must be a positive number of ms, got {budget_ms:g}")
     hand_model = _hand_model(hand_model, paper)
     _check_not_inputs([playback, _input_file(hand_model), _input_file(synergies)],
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
@@ -759,7 +765,10 @@ def live(
                    keypoints=None if keypoints is None else str(keypoints),
                    overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
                    rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
-                   handedness=hand, hand_scale_asked=hand_scale is not None)
+                   handedness=hand, hand_scale_asked=hand_scale is not None,
+                   budget_ms=budget_ms if budget_ms is not None else 1000.0 / source.fps, pace=playback is not None)
+    if not (playback is None if realtime is None else realtime):
+        job = replace(job, budget_ms=None, pace=False)
 
     def interrupted(signum, stack):
         # the first Ctrl-C ends the stream after this frame and the outputs are written; a second aborts
@@ -790,7 +799,9 @@ def live(
     st = df["status"]
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(f"{source.name}: {len(df)} frames, {int((st == 'tracked').sum())} tracked, "
-                  f"{int((st == 'lost').sum())} lost, {int((st == 'reinit').sum())} reinit; "
+                  f"{int((st == 'lost').sum())} lost, {int((st == 'reinit').sum())} reinit"
+                  + (f", {int((st == 'predicted').sum())} predicted (fit pending), {len(run.dropped)} dropped (late)"
+                     if job.budget_ms is not None else "") + "; "
                   f"median fit {df['fit_mm'].median():.2f} mm, median {df['ms'].median():.1f} ms a frame, "
                   f"{len(df) / run.wall_s if run.wall_s > 0 else 0:.1f} fps overall")
     if run.tracker.hand_check_ is not None and run.tracker.hand_check_.other_fits_better:

@@ -133,6 +133,22 @@ def test_live_is_the_track_pipeline(synthetic_bag, tmp_path):
     assert len(kp) == 5 and kmeta["recording"]
 
 
+def test_realtime_playback_is_paced_and_says_what_it_published(synthetic_bag, tmp_path):
+    """--realtime on a playback: frames at the bag's rate, fits under a budget, the summary counts the
+    predicted and dropped frames; every row is a valid status and the fitted ones are the hand."""
+    bag, rec = synthetic_bag
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "rt.csv", "--no-check-hand", "--realtime",
+              "--budget-ms", "5000"])
+    assert r.exit_code == 0, r.output
+    assert "predicted (fit pending)" in r.output and "dropped (late)" in r.output, r.output
+    live, _ = read_tracking(tmp_path / "rt.csv")
+    assert set(live["status"]) <= {"tracked", "reinit", "predicted", "lost"}
+    fitted = live[live["status"].isin(["tracked", "reinit"])]
+    assert len(fitted) >= 1 and fitted["fit_mm"].max() < 2.0
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "bad.csv", "--budget-ms", "0"])
+    assert r.exit_code == 2 and "--budget-ms" in r.output
+
+
 def test_playback_delivers_every_frame_in_order_however_slow_the_reader(tmp_path_factory, monkeypatch):
     """A 30-frame bag read after a 1 s stall and then slowly: all 30 frames, in order, unit for unit;
     also when the process stalls right after librealsense starts streaming (through a pipeline,
