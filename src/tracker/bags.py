@@ -42,6 +42,10 @@ from .recording import (MAX_FRAME_SIDE, ROS1_MAGIC, SQLITE_MAGIC, FileRecording,
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+#: The fields we read of each message type. A bag that embeds its message definitions (MCAP, newer
+#: ROS2 sqlite) decodes by them, so a damaged definition gives messages without these fields.
+_FIELDS = {IMAGE: ("height", "width", "encoding", "is_bigendian", "step", "data"),
+           COMPRESSED: ("format", "data"), CAMERA_INFO: ("height", "width")}
 _IMAGE_TYPES = (IMAGE, COMPRESSED)
 #: RealSense streams: ``/device_D/sensor_S/Depth_I/…`` (``image/data`` raw, other leaves compressed)
 _RS_STREAM = re.compile(r"^((/device_\d+/sensor_\d+)/(Depth|Color|Infrared)_\d+)/")
@@ -271,9 +275,14 @@ class _Bag:
 
     def decode(self, conn, raw):
         try:
-            return self.reader.deserialize(raw, conn.msgtype)
+            msg = self.reader.deserialize(raw, conn.msgtype)
         except Exception as exc:
             raise _wrap(self.path, f"damaged {conn.msgtype} message on {conn.topic}", exc) from None
+        missing = [f for f in _FIELDS.get(conn.msgtype, ()) if not hasattr(msg, f)]
+        if missing:
+            raise RecordingError(self.path, f"damaged message definition of {conn.msgtype} on {conn.topic}: "
+                                            f"its messages have no {missing[0]!r}")
+        return msg
 
     def first(self, conns):
         """The first message of these connections, decoded, or None."""

@@ -100,6 +100,8 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
     def fit(frame):
         ob = observe_frame(tracker, frame, cam, segmenter)
         r = tracker.step(np.zeros((0, 3))) if ob is None else tracker.track(ob, cam, color=frame.color)
+        # a late fit counts too: the frames after it are predicted from it
+        fitted[:] = [*fitted[-1:], r.theta]
         return r, ob
 
     # a FrameBudget given is used as it is (its budget may be changed between frames)
@@ -111,11 +113,11 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
             done = budget(fit, frame)
             if done is not None:
                 r, ob = done
-                fitted[:] = [*fitted[-1:], r.theta]
             else:
-                ob, last = None, fitted[-1] if fitted else None
+                ob, seen = None, list(fitted)  # a copy: the worker may be replacing it
+                last = seen[-1] if seen else None
                 found = last is not None and np.all(np.isfinite(last))
-                theta = (predicted_theta(last, fitted[0] if len(fitted) == 2 else None) if found
+                theta = (predicted_theta(last, seen[0] if len(seen) == 2 else None) if found
                          else np.full(tracker.hand.n_dofs, np.nan))
                 r = FrameResult(theta, "predicted" if found else "lost", float("nan"), 0, 0,
                                 (time.perf_counter() - t0) * 1000.0)

@@ -48,3 +48,17 @@ def test_the_mutators_change_what_they_are_given():
     assert fz.mutate_yaml(text, rng) != text
     out = fz.mutate_bytes(bytes(range(256)) * 40, np.random.default_rng(1))
     assert isinstance(out, bytes) and out != bytes(range(256)) * 40
+
+
+@pytest.mark.parametrize("i, field", [(2801, "width"), (7112, "encoding")])
+def test_an_mcap_with_a_damaged_message_definition_says_so(tmp_path, i, field):
+    """Found by the tool (seed 0): an MCAP whose embedded Image definition lost a field decoded into
+    messages without it, and the reader stopped with an AttributeError."""
+    from tracker.errors import RecordingError
+    from tracker.recording import open_recording
+
+    fz = _tool()
+    (tmp_path / "s").mkdir()
+    path, _ = fz.make_mutant("mcap", fz.seeds("mcap", tmp_path / "s", tmp_path / "no-corpus"), 0, i, tmp_path)
+    with pytest.raises(RecordingError, match=f"damaged message definition of sensor_msgs/msg/Image .*no '{field}'"):
+        list(open_recording(path))
