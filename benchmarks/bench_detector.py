@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from handmodel import HandModel  # noqa: E402
 from synergy.bundle import load_bundle  # noqa: E402
 from tracker import TRACKING_HAND  # noqa: E402
-from tracker.cameras import preset  # noqa: E402
+from tracker.io.cameras import preset  # noqa: E402
 from tracker.detector import detect, detector_path, fit_start, load_detector  # noqa: E402
 from tracker.observe import observe  # noqa: E402
 from tracker.sim.dataset import DataRecipe, draw_scene  # noqa: E402

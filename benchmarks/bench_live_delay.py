@@ -21,7 +21,7 @@ import numpy as np
 from handmodel import HandModel
 from synergy.bundle import load_bundle
 from tracker.realtime import paced
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.run import track_realtime, track_recording
 from tracker.sim.synthesize import synthesize
 from tracker.track import FrameTracker, TrackerSettings

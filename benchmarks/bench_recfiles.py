@@ -1,4 +1,4 @@
-"""Read speed of a RealSense .bag read in place (tracker.bags) against pyrealsense2's playback of the
+"""Read speed of a RealSense .bag read in place (tracker.io.bags) against pyrealsense2's playback of the
 same file, in one run.
 
 The file: 300 depth frames of 640x480 (mono16, 30 fps) written with rosbags in the RealSense file
@@ -19,7 +19,7 @@ import numpy as np
 from rosbags.rosbag1 import Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 
 W, H = 640, 480
 STREAM = "/device_0/sensor_0/Depth_0"

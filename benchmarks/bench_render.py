@@ -26,7 +26,7 @@ from tracker.sim.render import DepthRenderer  # noqa: E402
 
 def camera():
     try:
-        from tracker.cameras import preset
+        from tracker.io.cameras import preset
 
         return preset("kinect1")
     except ImportError:

@@ -32,9 +32,9 @@ from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tracker import TRACKING_HAND
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import Silhouette
-from tracker.images import read_depth_units, units_to_metres
+from tracker.io.images import read_depth_units, units_to_metres
 from tracker.observe import observe
 from tracker.scale import calibrate_scale, calibrate_scale_searched
 from tracker.sim import experiments as E

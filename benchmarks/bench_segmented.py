@@ -34,7 +34,7 @@ from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tracker import TRACKING_HAND
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm

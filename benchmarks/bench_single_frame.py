@@ -26,7 +26,7 @@ import numpy as np
 from handmodel import HandModel
 from synergy.bundle import load_bundle
 from synergy.errors import SynergyError
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import Silhouette
 from tracker.evaluate import posture_error_deg
 from tracker.observe import observe

@@ -38,7 +38,7 @@ import tracker.parts as parts_module
 import tracker.track as track_module
 from handmodel import HandModel
 from synergy.bundle import load_bundle
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import local_offsets
 from tracker.icp import fit, fit_reference, rigid_step
 from tracker.init import InitSettings

@@ -173,7 +173,7 @@ def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0):
     and noise (seeded ``[noise_seed, frame]``; ``experiment_realistic(seed=s)``'s scene ``j`` is
     ``seed=s, noise_seed=s + j``)."""
     from handmodel.rigid import euler_to_matrix
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.sim import experiments as E
     from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
     from tracker.sim.motions import make_motion

@@ -47,7 +47,7 @@ def inp(tmp_path_factory):
     """A 3-frame synthetic recording, a tracking output of it (its truth, as a perfect tracker
     would give), its PNGs as a plain folder, and a half-second simulated mocap trial with its true
     angles."""
-    from tracker.recording import Recording
+    from tracker.io.recording import Recording
     from tracker.run import DOF_NAMES, write_tracking
 
     d = tmp_path_factory.mktemp("inputs")
@@ -244,12 +244,12 @@ def test_nearly_full_file_system_fails_in_the_write(name, inp, nearly_full_fs, t
 def _work_of(name):
     """(module, attribute) of the functions that do a command's long work."""
     return {
-        "tracker track -o": [("tracker.run", "track_recording"), ("tracker.recording.Recording", "open")],
-        "tracker track --keypoints": [("tracker.run", "track_recording"), ("tracker.recording.Recording", "open")],
-        "tracker track --overlay": [("tracker.run", "track_recording"), ("tracker.recording.Recording", "open")],
-        "tracker eval --plot": [("tracker.recording.Recording", "open"), ("tracker.evaluate", "summarise")],
-        "tracker import": [("tracker.recording", "import_pngs")],
-        "tracker show": [("tracker.recording.Recording", "open")],
+        "tracker track -o": [("tracker.run", "track_recording"), ("tracker.io.recording.Recording", "open")],
+        "tracker track --keypoints": [("tracker.run", "track_recording"), ("tracker.io.recording.Recording", "open")],
+        "tracker track --overlay": [("tracker.run", "track_recording"), ("tracker.io.recording.Recording", "open")],
+        "tracker eval --plot": [("tracker.io.recording.Recording", "open"), ("tracker.evaluate", "summarise")],
+        "tracker import": [("tracker.io.recording", "import_pngs")],
+        "tracker show": [("tracker.io.recording.Recording", "open")],
         "tracker synth": [("tracker.sim.motions", "make_motion"), ("tracker.sim.synthesize", "synthesize")],
         "tracker experiments": [("tracker.sim.report", "report")],
         "synergy simulate": [("synergy.simulate", "motion"), ("synergy.simulate", "simulate_markers")],

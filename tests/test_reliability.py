@@ -21,7 +21,7 @@ from synergy.c3d import read_c3d, write_c3d
 from synergy.errors import BundleError, TaskMapError
 from synergy.tasks import load_task_map
 from tracker.errors import RecordingError
-from tracker.recording import Recording, RecordingWriter
+from tracker.io.recording import Recording, RecordingWriter
 
 BIN = Path(sys.executable).parent
 
@@ -231,7 +231,7 @@ def _run_measured(args, tmp_path, timeout=60):
 
 def test_cli_read_only_and_folder_outputs(tmp_path, ro_fs):
     """tracker import and synergy simulate: exit 2, one line naming the output, nothing left."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
 
     src = tmp_path / "pngs"
     with RecordingWriter(tmp_path / "rec", preset("kinect1")) as w:
@@ -278,7 +278,7 @@ def test_yaml_alias_bomb_is_refused_at_once(tmp_path):
 
 
 def _recording(tmp_path, **meta_changes) -> Path:
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
 
     d = tmp_path / "rec"
     with RecordingWriter(d, preset("kinect1"), fps=30) as w:
@@ -325,7 +325,7 @@ def test_oversized_frames_are_refused_before_decoding(tmp_path):
     y.write_text(y.read_text().replace("width: 640", "width: 8000").replace("height: 480", "height: 8000"))
     with pytest.raises(RecordingError, match="maximum|larger than the supported"):
         Recording.open(d)
-    from tracker.cameras import Camera
+    from tracker.io.cameras import Camera
 
     with pytest.raises(RecordingError, match="larger than the supported 4096"):
         RecordingWriter(tmp_path / "big", Camera(8000, 8000, 500.0, 500.0, 4000.0, 4000.0))

@@ -1,9 +1,9 @@
-"""Fuzz the recording readers (:func:`tracker.recording.open_recording`) with mutated recordings.
+"""Fuzz the recording readers (:func:`tracker.io.recording.open_recording`) with mutated recordings.
 
 Formats: ``bag`` (ROS1: a depth bag written here and the real RealSense ``.bag`` from
 ``../shared/data``), ``db3`` and ``mcap`` (ROS2, written here), ``mkv`` (the real Azure Kinect file)
 and ``png`` (our recording folder, ``recording.yaml`` and 16-bit PNGs: one written here by
-:class:`~tracker.recording.RecordingWriter`, one made by ``tracker import`` of the real ``.mkv``). Every mutant is
+:class:`~tracker.io.recording.RecordingWriter`, one made by ``tracker import`` of the real ``.mkv``). Every mutant is
 opened and every frame's depth read; it must end read or as a clean
 :class:`~tracker.errors.RecordingError` / :class:`~tracker.errors.TrackerError`, within ``--timeout``
 seconds, with no process over ``--max-rss-mb``. Mutant ``i`` of seed ``S`` and format ``F`` is
@@ -100,8 +100,8 @@ def seeds(fmt: str, work: Path, corpus: Path) -> list[Path]:
         folder = _write_ros_bag(work / f"ros2_{fmt}", 2, StoragePlugin.SQLITE3 if fmt == "db3" else StoragePlugin.MCAP)
         out.append(next(folder.glob(f"*.{fmt}")))
     elif fmt == "png":
-        from tracker.cameras import Camera
-        from tracker.recording import RecordingWriter
+        from tracker.io.cameras import Camera
+        from tracker.io.recording import RecordingWriter
 
         rng = np.random.default_rng(0)
         with RecordingWriter(work / "folder", Camera(40, 30, 50.0, 52.0, 19.5, 14.25, 0.001, "uint16", "fuzz"),
@@ -110,7 +110,7 @@ def seeds(fmt: str, work: Path, corpus: Path) -> list[Path]:
                 w.write_units(rng.integers(300, 4000, (30, 40)).astype(np.uint16))
         out.append(work / "folder")
         if (corpus / REAL["mkv"]).is_file():  # what `tracker import` makes of a real file
-            from tracker.recording import import_recording_file
+            from tracker.io.recording import import_recording_file
 
             import_recording_file(corpus / REAL["mkv"], work / "imported", handedness="left")
             out.append(work / "imported")
@@ -198,7 +198,7 @@ def _job(fmt: str, corpus: Path, seed: int, start: int, stop: int, step: int, ca
     cap = int(cap_gb * (1 << 30))
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     from tracker.errors import RecordingError, TrackerError
-    from tracker.recording import open_recording
+    from tracker.io.recording import open_recording
 
     with tempfile.TemporaryDirectory(prefix="fuzz_rec.") as tmp:
         tmp = Path(tmp)

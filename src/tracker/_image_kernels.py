@@ -1,5 +1,5 @@
 """numba kernel of the RVL depth codec (Wilson's run-length / variable-length code, as ROS's
-``compressed_depth_image_transport`` writes it); :func:`tracker.images.decode_rvl` checks and wraps it."""
+``compressed_depth_image_transport`` writes it); :func:`tracker.io.images.decode_rvl` checks and wraps it."""
 import numba
 import numpy as np
 

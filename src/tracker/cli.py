@@ -22,7 +22,7 @@ _errors = _errors_exit_2  # the shared wrapper turns OS errors into one line as 
 
 def _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding):
     """A preset (with any given value overriding it) or a camera from explicit intrinsics."""
-    from .cameras import Camera, preset
+    from .io.cameras import Camera, preset
     from .errors import TrackerError
 
     given = dict(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, depth_scale_m=depth_scale,
@@ -182,7 +182,7 @@ def import_(
     import time
 
     from .errors import TrackerError
-    from .recording import import_pngs, import_recording_file, is_recording_file
+    from .io.recording import import_pngs, import_recording_file, is_recording_file
     from handmodel.fileio import check_output
 
     from .track_cli import _check_not_inputs
@@ -216,7 +216,7 @@ def import_(
     cam = _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding)
     fps_given, fps = fps is not None, 30.0 if fps is None else fps
     if each:
-        from .recording import import_stills
+        from .io.recording import import_stills
 
         with _progress("importing") as p:
             bar = p.add_task("import", total=None)
@@ -300,7 +300,7 @@ def info(
     color_topic: Optional[str] = typer.Option(None, "--color-topic", help="ROS bag: colour image topic."),
 ):
     """Summary of a recording (reads and checks every frame unless --quick)."""
-    from .recording import Recording
+    from .io.recording import Recording
 
     rec = Recording.open(recording, topic=topic, color_topic=color_topic)
     rows = _recording_rows(rec)
@@ -373,7 +373,7 @@ def show(
     import numpy as np
 
     from .plots import contact_sheet
-    from .recording import Recording
+    from .io.recording import Recording
 
     if every < 0 or max_frames < 1:
         raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")

@@ -42,7 +42,7 @@ import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, load_npz, models_dir
 
-from .cameras import as_camera
+from .io.cameras import as_camera
 from .errors import TrackerError
 
 #: The 21 parts: one per keypoint of the hand model (``HandModel.keypoint_names`` order).
@@ -477,7 +477,7 @@ def detect(depth_m, camera, mask=None, hand: str = "left", *, detector: HandPart
     ----------
     depth_m : (H, W) float
         Depth in metres, NaN or 0 where none.
-    camera : a camera (``tracker.cameras``) or preset name
+    camera : a camera (``tracker.io.cameras``) or preset name
     mask : (H, W) bool or None
         Pixels that may be the hand (the segmentation's); None: every pixel with depth in 0.15–2 m.
         The features read the whole frame either way.

@@ -2,14 +2,14 @@
 as a recording-like source for :func:`tracker.run.track_recording` (``tracker live``).
 
 A :class:`RealSenseSource` has what the tracking loop reads from a recording (``camera``,
-``fps``, ``handedness``, iteration over :class:`tracker.recording.Frame` objects with depth in
+``fps``, ``handedness``, iteration over :class:`tracker.io.recording.Frame` objects with depth in
 metres, NaN for no data), so a camera runs through the same code as ``tracker track``; a ``.bag``
 played back by librealsense is how this path is tested without a camera. Playback is not real time:
 every recorded frame is delivered, in order, however slow the tracker (:class:`_Playback`).
 
 Intrinsics and the depth scale come from the device (or the file); lens distortion is ignored
 (RealSense depth streams report none). Colour, when asked for, is aligned to the depth image (by
-librealsense for a camera, by :func:`tracker.images.register_color` for a playback), so it serves skin
+librealsense for a camera, by :func:`tracker.io.images.register_color` for a playback), so it serves skin
 segmentation as a recording's ``color/`` frames do.
 
 Needs the optional extra ``realsense`` (pyrealsense2, which needs the system libusb); without it a
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .cameras import Camera
+from .io.cameras import Camera
 from .errors import TrackerError
-from .images import register_color, units_to_metres
-from .recording import Frame
+from .io.images import register_color, units_to_metres
+from .io.recording import Frame
 
 try:  # an optional extra: RealSenseSource names what to install when it is missing
     import pyrealsense2 as rs
@@ -234,7 +234,7 @@ class RealSenseSource:
 
     Attributes
     ----------
-    camera : :class:`tracker.cameras.Camera` of the depth stream (device intrinsics and depth scale)
+    camera : :class:`tracker.io.cameras.Camera` of the depth stream (device intrinsics and depth scale)
     fps, handedness, name : the stream's rate, the hand, the device (or file) name
     frames_ : frames delivered so far
     """

@@ -11,7 +11,7 @@ MediaPipe's 21 landmarks come in the order of the hand model's keypoints (wrist,
 from its base to its tip, thumb to little finger), so no re-ordering is needed.
 
 >>> import numpy as np
->>> from tracker.cameras import Camera
+>>> from tracker.io.cameras import Camera
 >>> cam = Camera(width=8, height=6, fx=10.0, fy=10.0, cx=4.0, cy=3.0)
 >>> depth = np.full((6, 8), 0.5); depth[3, 4] = np.nan
 >>> lift_keypoints(np.array([[4.0, 3.0]]), depth, cam, surface_mm=0.0).round(3).tolist()
@@ -26,7 +26,7 @@ import numpy as np
 
 from handmodel.solver import fit_keypoints
 
-from .cameras import as_camera
+from .io.cameras import as_camera
 from .errors import TrackerError
 
 INSTALL = "pip install 'synergistic-hand-tracking[rgb]'"

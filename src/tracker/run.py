@@ -35,7 +35,7 @@ from handmodel.model import HandModel
 from . import TRACKING_HAND
 from .errors import TrackerError
 from .observe import observe
-from .recording import Recording
+from .io.recording import Recording
 from .scale import calibrated_hand, shaped_hand
 from .track import FrameTracker, TrackerSettings
 
@@ -62,7 +62,7 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
     ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`FrameTracker`).
 
     A frame without a usable depth image (missing, wrong size, or a folder recording's file that
-    cannot be read: :meth:`tracker.recording.Recording.frames_or_problems`, the frame's ``problem``) is
+    cannot be read: :meth:`tracker.io.recording.Recording.frames_or_problems`, the frame's ``problem``) is
     tracked as empty, so it is lost. ``on_frame(frame, result, observation)`` is called after each frame
     (``observation`` None for an unusable one): progress, overlays, keypoints. Returns one row per frame
     (:data:`FRAME_COLUMNS` and the hand's DoF names)."""
@@ -326,7 +326,7 @@ class TrackJob:
 
     Parameters
     ----------
-    recording : the recording (a folder, or a file :class:`tracker.recording.Recording` opens)
+    recording : the recording (a folder, or a file :class:`tracker.io.recording.Recording` opens)
     output : the tracking output CSV
     settings : :class:`tracker.track.TrackerSettings`
     synergies, registries : the synergy bundle spec and extra registry folders (None: full mode only)

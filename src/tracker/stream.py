@@ -23,7 +23,7 @@ from handmodel.model import HandModel
 from synergy.bundle import load_bundle
 
 from . import TRACKING_HAND
-from .cameras import as_camera
+from .io.cameras import as_camera
 from .errors import TrackerError
 from .observe import observe
 from .realtime import FrameBudget, predicted_theta
@@ -70,8 +70,8 @@ class HandTracker:
 
     Parameters
     ----------
-    camera : a :class:`tracker.cameras.Camera`, a preset name (``"sr305"``, ``"kinect1"`` …, see
-        ``tracker.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (or ``ppx ppy``: pyrealsense2's
+    camera : a :class:`tracker.io.cameras.Camera`, a preset name (``"sr305"``, ``"kinect1"`` …, see
+        ``tracker.io.cameras.PRESETS``) or anything with ``width height fx fy cx cy`` (or ``ppx ppy``: pyrealsense2's
         intrinsics)
     hand : ``"left"`` or ``"right"``
     synergies : a synergy bundle — a name (``"fingerfist"``, ``"grasp@1.0.0"``), a ``.npz`` path, or a
@@ -90,7 +90,7 @@ class HandTracker:
 
     Attributes
     ----------
-    camera : the :class:`~tracker.cameras.Camera`; model : the :class:`handmodel.HandModel` tracked
+    camera : the :class:`~tracker.io.cameras.Camera`; model : the :class:`handmodel.HandModel` tracked
         (its size once calibrated); core : the frame tracker underneath (its counters and hand size)
     """
 

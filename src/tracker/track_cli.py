@@ -650,7 +650,7 @@ def evaluate(
 
     from .evaluate import summarise
     from .plots import error_plot
-    from .recording import Recording
+    from .io.recording import Recording
     from .run import read_tracking, tracked_hand
     from .sim.hands import truth_hand
 
@@ -751,7 +751,7 @@ def live(
 
     from .cli import _progress
     from .live import RealSenseSource
-    from .recording import RecordingWriter
+    from .io.recording import RecordingWriter
     from .run import TrackJob, run_job
 
     _say_if_compiling()

@@ -125,7 +125,7 @@ class RerunLog:
 
     Parameters
     ----------
-    camera : tracker.cameras.Camera
+    camera : tracker.io.cameras.Camera
     path : the ``.rrd`` to write (None: only a spawned viewer); written to a temporary name and
         renamed into place by :meth:`close` after reading it back
     spawn : also start a Rerun viewer and stream to it (needs a screen)

@@ -16,10 +16,10 @@ from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from tracker.bags import BagRecording, _quat_matrix  # noqa: E402
+from tracker.io.bags import BagRecording, _quat_matrix  # noqa: E402
 from tracker.errors import RecordingError  # noqa: E402
-from tracker.images import decode_rvl, inverse_depth_to_metres  # noqa: E402
-from tracker.recording import Recording, import_recording_file  # noqa: E402
+from tracker.io.images import decode_rvl, inverse_depth_to_metres  # noqa: E402
+from tracker.io.recording import Recording, import_recording_file  # noqa: E402
 
 RS_BAG = SHARED_DATA / "sensor_recordings" / "librealsense_single_depth_color_640x480.bag"
 W, H = 40, 30
@@ -567,7 +567,7 @@ def test_cli_reads_bags_in_place(tmp_path):
 def test_missing_extra_names_the_pip_install(tmp_path, monkeypatch):
     src = tmp_path / "rs.bag"
     _write_realsense_ros1(src, _frames(1))
-    monkeypatch.delitem(sys.modules, "tracker.bags", raising=False)
+    monkeypatch.delitem(sys.modules, "tracker.io.bags", raising=False)
     monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)
     with pytest.raises(RecordingError, match=r"rs\.bag: reading \.bag files needs rosbags.highlevel: "
                                              r"pip install 'synergistic-hand-tracking\[recordings\]'"):
@@ -590,7 +590,7 @@ def test_iterating_gives_the_indexed_frames(tmp_path, kind):
 
 @pytest.mark.parametrize("compression", ["BZ2", "LZ4"])
 def test_compressed_ros1_chunks_read_and_are_bounded(tmp_path, compression, monkeypatch):
-    import tracker.bags
+    import tracker.io.bags
 
     frames = _frames(3)
     path = tmp_path / "c.bag"
@@ -601,19 +601,19 @@ def test_compressed_ros1_chunks_read_and_are_bounded(tmp_path, compression, monk
     rec = Recording.open(path)
     assert all(np.array_equal(rec.depth_units(i), frames[i]) for i in range(3))
     # a chunk expanding past the bound is refused, not expanded (as a bz2/lz4 bomb would be)
-    monkeypatch.setattr(tracker.bags, "MAX_CHUNK_BYTES", 1000)
+    monkeypatch.setattr(tracker.io.bags, "MAX_CHUNK_BYTES", 1000)
     with pytest.raises(RecordingError, match=r"c\.bag: damaged bag, cannot read its messages \(ValueError: a "
                                              r"compressed chunk expands beyond"):
         Recording.open(path)
 
 
 def test_mcap_chunk_bound(tmp_path, monkeypatch):
-    import tracker.bags
+    import tracker.io.bags
 
     frames = _frames(2)
     path = _bag_file(tmp_path, "mcap", frames)
     assert np.array_equal(Recording.open(path).depth_units(1), frames[1])
-    monkeypatch.setattr(tracker.bags, "MAX_CHUNK_BYTES", 1000)
+    monkeypatch.setattr(tracker.io.bags, "MAX_CHUNK_BYTES", 1000)
     with pytest.raises(RecordingError, match=r"\.mcap: an MCAP chunk declares \d+ bytes expanded, more than"):
         Recording.open(path)
 
@@ -638,7 +638,7 @@ def test_lengths_past_the_end_are_refused_before_anything_is_allocated(tmp_path)
     """An index record or a chunk declaring 0xFFFFFFF0 bytes made the reader ask for 4 GB (a MemoryError
     under a memory cap, the machine's memory without one) before it found the file shorter: now the
     declared sizes are checked against the file first, and the error names the record."""
-    from tracker.bags import check_ros1_complete
+    from tracker.io.bags import check_ros1_complete
 
     good, _ = _bad_bags(tmp_path)
     data = good.read_bytes()
@@ -672,8 +672,8 @@ def _find_all(data: bytes, needle: bytes):
 def test_an_implausible_frame_rate_is_refused(tmp_path):
     """``fps: 1.0e-300`` in recording.yaml was accepted (every frame time infinite); a rate outside
     one frame a 100 s to 100 kHz is damage, said in one line, for the folder and for the writer."""
-    from tracker.cameras import preset
-    from tracker.recording import FPS_RANGE, RecordingWriter
+    from tracker.io.cameras import preset
+    from tracker.io.recording import FPS_RANGE, RecordingWriter
 
     rec = tmp_path / "rec"
     assert _cli("synth", "--motion", "open-close", "--frames", "2", "-o", rec).exit_code == 0

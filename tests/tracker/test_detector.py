@@ -180,7 +180,7 @@ HELDOUT_MEDIAN_MM = 50.0
 
 
 def test_no_depth_is_no_hand():
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
 
     cam = preset("sr305")
     d = detect(np.full((cam.height, cam.width), np.nan, np.float32), cam)
@@ -188,7 +188,7 @@ def test_no_depth_is_no_hand():
 
 
 def test_detect_refuses_a_depth_of_another_size():
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
 
     with pytest.raises(TrackerError, match="does not match"):
         detect(np.zeros((10, 10), np.float32), preset("sr305"))

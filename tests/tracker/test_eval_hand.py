@@ -14,7 +14,7 @@ from handmodel import HandModel
 from tracker import TRACKING_HAND
 from tracker.cli import app
 from tracker.errors import TrackerError
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.run import DOF_NAMES, tracked_hand, write_tracking
 
 

@@ -55,7 +55,7 @@ def test_an_mcap_with_a_damaged_message_definition_says_so(tmp_path, i, field):
     """Found by the tool (seed 0): an MCAP whose embedded Image definition lost a field decoded into
     messages without it, and the reader stopped with an AttributeError."""
     from tracker.errors import RecordingError
-    from tracker.recording import open_recording
+    from tracker.io.recording import open_recording
 
     fz = _tool()
     (tmp_path / "s").mkdir()

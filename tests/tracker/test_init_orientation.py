@@ -6,7 +6,7 @@ import pytest
 
 from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from handmodel.geometry import surface_samples
 from tracker.correspond import DATA_CAP_MM, Matcher, ModelSamples, Silhouette, data_to_model_mm, model_to_data_mm
 from tracker.init import REJECTED_PAIR_MM, data_cost_mm, placements, score

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from handmodel import HandModel
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import Silhouette
 from tracker.evaluate import posture_error_deg
 from tracker.init import (

@@ -26,8 +26,8 @@ import sys
 import numpy as np
 from handmodel import HandModel
 from synergy.bundle import load_bundle
-from tracker.cameras import preset
-from tracker.images import read_depth_units, units_to_metres
+from tracker.io.cameras import preset
+from tracker.io.images import read_depth_units, units_to_metres
 from tracker.observe import observe
 from tracker.track import FrameTracker, TrackerSettings
 

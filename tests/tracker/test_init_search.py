@@ -8,7 +8,7 @@ import pytest
 
 from handmodel import HandModel
 from handmodel.errors import HandModelError
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import Silhouette
 from tracker.errors import TrackerError
 from tracker.evaluate import posture_error_deg

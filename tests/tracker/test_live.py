@@ -13,7 +13,7 @@ from conftest import import_pyrealsense2, played_by_librealsense, shared
 from typer.testing import CliRunner
 
 from tracker.cli import app
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.run import read_keypoints, read_tracking
 
 import_pyrealsense2()  # the wheel may be there without the system libusb (.ci/run installs it where it can)
@@ -214,7 +214,7 @@ def test_playback_colour_is_librealsense_aligned_colour():
     or take the footprint's edge."""
     import pyrealsense2 as rs
 
-    from tracker.images import units_to_metres
+    from tracker.io.images import units_to_metres
     from tracker.live import RealSenseSource
 
     bag = shared(*BAG)

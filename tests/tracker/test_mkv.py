@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 
 av = pytest.importorskip("av", reason="the [recordings] extra (av) is not installed")
 from tracker.errors import RecordingError  # noqa: E402
-from tracker.mkv import DEPTH_MODES, MkvRecording, depth_intrinsics  # noqa: E402
-from tracker.recording import Recording, import_recording_file  # noqa: E402
+from tracker.io.mkv import DEPTH_MODES, MkvRecording, depth_intrinsics  # noqa: E402
+from tracker.io.recording import Recording, import_recording_file  # noqa: E402
 
 MKV = SHARED_DATA / "sensor_recordings" / "azure_kinect_recording.mkv"
 
@@ -128,7 +128,7 @@ def test_damaged_mkv_is_a_one_line_error_or_reads(tmp_path):
 def test_a_cut_mkv_says_it_is_cut(tmp_path):
     """A recording copied only in part: the error (or, when its frames survive, the source line)
     says the file is cut short, not only that the depth track holds no frames."""
-    from tracker.mkv import cut_short
+    from tracker.io.mkv import cut_short
 
     data = _mkv().read_bytes()
     assert cut_short(MKV) is None
@@ -206,7 +206,7 @@ def _damaged_copy(tmp_path, at, value, name="damaged.mkv"):
 def test_a_wrong_element_size_names_the_element(tmp_path):
     """A Cluster's size one unit too large (its last byte +1) read on silently under PyAV, which
     resynchronises; the walk over the elements stops at the first one that runs past its parent."""
-    from tracker.mkv import _vint, check_structure
+    from tracker.io.mkv import _vint, check_structure
 
     data = _mkv().read_bytes()
     pos = data.rindex(bytes.fromhex("1F43B675"), 0, data.index(bytes.fromhex("1C53BB6B"), 7000))

@@ -11,11 +11,11 @@ from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tests.conftest import shared
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.cli import app
 from tracker.errors import TrackerError
 from tracker.observe import observe
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.segment import Segmenter
 from tracker.run import read_tracking
 from tracker.sim.experiments import REALISTIC_SENSORS
@@ -167,7 +167,7 @@ def test_a_fit_at_the_end_of_the_size_range_is_no_hand(right, bundle):
     fitted as a hand 2.0× the model — the end of the sizes searched — with 23 % of its points rejected,
     under the 25 % that says "no hand". A size at an end of the range is no hand's: lost, no θ, the size
     left unset. The same frame without the box is the hand at 1.2–1.35×."""
-    from tracker.images import read_depth_units, units_to_metres
+    from tracker.io.images import read_depth_units, units_to_metres
 
     cam = preset("sr305")
     depth = units_to_metres(read_depth_units(shared("realsense_sr305_lada", "20210326-230536_30.png"), cam), cam)

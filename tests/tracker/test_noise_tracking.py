@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as hst
 
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.coupling import (BENT_BACK_DEG, COUPLING, bent_back, last_bones_points, recoupled, restart_uncoupled,
                               unbent, uncoupled)

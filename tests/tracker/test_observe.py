@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from tracker.cameras import Camera, preset
+from tracker.io.cameras import Camera, preset
 from tracker.observe import (
     ObserveSettings,
     backproject,

@@ -139,7 +139,7 @@ class _MemoryRecording:
 def test_track_recording_then_write_and_read_back(bundle, tmp_path):
     """The run stage over rendered frames (one unusable: wrong size), the output written, read back
     identical, the keypoints table, and bad outputs refused."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.sim import experiments as E
     from tracker.sim.render import DepthRenderer
 

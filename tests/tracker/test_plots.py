@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from handmodel import HandModel
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.plots import OVERLAY_COLOURS, contact_sheet, contact_sheet_figure, model_silhouette, overlay_png, project
 
 # the overlay's image area starts below a 60 px strip of title and key (see overlay_png)
@@ -105,7 +105,7 @@ def test_show_draws_the_fitted_skeletons_of_a_keypoints_csv(scene, tmp_path):
     from typer.testing import CliRunner
 
     from tracker.cli import app
-    from tracker.recording import RecordingWriter
+    from tracker.io.recording import RecordingWriter
     from tracker.run import keypoints_table
 
     hand, cam, theta, sil, depth = scene

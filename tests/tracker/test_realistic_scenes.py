@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from handmodel import HandModel
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.errors import RecordingError, TrackerError
 from tracker.sim.hands import (FINGERS, TRUTH_HAND_FILE, HandShape, read_hand_truth, truth_hand, wrist_to_middle_tip_mm,
                                write_hand_truth)
@@ -186,7 +186,7 @@ def test_synth_cli_resized_hand_in_clutter(tmp_path):
     from typer.testing import CliRunner
 
     from tracker.cli import app
-    from tracker.recording import Recording
+    from tracker.io.recording import Recording
 
     out = tmp_path / "rec"
     r = CliRunner().invoke(app, ["synth", "--motion", "open-close", "--noise", "realsense", "--camera", "sr305",
@@ -245,7 +245,7 @@ def test_realistic_table_lines():
 
 
 def test_synthesize_realsense_clutter_reproducible_and_overwritable(tmp_path, hand):
-    from tracker.recording import Recording
+    from tracker.io.recording import Recording
     from tracker.sim.noise import NoiseModel
     from tracker.sim.synthesize import synthesize
 

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from handmodel import HandModel
 from synergy.bundle import load_bundle
 from tracker.cli import app
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.realtime import FrameBudget, paced, predicted_theta
 from tracker.run import STATUSES, read_tracking, track_realtime, track_recording
 from tracker.sim.synthesize import synthesize

@@ -15,9 +15,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 from typer.testing import CliRunner
 
-from tracker.cameras import Camera, preset
+from tracker.io.cameras import Camera, preset
 from tracker.errors import RecordingError, TrackerError
-from tracker.recording import Recording, RecordingWriter, import_pngs, list_pngs
+from tracker.io.recording import Recording, RecordingWriter, import_pngs, list_pngs
 
 SR305 = SHARED_DATA / "realsense_sr305_lada"
 SMALL = Camera(32, 24, 30.0, 30.0, 15.5, 11.5, 0.001, "uint16", "small")
@@ -516,7 +516,7 @@ def test_import_each_still_is_its_own_recording(tmp_path):
                                              r"imported as one recording \(tracker import without --each\)"):
         Recording.open(tmp_path / "stills")
     # never over anything but recordings; a failure removes what it wrote
-    from tracker.recording import import_stills
+    from tracker.io.recording import import_stills
 
     with pytest.raises(RecordingError, match="exists and is not empty"):
         import_stills(src, tmp_path / "stills", SMALL)

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from handmodel.model import HandModel
 from tracker import rgb
-from tracker.cameras import Camera, preset
+from tracker.io.cameras import Camera, preset
 from tracker.errors import TrackerError
 from tracker.observe import observe
 from tracker.rgb import MediaPipeHands, RgbSeed, lift_keypoints, seed_from_keypoints

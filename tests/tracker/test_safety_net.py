@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.evaluate import posture_error_deg
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion
@@ -349,7 +349,7 @@ def test_a_cue_at_the_end_of_a_kept_forearm_does_not_replace_a_right_fist(hand, 
     mm) and the run ends with 37.5 mm at worst against 53.8 without it. There the bound is that the
     rule keeps more of these frames within 20 mm than the run without it (4 against 3) and never a worse
     worst frame; every frame within 20 mm is the SR305 run's bound (both machines)."""
-    from tracker.cameras import preset as cam_preset
+    from tracker.io.cameras import preset as cam_preset
     from tracker.sim.hands import HandShape
     from tracker.sim.noise import NoiseModel
     from synergy.bundle import load_bundle
@@ -384,7 +384,7 @@ def test_reduced_mode_does_not_call_a_fit_on_the_body_tracked(tmp_path):
     from typer.testing import CliRunner
 
     from tracker.cli import app
-    from tracker.recording import Recording
+    from tracker.io.recording import Recording
     from tracker.run import read_tracking, tracked_hand
 
     rec = tmp_path / "rec"

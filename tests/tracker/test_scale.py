@@ -9,7 +9,7 @@ import pytest
 from test_init_orientation import CAM, scene
 
 from handmodel import HandModel
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.correspond import CapsuleModel
 from tracker.init import score
 from tracker.scale import (

@@ -90,7 +90,7 @@ def test_tracking_on_the_calibrated_file_matches_the_automatic_run(bundle, tmp_p
     noise: the hand the automatic run calibrated, written and read back, tracks the same frames as
     well (mean keypoint error within 0.5 mm; measured 1.89 vs 1.93 mm, the model size 9.6) without estimating its size
     again — while the model's own hand, unscaled, is far off."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.sim.experiments import run_scene
     from tracker.sim.hands import HandShape
     from tracker.sim.motions import make_motion

@@ -83,7 +83,7 @@ def test_tracker_finds_finger_lengths_after_the_size(bundle):
     from the model: once the size has its ``scale_frames`` estimates the tracker's hand takes the
     finger factors found on those frames (each within 5 %; measured 1.5–3.3 % short), the output header
     says so, and the keypoints of the later frames stay on the rendered hand."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.run import _scale_text
     from tracker.sim.experiments import run_scene
     from tracker.sim.motions import make_motion
@@ -112,7 +112,7 @@ def test_small_hand_on_the_table_keeps_its_track_with_finger_lengths(bundle):
     fingers 0.9–1.1×, forearm and table; 4.1 → 25.6 mm: the safety net swapped a drifted frame for a
     wrong estimate that scored better): every frame within 10 mm and the mean within 4 mm (measured
     3.0 mm, the largest frame 8.1 mm), the finger factors found within 4 % of the rendered ones (1–2 %)."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.sim.experiments import REALISTIC_SCENES, realistic_fingers, run_scene
     from tracker.sim.motions import make_motion
     from tracker.sim.noise import NoiseModel

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import mask_scores, realistic_frame
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.segment import hand_region
 from tracker.sim import experiments as E

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from tests.conftest import mask_scores, realistic_frame
 from tracker._segment_kernels import back_points
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import hand_window, observe
 from tracker.segment import PLANE_BAND_M, Segmenter, SupportPlane, support_plane
 from tracker.sim import experiments as E

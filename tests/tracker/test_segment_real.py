@@ -15,7 +15,7 @@ from PIL import Image
 from scipy import ndimage
 
 from tests.conftest import shared
-from tracker.cameras import Camera, preset
+from tracker.io.cameras import Camera, preset
 from tracker.observe import backproject, hand_window, observe
 from tracker.segment import Segmenter, cut_forearm, focal_from_points, surfaces
 
@@ -254,7 +254,7 @@ def test_import_brings_colour_frames(tmp_path):
     import imageio.v3 as iio
 
     from tracker.errors import RecordingError
-    from tracker.recording import import_pngs
+    from tracker.io.recording import import_pngs
 
     cam = preset("sr305")
     (tmp_path / "d").mkdir()

@@ -12,7 +12,7 @@ import pytest
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tests.conftest import mask_scores, realistic_frame
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import backproject, hand_window, observe
 from tracker.segment import SKIN_HSV, Segmenter, skin_mask
 from tracker.sim import experiments as E

@@ -8,7 +8,7 @@ import pytest
 
 from handmodel.rigid import euler_to_matrix
 from tests.conftest import mask_scores, realistic_frame
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.segment import Segmenter, _in_front
 from tracker.sim import experiments as E

@@ -5,7 +5,7 @@ import pytest
 from handmodel.model import HandModel
 from tracker import TRACKING_HAND
 from tracker.errors import TrackerError
-from tracker.recording import Recording
+from tracker.io.recording import Recording
 from tracker.run import TrackJob, run_job
 from tracker.sim.synthesize import synthesize
 from tracker.stream import HandResult, HandTracker

@@ -16,9 +16,9 @@ from tracker.sim.render import CLUTTER_LABELS, Clutter, DepthRenderer, render
 
 
 def kinect_camera():
-    """The kinect1 preset if tracker.cameras exists, else the same intrinsics by hand."""
+    """The kinect1 preset if tracker.io.cameras exists, else the same intrinsics by hand."""
     try:
-        from tracker.cameras import preset
+        from tracker.io.cameras import preset
 
         return preset("kinect1")
     except ImportError:
@@ -27,7 +27,7 @@ def kinect_camera():
 
 def back_project_points(depth, cam):
     """Camera-frame points of all valid pixels and their (v, u): the camera's own back-projection when it
-    has one (tracker.cameras), else x = (u − cx)·z/fx, y = (v − cy)·z/fy (integer pixel centres)."""
+    has one (tracker.io.cameras), else x = (u − cx)·z/fx, y = (v − cy)·z/fy (integer pixel centres)."""
     v, u = np.nonzero(np.isfinite(depth))
     if hasattr(cam, "backproject"):
         return np.asarray(backproject(depth, cam), float)[v, u], v, u
@@ -246,7 +246,7 @@ def test_bad_input(hand, cam):
 
 # ----------------------------------------------------------------------------- synthesis → recording
 def _recording_module():
-    return pytest.importorskip("tracker.recording", reason="tracker.recording is not there yet")
+    return pytest.importorskip("tracker.io.recording", reason="tracker.io.recording is not there yet")
 
 
 def test_synthesize_round_trip(tmp_path, hand, cam):
@@ -342,7 +342,7 @@ def test_cli_list_and_bad_input(tmp_path):
 
 def test_cli_synth_writes_a_recording(tmp_path):
     rec = _recording_module()
-    pytest.importorskip("tracker.cameras")
+    pytest.importorskip("tracker.io.cameras")
     from typer.testing import CliRunner
 
     out = tmp_path / "rec"

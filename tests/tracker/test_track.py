@@ -250,7 +250,7 @@ def test_a_frame_without_points_outputs_no_theta_and_tracking_goes_on():
     """A frame with nothing to fit (an unreadable file, an empty mask) is lost without θ: its row
     repeated the frame before it, which a user cannot tell from a measurement. The tracker keeps its
     last θ and tracks on from it."""
-    from tracker.cameras import preset
+    from tracker.io.cameras import preset
     from tracker.observe import observe
     from tracker.sim.motions import make_motion
     from tracker.sim.render import DepthRenderer

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.sim.experiments import realistic_fingers
 from tracker.sim.hands import HandShape
@@ -154,7 +154,7 @@ def test_the_real_stills_as_one_recording_stay_the_right_way_up(tmp_path):
     from handmodel import HandModel
     from synergy.bundle import load_bundle
     from tests.conftest import shared
-    from tracker.recording import import_pngs, natural_sorted
+    from tracker.io.recording import import_pngs, natural_sorted
 
     root = shared("realsense_sr305_lada")
     labels = json.loads((root / "labels" / "labels.json").read_text())

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 pytest.importorskip("rerun")
 
 from tracker.cli import app  # noqa: E402
-from tracker.recording import Recording  # noqa: E402
+from tracker.io.recording import Recording  # noqa: E402
 from tracker.run import read_tracking, tracked_hand  # noqa: E402
 from tracker.viewer import FRAME_ENTITIES, HAND_ENTITIES, RerunLog, read_frame, read_frames, snapshot_png  # noqa: E402
 
@@ -74,8 +74,8 @@ def test_a_frame_without_fit_clears_the_hand(tmp_path, hand):
     """A frame whose θ is not finite (nothing fitted yet) clears the hand instead of showing the last one."""
     from types import SimpleNamespace
 
-    from tracker.cameras import preset
-    from tracker.recording import Frame
+    from tracker.io.cameras import preset
+    from tracker.io.recording import Frame
     from tracker.track import FrameResult
 
     cam = preset("kinect1")
@@ -155,8 +155,8 @@ def test_missing_extra_names_the_install(tracked, monkeypatch):
 def test_a_viewer_gone_does_not_cost_the_file(tmp_path, hand, monkeypatch):
     """A spawned viewer that is unreachable at the end (closed, or no screen) makes the flush fail;
     the file is still checked and published, and the reason kept as a warning."""
-    from tracker.cameras import preset
-    from tracker.recording import Frame
+    from tracker.io.cameras import preset
+    from tracker.io.recording import Frame
     from tracker.track import FrameResult
 
     cam = preset("kinect1")

@@ -25,7 +25,7 @@ from tracker._wrist_kernels import (
     surface_depth,
     surface_past_outline,
 )
-from tracker.cameras import preset
+from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.segment import surfaces
 from tracker.sim.motions import make_motion

@@ -21,7 +21,7 @@ MOTION_HELP = "Scenario name (see --list) or a motion file: .csv joint-angle tab
 
 def synth(
     motion: str = typer.Option("open-close", "--motion", "-m", help=MOTION_HELP),
-    camera: str = typer.Option("kinect1", "--camera", "-c", help="Camera preset (tracker.cameras)."),
+    camera: str = typer.Option("kinect1", "--camera", "-c", help="Camera preset (tracker.io.cameras)."),
     noise: str = typer.Option("kinect1", "--noise", "-n", help="Noise preset: none, kinect1, sr305 (= realsense), d4xx."),
     frames: Optional[int] = typer.Option(None, "--frames", "-f", help="Number of frames (default: the whole motion)."),
     fps: float = typer.Option(30.0, "--fps", help="Frame rate of the recording."),
@@ -67,7 +67,7 @@ def synth(
     from .hands import HandShape
     from .motions import make_motion
     from .noise import NoiseModel
-    from ..cameras import as_camera
+    from ..io.cameras import as_camera
     from .render import Clutter
     from .synthesize import synthesize
 

@@ -39,7 +39,7 @@ from handmodel.fileio import atomic_write_bytes, load_npz
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from .. import TRACKING_HAND
-from ..cameras import Camera, preset
+from ..io.cameras import Camera, preset
 from ..detector import OTHER
 from ..errors import TrackerError
 from .hands import FINGERS, HandShape

@@ -23,7 +23,7 @@ from synergy.bundle import Bundle
 from synergy.pca import SynergyModel
 
 from .. import TRACKING_HAND
-from ..cameras import as_camera, preset
+from ..io.cameras import as_camera, preset
 from ..correspond import ModelSamples, Silhouette
 from ..evaluate import posture_error_deg
 from ..observe import observe
@@ -480,7 +480,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
 
     from synergy.bundle import load_bundle
     from ..errors import TrackerError
-    from ..images import read_depth_units, units_to_metres
+    from ..io.images import read_depth_units, units_to_metres
 
     root = Path(data_dir)
     try:

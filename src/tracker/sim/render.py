@@ -33,7 +33,7 @@ import numpy as np
 
 from handmodel import libm
 
-from ..cameras import as_camera
+from ..io.cameras import as_camera
 from ..errors import TrackerError
 from ._kernels import lbs, plane_pass, raster, shade
 
@@ -513,7 +513,7 @@ def render(hand_or_mesh, theta, camera, *, labels: bool = True, color: bool = Fa
     hand_or_mesh : HandModel or SkinnedMesh
         The mesh is built once per model and cached.
     theta : (26,) parameters; the global pose places the hand in the camera frame.
-    camera : camera object with ``width height fx fy cx cy`` or a preset name (``tracker.cameras``).
+    camera : camera object with ``width height fx fy cx cy`` or a preset name (``tracker.io.cameras``).
     labels, color, incidence, reflectance : bool
         Also return the label image, a shaded colour image, the incidence cosine, the infrared reflectance.
     clutter : Clutter, a :meth:`Clutter.parse` spec ("forearm,table", "sleeve,torso=0.1,box", …) or None

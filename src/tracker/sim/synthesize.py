@@ -19,11 +19,11 @@ from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 
 from ..errors import TrackerError
-from ..recording import RecordingWriter
+from ..io.recording import RecordingWriter
 from .hands import HandShape, wrist_to_middle_tip_mm, write_hand_truth
 from .motions import Motion, hand_centre, make_motion
 from .noise import NoiseModel
-from ..cameras import as_camera
+from ..io.cameras import as_camera
 from .render import Clutter, DepthRenderer
 
 
@@ -74,7 +74,7 @@ def synthesize(motion, camera, noise, out_dir, fps: float = 30, seed: int = 0,
         A :class:`Motion` at another frame rate is resampled to ``fps``.
     camera : camera object or preset name
     noise : NoiseModel or preset name (``none``, ``kinect1``)
-    out_dir : folder to create (via :class:`tracker.recording.RecordingWriter`)
+    out_dir : folder to create (via :class:`tracker.io.recording.RecordingWriter`)
     fps, seed : frame rate; noise of frame ``i`` uses ``default_rng([seed, i])``
     progress : called as ``progress(done, total)`` after each frame
     hand : HandModel (default: the default left hand); the tracking model the truth θ refers to

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import Camera
+from ..io.cameras import Camera
 from ..detector import (DETECTOR_NAME, N_CLASSES, N_PARTS, OTHER, PART_NAMES, ROLL_BINS, HandPartForest, detect,
                         feature_matrix, forest_arrays, offset_map, roll_bin, save_detector)
 from ..errors import TrackerError
@@ -239,8 +239,8 @@ def evaluate_real(detector: HandPartForest, data_dir) -> dict:
     (not the same point: the crease lies ~1–2 cm further along the arm). Evaluation only."""
     import json
 
-    from ..cameras import preset
-    from ..images import read_depth_units, units_to_metres
+    from ..io.cameras import preset
+    from ..io.images import read_depth_units, units_to_metres
     from ..observe import observe
 
     root = Path(data_dir)

@@ -2,7 +2,7 @@
 units ↔ metres for each camera's encoding (``uint16`` units, NYU's ``G·256+B``), colour frames.
 
 >>> import numpy as np
->>> from tracker.cameras import preset
+>>> from tracker.io.cameras import preset
 >>> cam = preset("sr305")                      # 0.125 mm per unit
 >>> float(units_to_metres(np.array([8000], np.uint16), cam)[0])
 1.0
@@ -15,9 +15,9 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from ._image_kernels import RVL_OK, RVL_OVERRUN, RVL_SHORT, RVL_VALUE, rvl_decode
+from .._image_kernels import RVL_OK, RVL_OVERRUN, RVL_SHORT, RVL_VALUE, rvl_decode
+from ..errors import RecordingError
 from .cameras import MAX_UNITS, Camera
-from .errors import RecordingError
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_TYPES = {0: "greyscale", 2: "RGB", 3: "palette", 4: "greyscale+alpha", 6: "RGBA"}

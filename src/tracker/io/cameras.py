@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .errors import TrackerError
+from ..errors import TrackerError
 
 #: How a depth PNG stores integer depth units (``metres = units · depth_scale_m``, 0 = no data):
 #: ``uint16`` a 16-bit greyscale PNG (OpenNI, Kinect, RealSense); ``nyu_rgb`` an 8-bit RGB PNG with

@@ -11,7 +11,7 @@ RealSense's ``Depth Units`` option (otherwise 1 mm for integer depth), the times
 The bag is indexed once at :func:`open_bag` (ROS1: from the bag's own index, no frame is read;
 ROS2: one pass over the depth topic) and each frame is read on demand, so a 20 GB bag is neither
 copied nor loaded. An optional colour topic is resampled onto the depth pixel grid
-(:func:`tracker.images.register_color`) with the RealSense depth→colour extrinsics where the bag
+(:func:`tracker.io.images.register_color`) with the RealSense depth→colour extrinsics where the bag
 has them, otherwise as if both cameras sat at the same place.
 
 Every problem found in the file — not a bag, truncated, a topic missing or of the wrong type, no
@@ -32,12 +32,12 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag1.reader import decompressors as _ROS1_DECOMPRESSORS
 from rosbags.typesys import Stores, get_typestore
 
+from ..errors import RecordingError, TrackerError
+from .base import MAX_FRAME_SIDE, ROS1_MAGIC, SQLITE_MAGIC, Frame, check_frame_size, looks_like
 from .cameras import Camera
-from .errors import RecordingError, TrackerError
+from .file_base import FileRecording
 from .images import (COMPRESSED_DEPTH_HEADER, decode_png_units, decode_rvl, inverse_depth_to_metres,
                      register_color)
-from .recording import (MAX_FRAME_SIDE, ROS1_MAGIC, SQLITE_MAGIC, FileRecording, Frame, check_frame_size,
-                        looks_like)
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"

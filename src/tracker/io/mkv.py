@@ -19,9 +19,10 @@ from pathlib import Path
 import av
 import numpy as np
 
+from ..errors import RecordingError, TrackerError
+from .base import EBML_MAGIC, check_frame_size, looks_like
 from .cameras import Camera
-from .errors import RecordingError, TrackerError
-from .recording import EBML_MAGIC, FileRecording, check_frame_size, looks_like
+from .file_base import FileRecording
 
 #: Depth modes: (binned calibration resolution, crop offset, output size), per the Azure Kinect SDK.
 DEPTH_MODES = {
