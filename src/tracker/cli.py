@@ -10,6 +10,8 @@ from typing import Optional
 
 import typer
 
+from .cli_common import check_not_inputs, progress_bar, segmenter_from_options
+
 app = typer.Typer(name="tracker", help="Synergistic hand tracking in depth recordings.", add_completion=False,
                   no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None)
 
@@ -38,16 +40,6 @@ def _camera(camera, fx, fy, cx, cy, width, height, depth_scale, depth_encoding):
         raise TrackerError("camera", f"give --camera PRESET or all of --fx --fy --cx --cy --width --height "
                                      f"(missing {' '.join(lack)})")
     return Camera(**{"depth_scale_m": 0.001, "depth_encoding": "uint16", **given, "name": "custom"})
-
-
-def _progress(label: str):
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    console = Console(stderr=True)
-    # off when stderr is not a terminal: a transient bar would still leave an empty line in logs
-    return Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    console=console, transient=True, disable=not console.is_terminal)
 
 
 def _table(title: str, rows):
@@ -90,7 +82,7 @@ def _depth_stats(rec, every: int = 1, label: str = "reading"):
     frames = rec.select(every=max(every, 1)) if hasattr(rec, "select") else (rec[i] for i in idx)
     valid, samples = [], []
     rng = np.random.default_rng(0)
-    with _progress(label) as p:
+    with progress_bar(label) as p:
         bar = p.add_task(label, total=len(idx))
         for frame in frames:
             d = frame.depth
@@ -185,12 +177,11 @@ def import_(
     from .io.recording import import_pngs, import_recording_file, is_recording_file
     from handmodel.fileio import check_output
 
-    from .track_cli import _check_not_inputs
 
     if not src.exists():
         raise TrackerError(src, "no such folder or file")
     if is_recording_file(src):  # a folder of PNGs may hold its recording (-o pngs/rec); it is never the source
-        _check_not_inputs([src], [("-o", output)])
+        check_not_inputs([src], [("-o", output)])
     check_output(output, folder=True)  # a read-only or full disk fails before any frame is read
     t0 = time.perf_counter()
     if is_recording_file(src):
@@ -201,7 +192,7 @@ def import_(
         if given:
             raise TrackerError(src, f"{', '.join(given)} do not apply: a recording file gives its own camera, "
                                     "frame rate and colour")
-        with _progress("importing") as p:
+        with progress_bar("importing") as p:
             bar = p.add_task("import", total=None)
             rec = import_recording_file(src, output, topic=topic, color_topic=color_topic, start_s=start, end_s=end,
                                         every=every, handedness=hand, overwrite=overwrite,
@@ -218,13 +209,13 @@ def import_(
     if each:
         from .io.recording import import_stills
 
-        with _progress("importing") as p:
+        with progress_bar("importing") as p:
             bar = p.add_task("import", total=None)
             recs = import_stills(src, output, cam, fps, hand, overwrite=overwrite,
                                  progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
         _imported_each(src, output, recs, time.perf_counter() - t0)
         return
-    with _progress("importing") as p:
+    with progress_bar("importing") as p:
         bar = p.add_task("import", total=None)
         rec = import_pngs(src, output, cam, fps, hand, overwrite=overwrite,
                           progress=lambda k, n: p.update(bar, completed=k, total=n), color=color)
@@ -348,9 +339,8 @@ def show(
     from .errors import TrackerError
     from handmodel.fileio import check_output
 
-    from .track_cli import _check_not_inputs
 
-    _check_not_inputs([recording, keypoints], [("-o", output)])
+    check_not_inputs([recording, keypoints], [("-o", output)])
     if output.suffix.lower() != ".png":
         raise TrackerError(output, "the picture is written as PNG: name it .png")
     if output.exists() and not overwrite and not output.is_dir():
@@ -377,9 +367,8 @@ def show(
 
     if every < 0 or max_frames < 1:
         raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
-    from .track_cli import _segmenter
 
-    segmenter = _segmenter(depth_range, box, forearm, plane) if mask else None
+    segmenter = segmenter_from_options(depth_range, box, forearm, plane) if mask else None
     rec = Recording.open(recording, topic=topic)
     n = len(rec)
     if n == 0:
@@ -402,7 +391,7 @@ def show(
 
             _check_same_recording(keypoints, meta, recording, rec)
     depths, masks, times = [], [], []
-    with _progress("reading") as p:
+    with progress_bar("reading") as p:
         bar = p.add_task("read", total=len(shown))
         for i in shown:
             frame = rec[i]

@@ -16,6 +16,8 @@ from typing import List, Optional
 
 import typer
 
+from .cli_common import check_not_inputs, progress_bar, segmenter_from_options
+
 # options that several commands take, written once (the same flag, default and help everywhere)
 DEPTH_RANGE = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5].")
 BOX = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box.")
@@ -85,7 +87,7 @@ def track(
         require_mediapipe("--rgb-seed")
 
     hand_model = _hand_model(hand_model, paper)
-    _check_not_inputs([*recordings, _input_file(hand_model), _input_file(synergies)],
+    check_not_inputs([*recordings, _input_file(hand_model), _input_file(synergies)],
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                        ("--save-hand", save_hand)])
     if len(recordings) > 1 or dask is not None:
@@ -103,7 +105,7 @@ def track(
     else:
         _check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     _check_every(overlay_every)
-    segmenter = _segmenter(depth_range, box, forearm, plane)
+    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
     # Dask's workers already run recordings side by side
     threads = 1 if threads is None and dask is not None else threads
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
@@ -158,39 +160,6 @@ def _hand_model(name, paper) -> str:
 def _input_file(spec):
     """The file a ``--hand-model`` or ``--synergies`` value names, or None for a shipped name."""
     return Path(spec) if spec and Path(spec).is_file() else None
-
-
-def _check_not_inputs(inputs, outputs):
-    """Refuse an output that is one of the command's inputs or lies inside an input folder (a
-    recording): ``--overwrite`` replaces earlier outputs, never what the command reads.
-
-    Parameters
-    ----------
-    inputs : paths the command reads (None entries are skipped)
-    outputs : ``(option, path)`` pairs of what it writes (None paths are skipped)
-
-    Raises
-    ------
-    TrackerError
-        Naming the output, the option and the input.
-    """
-    import os
-
-    from .errors import TrackerError
-
-    # resolved, so a symbolic link or ``rec/../rec`` does not slip past; samefile catches a hard link
-    ins = [(p, Path(p).resolve()) for p in inputs if p is not None]
-    for option, out in outputs:
-        if out is None:
-            continue
-        o = Path(out).resolve()
-        for given, i in ins:
-            if o == i or (o.exists() and i.exists() and os.path.samefile(o, i)):
-                raise TrackerError(out, f"{option} is an input of this command ({given}); an output never "
-                                        "replaces an input: write it elsewhere")
-            if i.is_dir() and i in o.parents:
-                raise TrackerError(out, f"{option} lies inside the input {given}; an output never goes into "
-                                        "an input: write it elsewhere")
 
 
 def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
@@ -309,7 +278,6 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
     from rich.console import Console
     from rich.table import Table
 
-    from .cli import _progress
     from .run import open_job_recording, run_job
 
     rec = open_job_recording(job)
@@ -317,7 +285,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         # said before the frames are tracked, as tracker info says it; the frames up to the damage are tracked
         Console(stderr=True, markup=False, soft_wrap=True).print(
             f"warning: {recording}: {rec.damage}; tracking the {len(rec)} frame{'s' * (len(rec) != 1)} it holds")
-    with _progress("tracking") as progress:
+    with progress_bar("tracking") as progress:
         bar = progress.add_task("track", total=_length(rec))
         run = run_job(job, lambda frame, r, ob: progress.advance(bar), source=rec)
     df, tracker, rec, wall_s = run.df, run.tracker, run.recording, run.wall_s
@@ -422,14 +390,13 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     from handmodel.cliutil import print_error
     from handmodel.fileio import atomic_write_text, check_output
 
-    from .cli import _progress
     from .errors import TrackerError
     from .run import batch_jobs, track_many
 
     jobs = batch_jobs(recordings, outdir, template)
     summary = Path(outdir) / "summary.csv"
     outputs = [Path(j.output) for j in jobs] + [summary] + [Path(j.keypoints) for j in jobs if j.keypoints]
-    _check_not_inputs(recordings, [("-o", p) for p in outputs])
+    check_not_inputs(recordings, [("-o", p) for p in outputs])
     for p in outputs:
         if p.exists() and not overwrite:
             raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
@@ -437,7 +404,7 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     for j in jobs:
         if j.overlay:
             _check_outputs(None, None, Path(j.overlay), None, overwrite)
-    with _progress(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
+    with progress_bar(f"tracking {len(jobs)} recordings" + (f" on Dask ({dask})" if dask else "")) as progress:
         bar = progress.add_task("recordings", total=len(jobs))
         table = track_many(jobs, dask=dask, on_done=lambda row: progress.advance(bar))
     atomic_write_text(summary, table.to_csv(index=False, float_format="%.4f"), overwrite=overwrite)
@@ -540,68 +507,6 @@ def _no_hand_hints(job, tracker) -> str:
     return ("check " + ", ".join(hints[:-1]) + " and " + hints[-1]) if len(hints) > 1 else hints[0]
 
 
-def _segmenter(depth_range, box, forearm, plane):
-    """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box``, ``--forearm`` and ``--plane``."""
-    from .errors import TrackerError
-    from .segment import FOREARM_CHOICES, PLANE_CHOICES, Segmenter
-
-    kw = {}
-    if depth_range is not None:
-        near_far = _floats(depth_range, "--depth-range", 2, "NEAR,FAR in metres, e.g. 0.3,0.9")
-        if None in near_far or not 0 <= near_far[0] < near_far[1]:
-            raise TrackerError("--depth-range", f"needs 0 ≤ NEAR < FAR (metres), got {depth_range!r}")
-        _metres("--depth-range", depth_range, near_far)
-        kw.update(z_min=near_far[0], z_max=near_far[1])
-    if box is not None:
-        b = _floats(box, "--box", 6, "X0,Y0,Z0,X1,Y1,Z1 in metres, e.g. -0.3,-0.3,0.3,0.3,0.3,0.9")
-        if any(lo is not None and hi is not None and not lo < hi for lo, hi in zip(b[:3], b[3:])):
-            raise TrackerError("--box", f"each lower bound must be below its upper bound, got {box!r}")
-        _metres("--box", box, b)
-        kw.update(box_min=tuple(b[:3]), box_max=tuple(b[3:]))
-    if forearm not in FOREARM_CHOICES:
-        raise TrackerError("--forearm", f"must be {' or '.join(FOREARM_CHOICES)}, got {forearm!r}")
-    if plane not in PLANE_CHOICES:
-        raise TrackerError("--plane", f"must be {', '.join(PLANE_CHOICES[:-1])} or {PLANE_CHOICES[-1]}, got {plane!r}")
-    return Segmenter(forearm=forearm, plane=plane, **kw)
-
-
-# no depth camera sees a hand this far (m): a larger value is millimetres typed for metres
-FARTHEST_M = 20.0
-
-
-def _metres(option, text, values):
-    """Refuse ``values`` (metres, None = open) beyond :data:`FARTHEST_M`: millimetres typed for metres
-    (``--depth-range 300,1000``) would look for the hand where no camera sees, and every frame would
-    then be lost as if there were no hand."""
-    from .errors import TrackerError
-
-    far = [v for v in values if v is not None and abs(v) > FARTHEST_M]
-    if far:
-        mm = ",".join("" if v is None else f"{v / 1000:g}" for v in values)
-        raise TrackerError(option, f"values are in metres: {text!r} reaches {max(abs(v) for v in far):g} m, beyond "
-                                   f"any depth camera (if you meant millimetres: {mm})")
-
-
-def _floats(text, option, n, example):
-    """``n`` comma-separated numbers (an empty entry is None)."""
-    from .errors import TrackerError
-
-    parts = [p.strip() for p in text.split(",")]
-    if len(parts) != n:
-        raise TrackerError(option, f"needs {n} comma-separated values ({example}), got {text!r}")
-    try:
-        values = [None if p == "" else float(p) for p in parts]
-    except ValueError:
-        raise TrackerError(option, f"needs numbers ({example}), got {text!r}") from None
-    if any(v is not None and not _finite(v) for v in values):
-        raise TrackerError(option, f"needs finite numbers, got {text!r}")
-    return values
-
-
-def _finite(v):
-    return v == v and v not in (float("inf"), float("-inf"))
-
-
 def _hand_scale(text):
     """``--hand-scale``: "auto" or a factor, checked by :meth:`tracker.settings.ScaleSettings.check`
     (within the sizes "auto" searches: 0.05 tracked nothing and blamed the segmentation); None when
@@ -636,7 +541,7 @@ def evaluate(
 
     from .errors import TrackerError
 
-    _check_not_inputs([recording, result], [("--plot", plot)])
+    check_not_inputs([recording, result], [("--plot", plot)])
     if plot is not None:
         if plot.exists() and not overwrite and not plot.is_dir():
             raise TrackerError(plot, "exists and is never overwritten (use --overwrite)")
@@ -731,7 +636,7 @@ def live(
     if budget_ms is not None and not (budget_ms > 0 and math.isfinite(budget_ms)):
         raise TrackerError("--budget-ms", f"must be a positive number of ms, got {budget_ms:g}")
     hand_model = _hand_model(hand_model, paper)
-    _check_not_inputs([playback, _input_file(hand_model), _input_file(synergies)],
+    check_not_inputs([playback, _input_file(hand_model), _input_file(synergies)],
                       [("-o", output), ("--keypoints", keypoints), ("--overlay", overlay), ("--rerun", rerun),
                        ("--save", save)])
     _check_outputs(output, keypoints, overlay, rerun, overwrite)
@@ -740,7 +645,7 @@ def live(
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
     _check_every(overlay_every)
-    segmenter = _segmenter(depth_range, box, forearm, plane)
+    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
     settings = _settings(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
                          None, None, hand_scale, check_hand)
 
@@ -749,7 +654,6 @@ def live(
 
     from rich.console import Console
 
-    from .cli import _progress
     from .live import RealSenseSource
     from .io.recording import RecordingWriter
     from .run import TrackJob, run_job
@@ -782,7 +686,7 @@ def live(
         if save is not None:
             writer = RecordingWriter(save, source.camera, source.fps, hand, overwrite=overwrite,
                                      source=f"tracker live, {source.name}")
-        with source, _progress(f"tracking {source.name}") as progress:
+        with source, progress_bar(f"tracking {source.name}") as progress:
             bar = progress.add_task("live", total=frames)
 
             def on_frame(frame, r, ob):
@@ -848,11 +752,11 @@ def calibrate(
         raise TrackerError("--frames", f"must be positive, got {frames}")
     _check_hand_file(output)
     hand_model = _hand_model(hand_model, False)
-    _check_not_inputs([recording, _input_file(hand_model), _input_file(synergies)], [("-o", output)])
+    check_not_inputs([recording, _input_file(hand_model), _input_file(synergies)], [("-o", output)])
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)
-    segmenter = _segmenter(depth_range, box, forearm, plane)
+    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
     settings = _settings(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
                          None, None, "auto", False)
     if finger_lengths is not None:
@@ -862,7 +766,6 @@ def calibrate(
     from rich.console import Console
     from rich.table import Table
 
-    from .cli import _progress
     from .run import TrackJob, calibrate_job
 
     _say_if_compiling()
@@ -870,7 +773,7 @@ def calibrate(
     job = TrackJob(recording=str(recording), output="", settings=settings, synergies=synergies,
                    registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
                    overwrite=overwrite, hand=_hand_side(hand), topic=topic, color_topic=color_topic, start_s=start)
-    with _progress("calibrating") as progress:
+    with progress_bar("calibrating") as progress:
         bar = progress.add_task("calibrate", total=None)
         out, tracker, used = calibrate_job(job, output, max_frames=frames, each=each,
                                            on_frame=lambda frame, r, ob: progress.advance(bar))

@@ -20,24 +20,23 @@ camera info, frames of the wrong size — is a :class:`~tracker.errors.Recording
 from __future__ import annotations
 
 import bz2
-import io
 import re
-import struct
 from pathlib import Path
 
 import lz4.frame
 import numpy as np
-from PIL import Image as PILImage
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1.reader import decompressors as _ROS1_DECOMPRESSORS
 from rosbags.typesys import Stores, get_typestore
 
 from ..errors import RecordingError, TrackerError
-from .base import MAX_FRAME_SIDE, ROS1_MAGIC, SQLITE_MAGIC, Frame, check_frame_size, looks_like
+from .bag_checks import check_ros1_complete, check_sqlite_complete
+from .bag_messages import (_kv, _number, _quat_matrix, _wrap, color_from_message, depth_from_compressed,
+                           depth_from_image, intrinsics_of)
+from .base import Frame
 from .cameras import Camera
 from .file_base import FileRecording
-from .images import (COMPRESSED_DEPTH_HEADER, decode_png_units, decode_rvl, inverse_depth_to_metres,
-                     register_color)
+from .images import register_color
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -57,8 +56,6 @@ def _rs(topic: str, kind: str = "Depth"):
     return m if m and m.group(3) == kind else None
 #: A static message (info, option, camera info) larger than this is not believed.
 _MAX_STATIC_BYTES = 1 << 20
-_DEPTH_ENCODINGS = {"16uc1": "units", "mono16": "units", "32fc1": "metres"}
-_COLOR_CHANNELS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True), "mono8": (1, False)}
 
 
 #: What one compressed ROS1 chunk may expand to. Chunks hold about 1 MB of messages, or one larger
@@ -88,137 +85,6 @@ def _bound_chunks(reader) -> None:
         for pos, c in chunks.items():
             if id(c.decompressor) in swap:
                 chunks[pos] = c._replace(decompressor=swap[id(c.decompressor)])
-
-
-def _wrap(path, what: str, exc: Exception) -> RecordingError:
-    msg = str(exc).splitlines()[0] if str(exc) else ""
-    return RecordingError(path, f"{what} ({type(exc).__name__}{': ' + msg if msg else ''})")
-
-
-def _head_and_size(path: Path, n: int) -> tuple[bytes, int]:
-    """The first ``n`` bytes of a file and its size (what the completeness checks compare)."""
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(n), fh.seek(0, 2)
-    except OSError as exc:
-        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
-
-
-def check_sqlite_complete(path: Path) -> None:
-    """Refuse a cut SQLite file: its header gives the database size in pages, and SQLite reads the
-    pages missing past the end of a truncated file as zeros (depth frames would silently end in
-    zeros)."""
-    head, size = _head_and_size(path, 100)
-    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
-        return  # not SQLite at all: the reader says so
-    page = struct.unpack(">H", head[16:18])[0]
-    page = 65536 if page == 1 else page
-    pages, change, valid_for = struct.unpack(">I", head[28:32])[0], head[24:28], head[92:96]
-    if change == valid_for and pages and size < pages * page:
-        raise RecordingError(path, f"truncated: the SQLite header says {pages * page} bytes, the file has {size}")
-
-
-def check_ros1_complete(path: Path) -> int | None:
-    """Refuse a ROS1 bag whose index is missing, naming why: its file header says where the index
-    starts (``index_pos``), 0 while the recorder has not closed the file, past the end when the file
-    was cut short (a copy or download that stopped). The reader's own error ("Bag index looks
-    damaged: Header could not be read") does not tell a user either. Returns ``index_pos`` (None when
-    the file is too short to tell or its header is damaged: the reader then says so)."""
-    head, size = _head_and_size(path, 4096)
-    if not head.startswith(ROS1_MAGIC):
-        # the reader's error is its decoder's (a PNG renamed .bag: "'utf-8' codec can't decode byte 0x89")
-        raise RecordingError(path, f"not a ROS1 bag: it does not start with {ROS1_MAGIC.strip().decode()!r} "
-                                   f"({looks_like(head)})")
-    if len(head) < len(ROS1_MAGIC) + 4:
-        return  # too short to tell: the reader says so
-    k = len(ROS1_MAGIC)
-    hlen = struct.unpack("<I", head[k:k + 4])[0]
-    fields = _record_fields(head[k + 4:k + 4 + hlen])
-    if fields.get(b"op") != b"\x03" or len(fields.get(b"index_pos", b"")) != 8:
-        return  # a damaged header: the reader says so
-    index_pos = struct.unpack("<Q", fields[b"index_pos"])[0]
-    if index_pos == 0:
-        raise RecordingError(path, "unfinished: the recorder never wrote the bag's index (it stopped before "
-                                   "closing the file); rebuild it with `rosbag reindex` (ROS1)")
-    if index_pos >= size:
-        raise RecordingError(path, f"cut short: the bag's index starts at byte {index_pos}, the file ends at "
-                                   f"{size} (copy it again, or rebuild the index with `rosbag reindex`)")
-    check_ros1_records(path, index_pos, size)
-    return index_pos
-
-
-def _record_fields(header: bytes) -> dict:
-    """A ROS1 record header's ``name=value`` fields (each behind its u32 length)."""
-    pos, fields = 0, {}
-    while pos + 4 <= len(header):
-        flen = struct.unpack("<I", header[pos:pos + 4])[0]
-        name, _, value = header[pos + 4:pos + 4 + flen].partition(b"=")
-        fields[name] = value
-        pos += 4 + flen
-    return fields
-
-
-#: A ROS1 record header holds a few fields (a connection's, its message definition: a few kB); a
-#: longer one is a damaged length, not read into memory.
-_MAX_RECORD_HEADER = 1 << 24
-
-
-def check_ros1_records(path: Path, index_pos: int, size: int) -> None:
-    """Refuse a ROS1 bag whose index records, or the chunks they point at, declare lengths past the end
-    of the file. The reader allocates what a record declares before it reads it: one length field set
-    to 0xFFFFFFF0 made it ask for 4 GB (a MemoryError, or the machine's memory) instead of saying
-    which record is damaged."""
-    chunks = []
-    try:
-        with open(path, "rb") as fh:
-            def record(pos, what):
-                fh.seek(pos)
-                raw = fh.read(4)
-                hlen = struct.unpack("<I", raw)[0] if len(raw) == 4 else None
-                if hlen is not None and hlen > _MAX_RECORD_HEADER:
-                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares a header of {hlen} bytes "
-                                               f"(a ROS record's header is a few kB)")
-                if hlen is None or pos + 8 + hlen > size:
-                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares a header of "
-                                               f"{hlen if hlen is not None else '?'} bytes, past the file's end at {size}")
-                header = fh.read(hlen)
-                raw = fh.read(4)
-                dlen = struct.unpack("<I", raw)[0] if len(raw) == 4 else None
-                end = pos + 8 + hlen + (dlen or 0)
-                if dlen is None or end > size:
-                    raise RecordingError(path, f"{damage(what)} at byte {pos} declares "
-                                               f"{dlen if dlen is not None else '?'} bytes of data, past the file's "
-                                               f"end at {size}")
-                return _record_fields(header), end
-
-            def damage(what):
-                # the index is the file's last part: a copy that stopped inside it looks the same
-                return (f"damaged or cut short inside its index (from byte {index_pos}): the record"
-                        if what == "index" else "damaged: the chunk")
-
-            pos = index_pos
-            while pos < size:
-                fields, pos = record(pos, "index")
-                if fields.get(b"op") == b"\x06" and len(fields.get(b"chunk_pos", b"")) == 8:
-                    chunks.append(struct.unpack("<Q", fields[b"chunk_pos"])[0])
-            for chunk_pos in chunks:
-                if chunk_pos >= index_pos:
-                    raise RecordingError(path, f"damaged: a chunk said to start at byte {chunk_pos}, inside the index")
-                fields, end = record(chunk_pos, "chunk")
-                if fields.get(b"op") != b"\x05":
-                    raise RecordingError(path, f"damaged: the index points at a chunk at byte {chunk_pos}, but the "
-                                               "record there is not a chunk")
-                # a chunk is followed by its index data records (op 0x04): anything else there means
-                # the chunk's declared size is wrong, which rosbags would read past without a word
-                try:
-                    follows = record(end, "chunk")[0] if end < index_pos else {}
-                except RecordingError:
-                    follows = {}
-                if follows.get(b"op") != b"\x04":
-                    raise RecordingError(path, f"damaged: the chunk at byte {chunk_pos} declares a size that ends at "
-                                               f"byte {end}, where no index data record starts (a wrong chunk size)")
-    except OSError as exc:
-        raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
 
 
 class _Bag:
@@ -300,144 +166,6 @@ class _Bag:
         return np.array([t for _, t, _ in self.messages([conn])], np.int64)
 
 
-# ----------------------------------------------------------------------------- message decoding
-def _kv(text: str) -> dict:
-    """``key=value;key=value`` (RealSense ROS2 info strings) as a dict."""
-    out = {}
-    for part in str(text).split(";"):
-        if "=" in part:
-            k, v = part.split("=", 1)
-            out[k.strip()] = v.strip()
-    return out
-
-
-def _number(value, where, what: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise RecordingError(where, f"{what} is not a number: {str(value)[:40]!r}") from None
-    if not np.isfinite(v):
-        raise RecordingError(where, f"{what} is not finite: {value!r}")
-    return v
-
-
-def intrinsics_of(msg, where) -> tuple[int, int, np.ndarray]:
-    """``(width, height, K)`` of a ``sensor_msgs/CameraInfo`` or a RealSense ``width=…;fx=…;ppx=…``
-    string."""
-    if hasattr(msg, "K") or hasattr(msg, "k"):
-        K = np.asarray(getattr(msg, "K", None) if hasattr(msg, "K") else msg.k, float)
-        if K.shape != (9,):
-            raise RecordingError(where, f"camera_info K has {K.size} values, expected 9")
-        w, h = int(msg.width), int(msg.height)
-        K = K.reshape(3, 3)
-    else:
-        kv = _kv(getattr(msg, "data", ""))
-        lack = [k for k in ("width", "height", "fx", "fy", "ppx", "ppy") if k not in kv]
-        if lack:
-            raise RecordingError(where, f"camera info lacks {', '.join(lack)}")
-        w, h = int(_number(kv["width"], where, "width")), int(_number(kv["height"], where, "height"))
-        f = {k: _number(kv[k], where, k) for k in ("fx", "fy", "ppx", "ppy")}
-        K = np.array([[f["fx"], 0, f["ppx"]], [0, f["fy"], f["ppy"]], [0, 0, 1.0]])
-    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise RecordingError(where, f"camera_info has no usable intrinsics (fx {K[0, 0]:g}, fy {K[1, 1]:g})")
-    if w < 1 or h < 1:
-        raise RecordingError(where, f"camera_info gives an image of {w}×{h} pixels")
-    check_frame_size(w, h, where)
-    return w, h, K
-
-
-def _image_array(msg, where, channels: int, itemsize: int) -> np.ndarray:
-    """The pixel rows of a ``sensor_msgs/Image`` as ``(h, w·channels·itemsize)`` bytes, checked."""
-    w, h, step = int(msg.width), int(msg.height), int(msg.step)
-    check_frame_size(w, h, where)
-    row = w * channels * itemsize
-    data = np.asarray(msg.data, np.uint8)
-    if step < row:
-        raise RecordingError(where, f"image step {step} is shorter than a row of {w} pixels ({row} bytes)")
-    if data.size < step * h:
-        raise RecordingError(where, f"image holds {data.size} bytes, {w}×{h} with step {step} needs {step * h}")
-    return data[: step * h].reshape(h, step)[:, :row]
-
-
-def depth_from_image(msg, where):
-    """``(kind, depth)`` of a ``sensor_msgs/Image`` depth message: ``units`` uint16 or ``metres`` float32."""
-    enc = str(msg.encoding).lower()
-    kind = _DEPTH_ENCODINGS.get(enc)
-    if kind is None:
-        raise RecordingError(where, f"depth image encoding {msg.encoding!r} is not read "
-                                    "(16UC1/mono16 millimetres or 32FC1 metres)")
-    size = 2 if kind == "units" else 4
-    rows = _image_array(msg, where, 1, size)
-    order = ">" if msg.is_bigendian else "<"
-    a = np.ascontiguousarray(rows).view(f"{order}{'u2' if kind == 'units' else 'f4'}")
-    return kind, a.astype(np.uint16 if kind == "units" else np.float32)
-
-
-def depth_from_compressed(msg, where):
-    """``(kind, depth)`` of a ``compressedDepth`` ``sensor_msgs/CompressedImage``."""
-    fmt = str(msg.format)
-    enc = fmt.split(";")[0].strip().lower()
-    kind = _DEPTH_ENCODINGS.get(enc)
-    if "compresseddepth" not in fmt.lower().replace(" ", "") or kind is None:
-        raise RecordingError(where, f"compressed image format {fmt!r} is not a 16UC1/32FC1 compressedDepth image")
-    data = bytes(np.asarray(msg.data, np.uint8))
-    if len(data) < COMPRESSED_DEPTH_HEADER:
-        raise RecordingError(where, f"compressedDepth message of {len(data)} bytes has no 12-byte header")
-    codec, quant_a, quant_b = struct.unpack("<iff", data[:COMPRESSED_DEPTH_HEADER])
-    body = data[COMPRESSED_DEPTH_HEADER:]
-    if codec == 1 or "rvl" in fmt.lower():
-        if len(body) < 8:
-            raise RecordingError(where, "RVL depth image without its size")
-        w, h = struct.unpack("<II", body[:8])
-        check_frame_size(w, h, where)
-        units = decode_rvl(body[8:], w, h, where)
-    elif codec == 0:
-        units = decode_png_units(body, where, MAX_FRAME_SIDE)
-    else:
-        raise RecordingError(where, f"compressedDepth header names codec {codec} (0 = PNG, 1 = RVL)")
-    if kind == "units":
-        return kind, units
-    if not (np.isfinite(quant_a) and np.isfinite(quant_b)):
-        raise RecordingError(where, "compressedDepth 32FC1 header has no finite quantisation parameters")
-    return kind, inverse_depth_to_metres(units, quant_a, quant_b)
-
-
-def color_from_message(msg, where) -> np.ndarray:
-    """RGB ``(H, W, 3)`` uint8 of a colour ``Image`` (rgb8, bgr8, rgba8, bgra8, mono8) or a JPEG/PNG
-    ``CompressedImage``; the size is checked before the pixels are decoded."""
-    if hasattr(msg, "encoding"):
-        enc = str(msg.encoding).lower()
-        if enc not in _COLOR_CHANNELS:
-            raise RecordingError(where, f"colour image encoding {msg.encoding!r} is not read "
-                                        f"({', '.join(_COLOR_CHANNELS)})")
-        ch, bgr = _COLOR_CHANNELS[enc]
-        a = _image_array(msg, where, ch, 1).reshape(int(msg.height), int(msg.width), ch)
-        if ch == 1:
-            return np.repeat(a, 3, axis=2)
-        a = a[..., :3]
-        return np.ascontiguousarray(a[..., ::-1] if bgr else a)
-    try:
-        im = PILImage.open(io.BytesIO(bytes(np.asarray(msg.data, np.uint8))))
-        check_frame_size(im.width, im.height, where)
-        return np.asarray(im.convert("RGB"))
-    except RecordingError:
-        raise
-    except Exception as exc:  # Pillow raises many types for damaged images
-        raise _wrap(where, "unreadable compressed colour image", exc) from None
-
-
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = (float(q.x), float(q.y), float(q.z), float(q.w))
-    n = np.sqrt(x * x + y * y + z * z + w * w)
-    if not np.isfinite(n) or n < 1e-9:
-        return np.eye(3)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-# ----------------------------------------------------------------------------- the recording
 class BagRecording(FileRecording):
     """The depth (and optional colour) frames of a ROS bag (see the module docstring)."""
 

@@ -157,10 +157,10 @@ def experiments(
         raise TrackerError("experiments", "the real part needs the labelled frames' folder (--real-data)")
     if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
         raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
-    from ..track_cli import _check_not_inputs
+    from ..cli_common import check_not_inputs
 
     # the labelled frames are third-party data: the report (and its real/ overlays) never goes among them
-    _check_not_inputs([real_data], [("-o", output)])
+    check_not_inputs([real_data], [("-o", output)])
     if (output / "report.md").exists() and not overwrite:
         raise TrackerError(output, "holds a report already, never overwritten (use --overwrite)")
     check_output(output, folder=True)  # minutes of experiments must not end in a read-only or full disk
