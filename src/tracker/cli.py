@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from .cli_common import check_not_inputs, progress_bar, segmenter_from_options
+from .cli_common import check_not_inputs, check_same_recording, progress_bar, segmenter_from_options
 
 app = typer.Typer(name="tracker", help="Synergistic hand tracking in depth recordings.", add_completion=False,
                   no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None)
@@ -387,9 +387,7 @@ def show(
         hand = HandModel.load()  # its bones only: the keypoints are the fitted hand's own
         fitted, meta = _keypoints_by_frame(keypoints, hand.keypoint_names, n)
         if check_recording:
-            from .track_cli import _check_same_recording
-
-            _check_same_recording(keypoints, meta, recording, rec)
+            check_same_recording(keypoints, meta, recording, rec)
     depths, masks, times = [], [], []
     with progress_bar("reading") as p:
         bar = p.add_task("read", total=len(shown))

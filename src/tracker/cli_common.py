@@ -1,5 +1,6 @@
 """What the command modules share (:mod:`tracker.cli`, :mod:`tracker.track_cli`,
-:mod:`tracker.sim.cli`): the progress bar, the check that no output replaces an input, and the
+:mod:`tracker.sim.cli`): the progress bar, the check that no output replaces an input, the check that
+a result file belongs to the recording given, and the
 segmenter the ``--depth-range`` / ``--box`` / ``--forearm`` / ``--plane`` options describe. The
 command modules import this one and never each other's helpers.
 """
@@ -50,6 +51,35 @@ def check_not_inputs(inputs, outputs):
             if i.is_dir() and i in o.parents:
                 raise TrackerError(out, f"{option} lies inside the input {given}; an output never goes into "
                                         "an input: write it elsewhere")
+
+
+def check_same_recording(path, meta, recording, rec):
+    """Refuse an output of tracker track (``path``, its header ``meta``) whose ``# recording:`` or
+    ``# handedness:`` line names another recording than ``recording`` (opened: ``rec``).
+
+    The recording is compared by its folder or file name, as typed paths differ between working
+    folders; a header without these lines (an older file) is not checked, nor the handedness of a
+    recording file (the file does not say which hand it shows). ``--no-check-recording`` skips this.
+
+    Raises
+    ------
+    TrackerError
+        Naming ``path``, both recordings and hands, and the option that overrides.
+    """
+    from .errors import TrackerError
+
+    def name(p):
+        p = Path(p)
+        return p.name if p.name not in ("", ".", "..") else p.resolve().name
+
+    tracked = meta.get("recording")
+    if tracked and name(tracked) != name(recording):
+        raise TrackerError(path, f"was tracked on recording {tracked}, not on {recording} (--no-check-recording "
+                                 "uses it anyway)")
+    hand = meta.get("handedness")
+    if hand and getattr(rec, "times_s", None) is None and hand != rec.handedness:
+        raise TrackerError(path, f"was tracked as a {hand} hand, {recording} is a {rec.handedness} hand "
+                                 "(--no-check-recording uses it anyway)")
 
 
 def segmenter_from_options(depth_range, box, forearm, plane):

@@ -16,7 +16,7 @@ from typing import List, Optional
 
 import typer
 
-from .cli_common import check_not_inputs, progress_bar, segmenter_from_options
+from .cli_common import check_not_inputs, check_same_recording, progress_bar, segmenter_from_options
 
 # options that several commands take, written once (the same flag, default and help everywhere)
 DEPTH_RANGE = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5].")
@@ -188,35 +188,6 @@ def _check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, s
     outs = [p for p in (output, keypoints, overlay, rerun, save_hand) if p is not None]
     if len(set(outs)) < len(outs):
         raise TrackerError("track", "-o, --keypoints, --overlay, --rerun and --save-hand need different paths")
-
-
-def _check_same_recording(path, meta, recording, rec):
-    """Refuse an output of tracker track (``path``, its header ``meta``) whose ``# recording:`` or
-    ``# handedness:`` line names another recording than ``recording`` (opened: ``rec``).
-
-    The recording is compared by its folder or file name, as typed paths differ between working
-    folders; a header without these lines (an older file) is not checked, nor the handedness of a
-    recording file (the file does not say which hand it shows). ``--no-check-recording`` skips this.
-
-    Raises
-    ------
-    TrackerError
-        Naming ``path``, both recordings and hands, and the option that overrides.
-    """
-    from .errors import TrackerError
-
-    def name(p):
-        p = Path(p)
-        return p.name if p.name not in ("", ".", "..") else p.resolve().name
-
-    tracked = meta.get("recording")
-    if tracked and name(tracked) != name(recording):
-        raise TrackerError(path, f"was tracked on recording {tracked}, not on {recording} (--no-check-recording "
-                                 "uses it anyway)")
-    hand = meta.get("handedness")
-    if hand and getattr(rec, "times_s", None) is None and hand != rec.handedness:
-        raise TrackerError(path, f"was tracked as a {hand} hand, {recording} is a {rec.handedness} hand "
-                                 "(--no-check-recording uses it anyway)")
 
 
 def _check_hand_file(path):
@@ -565,7 +536,7 @@ def evaluate(
         raise TrackerError(recording, "has no truth.csv to evaluate against")
     df, meta = read_tracking(result)
     if check_recording:
-        _check_same_recording(result, meta, recording, rec)
+        check_same_recording(result, meta, recording, rec)
     # θ on the hand tracked (its file, size and finger lengths), the truth on the hand rendered
     hand = tracked_hand(meta, result)
     shown = truth_hand(recording) or HandModel.load(right=rec.handedness == "right")
