@@ -1,11 +1,11 @@
-"""The weak priors of the marker IK: the DIP–PIP coupling (synergy.angles.refine_with_coupling)
+"""The weak priors of the marker IK: the DIP–PIP coupling (synergy.ik_priors.refine_with_coupling)
 decides a DIP the markers do not see and leaves one they do see where the markers put it; the
 acceleration prior (refine_trajectory) ties frames together where the markers leave a joint free and
 does not slow a joint they see."""
 import numpy as np
 
 from handmodel import HandModel
-from synergy.angles import (
+from synergy.ik_priors import (
     IP_COUPLING,
     ip_coupling_pairs,
     refine_trajectory,
@@ -92,7 +92,8 @@ def test_joint_centre_exports_get_no_dip_prior():
     """Joint centres at the PIP and DIP and a fingertip fix each DIP by geometry: the prior has
     nothing to decide and must not bend a measured angle (it cost ART's real recording 1.58 →
     1.60 mm); skin-marker sets keep it."""
-    from synergy.angles import dip_fixed_fingers, markers_to_angles
+    from synergy.angles import markers_to_angles
+    from synergy.ik_priors import dip_fixed_fingers
     from synergy.markers import load_markerset
     from synergy.simulate import motion, simulate_markers
 
