@@ -707,3 +707,18 @@ def test_a_chunk_size_that_stays_inside_the_file_still_names_the_chunk(tmp_path)
     bad.write_bytes(data[:c] + struct.pack("<I", (1 << 24) + 1) + data[c + 4:])
     line = _one_error_line(_cli("info", bad), bad)
     assert f"damaged: the chunk at byte {c} declares a header of {(1 << 24) + 1} bytes" in line, line
+
+
+def test_an_import_that_fails_midway_leaves_no_folder(tmp_path):
+    """A frame that cannot be read after others were written (here the third, of the wrong size) ends
+    the import with its error and removes what was written: no half recording under the final name."""
+    bad = tmp_path / "midway.bag"
+    frames = _frames(3)
+    with _Bag(bad, 1) as b:
+        b.camera_info("/cam/depth/camera_info", 5)
+        for k, f in enumerate(frames):
+            b.image("/cam/depth/image_raw", T0 + (k + 1) * 33_000_000, f if k < 2 else f[:, :-1], "16UC1")
+    dst = tmp_path / "out"
+    line = _one_error_line(_cli("import", bad, "-o", dst), bad)
+    assert "frame 2): depth image is 39×30, the camera info says 40×30" in line, line
+    assert not dst.exists()
