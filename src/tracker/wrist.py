@@ -36,7 +36,8 @@ from ._wrist_kernels import (
     seeded_surfaces,
     surface_depth,
 )
-from .segment import _nearest, surfaces
+from .segment import surfaces
+from .segment.ops import _nearest
 
 WRIST_REACH_MM = 50.0
 WRIST_TURN_MM = 30.0

@@ -27,7 +27,7 @@ def _object_scene(hand, sensor, scale, frame):
 def test_an_open_hand_beside_a_nearer_box_is_found_without_colour(hand, sensor, scale, frame, monkeypatch):
     """Open-hand frames of the depth-only `+object` runs: the mask is the hand (recall ≥ 0.9, precision
     ≥ 0.8), not the box (the earlier rule, nearest whole surface first: recall < 0.1, checked too)."""
-    import tracker.segment as S
+    import tracker.segment.segmenter as S
 
     cam, depth, _, labels = _object_scene(hand, sensor, scale, frame)
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
@@ -48,7 +48,7 @@ def test_a_small_hands_fingers_are_looked_for_at_full_resolution(hand, frame, mo
     1-2 px apart and its noise joins them into pieces too stubby to be fingers, so the box was kept
     (the depth-only run: 149 mm). The farther surface's fingers are now looked for in the full-resolution
     frame too: the mask is the hand (recall ≥ 0.9, precision ≥ 0.8); without that look, the box."""
-    import tracker.segment as S
+    import tracker.segment.segmenter as S
 
     cam, depth, _, labels = _object_scene(hand, "kinect1", 0.8, frame)
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
@@ -81,7 +81,7 @@ def test_fingers_joined_by_the_openings_rim_are_still_fingers(hand, sensor, fram
     precision ≥ 0.8); counted from its edge (FINGER_RIM_M 0), the box (recall < 0.1) — with the
     full-resolution look confined to the hand's surface, as then (FINE_FINGER_GROW 0: on the Kinect v1
     frame the grown look finds the fingers too)."""
-    import tracker.segment as S
+    import tracker.segment.fingers as S
 
     cam, depth, _, labels = _object_scene(hand, sensor, 0.8, frame)
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
@@ -102,7 +102,7 @@ def test_fingers_broken_off_the_hands_surface_are_still_fingers(hand, seed, fram
     (``FINE_FINGER_GROW``): the mask is the hand (recall ≥ 0.9, precision ≥ 0.8; measured 0.95-0.99
     and 0.83-0.97; the run 2.4 mm). Seed 1's frame 0 is why the surface comes first: there the grown
     look joins two fingers into one piece and finds too few, the surface alone finds them."""
-    import tracker.segment as S
+    import tracker.segment.fingers as S
     from tests.conftest import realistic_frame
     from tracker.sim import experiments as E
 
@@ -177,7 +177,7 @@ def test_a_strip_of_the_box_cut_off_by_dropouts_is_no_fingertip(hand, frame, mon
     sensor's edge dropouts and at the hand's depth, was added as a fingertip blob (a 145-pixel strip
     ~2.5 cm off the hand: precision 0.86–0.88, and the hand fitted 12 % too large). A small piece at the
     depth of another hand-sized surface it nearly touches is that surface's (tracker.segment._edge_pieces)."""
-    import tracker.segment as S
+    import tracker.segment.region as S
 
     cam, depth, _, labels = _object_scene(hand, "realsense", 1.5, frame)
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
@@ -196,7 +196,7 @@ def test_a_box_the_window_cuts_to_a_strip_is_not_the_hand(hand, sensor, frames, 
     frame segmented (~8 ms instead of ~4 ms: the depth-only box scene's 38 % of refused windows).
     The predicted hand's box decides now: the window is used and its mask is the whole frame's.
     Control: without the predicted box (``expected`` None) the window is refused on each of them."""
-    import tracker.segment as S
+    import tracker.segment.segmenter as S
     from tracker.observe import backproject, hand_window
 
     for frame in frames:

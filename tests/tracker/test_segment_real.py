@@ -370,7 +370,7 @@ def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
     ``k`` times, closing-and-filling, the distance transform, the opening with a disk (radius ``k`` + 1
     and 3 × that: the finger widths of half- and full-resolution images), square max / min filters
     (masks and depths with ±inf, every border mode that cannot win) and the per-label maximum."""
-    from tracker.segment import _dilate, _disk_opening, _edt, _window_max, _window_min
+    from tracker.segment.ops import _dilate, _disk_opening, _edt, _window_max, _window_min
     from tracker._segment_kernels import closed_filled, label_max
 
     rng = np.random.default_rng(seed)
@@ -404,7 +404,7 @@ def test_compiled_morphology_equals_scipys(h, w, seed, fill, k):
 def test_compiled_nearest_pixels_are_scipys(h, w, seed, share):
     """The compiled feature transform names the same nearest pixel as scipy's, ties included (the
     segmenter's joins and the wrist cue read the depth there), and the same distances."""
-    from tracker.segment import _nearest
+    from tracker.segment.ops import _nearest
 
     rng = np.random.default_rng(seed)
     m = rng.random((h, w)) < share
@@ -518,7 +518,7 @@ def test_nan_median_is_numpys(values, grid):
     """The segmenter's compiled median is ``np.nanmedian`` bit for bit: odd and even counts, NaNs
     left out, infinities kept, all-NaN and empty give NaN (without numpy's warning); a 2-D window
     is taken whole."""
-    from tracker.segment import _nanmedian
+    from tracker.segment.ops import _nanmedian
 
     a = np.array(values, float)
     if grid and a.size % 2 == 0 and a.size:
@@ -535,7 +535,7 @@ def test_nan_median_is_numpys(values, grid):
 def test_component_labels_are_scipys(h, w, share, seed, eight):
     """The compiled labelling numbers the 4- and 8-connected components exactly as scipy.ndimage.label
     does (raster order of their first pixel; the segmenter reads parts by number)."""
-    from tracker.segment import _label
+    from tracker.segment.ops import _label
 
     m = np.random.default_rng(seed).random((h, w)) < share
     want, n = ndimage.label(m, structure=np.ones((3, 3)) if eight else None)
@@ -548,7 +548,7 @@ def test_component_labels_are_scipys(h, w, share, seed, eight):
 @given(st.integers(1, 40), st.integers(1, 40), st.floats(50.0, 600.0), st.integers(0, 2**32 - 1), st.booleans())
 def test_back_projection_is_the_numpy_expression(h, w, focal, seed, centred):
     """The segmenter's compiled back-projection is its numpy definition bit for bit (NaN depths kept)."""
-    from tracker.segment import _points
+    from tracker.segment.ops import _points
 
     rng = np.random.default_rng(seed)
     d = np.where(rng.random((h, w)) < 0.2, np.nan, rng.uniform(0.2, 3.0, (h, w)))
@@ -565,7 +565,8 @@ def test_back_projection_is_the_numpy_expression(h, w, focal, seed, centred):
 def test_surface_fronts_compiled_is_the_numpy_one(h, w, seed, min_pixels, min_area):
     """The compiled fronts (counts, areas, each surface's 1st-percentile depth, nearest first) are
     the numpy definition's: the same ids in the same order and the same depths."""
-    from tracker.segment import _surface_fronts_numpy, surface_fronts, surfaces
+    from tracker.segment import surface_fronts, surfaces
+    from tracker.segment.surfaces import _surface_fronts_numpy
 
     rng = np.random.default_rng(seed)
     # a few planes at steps and no-data specks: several surfaces of many sizes, ties in depth too

@@ -253,7 +253,7 @@ def test_a_slow_taper_is_measured_over_enough_samples(hand, monkeypatch):
     at once and the cut fell at 1.3 palm radii, ~1 cm into the palm (recall 0.90; the run's size, from
     its first 5 frames, 0.963). Over at least TAPER_MIN_SAMPLES (4) samples: recall ≥ 0.95 (0.98),
     the size 0.989; over 2, as before, < 0.93."""
-    import tracker.segment as S
+    import tracker.segment.forearm as S
 
     cam, depth, color, labels = realistic_frame(hand, "realsense", 0.8, "forearm", 3, noise_seed=1)
     recall, precision = mask_scores(observe(depth, cam, color=color).mask, depth, labels)
@@ -273,7 +273,7 @@ def test_the_predicted_hand_keeps_the_palm_off_an_arm_stub(hand, monkeypatch):
     The stub's end meets the table, which now keeps the palm off it even without a prediction (the
     contact is about a palm wide, :func:`tracker.segment.cut_forearm`): recall ≥ 0.85 (0.91);
     the prediction's part is tested with that contact left out."""
-    import tracker.segment as S
+    import tracker.segment.segmenter as S
 
     seed, scene = 2, "+table"
     j = list(E.REALISTIC_SCENES).index(scene)
@@ -297,7 +297,7 @@ def test_an_arm_the_thumb_touches_is_still_the_arm(hand, monkeypatch):
     (the tracked run: the net's search fitted the hand down the arm, 30 mm to the end). The part is the
     arm when its widest piece is wider than a finger and lies opposite the fingers that end in the
     region (``_arm_a_finger_touches``): precision ≥ 0.9 (measured 0.98; the run 3.6 mm)."""
-    import tracker.segment as S
+    import tracker.segment.forearm as S
 
     seed, scene = 2, "+table"
     j = list(E.REALISTIC_SCENES).index(scene)

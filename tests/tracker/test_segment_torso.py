@@ -10,7 +10,8 @@ from handmodel.rigid import euler_to_matrix
 from tests.conftest import mask_scores, realistic_frame
 from tracker.io.cameras import preset
 from tracker.observe import observe
-from tracker.segment import Segmenter, _in_front
+from tracker.segment import Segmenter
+from tracker.segment.layers import _in_front
 from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import make_motion
@@ -143,8 +144,8 @@ def test_a_big_hand_before_a_close_torso_is_segmented_whole_frame_not_in_its_win
 def _with_and_without(hand, monkeypatch, sensor, scale, rule, off):
     """``((recall, precision), (recall, precision))`` of the default segmenter's mask on the first frame
     of the realistic depth-only scene with a torso 4 cm behind (its noise seed): as it is, then with
-    ``tracker.segment``'s ``rule`` replaced by ``off``."""
-    import tracker.segment as S
+    ``tracker.segment.forearm``'s ``rule`` replaced by ``off``."""
+    import tracker.segment.forearm as S
 
     cam, depth, _, labels = realistic_frame(hand, sensor, scale, "forearm,torso=0.04", 0, noise_seed=5)
     now = mask_scores(observe(depth, cam).mask, depth, labels)

@@ -1,0 +1,202 @@
+"""Fingers: whether a surface's end has fingers (:func:`_has_fingers`) and which end of an arm is its
+hand (:func:`_hand_end`, :func:`_fingered_end`, :func:`_far_end`)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from .._segment_kernels import (
+    closed_filled,
+)
+from .constants import (
+    ARM_LENGTH_PALMS,
+    BORDER_PX,
+    FINE_FINGER_GROW,
+    FINE_FINGER_M,
+    FINGERS_FIRST_MAX_AREA_M2,
+    FINGER_ELONGATION,
+    FINGER_MAX_M,
+    FINGER_MIN_AREA_M2,
+    FINGER_MIN_LENGTH_M,
+    FINGER_RIM_M,
+)
+from .ops import _dilate, _disk_opening, _edt, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist, bounds
+from .surfaces import _touches_border, pixel_area
+
+
+def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22, fine=None):
+    """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`) and the
+    surface is no bigger than :data:`FINGERS_FIRST_MAX_AREA_M2`, else ``(None, nan)``: its far end from the border when its nearest part is cut off by it
+    (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`); ``fine``: as for
+    :func:`_has_fingers`."""
+    if float(pixel_area(d[surface], focal).sum()) > FINGERS_FIRST_MAX_AREA_M2:
+        return None, float("nan")
+    with np.errstate(invalid="ignore"):
+        seed = _largest_in_window(surface & (d <= front + 0.015))
+    if _touches_border(seed, border_px):
+        seed, front = _far_end(surface, d, X, focal, border_px, reach)
+    else:
+        seed, front = _hand_end(surface, d, front, band, seed, focal, border_px)
+    return (seed, front) if _has_fingers(surface, d, seed, focal, reach, fine) else (None, float("nan"))
+
+
+def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
+    """``(seed, front)`` at the end of ``surface`` farthest (in the image) from its pixels at the
+    image border: the pixels within 2 cm of that end, and the nearest depth (1st percentile) of
+    the surface within ``reach`` of them."""
+    px = BORDER_PX if border_px is None else border_px
+    edge = np.zeros_like(surface)
+    edge[:px], edge[-px:], edge[:, :px], edge[:, -px:] = True, True, True, True
+    dist = np.full(surface.shape, -1.0)
+    # the distances within the surface's bounds only: the border pixels it is measured from lie there
+    (ya, yb), (xa, xb) = bounds(surface)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    dist[win] = _edt(edge[win] & surface[win])
+    dist[~surface] = -1.0
+    z = _nanmedian(d[surface])
+    seed = _largest_in_window(surface & (dist >= dist.max() - 0.02 * focal / z))
+    centre = X[seed].mean(axis=0)
+    with np.errstate(invalid="ignore"):
+        around = surface & (_sq_dist(X, centre) <= (reach or 0.22) ** 2)
+    return seed, float(np.percentile(d[around], 1))
+
+
+def _hand_end(surface, d, front, band, seed, focal, border_px=None):
+    """``(seed, front)`` at the fingers' end of an arm whose whole length is in view.
+
+    An arm ends in view at both ends when the renderer (or a cropped depth range) gives it a free
+    far end; a real forearm goes on to the elbow and the body, past the border or into ``beyond``,
+    and then this changes nothing. When the seed's surface within ``band`` of the front does not
+    reach the border and is longer than :data:`ARM_LENGTH_PALMS` palm widths (a hand with its arm,
+    not a hand), the nearest part may be the arm's far end (an elbow held nearer the camera than
+    the wrist). The hand is the end with the fingers: the parts narrower than
+    :data:`FINGER_MAX_M` (a morphological opening removes them), clearly more of them on one
+    half along the object's long axis than on the other. That half's nearest part becomes the
+    seed; otherwise (a fist, a hand seen edge-on: no finger-like parts) the seed stays."""
+    with np.errstate(invalid="ignore"):
+        obj = surface & (d <= front + band) & (d >= front - band)
+    if not obj.any():
+        return seed, front
+    (ya, yb), (xa, xb) = bounds(obj)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    lab_o, _ = _label(obj[win])
+    hit = np.unique(lab_o[seed[win]])
+    obj = np.zeros_like(obj)
+    obj[win] = np.isin(lab_o, hit[hit > 0])
+    if not obj.any() or _touches_border(obj, border_px):
+        return seed, front
+    (ya, yb), (xa, xb) = bounds(obj)
+    win = (slice(ya, yb + 1), slice(xa, xb + 1))
+    o = closed_filled(np.ascontiguousarray(obj[win]))
+    yy, xx = np.nonzero(o)
+    P = np.stack([yy, xx], 1).astype(float)
+    c = P.mean(axis=0)
+    w, V = np.linalg.eigh(np.cov((P - c).T))
+    t = (P - c) @ V[:, -1]
+    palm = 2.0 * float(_edt(~np.pad(o, 1)).max())  # padded: the window is the bounds
+    if t.max() - t.min() < ARM_LENGTH_PALMS * palm:
+        return seed, front
+    z = _nanmedian(d[win][o])
+    px_m = focal / z
+    lab_t, size, big = _finger_pieces(o, px_m)
+    if not big.any():
+        return seed, front
+    thin = lab_t > 0
+    tt = np.zeros(o.shape)
+    tt[yy, xx] = t
+    side = np.bincount(lab_t[thin], weights=tt[thin], minlength=size.size) > 0  # mean t > 0: the + half
+    plus, minus = size[big & side].sum(), size[big & ~side].sum()
+    if max(plus, minus) < FINGER_MIN_AREA_M2 * px_m ** 2 * 2 or max(plus, minus) < 3 * min(plus, minus):
+        return seed, front
+    half = np.zeros(d.shape, bool)
+    half[win] = o & ((tt > 0) if plus > minus else (tt < 0)) & obj[win]
+    zh = float(np.percentile(d[half], 1))
+    with np.errstate(invalid="ignore"):
+        new = _largest_in_window(half & (d <= zh + 0.015))
+    return (new, zh) if new.any() else (seed, front)
+
+
+def _finger_pieces(o, px_m):
+    """``(labels, sizes, big)``: the pieces of the solid mask ``o`` narrower than
+    :data:`FINGER_MAX_M` (a morphological opening with a disk that wide removes them; ``px_m``:
+    pixels per metre at the mask's depth) and farther than :data:`FINGER_RIM_M` from what the opening
+    keeps (measured: a 0.8× open hand beside a box, depth only, whose fingers the opening's rim joined
+    into one U-shaped piece), their sizes (pixels, index 0 = none) and which are
+    finger-sized (:data:`FINGER_MIN_AREA_M2`; noise at the outline leaves slivers a few pixels big)."""
+    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    rim = int(round(FINGER_RIM_M * px_m))
+    # the pixels farther than the rim from the opened shape: the opening rounds off the palm's corners
+    # and leaves a sliver along its edge that joins every finger into one U-shaped piece, no finger
+    opened = _disk_opening(o, rad)
+    thin = o & ~opened
+    if rim > 0 and opened.any():
+        thin &= _edt(opened) > rim
+    lab_t, n = _label(thin)
+    size = np.bincount(lab_t.ravel(), minlength=n + 1)
+    # a finger is long and thin; clothing that the skin filter leaves in patches is not
+    yy, xx = np.nonzero(thin)
+    L = lab_t[yy, xx]
+    cnt = np.maximum(size, 1).astype(float)
+    my, mx = np.bincount(L, yy, n + 1) / cnt, np.bincount(L, xx, n + 1) / cnt
+    syy = np.bincount(L, (yy - my[L]) ** 2, n + 1) / cnt
+    sxx = np.bincount(L, (xx - mx[L]) ** 2, n + 1) / cnt
+    sxy = np.bincount(L, (yy - my[L]) * (xx - mx[L]), n + 1) / cnt
+    half_gap = np.sqrt(((syy - sxx) / 2) ** 2 + sxy ** 2)
+    major, minor = (syy + sxx) / 2 + half_gap, np.maximum((syy + sxx) / 2 - half_gap, 1e-9)
+    big = ((size >= FINGER_MIN_AREA_M2 * px_m ** 2) & (major >= FINGER_ELONGATION ** 2 * minor)
+           & (4.0 * np.sqrt(major) >= FINGER_MIN_LENGTH_M * px_m))
+    big[0] = False
+    return lab_t, size, big
+
+
+def _enough_fingers(o, px_m) -> bool:
+    """Whether the solid mask ``o`` (``px_m`` pixels per metre) has finger-like pieces
+    (:func:`_finger_pieces`) of at least twice :data:`FINGER_MIN_AREA_M2` in all."""
+    _, size, big = _finger_pieces(o, px_m)
+    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
+
+
+def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
+    """Whether the part of ``surface`` within ``reach`` metres (in the image, at the seed's depth)
+    of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
+    :data:`FINGER_MIN_AREA_M2` in all. ``fine``: ``(depth, step)``, the full-resolution image ``d``
+    was sampled from every ``step``-th pixel; when the part has no fingers in ``d`` they are looked for
+    there too, in the part's pixels within :data:`FINE_FINGER_M` of the pixel they were sampled with,
+    and then in the part grown by :data:`FINE_FINGER_GROW` coarse pixels, each within that of its
+    nearest part pixel (a 0.8× hand's spread fingers lie 1-2 px apart in a Kinect v1 frame's
+    half-resolution image, and its noise joins them into pieces too stubby to be fingers, or breaks
+    them off the hand's surface)."""
+    if not seed.any():
+        return False
+    z = _nanmedian(d[seed])
+    px_m = focal / z
+    cy, cx = (float(v.mean()) for v in np.nonzero(seed))
+    r = int(np.ceil((reach or 0.22) * px_m))
+    H, W = surface.shape
+    y0, y1, x0, x1 = max(int(cy) - r, 0), min(int(cy) + r + 1, H), max(int(cx) - r, 0), min(int(cx) + r + 1, W)
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
+    if not part.any():
+        return False
+    if _enough_fingers(closed_filled(np.ascontiguousarray(part, dtype=np.bool_)), px_m):
+        return True
+    if fine is None:
+        return False
+    full, c = fine
+    fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
+    h, w = fz.shape
+    zc = np.repeat(np.repeat(d[y0:y1, x0:x1], c, 0), c, 1)[:h, :w]
+    for grow in dict.fromkeys((0, FINE_FINGER_GROW)):
+        if grow:
+            # the part grown by coarse pixels, each at its nearest part pixel's depth: the sensor's
+            # dropouts break a small hand's fingers into fragments the part's surface does not hold.
+            # Only when the part alone has none: growing can also bridge two fingers (seed 1's frame)
+            _, ny, nx = _nearest(part)
+            zc = np.repeat(np.repeat(d[y0:y1, x0:x1][ny, nx], c, 0), c, 1)[:h, :w]
+        up = np.repeat(np.repeat(_dilate(part, grow) if grow else part, c, 0), c, 1)[:h, :w]
+        with np.errstate(invalid="ignore"):
+            fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
+        # holes filled but gaps not closed: closing would join the fingers again
+        if _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c):
+            return True
+    return False

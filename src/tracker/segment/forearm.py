@@ -1,0 +1,346 @@
+"""The wrist cut (:func:`cut_forearm`): the palm, the forearm leaving it, the cut across it where the
+width stops narrowing."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from .._segment_kernels import (
+    closed_filled,
+    label_max,
+)
+from .constants import (
+    ARM_BEND_DEG,
+    ARM_REACH_R,
+    FINGER_MAX_M,
+    NO_NARROWING_WRIST,
+    OPPOSITE_ARM_REACH_R,
+    PALM_FILL_MIN,
+    PALM_FILL_SLACK,
+    PALM_WIDTH_SHARE,
+    SURE_ARM_REACH_R,
+    TAPER_MIN_SAMPLES,
+    TAPER_WINDOW_R,
+)
+from .ops import _dilate, _disk_closing, _edt, _label, _nanmedian, bounds
+
+
+def _widest_piece(owner, piece_size, j, r):
+    """The label (on :func:`cut_forearm`'s ring around the palm) of part ``j``'s widest piece there,
+    among its pieces of at least 0.05 r² (``owner``: each ring piece's part; ``piece_size``: its
+    pixels), or None when it has fewer than two."""
+    mine = np.flatnonzero((owner == j + 1) & (piece_size >= 0.05 * r * r))
+    return None if mine.size < 2 else int(mine[np.argmax(piece_size[mine])])
+
+
+def _opposite_fingers(py, px, width, cy_p, cx_p, fingers, r) -> bool:
+    """Whether the direction ``(py, px)`` from the palm's centre lies opposite (cos < −0.5) the parts
+    ``fingers`` of :func:`cut_forearm`, weighted by their ``width`` (``cy_p``/``cx_p``: each part's mean
+    offset where it leaves the palm circle); False when they are less than 0.3 ``r`` wide in all
+    (noise specks at the outline are no fingers)."""
+    if width[fingers].sum() < 0.3 * r:
+        return False
+    fy, fx = np.sum(width[fingers] * cy_p[fingers]), np.sum(width[fingers] * cx_p[fingers])
+    return (py * fy + px * fx) / (np.hypot(py, px) * np.hypot(fy, fx) + 1e-12) < -0.5
+
+
+def _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, m_px, width, cy_p, cx_p, fingers) -> bool:
+    """Whether part ``j`` of :func:`cut_forearm`, which crosses the ring around the palm in several
+    pieces and goes on past the region, is an arm that a finger (the thumb) touches outside the palm
+    circle rather than spread fingers: its widest piece on the ring (:func:`_widest_piece`) is wider
+    than a finger (:data:`FINGER_MAX_M`; ``m_px``: metres per pixel) and lies opposite the parts
+    ``fingers`` that end in the region (:func:`_opposite_fingers`)."""
+    k = _widest_piece(owner, piece_size, j, r)
+    # the ring is 0.4 r thick: a piece's area over that is its chord across the ring
+    if k is None or piece_size[k] / (0.4 * r) * m_px <= FINGER_MAX_M:
+        return False
+    on_k = ring_lab == k
+    return _opposite_fingers(vy[on_k].mean(), vx[on_k].mean(), width, cy_p, cx_p, fingers, r)
+
+
+def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
+                joins=None, prefer=None):
+    """The hand mask without the forearm beyond the wrist.
+
+    The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
+    nearly as large that the mask before closing fills nearly as well as the best-filled one
+    (:func:`_filled_places`), the one farthest from where the region goes on. Outside 1.6 r, the
+    parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
+    and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
+    surface left out of the region), where fingers end in an edge (fingers held together are as
+    wide as an arm). The widest such part is the forearm, its direction from c the arm axis a — or
+    its own direction, from where it leaves the circle to its far end, when that is more than
+    :data:`ARM_BEND_DEG` off (a wrist bent sideways puts c off the arm's axis). The
+    region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
+    smallest at the wrist: the cut goes where it stops narrowing — where a slow taper ends when it
+    narrows only slowly (over at least :data:`TAPER_MIN_SAMPLES` samples), and at least
+    :data:`NO_NARROWING_WRIST` r out then — and everything beyond it
+    in a strip of ±2.5 r around the axis is removed.
+    Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
+    ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
+    they touch goes on too (an arm entering a table the sensor's shadow separates from it); where
+    nothing goes on past the region, a contact about a palm wide (the table where the skin test ends
+    the arm) keeps the palm away from it as the arm's side would, a finger-wide one does not move the
+    palm (fingertips touch the body as well). ``prefer``: a ``(rows, cols)`` slice
+    pair where the hand is expected (the tracker's prediction): palm places inside it come first."""
+    m = np.asarray(mask, bool)
+    (ya, yb), (xa, xb) = bounds(m)
+    pad = 2
+    y0, x0 = max(ya - pad, 0), max(xa - pad, 0)
+    y1, x1 = min(yb + pad + 1, m.shape[0]), min(xb + pad + 1, m.shape[1])
+    sub = m[y0:y1, x0:x1]
+    # close one-pixel no-data cracks and fill the holes the sensor leaves inside the hand (Kinect v1:
+    # dropouts and shadows inside a fist) so that neither splits nor shrinks the palm circle: a
+    # circle shrunk by a hole makes every finger reach "farther than a finger can" (an arm)
+    solid = closed_filled(np.ascontiguousarray(sub))
+    dt = _edt(~solid)
+    # where the region goes on: the image border or the surface beyond it (the arm's side)
+    go_on = np.zeros(sub.shape, bool)
+    if beyond is not None:
+        go_on |= _dilate(_outside_pieces(np.asarray(beyond, bool)[y0:y1, x0:x1], solid, 0.5 * float(dt.max())), 2)
+    H, W = m.shape
+    go_on[:, :1] |= x0 == 0
+    go_on[:, -1:] |= x1 == W
+    go_on[:1, :] |= y0 == 0
+    go_on[-1:, :] |= y1 == H
+    go_on &= solid
+    # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
+    # forearm) and filled by the mask before closing, the one farthest from where the region goes on
+    cand = _filled_places(dt >= PALM_WIDTH_SHARE * dt.max(), sub, float(dt.max()))
+    if prefer is not None:
+        # while tracking: an arm stub as wide as the palm, farther from where the region goes on, is no
+        # palm when the hand was predicted elsewhere
+        there = np.zeros(m.shape, bool)
+        there[prefer] = True
+        there = there[y0:y1, x0:x1] & cand
+        if there.any():
+            cand = there
+    away = go_on
+    if not go_on.any() and joins is not None:
+        # nothing goes on past the region, but an object meets it along an arm's width (the table
+        # where the skin test ends the arm): the palm is away from there too; a fingertip touching the
+        # body meets it along a finger's width only and does not move the palm
+        touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
+        tl, tn = _label(touch, eight=True)
+        if tn:
+            # a contact's size: its pixels in the band (the contact dilated by 2 px, inside the region)
+            # over 5, against the widest place's radius: the band is 2-3 px deep, so this passes a
+            # contact about a palm wide (an arm's) and not a finger wide one (a fingertip's)
+            wide = np.flatnonzero(np.bincount(tl[tl > 0], minlength=tn + 1)[1:] / 5.0 >= float(dt.max())) + 1
+            away = np.isin(tl, wide)
+    if away.any():
+        far = _edt(away)
+        cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+    elif seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
+        # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
+        # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
+        near = _edt(np.asarray(seed, bool)[y0:y1, x0:x1])
+        cy, cx = np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
+    else:
+        cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
+    r = float(dt[cy, cx])
+    zc = _nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
+    if not np.isfinite(zc):
+        zc = _nanmedian(np.asarray(depth, float)[m])
+    r_m = r * zc / focal
+    if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
+        return m
+    # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
+    vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
+    rho = np.hypot(vy, vx)
+    outside = solid & (rho > 1.6 * r)
+    lab, n = _label(outside, eight=True)
+    if n == 0:
+        return m
+    idx = np.arange(1, n + 1)
+    # a part's width where it leaves the palm (its chord across a ring 0.3 r wide), not its
+    # widest place: an arm the region's reach cuts short is no wider inside the region than a finger
+    base = (rho <= 1.9 * r) & (lab > 0)
+    width = np.bincount(lab[base], minlength=n + 1)[1:] / (0.3 * r) / 2.0
+    continues = np.zeros(n + 1, bool)
+    continues[np.unique(lab[go_on & (lab > 0)])] = True
+    if joins is not None:
+        # a part another object meets at its depth goes on into it (an arm into a table or the
+        # body); not used for the palm's place: fingertips touch the body too
+        touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
+        continues[np.unique(lab[touch & (lab > 0)])] = True
+    # a part reaching farther from the palm's centre than any finger can is an arm even where it
+    # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
+    reach_r = label_max(rho, lab, n)
+    continues[1:] |= reach_r > ARM_REACH_R * r
+    # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
+    nb = np.maximum(np.bincount(lab[base], minlength=n + 1)[1:], 1)
+    cy_p = np.bincount(lab[base], weights=vy[base], minlength=n + 1)[1:] / nb
+    cx_p = np.bincount(lab[base], weights=vx[base], minlength=n + 1)[1:] / nb
+    # spread fingers cross a ring around the palm as several pieces, an arm as one: a part that
+    # does is the fingers even where it reaches beyond the region (fingertips past the reach)
+    ring_lab, _ = _label(outside & (rho >= 2.0 * r) & (rho <= 2.4 * r), eight=True)
+    on = ring_lab > 0
+    piece_size = np.bincount(ring_lab[on])
+    big = np.flatnonzero(piece_size >= 0.05 * r * r)
+    owner = np.zeros(piece_size.size, int)
+    owner[ring_lab[on]] = lab[on]
+    pieces = np.bincount(owner[big[big > 0]], minlength=n + 1)[1:]
+    several = pieces >= 2
+    for j in np.flatnonzero(several & continues[1:]):
+        several[j] = not _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, zc / focal, width,
+                                               cy_p, cx_p, ~continues[1:] & ~several)
+    continues[1:] &= ~several
+    ends = ~continues[1:]
+    for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= OPPOSITE_ARM_REACH_R * r)):
+        # the other parts that end here, weighted by their width: the fingers' side of the palm
+        # (at least a finger's width of them: noise specks at the outline are no fingers, and a hand
+        # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
+        others = ends.copy()
+        others[j] = False
+        # a part as wide as an arm that reaches less far than one is no finger to weigh: an arm stub the
+        # region's reach cut short (in front of a body 4 cm behind) outweighed the fingers and put a group of
+        # fingers "opposite the fingers"
+        others &= ~((width >= 0.45 * r) & (reach_r < OPPOSITE_ARM_REACH_R * r))
+        continues[j + 1] |= _opposite_fingers(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
+    # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
+    # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
+    # crosses the ring in pieces too
+    continues[1:] &= ~several | (reach_r > SURE_ARM_REACH_R * r)
+    width[~continues[1:]] = 0.0
+    j = int(np.argmax(width))
+    if width[j] < 0.45 * r:
+        return m
+    arm = lab == j + 1
+    ring = arm & (rho < 2.6 * r)
+    if pieces[j] >= 2:
+        # an arm with a finger touching it: its direction is that of its widest piece on the ring
+        ring = ring & _dilate(ring_lab == _widest_piece(owner, piece_size, j, r), 2)
+    if not ring.any():
+        ring = arm
+    ay, ax = vy[ring].mean(), vx[ring].mean()
+    norm = np.hypot(ay, ax)
+    if norm == 0:
+        return m
+    ay, ax = ay / norm, ax / norm
+    # the cut goes across the arm: its direction is the arm's own, from where it leaves the palm circle to
+    # its far end in the region, when that is long enough to tell (half a palm radius) and more than
+    # ARM_BEND_DEG off the direction from the palm's centre (a wrist bent sideways puts the centre off
+    # the arm's axis: real frame 230536_70, 22°, where a cut across the centre's direction took a 648 px
+    # triangle of the palm's heel); closer than that the two agree within their noise and the centre's,
+    # the steadier one, is kept; beyond 60° the far end is no straight arm's
+    leave = ring & (rho <= 2.4 * r) if pieces[j] >= 2 else arm & (rho <= 1.9 * r)
+    far = arm & (rho >= float(rho[arm].max()) - 0.5 * r)
+    if leave.any() and far.any():
+        dy, dx = vy[far].mean() - vy[leave].mean(), vx[far].mean() - vx[leave].mean()
+        n_arm = np.hypot(dy, dx)
+        cos = (dy * ay + dx * ax) / max(n_arm, 1e-12)
+        if n_arm >= 0.5 * r and 0.5 <= cos < np.cos(np.radians(ARM_BEND_DEG)):
+            ay, ax = dy / n_arm, dx / n_arm
+    t = vy * ay + vx * ax
+    s = -vy * ax + vx * ay
+    strip = solid & (np.abs(s) <= 2.5 * r)
+    lo, hi = int(np.floor(wrist_range[0] * r)), int(np.ceil(wrist_range[1] * r))
+    ti = np.round(t[strip]).astype(int)
+    keep = (ti >= lo) & (ti <= hi)
+    if not keep.any():
+        return m
+    prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
+    prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
+    # the wrist is where the narrowing from the palm stops: the first distance beyond which the
+    # width shrinks by less than 10 % over the next 0.3 r (a forearm further out may still taper,
+    # recede or be cropped, so the global minimum would cut too late)
+    i = _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
+    if i > 0:
+        t_w = lo + i
+    else:
+        # no sharp narrowing: a slow taper (a small hand at the coarse search's resolution, r ≈ 7 px,
+        # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
+        # the palm) ends where the width stops falling over TAPER_WINDOW_R; and the wrist lies at least
+        # NO_NARROWING_WRIST r from the palm's centre (an arm as wide as the palm in the image, e.g. a
+        # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
+        # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
+        taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), TAPER_MIN_SAMPLES))
+        t_w = max(lo + taper, int(round(NO_NARROWING_WRIST * r)))
+    cut = strip & (t > t_w)
+    out = m.copy()
+    out[y0:y1, x0:x1] &= ~cut
+    return out
+
+
+
+def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK, least=PALM_FILL_MIN):
+    """The places of ``cand`` whose disk of radius ``rad`` the ``raw`` mask (before closing) fills
+    within ``slack`` of the best-filled one or at least ``least``. A 0.8× hand's spread
+    fingers lie a pixel or two apart at the search's resolution, and the closing that mends no-data
+    cracks joins their bases into a blob as wide as the palm; the raw mask leaves the gaps between them
+    (Kinect v1, torso 4 cm behind, frame 0: that blob's places filled 0.66–0.77, the palm's 0.99; the
+    palm placed there cut the hand mid-palm). Curled fingers leave gaps at a right palm's edge too
+    (0.88 on a 1.0× hand's half-closed frame, where the relative test alone moved the palm and the cut
+    kept 2 cm of forearm), hence the absolute floor.
+
+    >>> raw = np.ones((9, 20), bool); raw[:, 2:7:2] = False        # the left part "fingers" with gaps
+    >>> cand = np.zeros_like(raw); cand[4, 4] = cand[4, 14] = True
+    >>> np.argwhere(_filled_places(cand, raw, 3.0)).tolist()
+    [[4, 14]]
+    """
+    ys, xs = np.nonzero(cand)
+    if ys.size < 2:
+        return cand
+    k = int(np.ceil(rad))
+    dy, dx = np.nonzero(np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad)
+    padded = np.pad(np.asarray(raw, bool), k)
+    fill = padded[ys[:, None] + dy[None, :], xs[:, None] + dx[None, :]].mean(axis=1)
+    keep = fill >= min(fill.max() - slack, least)
+    out = np.zeros_like(cand)
+    out[ys[keep], xs[keep]] = True
+    return out
+
+
+def _outside_pieces(pieces, solid, rad):
+    """The pieces of ``pieces`` (pixels of the hand's surface outside the region ``solid``) that lie
+    mostly outside ``solid`` closed with a disk of radius ``rad``: an arm goes on away from the hand;
+    a piece held in a notch of its outline is the body behind seen through a gap in the hand, which
+    sensor noise joined to the hand's surface (between a rendered thumb and palm with the torso 4 cm
+    behind, 27 px: the hand's side "went on" like an arm, the palm was placed on the forearm and the
+    whole forearm kept, SR305 1.0×, frame 0).
+
+    >>> solid = np.zeros((12, 12), bool); solid[2:10, 2:5] = True; solid[2:10, 7:10] = True; solid[7:10, 2:10] = True
+    >>> pieces = np.zeros_like(solid); pieces[2:7, 5:7] = True; pieces[10:12, 7:10] = True  # in the notch; below
+    >>> _outside_pieces(pieces, solid, 2.0)[:, 5:10].astype(int)[[3, 10]]
+    array([[0, 0, 0, 0, 0],
+           [0, 0, 1, 1, 1]])
+    """
+    if not pieces.any() or rad < 1.0:
+        return pieces
+    closed = _disk_closing(solid, rad)
+    lab, n = _label(pieces)
+    total = np.bincount(lab.ravel(), minlength=n + 1)
+    inside = np.bincount(lab[closed & pieces], minlength=n + 1)
+    keep = inside < 0.5 * total
+    keep[0] = False
+    return keep[lab]
+
+
+def _end_of_narrowing(profile, window, drop=0.10):
+    """First index from which ``profile`` falls by less than ``drop`` (relative) over the next
+    ``window`` samples; the last index when it keeps falling."""
+    p = np.asarray(profile, float)
+    for i in range(p.size - window):
+        if p[i] - p[i + window] < drop * p[i]:
+            return i
+    return p.size - 1
+
+
+def _end_of_taper(profile, window, drop=0.10):
+    """First index from which ``profile`` never falls more than ``drop`` (relative) below its value
+    there within the next ``window`` samples; the last index when it keeps falling.
+
+    Unlike :func:`_end_of_narrowing` (the width ``window`` samples on), the lowest width within the
+    window counts, so a slow taper that ends in a flat stretch ends where the flat stretch starts.
+
+    >>> _end_of_taper([17, 17, 16, 15, 14, 13, 12, 12, 12, 12, 12, 11], 3)   # 13 is within 10 % of the flat 12
+    5
+    >>> _end_of_taper([12, 12, 12, 12], 3), _end_of_taper([9, 8, 7, 6], 2)
+    (0, 3)
+    """
+    p = np.asarray(profile, float)
+    for i in range(p.size - 1):
+        if p[i] - p[i:i + window + 1].min() < drop * p[i]:
+            return i
+    return p.size - 1

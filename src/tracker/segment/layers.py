@@ -1,0 +1,169 @@
+"""Layers: a body close behind the hand (:func:`_in_front`) and the surfaces the hand's region meets at
+its depth (:func:`_joins`)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from .._segment_kernels import (
+    closed_filled,
+)
+from .constants import (
+    FINGER_MAX_M,
+    FRONT_BEHIND_AREA_M2,
+    FRONT_OUTLINE_SHARE,
+    FRONT_STEP_M,
+    FRONT_WINDOW_M,
+    TOUCH_AREA_M2,
+    TOUCH_M,
+    TOUCH_PX,
+    TOUCH_WINDOW_M,
+)
+from .fingers import _hand_end
+from .ops import _disk_opening, _label, _nanmedian, _nearest, _window_max, _window_min, bounds
+from .surfaces import pixel_area, surfaces
+
+
+def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None, notes=None):
+    """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
+
+    Each pixel's local background is the grey closing of the region's depth (the farthest depth
+    within :data:`FRONT_WINDOW_M`, then the nearest of those; no data ignored): a tilted body keeps
+    its own depth, a hand or an arm narrower than the window takes the depth of the body around it.
+    The pixels nearer than their background by more than :data:`FRONT_STEP_M` fall into pieces
+    (neighbours closer than ``jump``); the largest, when it covers ``min_area`` (m²), is the layer in
+    front (the seed may lie on flying pixels at the body's edge, which curves away). It replaces the region when the region's pixels
+    next to it lie behind it by that step over at least :data:`FRONT_OUTLINE_SHARE` of its outline and
+    the region behind it covers at least :data:`FRONT_BEHIND_AREA_M2` — a hand held in front of the
+    body, which the arm joins to the hand's surface. A hand alone, with its arm or on its own, has no
+    such layer (its outline borders no data, another surface or its own pixels at its own depth) and
+    keeps its region, ``behind`` empty and ``seed`` unchanged. ``behind``: the surface's pixels outside
+    the layer (the body, past the region's reach too) except where the hand's surface goes on
+    (:func:`_goes_on`: an arm receding into the body meets it without a step across its width; a finger
+    leaning back to within the step of the body does not go on, nor does a part beside it); ``seed``:
+    the layer's part of the seed, or its nearest 15 mm, moved to the fingers' end when the layer is the
+    hand with its whole forearm (:func:`_hand_end`, ``border_px`` as there; the arm then goes on at its
+    other end). ``notes``: a dict whose ``"layered"`` is set True when the region stands in front of a
+    surface over enough of its outline, whether or not that surface was big enough to be a body."""
+    none = np.zeros(region.shape, bool)
+    if not (region & seed).any():
+        return region, none, seed
+    (ya, yb), (xa, xb) = bounds(region)
+    z = _nanmedian(d[seed])
+    half = max(int(round(FRONT_WINDOW_M * focal / z)), 1)
+    size = 2 * half + 1
+    H, W = d.shape
+    # the background is read from the whole surface around the region (the reach cuts the body off
+    # beside a big hand's palm), the layer sought in the region only
+    big = (slice(max(ya - half, 0), min(yb + half + 1, H)), slice(max(xa - half, 0), min(xb + half + 1, W)))
+    back = region[big] if surface is None else (surface | region)[big]
+    with np.errstate(invalid="ignore"):
+        far = _window_max(np.where(back, d[big], -np.inf), size)
+        far = _window_min(np.where(np.isfinite(far), far, np.inf), size)
+    win = (slice(max(ya - 3, 0), min(yb + 4, H)), slice(max(xa - 3, 0), min(xb + 4, W)))
+    far = far[win[0].start - big[0].start:win[0].stop - big[0].start, win[1].start - big[1].start:win[1].stop - big[1].start]
+    dw = d[win]
+    rw = region[win]
+    with np.errstate(invalid="ignore"):
+        front = rw & (dw < far - FRONT_STEP_M)
+    if not front.any():
+        return region, none, seed
+    lab, n = surfaces(np.where(front, dw, np.nan), jump)
+    if n == 0:
+        return region, none, seed
+    area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
+    area[0] = 0.0
+    best = int(np.argmax(area))
+    if area[best] < min_area:
+        # no hand-sized layer: a thumb or knuckles nearer than the rest of the hand are no hand
+        return region, none, seed
+    layer = lab == best
+    # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
+    layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
+    ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
+    with np.errstate(invalid="ignore"):
+        step = rw & ring & (dw - layer_far > FRONT_STEP_M)
+    stands_out = step.sum() >= FRONT_OUTLINE_SHARE * ring.sum()
+    if stands_out and notes is not None:
+        notes["layered"] = True
+    if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2:
+        return region, none, seed
+    out, goes_on = none.copy(), none.copy()
+    out[win] = layer
+    goes_on[win] = _goes_on(layer, rw & ring & ~step, dw, focal)
+    # everywhere else the surface is the body behind the layer, past the region's reach too: a finger
+    # leaning back to within the step of it, or the body beside the fingertips, is no arm going on
+    behind = (region if surface is None else surface | region) & ~out & ~goes_on
+    new_seed = seed & out
+    if not new_seed.any():
+        with np.errstate(invalid="ignore"):
+            new_seed = out & (d <= float(np.percentile(d[out], 1)) + 0.015)
+    # the layer may be the hand with its whole forearm, free-ended in front of the body (a turning hand
+    # held out): the seed is then its fingers' end, not the forearm's end nearer the camera, and the arm
+    # goes on at its other end (to the elbow and the body, whether or not a step shows there)
+    fingers, _ = _hand_end(out, d, float(np.nanmin(d[out])), np.inf, new_seed, focal, border_px)
+    if not np.array_equal(fingers, new_seed):
+        new_seed = fingers
+        yy, xx = np.nonzero(layer)
+        cy, cx = (float(v.mean()) + s.start for v, s in zip(np.nonzero(fingers[win]), win))
+        dist = np.hypot(yy + win[0].start - cy, xx + win[1].start - cx)
+        end = np.zeros(layer.shape, bool)
+        end[yy, xx] = dist >= dist.max() - 0.03 * focal / _nanmedian(dw[layer])
+        arm_end = none.copy()
+        arm_end[win] = rw & ring & _window_max(end, 7)
+        behind &= ~arm_end
+    return out, behind, new_seed
+
+
+def _goes_on(layer, contact, d, focal):
+    """The pixels of ``contact`` (the region's pixels next to ``layer`` without a depth step) where the
+    hand's surface goes on past the layer: beside the layer's wide part (an opening with a disk
+    :data:`FINGER_MAX_M` across removes the fingers), in pieces spanning more than that (an arm receding
+    into the body meets it across its width; a finger leaning back, lying along the palm or the thumb,
+    meets it over a finger's width or along its length beside the wide part in a thin band)."""
+    o = closed_filled(layer)
+    px_m = focal / _nanmedian(d[layer])
+    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    wide = _disk_opening(o, rad)
+    out = contact & _window_max(wide, 7)
+    lab, n = _label(out, eight=True)
+    if n == 0:
+        return out
+    span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
+    return (span >= FINGER_MAX_M * px_m)[lab] & out
+
+
+def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None, jump=0.02):
+    """Pixels where another object meets ``region`` at its own depth: pixels of ``depth_all`` (the
+    frame before the skin filter; NaN = no data) off the hand's ``surface``, within ``px`` pixels of
+    the region and within ``dz`` metres of its nearest pixel's depth, whose surface (depth
+    continuity, in a window :data:`TOUCH_WINDOW_M` around the region) covers at least ``min_area``
+    m² — a table or the body, not the shading specks at the hand's outline that fail the skin test
+    or the hand's own fingertip blobs."""
+    px = TOUCH_PX if px is None else px
+    dz = TOUCH_M if dz is None else dz
+    min_area = TOUCH_AREA_M2 if min_area is None else min_area
+    out = np.zeros(region.shape, bool)
+    if not region.any():
+        return out
+    (ya, yb), (xa, xb) = bounds(region)
+    H, W = region.shape
+    z = _nanmedian(d[region])
+    m = px + int(np.ceil(TOUCH_WINDOW_M * focal / z))
+    win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
+    r = region[win]
+    dist, iy, ix = _nearest(r)
+    da = np.asarray(depth_all, float)[win]
+    with np.errstate(invalid="ignore"):
+        close = (dist <= px) & (np.abs(da - d[win][iy, ix]) <= dz)
+    if not close.any():
+        return out
+    other = np.where(np.isfinite(da) & ~surface[win], da, np.nan)
+    lab, n = surfaces(other, jump)
+    if n == 0:
+        return out
+    on = lab > 0
+    big = np.bincount(lab[on], weights=pixel_area(other[on], focal), minlength=n + 1) >= min_area
+    big[0] = False
+    out[win] = close & big[lab]
+    return out

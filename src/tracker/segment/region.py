@@ -1,0 +1,161 @@
+"""The hand's region before the wrist cut (:func:`hand_region`): the seed surface, the depth band, the
+reach, fingertip blobs."""
+from __future__ import annotations
+
+import numpy as np
+
+from .._segment_kernels import (
+    components_holding,
+)
+from .constants import EDGE_GAP_PX, FINGERS_FIRST_M, FINGERS_FIRST_TRIES
+from .fingers import _far_end, _fingered_end, _hand_end, _has_fingers
+from .layers import _in_front
+from .ops import _largest_in_window, _points, _sq_dist, _window_max, _window_min, bounds
+from .surfaces import _reaches, _touches_border, pixel_area, surface_fronts, surfaces
+
+
+def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
+                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
+                fingers_first=False, fine=None, notes=None, expected=None):
+    """The hand's region before the wrist cut.
+
+    The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
+    ``min_area`` whose nearest part does not touch the image border (an object cut off by the
+    border is a poorer guess than a whole one; it is taken only when nothing else is there). The
+    region is that surface within ``band`` behind the front and within ``reach`` metres (3-D) of
+    the seed's centre — the arm leads to the body, so the body is reached along it only beyond
+    the reach of a hand — connected to the seed (when every candidate is cut off by the border,
+    the seed is the end of the nearest one farthest from the border, see :func:`_far_end`), plus the small surfaces (fingertip blobs) in
+    that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed, behind))``:
+    also the pixels of the hand's surface left out by the band or the reach (where an arm leaves
+    the region), the seed's pixels, and the pixels of a body close behind the hand along its
+    outline (:func:`_in_front`; empty when there is none). ``fingers_first`` (depth only, where no skin
+    test removed objects): when that whole surface has no fingers (:func:`_has_fingers`: a box or a mug
+    nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
+    farther one is the hand; ``fine``: ``(depth, step)``, the full-resolution image ``depth`` was sampled
+    from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``notes``: a
+    dict that gets ``"layered"`` from :func:`_in_front`. ``expected``: a ``(rows, cols)`` slice pair
+    where the hand is predicted, when ``depth`` is a window round it (:meth:`Segmenter.in_window`,
+    whose edges count as the border): when every candidate's nearest part is cut off, the nearest
+    surface that reaches into that box is taken, not the nearest of all, and a surface's end taken
+    over the seed for its fingers (an arm reaching in, ``fingers_first``) must reach into it too —
+    an object beside the hand that the window's edge cuts to a strip has a finger-wide end, and a
+    hand and its forearm at one depth run out of the window together (the realistic SR305
+    ``forearm,box`` scene, depth only: the box's strip was taken on 9 of 30 frames, each of which
+    then went to the whole frame)."""
+    d = np.asarray(depth, float)
+    lab, n = surfaces(d, jump)
+    ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, min_area)
+    if ids.size == 0:
+        # nothing hand-sized (a hand mostly outside the image, or far away): the biggest surface
+        ids, fronts = surface_fronts(lab, n, d, focal, min_pixels, 0.0)
+        if ids.size:
+            on = lab > 0
+            area = np.bincount(lab[on], weights=pixel_area(d[on], focal), minlength=n + 1)
+            j = int(np.argmax(area[ids]))
+            ids, fronts = ids[j:j + 1], fronts[j:j + 1]
+    if ids.size == 0:
+        empty = np.zeros(d.shape, bool)
+        return (empty, (empty, empty, empty)) if with_beyond else empty
+    k, front, seed = 0, np.nan, None
+    cut_off = []
+    # the surfaces that reach into the predicted box (every one without a box)
+    there = None if expected is None else set(np.unique(lab[expected]).tolist())
+    for kk, ff in zip(ids, fronts):
+        with np.errstate(invalid="ignore"):
+            s = _largest_in_window((lab == kk) & (d <= ff + 0.015))
+        inside = not _touches_border(s, border_px)
+        if seed is None or inside or (there is not None and k not in there and int(kk) in there):
+            k, front, seed = int(kk), float(ff), s
+            if inside:
+                break
+        cut_off.append(int(kk))
+    X = None
+    if cut_off and not _touches_border(seed, border_px):
+        # an arm reaching towards the camera from outside the image, nearer than the first whole
+        # surface: when its far end has fingers and lies in front of that surface (a body a few
+        # centimetres behind the hand), the far end is the hand; the far edge of a table, or the
+        # head of a body cut off by the border, has no fingers or lies behind the hand
+        X = _points(d, focal, centre) if points is None else np.asarray(points, float)
+        for kk in cut_off:
+            end, end_front = _far_end(lab == kk, d, X, focal, border_px, reach)
+            if end_front < front and _reaches(end, expected) and _has_fingers(lab == kk, d, end, focal, reach):
+                k, front, seed = kk, end_front, end
+                break
+    if fingers_first and ids.size > 1 and not _touches_border(seed, border_px) and not _has_fingers(
+            lab == k, d, seed, focal, reach):
+        if X is None:
+            X = _points(d, focal, centre) if points is None else np.asarray(points, float)
+        # the few surfaces nearest after it, within reach of a hand beside an object (each test costs
+        # ~1 ms: a cluttered frame has dozens of surfaces)
+        others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= FINGERS_FIRST_M]
+        for kk, ff in others[:FINGERS_FIRST_TRIES]:
+            end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach, fine=fine)
+            if end is not None and _reaches(end, expected):
+                k, front, seed = int(kk), end_front, end
+                break
+    if not _touches_border(seed, border_px):
+        seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
+    if _touches_border(seed, border_px):
+        # every candidate's nearest part is cut off by the border, typically an arm reaching
+        # towards the camera from outside the image: the hand is then the end of the surface
+        # farthest from where it enters the image
+        X = _points(d, focal, centre) if points is None else np.asarray(points, float)
+        seed, front = _far_end(lab == k, d, X, focal, border_px, reach)
+    with np.errstate(invalid="ignore"):
+        near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
+        if reach is not None:
+            if X is None:
+                X = _points(d, focal, centre) if points is None else np.asarray(points, float)
+            centre = X[seed].mean(axis=0)
+            near &= _sq_dist(X, centre) <= reach ** 2
+    near |= seed
+    core = (lab == k) & near
+    core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
+    # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
+    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px, notes)
+    # small surfaces close to the hand in the image and in depth: fingertip blobs
+    (ya, yb), (xa, xb) = bounds(core)
+    y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
+    x0, x1 = max(xa - margin_px, 0), min(xb + margin_px + 1, d.shape[1])
+    win = (slice(y0, y1), slice(x0, x1))
+    zone = _window_max(core[win], 2 * int(margin_px) + 1) if margin_px > 0 else core[win]
+    cand = zone & near[win] & ~core[win] & (lab[win] > 0) & (lab[win] != k)
+    out = core.copy()
+    if cand.any():
+        area = np.bincount(lab[win][near[win]], weights=pixel_area(d[win][near[win]], focal),
+                           minlength=lab.max() + 1)
+        small = np.unique(lab[win][cand])
+        small = small[area[small] < blob_area]
+        others = ids[ids != k]
+        if small.size and others.size:
+            small = small[~np.isin(small, _edge_pieces(lab[win], d[win], small, others, jump))]
+        if small.size:
+            out[win] |= np.isin(lab[win], small) & near[win]
+    if with_beyond:
+        # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
+        return out, ((lab == k) & ~out & ~behind, seed, behind)
+    return out
+
+
+def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):
+    """The labels among ``small`` that are pieces of a surface in ``others`` (hand-sized surfaces
+    other than the hand's): within ``gap_px`` of it at its depth (within ``jump``), split off by a
+    seam of no data, not by a depth step — an object's face the sensor's edge dropouts cut off
+    (a box's side face beside the hand, at the hand's depth: the realistic SR305 1.5× ``+object``
+    scene took a strip of it, 145 pixels at the half-resolution search, for a fingertip and fitted
+    the hand 12 % too large). A fingertip blob is cut off from its finger or stands in front of the
+    palm or the body, a depth step from any surface it borders.
+
+    >>> lab = np.array([[1, 1, 0, 2, 0, 0, 3]])
+    >>> d = np.array([[0.5, 0.5, np.nan, 0.5, np.nan, np.nan, 0.7]])
+    >>> _edge_pieces(lab, d, np.array([2, 3]), np.array([1]), 0.02).tolist()
+    [2]
+    """
+    big = np.isin(lab, others)
+    size = 2 * int(gap_px) + 1
+    with np.errstate(invalid="ignore"):
+        lo = _window_min(np.where(big, d, np.inf), size)
+        hi = _window_max(np.where(big, d, -np.inf), size)
+        touch = np.isin(lab, small) & (d >= lo - jump) & (d <= hi + jump)
+    return np.unique(lab[touch])
