@@ -124,10 +124,10 @@ def test_fingers_first_takes_the_fingered_hand_and_leaves_a_fist_to_the_nearest(
     d = _blocks(True)
     box = np.zeros(d.shape, bool)
     box[60:110, 220:260] = True
-    assert (hand_region(d, 300.0) & box).sum() > 0.9 * box.sum()
-    got = hand_region(d, 300.0, fingers_first=True)
+    assert (hand_region(d, 300.0).mask & box).sum() > 0.9 * box.sum()
+    got = hand_region(d, 300.0, fingers_first=True).mask
     assert not (got & box).any() and got[90, 105] and got[130, 125]
-    fist = hand_region(_blocks(False), 300.0, fingers_first=True)
+    fist = hand_region(_blocks(False), 300.0, fingers_first=True).mask
     assert (fist & box).sum() > 0.9 * box.sum()
 
 

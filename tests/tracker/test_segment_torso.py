@@ -101,7 +101,7 @@ def test_the_layer_in_front_of_a_body_is_taken_and_a_hand_alone_is_kept():
         region = np.isfinite(d)
         seed = np.zeros(d.shape, bool)
         seed[110:130, 130:150] = True
-        out, behind, new_seed = _in_front(region, d, seed, 500.0)
+        out, behind, new_seed, _ = _in_front(region, d, seed, 500.0)
         if body:
             assert out[100:140, 120:160].all() and not out[:95].any() and not out[:, :115].any()
             assert out[140:240, 122:158].all() and not out[-40:].any()   # the arm until 1 cm off the plane

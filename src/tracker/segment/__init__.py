@@ -55,12 +55,12 @@ from .constants import (
 from .forearm import cut_forearm
 from .ops import bounds, in_box, largest_component
 from .plane import SupportPlane, support_plane
-from .region import hand_region
+from .region import Region, hand_region
 from .segmenter import Segmenter
 from .skin import rgb_to_hsv, skin_mask
 from .surfaces import focal_from_points, pixel_area, refine, surface_fronts, surfaces
 
 __all__ = ["BORDER_PX", "DEFAULT_FOCAL_PX", "FIND", "FOREARM_CHOICES", "PLANE_BAND_M", "PLANE_CHOICES",
-           "SKIN_HSV", "Segmenter", "SupportPlane", "bounds", "cut_forearm", "focal_from_points", "hand_region",
+           "Region", "SKIN_HSV", "Segmenter", "SupportPlane", "bounds", "cut_forearm", "focal_from_points", "hand_region",
            "in_box", "largest_component", "pixel_area", "refine", "rgb_to_hsv", "skin_mask", "support_plane",
            "surface_fronts", "surfaces"]

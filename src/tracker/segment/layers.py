@@ -24,8 +24,8 @@ from .ops import _disk_opening, _label, _nanmedian, _nearest, _window_max, _wind
 from .surfaces import pixel_area, surfaces
 
 
-def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None, notes=None):
-    """``(region, behind, seed)``: the layer of ``region`` in front of a surface it stands out of.
+def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, border_px=None):
+    """``(region, behind, seed, layered)``: the layer of ``region`` in front of a surface it stands out of.
 
     Each pixel's local background is the grey closing of the region's depth (the farthest depth
     within :data:`FRONT_WINDOW_M`, then the nearest of those; no data ignored): a tilted body keeps
@@ -43,11 +43,11 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     leaning back to within the step of the body does not go on, nor does a part beside it); ``seed``:
     the layer's part of the seed, or its nearest 15 mm, moved to the fingers' end when the layer is the
     hand with its whole forearm (:func:`_hand_end`, ``border_px`` as there; the arm then goes on at its
-    other end). ``notes``: a dict whose ``"layered"`` is set True when the region stands in front of a
-    surface over enough of its outline, whether or not that surface was big enough to be a body."""
+    other end). ``layered``: whether the region stands in front of a surface over enough of its outline,
+    whether or not that surface was big enough to be a body."""
     none = np.zeros(region.shape, bool)
     if not (region & seed).any():
-        return region, none, seed
+        return region, none, seed, False
     (ya, yb), (xa, xb) = bounds(region)
     z = _nanmedian(d[seed])
     half = max(int(round(FRONT_WINDOW_M * focal / z)), 1)
@@ -67,16 +67,16 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     with np.errstate(invalid="ignore"):
         front = rw & (dw < far - FRONT_STEP_M)
     if not front.any():
-        return region, none, seed
+        return region, none, seed, False
     lab, n = surfaces(np.where(front, dw, np.nan), jump)
     if n == 0:
-        return region, none, seed
+        return region, none, seed, False
     area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
     area[0] = 0.0
     best = int(np.argmax(area))
     if area[best] < min_area:
         # no hand-sized layer: a thumb or knuckles nearer than the rest of the hand are no hand
-        return region, none, seed
+        return region, none, seed, False
     layer = lab == best
     # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
     layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
@@ -84,10 +84,8 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     with np.errstate(invalid="ignore"):
         step = rw & ring & (dw - layer_far > FRONT_STEP_M)
     stands_out = step.sum() >= FRONT_OUTLINE_SHARE * ring.sum()
-    if stands_out and notes is not None:
-        notes["layered"] = True
     if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2:
-        return region, none, seed
+        return region, none, seed, bool(stands_out)
     out, goes_on = none.copy(), none.copy()
     out[win] = layer
     goes_on[win] = _goes_on(layer, rw & ring & ~step, dw, focal)
@@ -112,7 +110,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
         arm_end = none.copy()
         arm_end[win] = rw & ring & _window_max(end, 7)
         behind &= ~arm_end
-    return out, behind, new_seed
+    return out, behind, new_seed, True
 
 
 def _goes_on(layer, contact, d, focal):

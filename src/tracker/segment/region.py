@@ -2,6 +2,8 @@
 reach, fingertip blobs."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .._segment_kernels import (
@@ -14,9 +16,19 @@ from .ops import _largest_in_window, _points, _sq_dist, _window_max, _window_min
 from .surfaces import _reaches, _touches_border, pixel_area, surface_fronts, surfaces
 
 
+class Region(NamedTuple):
+    """:func:`hand_region`'s result: boolean masks of the image it was given, and one flag."""
+
+    mask: np.ndarray  #: the hand's region (before the wrist cut)
+    beyond: np.ndarray  #: the hand's surface left out by the band or the reach (where an arm leaves it)
+    seed: np.ndarray  #: the seed's pixels (the hand's nearest part, or its fingers' end)
+    behind: np.ndarray  #: a body close behind the hand along its outline (:func:`_in_front`; empty if none)
+    layered: bool  #: the region stands in front of a surface close behind it (:func:`_in_front`'s outline test)
+
+
 def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.004, margin_px=25,
-                blob_area=0.003, reach=0.22, points=None, border_px=None, with_beyond=False, centre=None,
-                fingers_first=False, fine=None, notes=None, expected=None):
+                blob_area=0.003, reach=0.22, points=None, border_px=None, centre=None,
+                fingers_first=False, fine=None, expected=None) -> Region:
     """The hand's region before the wrist cut.
 
     The seed is the nearest part (within 15 mm of the front) of the nearest surface of at least
@@ -26,15 +38,14 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     the seed's centre — the arm leads to the body, so the body is reached along it only beyond
     the reach of a hand — connected to the seed (when every candidate is cut off by the border,
     the seed is the end of the nearest one farthest from the border, see :func:`_far_end`), plus the small surfaces (fingertip blobs) in
-    that band within ``margin_px`` pixels of it. With ``with_beyond``, ``(region, (beyond, seed, behind))``:
-    also the pixels of the hand's surface left out by the band or the reach (where an arm leaves
-    the region), the seed's pixels, and the pixels of a body close behind the hand along its
-    outline (:func:`_in_front`; empty when there is none). ``fingers_first`` (depth only, where no skin
+    that band within ``margin_px`` pixels of it: a :class:`Region`, which also holds the pixels of the
+    hand's surface left out by the band or the reach (where an arm leaves the region), the seed's pixels,
+    and the pixels of a body close behind the hand along its outline (:func:`_in_front`; empty when
+    there is none). ``fingers_first`` (depth only, where no skin
     test removed objects): when that whole surface has no fingers (:func:`_has_fingers`: a box or a mug
     nearer than the hand — or a fist) and a farther one's hand end has (:func:`_fingered_end`), the
     farther one is the hand; ``fine``: ``(depth, step)``, the full-resolution image ``depth`` was sampled
-    from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``notes``: a
-    dict that gets ``"layered"`` from :func:`_in_front`. ``expected``: a ``(rows, cols)`` slice pair
+    from every ``step``-th pixel, where that farther surface's fingers are looked for too. ``expected``: a ``(rows, cols)`` slice pair
     where the hand is predicted, when ``depth`` is a window round it (:meth:`Segmenter.in_window`,
     whose edges count as the border): when every candidate's nearest part is cut off, the nearest
     surface that reaches into that box is taken, not the nearest of all, and a surface's end taken
@@ -56,7 +67,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             ids, fronts = ids[j:j + 1], fronts[j:j + 1]
     if ids.size == 0:
         empty = np.zeros(d.shape, bool)
-        return (empty, (empty, empty, empty)) if with_beyond else empty
+        return Region(empty, empty, empty, empty, False)
     k, front, seed = 0, np.nan, None
     cut_off = []
     # the surfaces that reach into the predicted box (every one without a box)
@@ -113,7 +124,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     core = (lab == k) & near
     core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
-    core, behind, seed = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px, notes)
+    core, behind, seed, layered = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -132,10 +143,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             small = small[~np.isin(small, _edge_pieces(lab[win], d[win], small, others, jump))]
         if small.size:
             out[win] |= np.isin(lab[win], small) & near[win]
-    if with_beyond:
-        # where the hand's surface goes on past the band or the reach: the arm, not a fingertip
-        return out, ((lab == k) & ~out & ~behind, seed, behind)
-    return out
+    # beyond: where the hand's surface goes on past the band or the reach (the arm, not a fingertip)
+    return Region(out, (lab == k) & ~out & ~behind, seed, behind, layered)
 
 
 def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):

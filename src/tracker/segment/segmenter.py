@@ -79,7 +79,7 @@ class Segmenter:
         table scene, noise seed 2, frame 22, lost for the rest of its run)."""
         d, f = self._inputs(depth, points, focal)
         return self._run(d, color, points, f, plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane,
-                         prefer=prefer)
+                         prefer=prefer)[0]
 
     def _skin(self, color) -> bool:
         """Whether the skin test runs (a colour frame given and ``use_color``)."""
@@ -124,12 +124,11 @@ class Segmenter:
         if y1 - y0 < 2 or x1 - x0 < 2:
             return None
         win = (slice(y0, y1), slice(x0, x1))
-        notes = {}
-        sub = self._run(d[win], None if color is None else np.asarray(color)[win],
+        sub, layered = self._run(d[win], None if color is None else np.asarray(color)[win],
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
-                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane, notes=notes,
+                        plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane,
                         prefer=expected, in_window=True)
-        if not sub.any() or notes.get("layered"):
+        if not sub.any() or layered:
             return None
         (ya, yb), (xa, xb) = bounds(sub)
         h, w = sub.shape
@@ -146,12 +145,12 @@ class Segmenter:
         out[win] = sub
         return out
 
-    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, notes=None, prefer=None,
+    def _run(self, d, color, points, f, origin=(0, 0), whole_shape=None, plane=None, prefer=None,
              in_window=False):
-        """The mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
+        """``(mask, layered)``: the mask of ``d``: the whole frame, or the window of a frame of ``whole_shape`` whose
         first pixel is ``origin`` (the search then runs on the whole frame's pixels, with its
         principal point); ``plane``: the whole frame's :class:`SupportPlane` to leave out, or None;
-        ``notes``: a dict :meth:`_segment` fills in; ``prefer``: as for :meth:`__call__` (the whole
+        ``layered``: as :meth:`_segment`'s; ``prefer``: as for :meth:`__call__` (the whole
         frame's pixels); ``in_window``: ``d`` is :meth:`in_window`'s window and ``prefer`` the hand
         predicted in it (:func:`hand_region`'s ``expected``)."""
         c = int(self.coarse)
@@ -159,22 +158,22 @@ class Segmenter:
         (y0, x0) = origin
         if c <= 1 or min(H, W) < 40 * c:
             return self._segment(d, color, points, f, centre=((H - 1) / 2 - y0, (W - 1) / 2 - x0), plane=plane,
-                                 notes=notes, prefer=_sampled(prefer, origin, 1), in_window=in_window)
+                                 prefer=_sampled(prefer, origin, 1), in_window=in_window)
         # the search runs on every c-th pixel (c² times fewer pixels), the edges are then
         # refined at full resolution in the hand's window only
         sub = (slice(None, None, c), slice(None, None, c))
         dc = d[sub]
-        mc = self._segment(dc, None if color is None else np.asarray(color)[sub],
+        mc, layered = self._segment(dc, None if color is None else np.asarray(color)[sub],
                            None if points is None else np.asarray(points)[sub], f / c, c,
                            centre=((-(-H // c) - 1) / 2 - y0 / c, (-(-W // c) - 1) / 2 - x0 / c), plane=plane,
-                           full=d, notes=notes, prefer=_sampled(prefer, origin, c), in_window=in_window)
+                           full=d, prefer=_sampled(prefer, origin, c), in_window=in_window)
         if not mc.any():
-            return np.zeros(d.shape, bool)
+            return np.zeros(d.shape, bool), layered
         out, win = refine(mc, dc, d, c, self.jump)
         out[win] &= self._valid(d[win], None if color is None else np.asarray(color)[win],
                                 None if points is None else np.asarray(points)[win], skin_only=False, plane=plane,
                                 at=(f, (H - 1) / 2 - y0 - win[0].start, (W - 1) / 2 - x0 - win[1].start))
-        return out
+        return out, layered
 
     def _valid(self, d, color, points, skin_only=True, plane=None, at=None):
         """The working volume's pixels of ``d``, skin-coloured ones only with a colour frame, those off
@@ -191,38 +190,38 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
-    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, notes=None, prefer=None,
+    def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, prefer=None,
                  in_window=False):
-        """The search on an image subsampled by ``step`` (pixel counts and distances scale);
+        """``(mask, layered)``: the search on an image subsampled by ``step`` (pixel counts and distances scale);
         ``centre``: the principal point in its pixel coordinates (None: the image's centre);
         ``plane``: a :class:`SupportPlane` left out as the skin test leaves pixels out; ``full``: the
         full-resolution depth ``d`` was sampled from (a farther surface's fingers are looked for there
-        too, :func:`_has_fingers`); ``notes``: a dict that gets ``"layered"`` when the region stands in
-        front of a surface close behind it (:func:`_in_front`); ``in_window``: ``d`` is a window and
+        too, :func:`_has_fingers`); ``layered``: whether the region stands in front of a surface close
+        behind it (:class:`Region`); ``in_window``: ``d`` is a window and
         ``prefer`` the hand predicted in it (:func:`hand_region`'s ``expected``)."""
         if centre is None:
             centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
         valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
         if not valid.any():
-            return valid
+            return valid, False
         dv = np.where(valid, d, np.nan)
         # the frame before the skin filter (and the plane): where a table or the body meets the hand,
         # the arm goes on
         filtered = self._skin(color) or plane is not None
         d_all = np.where(self._valid(d, None, points), d, np.nan) if filtered else dv
-        mask, beyond = hand_region(dv, f, band=self.band, jump=self.jump,
+        reg = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
                            reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
-                           with_beyond=True, centre=centre, fingers_first=not self._skin(color),
-                           fine=None if full is None or step <= 1 else (full, step), notes=notes,
+                           centre=centre, fingers_first=not self._skin(color),
+                           fine=None if full is None or step <= 1 else (full, step),
                            expected=prefer if in_window else None)
-        beyond, seed, behind = beyond
+        mask = reg.mask
         if self.forearm == "cut" and mask.any():
             # where a table or the body meets the hand at its depth (seen before the skin filter)
-            joins = _joins(mask, dv, mask | beyond | behind, d_all, f, jump=self.jump)
-            mask = cut_forearm(mask, dv, f, beyond, seed=seed, joins=joins, prefer=prefer)
-        return mask
+            joins = _joins(mask, dv, mask | reg.beyond | reg.behind, d_all, f, jump=self.jump)
+            mask = cut_forearm(mask, dv, f, reg.beyond, seed=reg.seed, joins=joins, prefer=prefer)
+        return mask, reg.layered
 
 
 def _sampled(prefer, origin, step):
