@@ -78,16 +78,15 @@ def test_fingers_joined_by_the_openings_rim_are_still_fingers(hand, sensor, fram
     the palm's corners and left a sliver along its edge joining all five fingers into one U-shaped
     piece, no finger, so the box was kept (the SR305 run's first frame: 155 mm, the whole run lost).
     Pieces are now counted from 3 mm off the opened shape: the mask is the hand (recall ≥ 0.9,
-    precision ≥ 0.8); counted from its edge (FINGER_RIM_M 0), the box (recall < 0.1) — with the
-    full-resolution look confined to the hand's surface, as then (FINE_FINGER_GROW 0: on the Kinect v1
+    precision ≥ 0.8); counted from its edge (finger_rim_m 0), the box (recall < 0.1) — with the
+    full-resolution look confined to the hand's surface, as then (fine_finger_grow 0: on the Kinect v1
     frame the grown look finds the fingers too)."""
-    import tracker.segment.fingers as S
+    import tracker.segment.constants as S
 
     cam, depth, _, labels = _object_scene(hand, sensor, 0.8, frame)
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
-    monkeypatch.setattr(S, "FINGER_RIM_M", 0.0)
-    monkeypatch.setattr(S, "FINE_FINGER_GROW", 0)
+    monkeypatch.setattr(S, "TUNING", S.TUNING.replace(finger_rim_m=0.0, fine_finger_grow=0))
     recall, _ = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall < 0.1, recall
 
@@ -99,10 +98,10 @@ def test_fingers_broken_off_the_hands_surface_are_still_fingers(hand, seed, fram
     the hand's surface; the full-resolution finger test looked only at the surface's pixels, found one
     finger, and the box was kept (recall 0 on frames 0-2 and 10; the run lost its first frame, 103 mm).
     When the surface's pixels have no fingers it looks a coarse pixel beyond the surface too
-    (``FINE_FINGER_GROW``): the mask is the hand (recall ≥ 0.9, precision ≥ 0.8; measured 0.95-0.99
+    (``fine_finger_grow``): the mask is the hand (recall ≥ 0.9, precision ≥ 0.8; measured 0.95-0.99
     and 0.83-0.97; the run 2.4 mm). Seed 1's frame 0 is why the surface comes first: there the grown
     look joins two fingers into one piece and finds too few, the surface alone finds them."""
-    import tracker.segment.fingers as S
+    import tracker.segment.constants as S
     from tests.conftest import realistic_frame
     from tracker.sim import experiments as E
 
@@ -112,7 +111,7 @@ def test_fingers_broken_off_the_hands_surface_are_still_fingers(hand, seed, fram
     recall, precision = mask_scores(observe(depth, cam).mask, depth, labels)
     assert recall >= 0.9 and precision >= 0.8, (recall, precision)
     if seed == 3:
-        monkeypatch.setattr(S, "FINE_FINGER_GROW", 0)
+        monkeypatch.setattr(S, "TUNING", S.TUNING.replace(fine_finger_grow=0))
         recall, _ = mask_scores(observe(depth, cam).mask, depth, labels)
         assert recall < 0.1, recall
 

@@ -13,7 +13,7 @@ from tests.conftest import mask_scores, realistic_frame
 from tracker._segment_kernels import back_points
 from tracker.io.cameras import preset
 from tracker.observe import hand_window, observe
-from tracker.segment import PLANE_BAND_M, Segmenter, SupportPlane, support_plane
+from tracker.segment import TUNING, Segmenter, SupportPlane, support_plane
 from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import make_motion
@@ -40,7 +40,7 @@ def _plane_depth(n, dn, noise_sd, rng):
 def test_a_plane_is_found_under_a_hand_sized_object_and_noise(tilt, turn, dn, noise_mm, seed):
     """Any plane seen 35–60° off face-on (a table) over most of the frame, with up to 3 mm of depth noise and a hand-sized
     object standing 10 cm in front of it: its normal within 1°, its offset within 3 mm, the band 3 SDs
-    of the noise within PLANE_BAND_M; the object's pixels are not on it, the plane's are (but for
+    of the noise within TUNING.plane_band_m; the object's pixels are not on it, the plane's are (but for
     noise beyond the band)."""
     rng = np.random.default_rng(seed)
     a, b = np.radians(tilt), np.radians(turn)
@@ -55,8 +55,8 @@ def test_a_plane_is_found_under_a_hand_sized_object_and_noise(tilt, turn, dn, no
     assert p is not None
     assert np.degrees(np.arccos(min(abs(float(np.dot(p.normal, n))), 1.0))) < 1.0
     assert abs(p.offset - dn) < 0.003
-    assert PLANE_BAND_M[0] <= p.band <= PLANE_BAND_M[1]
-    assert p.band == pytest.approx(np.clip(3 * noise_mm / 1000.0 * n[2] / 1.0, *PLANE_BAND_M), abs=0.004)
+    assert TUNING.plane_band_m[0] <= p.band <= TUNING.plane_band_m[1]
+    assert p.band == pytest.approx(np.clip(3 * noise_mm / 1000.0 * n[2] / 1.0, *TUNING.plane_band_m), abs=0.004)
     on = p.pixels(d, F, CY, CX)
     assert not on[obj].any()
     rest = np.isfinite(d)

@@ -439,12 +439,12 @@ def test_compiled_components_are_scipys(h, w, seed, fill):
 def test_compiled_skin_test_is_the_integer_formula(seed):
     """The compiled skin test equals the channel formula in numpy (V within its range, the spread
     (V − min)·255 within [s0·V, s1·V]) on random colours, the range's edges included."""
-    from tracker.segment import SKIN_HSV, skin_mask
+    from tracker.segment import TUNING, skin_mask
 
     rng = np.random.default_rng(seed)
     c = rng.integers(0, 256, (17, 23, 3), dtype=np.uint8)
     c[0, :3] = [[113, 113, 113], [255, 200, 160], [112, 80, 60]]   # V at and below its bound
-    (_, s0, v0), (_, s1, v1) = SKIN_HSV
+    (_, s0, v0), (_, s1, v1) = TUNING.skin_hsv
     r, g, b = (c[..., k].astype(np.int32) for k in range(3))
     hi = np.maximum(np.maximum(r, g), b)
     spread = (hi - np.minimum(np.minimum(r, g), b)) * 255

@@ -14,7 +14,7 @@ from synergy.bundle import load_bundle
 from tests.conftest import mask_scores, realistic_frame
 from tracker.io.cameras import preset
 from tracker.observe import backproject, hand_window, observe
-from tracker.segment import SKIN_HSV, Segmenter, skin_mask
+from tracker.segment import TUNING, Segmenter, skin_mask
 from tracker.sim import experiments as E
 from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
 from tracker.sim.motions import make_motion
@@ -108,7 +108,7 @@ def test_skin_mask_integer_form_equals_the_hsv_definition():
     a, b = np.meshgrid(np.arange(256), np.arange(256))
     grid = np.stack([a, b, b], -1).astype(np.uint8)
     rand = np.random.default_rng(0).integers(0, 256, (200, 200, 3)).astype(np.uint8)
-    (h0, s0, v0), (h1, s1, v1) = SKIN_HSV
+    (h0, s0, v0), (h1, s1, v1) = TUNING.skin_hsv
     for c in (grid, rand, rand[..., ::-1]):
         hsv = mcolors.rgb_to_hsv(c / 255.0)
         h, s, v = hsv[..., 0] * 179.0, hsv[..., 1] * 255.0, hsv[..., 2] * 255.0
@@ -251,14 +251,14 @@ def test_a_slow_taper_is_measured_over_enough_samples(hand, monkeypatch):
     the palm circle is 6.7 px, so the taper's window (0.4 palm radii) was 3 samples, over which the
     slow taper (0.2–0.6 px a sample) fell by less than 10 % from its first sample: the taper "ended"
     at once and the cut fell at 1.3 palm radii, ~1 cm into the palm (recall 0.90; the run's size, from
-    its first 5 frames, 0.963). Over at least TAPER_MIN_SAMPLES (4) samples: recall ≥ 0.95 (0.98),
+    its first 5 frames, 0.963). Over at least taper_min_samples (4) samples: recall ≥ 0.95 (0.98),
     the size 0.989; over 2, as before, < 0.93."""
-    import tracker.segment.forearm as S
+    import tracker.segment.constants as K
 
     cam, depth, color, labels = realistic_frame(hand, "realsense", 0.8, "forearm", 3, noise_seed=1)
     recall, precision = mask_scores(observe(depth, cam, color=color).mask, depth, labels)
     assert recall >= 0.95 and precision >= 0.9, (recall, precision)
-    monkeypatch.setattr(S, "TAPER_MIN_SAMPLES", 2)
+    monkeypatch.setattr(K, "TUNING", K.TUNING.replace(taper_min_samples=2))
     recall, _ = mask_scores(observe(depth, cam, color=color).mask, depth, labels)
     assert recall < 0.93, recall
 

@@ -43,15 +43,7 @@ from __future__ import annotations
 
 import numpy as np  # noqa: F401  (the doctest above)
 
-from .constants import (
-    BORDER_PX,
-    DEFAULT_FOCAL_PX,
-    FIND,
-    FOREARM_CHOICES,
-    PLANE_BAND_M,
-    PLANE_CHOICES,
-    SKIN_HSV,
-)
+from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES, TUNING, SegmentConstants
 from .forearm import cut_forearm
 from .ops import bounds, in_box, largest_component
 from .plane import SupportPlane, support_plane
@@ -60,7 +52,6 @@ from .segmenter import Segmenter
 from .skin import rgb_to_hsv, skin_mask
 from .surfaces import focal_from_points, pixel_area, refine, surface_fronts, surfaces
 
-__all__ = ["BORDER_PX", "DEFAULT_FOCAL_PX", "FIND", "FOREARM_CHOICES", "PLANE_BAND_M", "PLANE_CHOICES",
-           "Region", "SKIN_HSV", "Segmenter", "SupportPlane", "bounds", "cut_forearm", "focal_from_points", "hand_region",
-           "in_box", "largest_component", "pixel_area", "refine", "rgb_to_hsv", "skin_mask", "support_plane",
-           "surface_fronts", "surfaces"]
+__all__ = ["FIND", "FOREARM_CHOICES", "PLANE_CHOICES", "TUNING", "Region", "SegmentConstants", "Segmenter",
+           "SupportPlane", "bounds", "cut_forearm", "focal_from_points", "hand_region", "in_box", "largest_component",
+           "pixel_area", "refine", "rgb_to_hsv", "skin_mask", "support_plane", "surface_fronts", "surfaces"]

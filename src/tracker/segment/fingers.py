@@ -8,28 +8,17 @@ from scipy import ndimage
 from .._segment_kernels import (
     closed_filled,
 )
-from .constants import (
-    ARM_LENGTH_PALMS,
-    BORDER_PX,
-    FINE_FINGER_GROW,
-    FINE_FINGER_M,
-    FINGERS_FIRST_MAX_AREA_M2,
-    FINGER_ELONGATION,
-    FINGER_MAX_M,
-    FINGER_MIN_AREA_M2,
-    FINGER_MIN_LENGTH_M,
-    FINGER_RIM_M,
-)
+from . import constants as K
 from .ops import _dilate, _disk_opening, _edt, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist, bounds
 from .surfaces import _touches_border, pixel_area
 
 
 def _fingered_end(surface, d, front, band, X, focal, border_px=None, reach=0.22, fine=None):
     """``(seed, front)`` of ``surface``'s hand end when it has fingers (:func:`_has_fingers`) and the
-    surface is no bigger than :data:`FINGERS_FIRST_MAX_AREA_M2`, else ``(None, nan)``: its far end from the border when its nearest part is cut off by it
+    surface is no bigger than :attr:`SegmentConstants.fingers_first_max_area_m2`, else ``(None, nan)``: its far end from the border when its nearest part is cut off by it
     (:func:`_far_end`), else its end with the fingers (:func:`_hand_end`); ``fine``: as for
     :func:`_has_fingers`."""
-    if float(pixel_area(d[surface], focal).sum()) > FINGERS_FIRST_MAX_AREA_M2:
+    if float(pixel_area(d[surface], focal).sum()) > K.TUNING.fingers_first_max_area_m2:
         return None, float("nan")
     with np.errstate(invalid="ignore"):
         seed = _largest_in_window(surface & (d <= front + 0.015))
@@ -44,7 +33,7 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     """``(seed, front)`` at the end of ``surface`` farthest (in the image) from its pixels at the
     image border: the pixels within 2 cm of that end, and the nearest depth (1st percentile) of
     the surface within ``reach`` of them."""
-    px = BORDER_PX if border_px is None else border_px
+    px = K.TUNING.border_px if border_px is None else border_px
     edge = np.zeros_like(surface)
     edge[:px], edge[-px:], edge[:, :px], edge[:, -px:] = True, True, True, True
     dist = np.full(surface.shape, -1.0)
@@ -67,10 +56,10 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     An arm ends in view at both ends when the renderer (or a cropped depth range) gives it a free
     far end; a real forearm goes on to the elbow and the body, past the border or into ``beyond``,
     and then this changes nothing. When the seed's surface within ``band`` of the front does not
-    reach the border and is longer than :data:`ARM_LENGTH_PALMS` palm widths (a hand with its arm,
+    reach the border and is longer than :attr:`SegmentConstants.arm_length_palms` palm widths (a hand with its arm,
     not a hand), the nearest part may be the arm's far end (an elbow held nearer the camera than
     the wrist). The hand is the end with the fingers: the parts narrower than
-    :data:`FINGER_MAX_M` (a morphological opening removes them), clearly more of them on one
+    :attr:`SegmentConstants.finger_max_m` (a morphological opening removes them), clearly more of them on one
     half along the object's long axis than on the other. That half's nearest part becomes the
     seed; otherwise (a fist, a hand seen edge-on: no finger-like parts) the seed stays."""
     with np.errstate(invalid="ignore"):
@@ -94,7 +83,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     w, V = np.linalg.eigh(np.cov((P - c).T))
     t = (P - c) @ V[:, -1]
     palm = 2.0 * float(_edt(~np.pad(o, 1)).max())  # padded: the window is the bounds
-    if t.max() - t.min() < ARM_LENGTH_PALMS * palm:
+    if t.max() - t.min() < K.TUNING.arm_length_palms * palm:
         return seed, front
     z = _nanmedian(d[win][o])
     px_m = focal / z
@@ -106,7 +95,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     tt[yy, xx] = t
     side = np.bincount(lab_t[thin], weights=tt[thin], minlength=size.size) > 0  # mean t > 0: the + half
     plus, minus = size[big & side].sum(), size[big & ~side].sum()
-    if max(plus, minus) < FINGER_MIN_AREA_M2 * px_m ** 2 * 2 or max(plus, minus) < 3 * min(plus, minus):
+    if max(plus, minus) < K.TUNING.finger_min_area_m2 * px_m ** 2 * 2 or max(plus, minus) < 3 * min(plus, minus):
         return seed, front
     half = np.zeros(d.shape, bool)
     half[win] = o & ((tt > 0) if plus > minus else (tt < 0)) & obj[win]
@@ -118,13 +107,13 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
 
 def _finger_pieces(o, px_m):
     """``(labels, sizes, big)``: the pieces of the solid mask ``o`` narrower than
-    :data:`FINGER_MAX_M` (a morphological opening with a disk that wide removes them; ``px_m``:
-    pixels per metre at the mask's depth) and farther than :data:`FINGER_RIM_M` from what the opening
+    :attr:`SegmentConstants.finger_max_m` (a morphological opening with a disk that wide removes them; ``px_m``:
+    pixels per metre at the mask's depth) and farther than :attr:`SegmentConstants.finger_rim_m` from what the opening
     keeps (measured: a 0.8× open hand beside a box, depth only, whose fingers the opening's rim joined
     into one U-shaped piece), their sizes (pixels, index 0 = none) and which are
-    finger-sized (:data:`FINGER_MIN_AREA_M2`; noise at the outline leaves slivers a few pixels big)."""
-    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
-    rim = int(round(FINGER_RIM_M * px_m))
+    finger-sized (:attr:`SegmentConstants.finger_min_area_m2`; noise at the outline leaves slivers a few pixels big)."""
+    rad = max(int(round(0.5 * K.TUNING.finger_max_m * px_m)), 1)
+    rim = int(round(K.TUNING.finger_rim_m * px_m))
     # the pixels farther than the rim from the opened shape: the opening rounds off the palm's corners
     # and leaves a sliver along its edge that joins every finger into one U-shaped piece, no finger
     opened = _disk_opening(o, rad)
@@ -143,26 +132,26 @@ def _finger_pieces(o, px_m):
     sxy = np.bincount(L, (yy - my[L]) * (xx - mx[L]), n + 1) / cnt
     half_gap = np.sqrt(((syy - sxx) / 2) ** 2 + sxy ** 2)
     major, minor = (syy + sxx) / 2 + half_gap, np.maximum((syy + sxx) / 2 - half_gap, 1e-9)
-    big = ((size >= FINGER_MIN_AREA_M2 * px_m ** 2) & (major >= FINGER_ELONGATION ** 2 * minor)
-           & (4.0 * np.sqrt(major) >= FINGER_MIN_LENGTH_M * px_m))
+    big = ((size >= K.TUNING.finger_min_area_m2 * px_m ** 2) & (major >= K.TUNING.finger_elongation ** 2 * minor)
+           & (4.0 * np.sqrt(major) >= K.TUNING.finger_min_length_m * px_m))
     big[0] = False
     return lab_t, size, big
 
 
 def _enough_fingers(o, px_m) -> bool:
     """Whether the solid mask ``o`` (``px_m`` pixels per metre) has finger-like pieces
-    (:func:`_finger_pieces`) of at least twice :data:`FINGER_MIN_AREA_M2` in all."""
+    (:func:`_finger_pieces`) of at least twice :attr:`SegmentConstants.finger_min_area_m2` in all."""
     _, size, big = _finger_pieces(o, px_m)
-    return bool(size[big].sum() >= 2 * FINGER_MIN_AREA_M2 * px_m ** 2)
+    return bool(size[big].sum() >= 2 * K.TUNING.finger_min_area_m2 * px_m ** 2)
 
 
 def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     """Whether the part of ``surface`` within ``reach`` metres (in the image, at the seed's depth)
     of ``seed``'s centre has finger-like parts (:func:`_finger_pieces`) of at least twice
-    :data:`FINGER_MIN_AREA_M2` in all. ``fine``: ``(depth, step)``, the full-resolution image ``d``
+    :attr:`SegmentConstants.finger_min_area_m2` in all. ``fine``: ``(depth, step)``, the full-resolution image ``d``
     was sampled from every ``step``-th pixel; when the part has no fingers in ``d`` they are looked for
-    there too, in the part's pixels within :data:`FINE_FINGER_M` of the pixel they were sampled with,
-    and then in the part grown by :data:`FINE_FINGER_GROW` coarse pixels, each within that of its
+    there too, in the part's pixels within :attr:`SegmentConstants.fine_finger_m` of the pixel they were sampled with,
+    and then in the part grown by :attr:`SegmentConstants.fine_finger_grow` coarse pixels, each within that of its
     nearest part pixel (a 0.8× hand's spread fingers lie 1-2 px apart in a Kinect v1 frame's
     half-resolution image, and its noise joins them into pieces too stubby to be fingers, or breaks
     them off the hand's surface)."""
@@ -186,7 +175,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
     h, w = fz.shape
     zc = np.repeat(np.repeat(d[y0:y1, x0:x1], c, 0), c, 1)[:h, :w]
-    for grow in dict.fromkeys((0, FINE_FINGER_GROW)):
+    for grow in dict.fromkeys((0, K.TUNING.fine_finger_grow)):
         if grow:
             # the part grown by coarse pixels, each at its nearest part pixel's depth: the sensor's
             # dropouts break a small hand's fingers into fragments the part's surface does not hold.
@@ -195,7 +184,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
             zc = np.repeat(np.repeat(d[y0:y1, x0:x1][ny, nx], c, 0), c, 1)[:h, :w]
         up = np.repeat(np.repeat(_dilate(part, grow) if grow else part, c, 0), c, 1)[:h, :w]
         with np.errstate(invalid="ignore"):
-            fpart = up & (np.abs(fz - zc) <= FINE_FINGER_M)
+            fpart = up & (np.abs(fz - zc) <= K.TUNING.fine_finger_m)
         # holes filled but gaps not closed: closing would join the fingers again
         if _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c):
             return True

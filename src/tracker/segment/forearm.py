@@ -9,19 +9,7 @@ from .._segment_kernels import (
     closed_filled,
     label_max,
 )
-from .constants import (
-    ARM_BEND_DEG,
-    ARM_REACH_R,
-    FINGER_MAX_M,
-    NO_NARROWING_WRIST,
-    OPPOSITE_ARM_REACH_R,
-    PALM_FILL_MIN,
-    PALM_FILL_SLACK,
-    PALM_WIDTH_SHARE,
-    SURE_ARM_REACH_R,
-    TAPER_MIN_SAMPLES,
-    TAPER_WINDOW_R,
-)
+from . import constants as K
 from .ops import _dilate, _disk_closing, _edt, _label, _nanmedian, bounds
 
 
@@ -48,11 +36,11 @@ def _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, m_px, width
     """Whether part ``j`` of :func:`cut_forearm`, which crosses the ring around the palm in several
     pieces and goes on past the region, is an arm that a finger (the thumb) touches outside the palm
     circle rather than spread fingers: its widest piece on the ring (:func:`_widest_piece`) is wider
-    than a finger (:data:`FINGER_MAX_M`; ``m_px``: metres per pixel) and lies opposite the parts
+    than a finger (:attr:`SegmentConstants.finger_max_m`; ``m_px``: metres per pixel) and lies opposite the parts
     ``fingers`` that end in the region (:func:`_opposite_fingers`)."""
     k = _widest_piece(owner, piece_size, j, r)
     # the ring is 0.4 r thick: a piece's area over that is its chord across the ring
-    if k is None or piece_size[k] / (0.4 * r) * m_px <= FINGER_MAX_M:
+    if k is None or piece_size[k] / (0.4 * r) * m_px <= K.TUNING.finger_max_m:
         return False
     on_k = ring_lab == k
     return _opposite_fingers(vy[on_k].mean(), vx[on_k].mean(), width, cy_p, cx_p, fingers, r)
@@ -70,11 +58,11 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     surface left out of the region), where fingers end in an edge (fingers held together are as
     wide as an arm). The widest such part is the forearm, its direction from c the arm axis a — or
     its own direction, from where it leaves the circle to its far end, when that is more than
-    :data:`ARM_BEND_DEG` off (a wrist bent sideways puts c off the arm's axis). The
+    :attr:`SegmentConstants.arm_bend_deg` off (a wrist bent sideways puts c off the arm's axis). The
     region's width across a, measured at each distance t along a within ``wrist_range`` · r, is
     smallest at the wrist: the cut goes where it stops narrowing — where a slow taper ends when it
-    narrows only slowly (over at least :data:`TAPER_MIN_SAMPLES` samples), and at least
-    :data:`NO_NARROWING_WRIST` r out then — and everything beyond it
+    narrows only slowly (over at least :attr:`SegmentConstants.taper_min_samples` samples), and at least
+    :attr:`SegmentConstants.no_narrowing_wrist` r out then — and everything beyond it
     in a strip of ±2.5 r around the axis is removed.
     Nothing is cut when the circle is not palm-sized (``palm_radius_m``) or no forearm leaves it.
     ``joins``: pixels where another object meets the region at its depth (:func:`_joins`); a part
@@ -106,7 +94,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     go_on &= solid
     # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
     # forearm) and filled by the mask before closing, the one farthest from where the region goes on
-    cand = _filled_places(dt >= PALM_WIDTH_SHARE * dt.max(), sub, float(dt.max()))
+    cand = _filled_places(dt >= K.TUNING.palm_width_share * dt.max(), sub, float(dt.max()))
     if prefer is not None:
         # while tracking: an arm stub as wide as the palm, farther from where the region goes on, is no
         # palm when the hand was predicted elsewhere
@@ -167,7 +155,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # a part reaching farther from the palm's centre than any finger can is an arm even where it
     # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
     reach_r = label_max(rho, lab, n)
-    continues[1:] |= reach_r > ARM_REACH_R * r
+    continues[1:] |= reach_r > K.TUNING.arm_reach_r * r
     # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
     nb = np.maximum(np.bincount(lab[base], minlength=n + 1)[1:], 1)
     cy_p = np.bincount(lab[base], weights=vy[base], minlength=n + 1)[1:] / nb
@@ -187,7 +175,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
                                                cy_p, cx_p, ~continues[1:] & ~several)
     continues[1:] &= ~several
     ends = ~continues[1:]
-    for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= OPPOSITE_ARM_REACH_R * r)):
+    for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= K.TUNING.opposite_arm_reach_r * r)):
         # the other parts that end here, weighted by their width: the fingers' side of the palm
         # (at least a finger's width of them: noise specks at the outline are no fingers, and a hand
         # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
@@ -196,12 +184,12 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # a part as wide as an arm that reaches less far than one is no finger to weigh: an arm stub the
         # region's reach cut short (in front of a body 4 cm behind) outweighed the fingers and put a group of
         # fingers "opposite the fingers"
-        others &= ~((width >= 0.45 * r) & (reach_r < OPPOSITE_ARM_REACH_R * r))
+        others &= ~((width >= 0.45 * r) & (reach_r < K.TUNING.opposite_arm_reach_r * r))
         continues[j + 1] |= _opposite_fingers(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
     # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
     # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
     # crosses the ring in pieces too
-    continues[1:] &= ~several | (reach_r > SURE_ARM_REACH_R * r)
+    continues[1:] &= ~several | (reach_r > K.TUNING.sure_arm_reach_r * r)
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:
@@ -220,7 +208,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     ay, ax = ay / norm, ax / norm
     # the cut goes across the arm: its direction is the arm's own, from where it leaves the palm circle to
     # its far end in the region, when that is long enough to tell (half a palm radius) and more than
-    # ARM_BEND_DEG off the direction from the palm's centre (a wrist bent sideways puts the centre off
+    # arm_bend_deg off the direction from the palm's centre (a wrist bent sideways puts the centre off
     # the arm's axis: real frame 230536_70, 22°, where a cut across the centre's direction took a 648 px
     # triangle of the palm's heel); closer than that the two agree within their noise and the centre's,
     # the steadier one, is kept; beyond 60° the far end is no straight arm's
@@ -230,7 +218,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         dy, dx = vy[far].mean() - vy[leave].mean(), vx[far].mean() - vx[leave].mean()
         n_arm = np.hypot(dy, dx)
         cos = (dy * ay + dx * ax) / max(n_arm, 1e-12)
-        if n_arm >= 0.5 * r and 0.5 <= cos < np.cos(np.radians(ARM_BEND_DEG)):
+        if n_arm >= 0.5 * r and 0.5 <= cos < np.cos(np.radians(K.TUNING.arm_bend_deg)):
             ay, ax = dy / n_arm, dx / n_arm
     t = vy * ay + vx * ax
     s = -vy * ax + vx * ay
@@ -251,12 +239,12 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     else:
         # no sharp narrowing: a slow taper (a small hand at the coarse search's resolution, r ≈ 7 px,
         # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
-        # the palm) ends where the width stops falling over TAPER_WINDOW_R; and the wrist lies at least
-        # NO_NARROWING_WRIST r from the palm's centre (an arm as wide as the palm in the image, e.g. a
+        # the palm) ends where the width stops falling over taper_window_r; and the wrist lies at least
+        # no_narrowing_wrist r from the palm's centre (an arm as wide as the palm in the image, e.g. a
         # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
         # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
-        taper = _end_of_taper(prof, max(int(round(TAPER_WINDOW_R * r)), TAPER_MIN_SAMPLES))
-        t_w = max(lo + taper, int(round(NO_NARROWING_WRIST * r)))
+        taper = _end_of_taper(prof, max(int(round(K.TUNING.taper_window_r * r)), K.TUNING.taper_min_samples))
+        t_w = max(lo + taper, int(round(K.TUNING.no_narrowing_wrist * r)))
     cut = strip & (t > t_w)
     out = m.copy()
     out[y0:y1, x0:x1] &= ~cut
@@ -264,7 +252,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
 
 
 
-def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK, least=PALM_FILL_MIN):
+def _filled_places(cand, raw, rad, slack=None, least=None):
     """The places of ``cand`` whose disk of radius ``rad`` the ``raw`` mask (before closing) fills
     within ``slack`` of the best-filled one or at least ``least``. A 0.8× hand's spread
     fingers lie a pixel or two apart at the search's resolution, and the closing that mends no-data
@@ -279,6 +267,8 @@ def _filled_places(cand, raw, rad, slack=PALM_FILL_SLACK, least=PALM_FILL_MIN):
     >>> np.argwhere(_filled_places(cand, raw, 3.0)).tolist()
     [[4, 14]]
     """
+    slack = K.TUNING.palm_fill_slack if slack is None else slack
+    least = K.TUNING.palm_fill_min if least is None else least
     ys, xs = np.nonzero(cand)
     if ys.size < 2:
         return cand

@@ -8,17 +8,7 @@ from scipy import ndimage
 from .._segment_kernels import (
     closed_filled,
 )
-from .constants import (
-    FINGER_MAX_M,
-    FRONT_BEHIND_AREA_M2,
-    FRONT_OUTLINE_SHARE,
-    FRONT_STEP_M,
-    FRONT_WINDOW_M,
-    TOUCH_AREA_M2,
-    TOUCH_M,
-    TOUCH_PX,
-    TOUCH_WINDOW_M,
-)
+from . import constants as K
 from .fingers import _hand_end
 from .ops import _disk_opening, _label, _nanmedian, _nearest, _window_max, _window_min, bounds
 from .surfaces import pixel_area, surfaces
@@ -28,13 +18,13 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     """``(region, behind, seed, layered)``: the layer of ``region`` in front of a surface it stands out of.
 
     Each pixel's local background is the grey closing of the region's depth (the farthest depth
-    within :data:`FRONT_WINDOW_M`, then the nearest of those; no data ignored): a tilted body keeps
+    within :attr:`SegmentConstants.front_window_m`, then the nearest of those; no data ignored): a tilted body keeps
     its own depth, a hand or an arm narrower than the window takes the depth of the body around it.
-    The pixels nearer than their background by more than :data:`FRONT_STEP_M` fall into pieces
+    The pixels nearer than their background by more than :attr:`SegmentConstants.front_step_m` fall into pieces
     (neighbours closer than ``jump``); the largest, when it covers ``min_area`` (m²), is the layer in
     front (the seed may lie on flying pixels at the body's edge, which curves away). It replaces the region when the region's pixels
-    next to it lie behind it by that step over at least :data:`FRONT_OUTLINE_SHARE` of its outline and
-    the region behind it covers at least :data:`FRONT_BEHIND_AREA_M2` — a hand held in front of the
+    next to it lie behind it by that step over at least :attr:`SegmentConstants.front_outline_share` of its outline and
+    the region behind it covers at least :attr:`SegmentConstants.front_behind_area_m2` — a hand held in front of the
     body, which the arm joins to the hand's surface. A hand alone, with its arm or on its own, has no
     such layer (its outline borders no data, another surface or its own pixels at its own depth) and
     keeps its region, ``behind`` empty and ``seed`` unchanged. ``behind``: the surface's pixels outside
@@ -50,7 +40,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
         return region, none, seed, False
     (ya, yb), (xa, xb) = bounds(region)
     z = _nanmedian(d[seed])
-    half = max(int(round(FRONT_WINDOW_M * focal / z)), 1)
+    half = max(int(round(K.TUNING.front_window_m * focal / z)), 1)
     size = 2 * half + 1
     H, W = d.shape
     # the background is read from the whole surface around the region (the reach cuts the body off
@@ -65,7 +55,7 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     dw = d[win]
     rw = region[win]
     with np.errstate(invalid="ignore"):
-        front = rw & (dw < far - FRONT_STEP_M)
+        front = rw & (dw < far - K.TUNING.front_step_m)
     if not front.any():
         return region, none, seed, False
     lab, n = surfaces(np.where(front, dw, np.nan), jump)
@@ -82,9 +72,9 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
     ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
     with np.errstate(invalid="ignore"):
-        step = rw & ring & (dw - layer_far > FRONT_STEP_M)
-    stands_out = step.sum() >= FRONT_OUTLINE_SHARE * ring.sum()
-    if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < FRONT_BEHIND_AREA_M2:
+        step = rw & ring & (dw - layer_far > K.TUNING.front_step_m)
+    stands_out = step.sum() >= K.TUNING.front_outline_share * ring.sum()
+    if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < K.TUNING.front_behind_area_m2:
         return region, none, seed, bool(stands_out)
     out, goes_on = none.copy(), none.copy()
     out[win] = layer
@@ -116,38 +106,38 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
 def _goes_on(layer, contact, d, focal):
     """The pixels of ``contact`` (the region's pixels next to ``layer`` without a depth step) where the
     hand's surface goes on past the layer: beside the layer's wide part (an opening with a disk
-    :data:`FINGER_MAX_M` across removes the fingers), in pieces spanning more than that (an arm receding
+    :attr:`SegmentConstants.finger_max_m` across removes the fingers), in pieces spanning more than that (an arm receding
     into the body meets it across its width; a finger leaning back, lying along the palm or the thumb,
     meets it over a finger's width or along its length beside the wide part in a thin band)."""
     o = closed_filled(layer)
     px_m = focal / _nanmedian(d[layer])
-    rad = max(int(round(0.5 * FINGER_MAX_M * px_m)), 1)
+    rad = max(int(round(0.5 * K.TUNING.finger_max_m * px_m)), 1)
     wide = _disk_opening(o, rad)
     out = contact & _window_max(wide, 7)
     lab, n = _label(out, eight=True)
     if n == 0:
         return out
     span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
-    return (span >= FINGER_MAX_M * px_m)[lab] & out
+    return (span >= K.TUNING.finger_max_m * px_m)[lab] & out
 
 
 def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None, jump=0.02):
     """Pixels where another object meets ``region`` at its own depth: pixels of ``depth_all`` (the
     frame before the skin filter; NaN = no data) off the hand's ``surface``, within ``px`` pixels of
     the region and within ``dz`` metres of its nearest pixel's depth, whose surface (depth
-    continuity, in a window :data:`TOUCH_WINDOW_M` around the region) covers at least ``min_area``
+    continuity, in a window :attr:`SegmentConstants.touch_window_m` around the region) covers at least ``min_area``
     m² — a table or the body, not the shading specks at the hand's outline that fail the skin test
     or the hand's own fingertip blobs."""
-    px = TOUCH_PX if px is None else px
-    dz = TOUCH_M if dz is None else dz
-    min_area = TOUCH_AREA_M2 if min_area is None else min_area
+    px = K.TUNING.touch_px if px is None else px
+    dz = K.TUNING.touch_m if dz is None else dz
+    min_area = K.TUNING.touch_area_m2 if min_area is None else min_area
     out = np.zeros(region.shape, bool)
     if not region.any():
         return out
     (ya, yb), (xa, xb) = bounds(region)
     H, W = region.shape
     z = _nanmedian(d[region])
-    m = px + int(np.ceil(TOUCH_WINDOW_M * focal / z))
+    m = px + int(np.ceil(K.TUNING.touch_window_m * focal / z))
     win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
     r = region[win]
     dist, iy, ix = _nearest(r)

@@ -11,16 +11,7 @@ from .._segment_kernels import (
     plane_refit,
     plane_samples,
 )
-from .constants import (
-    PLANE_BAND_M,
-    PLANE_KEEP,
-    PLANE_MIN_AREA_M2,
-    PLANE_MIN_TILT_DEG,
-    PLANE_PREEMPT,
-    PLANE_SAMPLES,
-    PLANE_TOL_M,
-    PLANE_TRIES,
-)
+from . import constants as K
 
 
 @dataclass(frozen=True)
@@ -41,18 +32,17 @@ class SupportPlane:
                             float(self.offset), float(focal), float(cy), float(cx), float(self.band))
 
 
-def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA_M2, min_tilt_deg=PLANE_MIN_TILT_DEG,
-                  seed=0):
+def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=None, min_tilt_deg=None, seed=0):
     """The largest plane of the depth frame (metres, NaN = none) seen at least ``min_tilt_deg`` off
     face-on (a table or floor; not a wall or torso facing the camera), as a :class:`SupportPlane`, or
     None when none covers ``min_area`` m² (fronto-parallel pixel areas, so a tilted table counts low).
 
-    RANSAC on about :data:`PLANE_SAMPLES` pixels of a grid over the frame (principal point at the
-    image centre, as the segmenter's back-projection): :data:`PLANE_TRIES` planes through three
+    RANSAC on about :attr:`SegmentConstants.plane_samples` pixels of a grid over the frame (principal point at the
+    image centre, as the segmenter's back-projection): :attr:`SegmentConstants.plane_tries` planes through three
     samples (drawn with ``seed``: the same frame gives the same plane), each weighed by the area of
-    the samples within :data:`PLANE_TOL_M`; the best one is refitted to its samples by least squares
+    the samples within :attr:`SegmentConstants.plane_tol_m`; the best one is refitted to its samples by least squares
     (twice), and its band is 3 robust standard deviations of their distances, within
-    :data:`PLANE_BAND_M`. A hand is never the plane: 0.01–0.03 m².
+    :attr:`SegmentConstants.plane_band_m`. A hand is never the plane: 0.01–0.03 m².
 
     >>> v, u = np.mgrid[0:240, 0:320]
     >>> table = 0.6 / (0.6 * (v - 119.5) / 300.0 + 0.8) + 0 * u   # the plane (0, 0.6, 0.8) · x = 0.6
@@ -64,25 +54,27 @@ def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=PLANE_MIN_AREA
     >>> int(on.sum()), bool(on[120, 160])
     (75600, False)
     """
+    min_area = K.TUNING.plane_min_area_m2 if min_area is None else min_area
+    min_tilt_deg = K.TUNING.plane_min_tilt_deg if min_tilt_deg is None else min_tilt_deg
     d = np.ascontiguousarray(depth, dtype=np.float64)
     H, W = d.shape
-    step = max(int(round(np.sqrt(H * W / PLANE_SAMPLES))), 1)
+    step = max(int(round(np.sqrt(H * W / K.TUNING.plane_samples))), 1)
     # compiled: the segmenter runs it on every frame without colour
     P, w = plane_samples(d, step, float(focal), (H - 1) / 2, (W - 1) / 2, float(z_min), float(z_max))
     if len(P) < 3 or w.sum() < min_area:
         return None
-    tries = np.random.default_rng(seed).integers(0, len(P), size=(PLANE_TRIES, 3))
+    tries = np.random.default_rng(seed).integers(0, len(P), size=(K.TUNING.plane_tries, 3))
     max_cos = float(np.cos(np.radians(min_tilt_deg)))
-    n, dn, got = plane_ransac(P, w, tries, PLANE_TOL_M, PLANE_PREEMPT, PLANE_KEEP, max_cos)
+    n, dn, got = plane_ransac(P, w, tries, K.TUNING.plane_tol_m, K.TUNING.plane_preempt, K.TUNING.plane_keep, max_cos)
     if got < min_area:
         return None
     for _ in range(2):
-        n, dn, area, mad, c = plane_refit(P, w, n, dn, PLANE_TOL_M)
+        n, dn, area, mad, c = plane_refit(P, w, n, dn, K.TUNING.plane_tol_m)
     # seen obliquely from the camera (the triplets were; the refitted plane must be too)
     if area < min_area or abs(float(n @ c)) > max_cos * float(np.linalg.norm(c)):
         return None
     sd = 1.4826 * mad
-    band = float(np.clip(3.0 * sd, *PLANE_BAND_M))
+    band = float(np.clip(3.0 * sd, *K.TUNING.plane_band_m))
     if dn < 0:  # the camera on the normal's negative side: what stands in front has normal · x < offset
         n, dn = -n, -dn
     return SupportPlane(tuple(float(x) + 0.0 for x in n), float(dn), band, float(area))

@@ -9,7 +9,7 @@ import numpy as np
 from .._segment_kernels import (
     components_holding,
 )
-from .constants import EDGE_GAP_PX, FINGERS_FIRST_M, FINGERS_FIRST_TRIES
+from . import constants as K
 from .fingers import _far_end, _fingered_end, _hand_end, _has_fingers
 from .layers import _in_front
 from .ops import _largest_in_window, _points, _sq_dist, _window_max, _window_min, bounds
@@ -99,8 +99,8 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             X = _points(d, focal, centre) if points is None else np.asarray(points, float)
         # the few surfaces nearest after it, within reach of a hand beside an object (each test costs
         # ~1 ms: a cluttered frame has dozens of surfaces)
-        others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= FINGERS_FIRST_M]
-        for kk, ff in others[:FINGERS_FIRST_TRIES]:
+        others = [(kk, ff) for kk, ff in zip(ids, fronts) if kk != k and abs(ff - front) <= K.TUNING.fingers_first_m]
+        for kk, ff in others[:K.TUNING.fingers_first_tries]:
             end, end_front = _fingered_end(lab == kk, d, ff, band, X, focal, border_px, reach, fine=fine)
             if end is not None and _reaches(end, expected):
                 k, front, seed = int(kk), end_front, end
@@ -147,7 +147,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     return Region(out, (lab == k) & ~out & ~behind, seed, behind, layered)
 
 
-def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):
+def _edge_pieces(lab, d, small, others, jump, gap_px=None):
     """The labels among ``small`` that are pieces of a surface in ``others`` (hand-sized surfaces
     other than the hand's): within ``gap_px`` of it at its depth (within ``jump``), split off by a
     seam of no data, not by a depth step — an object's face the sensor's edge dropouts cut off
@@ -161,6 +161,7 @@ def _edge_pieces(lab, d, small, others, jump, gap_px=EDGE_GAP_PX):
     >>> _edge_pieces(lab, d, np.array([2, 3]), np.array([1]), 0.02).tolist()
     [2]
     """
+    gap_px = K.TUNING.edge_gap_px if gap_px is None else gap_px
     big = np.isin(lab, others)
     size = 2 * int(gap_px) + 1
     with np.errstate(invalid="ignore"):

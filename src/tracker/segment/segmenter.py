@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import BORDER_PX, FIND, FOREARM_CHOICES, PLANE_CHOICES
+from . import constants as K
+from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES
 from .forearm import cut_forearm
 from .layers import _joins
 from .ops import bounds, in_box
@@ -71,7 +72,7 @@ class Segmenter:
 
         ``points``: the back-projected ``(H, W, 3)`` image (needed for ``box``); ``focal``: the
         camera's focal length in pixels (for physical areas; read from ``points`` if None, else
-        :data:`DEFAULT_FOCAL_PX`); ``plane``: this frame's :meth:`frame_plane` when the caller has it
+        :attr:`SegmentConstants.default_focal_px`); ``plane``: this frame's :meth:`frame_plane` when the caller has it
         already (found here otherwise); ``prefer``: a ``(rows, cols)`` slice pair where the hand is
         expected (the tracker's prediction): the wrist cut's palm is looked for there first
         (:func:`cut_forearm`; an arm stub as wide as a half-closed hand's palm, farther from where the
@@ -105,7 +106,7 @@ class Segmenter:
         Inside the window every rule runs as on the whole frame, on the same (coarse) pixels, and the
         window's edges count as image borders: an object the window cuts off is cut off, and the
         forearm goes on past them. That changes nothing for a hand well inside the window; so the
-        result is refused when the mask is empty, when it comes within :data:`BORDER_PX` of a window
+        result is refused when the mask is empty, when it comes within :attr:`SegmentConstants.border_px` of a window
         edge that is not an image edge (the hand, or an uncut arm, runs out of the window), when
         its centre lies outside ``expected`` (a slice pair: where the hand was predicted; None = not
         tested) — something else than the hand was found there —, or when the region stands in front of
@@ -132,8 +133,8 @@ class Segmenter:
             return None
         (ya, yb), (xa, xb) = bounds(sub)
         h, w = sub.shape
-        if ((y0 > 0 and ya < BORDER_PX) or (y1 < H and yb >= h - BORDER_PX)
-                or (x0 > 0 and xa < BORDER_PX) or (x1 < W and xb >= w - BORDER_PX)):
+        if ((y0 > 0 and ya < K.TUNING.border_px) or (y1 < H and yb >= h - K.TUNING.border_px)
+                or (x0 > 0 and xa < K.TUNING.border_px) or (x1 < W and xb >= w - K.TUNING.border_px)):
             return None
         if expected is not None:
             cy, cx = (float(v.mean()) + o for v, o in zip(np.nonzero(sub), (y0, x0)))
@@ -212,7 +213,7 @@ class Segmenter:
         reg = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
-                           reach=self.reach, points=points, border_px=int(np.ceil(BORDER_PX / step)),
+                           reach=self.reach, points=points, border_px=int(np.ceil(K.TUNING.border_px / step)),
                            centre=centre, fingers_first=not self._skin(color),
                            fine=None if full is None or step <= 1 else (full, step),
                            expected=prefer if in_window else None)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._segment_kernels import skin_channels
-from .constants import SKIN_HSV
+from . import constants as K
 
 
 def skin_mask(color):
@@ -18,7 +18,7 @@ def skin_mask(color):
     [[True, False, False]]
     """
     c = np.asarray(color)
-    (h0, s0, v0), (h1, s1, v1) = SKIN_HSV
+    (h0, s0, v0), (h1, s1, v1) = K.TUNING.skin_hsv
     if h0 > 0 or h1 < 179:
         hsv = rgb_to_hsv(c.astype(float) / 255.0)
         h, s, v = hsv[..., 0] * 179.0, hsv[..., 1] * 255.0, hsv[..., 2] * 255.0

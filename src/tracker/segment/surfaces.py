@@ -9,7 +9,7 @@ from .._segment_kernels import (
     refine_window,
     surface_labels,
 )
-from .constants import BORDER_PX, DEFAULT_FOCAL_PX
+from . import constants as K
 from .ops import bounds
 
 
@@ -54,13 +54,13 @@ def surfaces(depth, jump=0.02):
 
 def focal_from_points(points):
     """The horizontal focal length (px) of back-projected points ``(H, W, 3)``: x/z grows by
-    exactly 1/fx from one column to the next; :data:`DEFAULT_FOCAL_PX` when it cannot be read."""
+    exactly 1/fx from one column to the next; :attr:`SegmentConstants.default_focal_px` when it cannot be read."""
     if points is None:
-        return DEFAULT_FOCAL_PX
+        return K.TUNING.default_focal_px
     P = np.asarray(points, float)
     with np.errstate(invalid="ignore", divide="ignore"):
         step = np.nanmedian(np.diff(P[..., 0] / P[..., 2], axis=1)) if P.shape[1] > 1 else np.nan
-    return float(1.0 / step) if np.isfinite(step) and step > 0 else DEFAULT_FOCAL_PX
+    return float(1.0 / step) if np.isfinite(step) and step > 0 else K.TUNING.default_focal_px
 
 
 def pixel_area(depth, focal):
@@ -111,5 +111,5 @@ def _reaches(pixels, box) -> bool:
 
 
 def _touches_border(mask, px=None):
-    px = BORDER_PX if px is None else px
+    px = K.TUNING.border_px if px is None else px
     return bool(mask[:px].any() or mask[-px:].any() or mask[:, :px].any() or mask[:, -px:].any())
