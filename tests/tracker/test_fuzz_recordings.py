@@ -1,5 +1,5 @@
 """tools/fuzz_recordings.py: mutants of every recording format are read or refused cleanly, and the tool
-itself tells a clean refusal from a bug (the full run: ≥ 10,000 mutants per format, docs/recordings.md)."""
+itself tells a clean refusal from a bug (the full run: ≥ 10,000 mutants per format, docs/accuracy.md)."""
 import importlib.util
 from pathlib import Path
 
