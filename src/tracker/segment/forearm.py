@@ -2,6 +2,8 @@
 width stops narrowing."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy import ndimage
 
@@ -46,6 +48,22 @@ def _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, m_px, width
     return _opposite_fingers(vy[on_k].mean(), vx[on_k].mean(), width, cy_p, cx_p, fingers, r)
 
 
+class _Parts(NamedTuple):
+    """The parts of :func:`cut_forearm`'s region outside the palm circle (1.6 r), 8-connected, with what the
+    rules read of them (index ``j`` is part ``j + 1`` of ``lab``)."""
+
+    lab: np.ndarray  # the parts' labels in the crop
+    n: int  # how many
+    width: np.ndarray  # each part's width where it leaves the palm (its chord across a ring 0.3 r wide)
+    cy_p: np.ndarray  # each part's mean offset from the palm's centre where it leaves it, rows …
+    cx_p: np.ndarray  # … and columns
+    reach_r: np.ndarray  # how far each part reaches from the palm's centre (px)
+    ring_lab: np.ndarray  # the pieces of the parts on a ring 2.0-2.4 r around the palm
+    piece_size: np.ndarray  # each ring piece's pixels
+    owner: np.ndarray  # each ring piece's part
+    pieces: np.ndarray  # how many big pieces (>= 0.05 r²) each part has on the ring
+
+
 def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wrist_range=(0.9, 2.6), seed=None,
                 joins=None, prefer=None):
     """The hand mask without the forearm beyond the wrist.
@@ -72,43 +90,96 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     palm (fingertips touch the body as well). ``prefer``: a ``(rows, cols)`` slice
     pair where the hand is expected (the tracker's prediction): palm places inside it come first."""
     m = np.asarray(mask, bool)
-    (ya, yb), (xa, xb) = bounds(m)
-    pad = 2
-    y0, x0 = max(ya - pad, 0), max(xa - pad, 0)
-    y1, x1 = min(yb + pad + 1, m.shape[0]), min(xb + pad + 1, m.shape[1])
+    crop = _crop(m)
+    y0, y1, x0, x1 = crop
     sub = m[y0:y1, x0:x1]
     # close one-pixel no-data cracks and fill the holes the sensor leaves inside the hand (Kinect v1:
     # dropouts and shadows inside a fist) so that neither splits nor shrinks the palm circle: a
     # circle shrunk by a hole makes every finger reach "farther than a finger can" (an arm)
     solid = closed_filled(np.ascontiguousarray(sub))
     dt = _edt(~solid)
-    # where the region goes on: the image border or the surface beyond it (the arm's side)
-    go_on = np.zeros(sub.shape, bool)
+    go_on = _going_on(beyond, solid, dt, crop, m.shape)
+    touch = None if joins is None else _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
+    cy, cx = _palm_centre(sub, dt, solid, go_on, touch, crop, m.shape, seed, prefer)
+    r = float(dt[cy, cx])
+    zc = _palm_depth(depth, m, crop, cy, cx)
+    r_m = r * zc / focal
+    if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
+        return m
+    # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
+    vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
+    rho = np.hypot(vy, vx)
+    parts = _parts(solid, rho, vy, vx, r)
+    if parts is None:
+        return m
+    continues, several = _going_on_parts(parts, go_on, touch, vy, vx, r, zc / focal)
+    width = parts.width.copy()
+    width[~continues[1:]] = 0.0
+    j = int(np.argmax(width))
+    if width[j] < 0.45 * r:
+        return m
+    axis = _arm_axis(parts, j, vy, vx, rho, r)
+    if axis is None:
+        return m
+    ay, ax = axis
+    t = vy * ay + vx * ax
+    s = -vy * ax + vx * ay
+    strip = solid & (np.abs(s) <= 2.5 * r)
+    t_w = _wrist_distance(t, strip, r, wrist_range)
+    if t_w is None:
+        return m
+    cut = strip & (t > t_w)
+    out = m.copy()
+    out[y0:y1, x0:x1] &= ~cut
+    return out
+
+
+def _crop(m):
+    """``(y0, y1, x0, x1)``: the box of mask ``m`` grown by 2 px, within the image."""
+    (ya, yb), (xa, xb) = bounds(m)
+    pad = 2
+    y0, x0 = max(ya - pad, 0), max(xa - pad, 0)
+    y1, x1 = min(yb + pad + 1, m.shape[0]), min(xb + pad + 1, m.shape[1])
+    return y0, y1, x0, x1
+
+
+def _going_on(beyond, solid, dt, crop, shape):
+    """Where :func:`cut_forearm`'s region goes on, in the crop: the image border, or the surface
+    ``beyond`` it (the arm's side; only its pieces outside the region's outline, :func:`_outside_pieces`)."""
+    y0, y1, x0, x1 = crop
+    go_on = np.zeros(solid.shape, bool)
     if beyond is not None:
         go_on |= _dilate(_outside_pieces(np.asarray(beyond, bool)[y0:y1, x0:x1], solid, 0.5 * float(dt.max())), 2)
-    H, W = m.shape
+    H, W = shape
     go_on[:, :1] |= x0 == 0
     go_on[:, -1:] |= x1 == W
     go_on[:1, :] |= y0 == 0
     go_on[-1:, :] |= y1 == H
     go_on &= solid
-    # the palm: the widest place, and among places nearly as wide (a fist is hardly wider than a
-    # forearm) and filled by the mask before closing, the one farthest from where the region goes on
+    return go_on
+
+
+def _palm_centre(sub, dt, solid, go_on, touch, crop, shape, seed, prefer):
+    """``(cy, cx)`` in the crop: the palm's centre, the widest place — among places nearly as wide (a fist
+    is hardly wider than a forearm) and filled by the mask before closing (``sub``), the one farthest from
+    where the region goes on (``go_on``), or from a contact about a palm wide (``touch``: where another
+    object meets the region) when nothing goes on, or nearest the ``seed`` when neither; inside ``prefer``
+    first (the tracker's prediction, whole-frame slices)."""
+    y0, y1, x0, x1 = crop
     cand = _filled_places(dt >= K.TUNING.palm_width_share * dt.max(), sub, float(dt.max()))
     if prefer is not None:
         # while tracking: an arm stub as wide as the palm, farther from where the region goes on, is no
         # palm when the hand was predicted elsewhere
-        there = np.zeros(m.shape, bool)
+        there = np.zeros(shape, bool)
         there[prefer] = True
         there = there[y0:y1, x0:x1] & cand
         if there.any():
             cand = there
     away = go_on
-    if not go_on.any() and joins is not None:
+    if not go_on.any() and touch is not None:
         # nothing goes on past the region, but an object meets it along an arm's width (the table
         # where the skin test ends the arm): the palm is away from there too; a fingertip touching the
         # body meets it along a finger's width only and does not move the palm
-        touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
         tl, tn = _label(touch, eight=True)
         if tn:
             # a contact's size: its pixels in the band (the contact dilated by 2 px, inside the region)
@@ -118,50 +189,39 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
             away = np.isin(tl, wide)
     if away.any():
         far = _edt(away)
-        cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
-    elif seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
+        return np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+    if seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
         # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
         # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
         near = _edt(np.asarray(seed, bool)[y0:y1, x0:x1])
-        cy, cx = np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
-    else:
-        cy, cx = np.unravel_index(int(np.argmax(dt)), dt.shape)
-    r = float(dt[cy, cx])
+        return np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
+    return np.unravel_index(int(np.argmax(dt)), dt.shape)
+
+
+def _palm_depth(depth, m, crop, cy, cx):
+    """The palm's depth: the median of the 5 x 5 pixels round its centre, else of the whole mask ``m``."""
+    y0, y1, x0, x1 = crop
     zc = _nanmedian(np.asarray(depth, float)[y0:y1, x0:x1][max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3])
     if not np.isfinite(zc):
         zc = _nanmedian(np.asarray(depth, float)[m])
-    r_m = r * zc / focal
-    if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
-        return m
-    # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
-    vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
-    rho = np.hypot(vy, vx)
+    return zc
+
+
+def _parts(solid, rho, vy, vx, r):
+    """The :class:`_Parts` of ``solid`` outside 1.6 ``r`` of the palm's centre, or None when there are none."""
     outside = solid & (rho > 1.6 * r)
     lab, n = _label(outside, eight=True)
     if n == 0:
-        return m
-    idx = np.arange(1, n + 1)
+        return None
     # a part's width where it leaves the palm (its chord across a ring 0.3 r wide), not its
     # widest place: an arm the region's reach cuts short is no wider inside the region than a finger
     base = (rho <= 1.9 * r) & (lab > 0)
     width = np.bincount(lab[base], minlength=n + 1)[1:] / (0.3 * r) / 2.0
-    continues = np.zeros(n + 1, bool)
-    continues[np.unique(lab[go_on & (lab > 0)])] = True
-    if joins is not None:
-        # a part another object meets at its depth goes on into it (an arm into a table or the
-        # body); not used for the palm's place: fingertips touch the body too
-        touch = _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
-        continues[np.unique(lab[touch & (lab > 0)])] = True
-    # a part reaching farther from the palm's centre than any finger can is an arm even where it
-    # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
     reach_r = label_max(rho, lab, n)
-    continues[1:] |= reach_r > K.TUNING.arm_reach_r * r
-    # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
     nb = np.maximum(np.bincount(lab[base], minlength=n + 1)[1:], 1)
     cy_p = np.bincount(lab[base], weights=vy[base], minlength=n + 1)[1:] / nb
     cx_p = np.bincount(lab[base], weights=vx[base], minlength=n + 1)[1:] / nb
-    # spread fingers cross a ring around the palm as several pieces, an arm as one: a part that
-    # does is the fingers even where it reaches beyond the region (fingertips past the reach)
+    # spread fingers cross a ring around the palm as several pieces, an arm as one
     ring_lab, _ = _label(outside & (rho >= 2.0 * r) & (rho <= 2.4 * r), eight=True)
     on = ring_lab > 0
     piece_size = np.bincount(ring_lab[on])
@@ -169,13 +229,32 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     owner = np.zeros(piece_size.size, int)
     owner[ring_lab[on]] = lab[on]
     pieces = np.bincount(owner[big[big > 0]], minlength=n + 1)[1:]
-    several = pieces >= 2
+    return _Parts(lab, n, width, cy_p, cx_p, reach_r, ring_lab, piece_size, owner, pieces)
+
+
+def _going_on_parts(p, go_on, touch, vy, vx, r, m_px):
+    """``(continues, several)``: which parts (``continues[j + 1]``) are an arm going on past the region,
+    and which cross the ring around the palm in several pieces (``several[j]``, spread fingers)."""
+    continues = np.zeros(p.n + 1, bool)
+    continues[np.unique(p.lab[go_on & (p.lab > 0)])] = True
+    if touch is not None:
+        # a part another object meets at its depth goes on into it (an arm into a table or the
+        # body); not used for the palm's place: fingertips touch the body too
+        continues[np.unique(p.lab[touch & (p.lab > 0)])] = True
+    # a part reaching farther from the palm's centre than any finger can is an arm even where it
+    # ends inside the region (a forearm seen end-on, or one cut off by a no-data gap)
+    continues[1:] |= p.reach_r > K.TUNING.arm_reach_r * r
+    # a part that crosses the ring in several pieces is the fingers even where it reaches beyond the
+    # region (fingertips past the reach) — unless it is an arm a finger touches
+    several = p.pieces >= 2
     for j in np.flatnonzero(several & continues[1:]):
-        several[j] = not _arm_a_finger_touches(j, ring_lab, owner, piece_size, vy, vx, r, zc / focal, width,
-                                               cy_p, cx_p, ~continues[1:] & ~several)
+        several[j] = not _arm_a_finger_touches(j, p.ring_lab, p.owner, p.piece_size, vy, vx, r, m_px, p.width,
+                                               p.cy_p, p.cx_p, ~continues[1:] & ~several)
     continues[1:] &= ~several
+    # … and so is a wide part opposite the fingers (an arm receding from the camera, short in the image)
     ends = ~continues[1:]
-    for j in np.flatnonzero(ends & (width >= 0.45 * r) & (reach_r >= K.TUNING.opposite_arm_reach_r * r)):
+    wide = p.width >= 0.45 * r
+    for j in np.flatnonzero(ends & wide & (p.reach_r >= K.TUNING.opposite_arm_reach_r * r)):
         # the other parts that end here, weighted by their width: the fingers' side of the palm
         # (at least a finger's width of them: noise specks at the outline are no fingers, and a hand
         # seen alone ends at its wrist in a stub that reaches less far than any visible forearm)
@@ -184,27 +263,28 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         # a part as wide as an arm that reaches less far than one is no finger to weigh: an arm stub the
         # region's reach cut short (in front of a body 4 cm behind) outweighed the fingers and put a group of
         # fingers "opposite the fingers"
-        others &= ~((width >= 0.45 * r) & (reach_r < K.TUNING.opposite_arm_reach_r * r))
-        continues[j + 1] |= _opposite_fingers(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
+        others &= ~(wide & (p.reach_r < K.TUNING.opposite_arm_reach_r * r))
+        continues[j + 1] |= _opposite_fingers(p.cy_p[j], p.cx_p[j], p.width, p.cy_p, p.cx_p, others, r)
     # spread fingers stay fingers whichever rule called them an arm — unless the part reaches
     # farther than any hand: an arm whose thumb or finger touches it outside the palm circle
     # crosses the ring in pieces too
-    continues[1:] &= ~several | (reach_r > K.TUNING.sure_arm_reach_r * r)
-    width[~continues[1:]] = 0.0
-    j = int(np.argmax(width))
-    if width[j] < 0.45 * r:
-        return m
-    arm = lab == j + 1
+    continues[1:] &= ~several | (p.reach_r > K.TUNING.sure_arm_reach_r * r)
+    return continues, several
+
+
+def _arm_axis(p, j, vy, vx, rho, r):
+    """``(ay, ax)``: the unit direction of the arm (part ``j``) from the palm's centre, or None."""
+    arm = p.lab == j + 1
     ring = arm & (rho < 2.6 * r)
-    if pieces[j] >= 2:
+    if p.pieces[j] >= 2:
         # an arm with a finger touching it: its direction is that of its widest piece on the ring
-        ring = ring & _dilate(ring_lab == _widest_piece(owner, piece_size, j, r), 2)
+        ring = ring & _dilate(p.ring_lab == _widest_piece(p.owner, p.piece_size, j, r), 2)
     if not ring.any():
         ring = arm
     ay, ax = vy[ring].mean(), vx[ring].mean()
     norm = np.hypot(ay, ax)
     if norm == 0:
-        return m
+        return None
     ay, ax = ay / norm, ax / norm
     # the cut goes across the arm: its direction is the arm's own, from where it leaves the palm circle to
     # its far end in the region, when that is long enough to tell (half a palm radius) and more than
@@ -212,7 +292,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # the arm's axis: real frame 230536_70, 22°, where a cut across the centre's direction took a 648 px
     # triangle of the palm's heel); closer than that the two agree within their noise and the centre's,
     # the steadier one, is kept; beyond 60° the far end is no straight arm's
-    leave = ring & (rho <= 2.4 * r) if pieces[j] >= 2 else arm & (rho <= 1.9 * r)
+    leave = ring & (rho <= 2.4 * r) if p.pieces[j] >= 2 else arm & (rho <= 1.9 * r)
     far = arm & (rho >= float(rho[arm].max()) - 0.5 * r)
     if leave.any() and far.any():
         dy, dx = vy[far].mean() - vy[leave].mean(), vx[far].mean() - vx[leave].mean()
@@ -220,14 +300,17 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
         cos = (dy * ay + dx * ax) / max(n_arm, 1e-12)
         if n_arm >= 0.5 * r and 0.5 <= cos < np.cos(np.radians(K.TUNING.arm_bend_deg)):
             ay, ax = dy / n_arm, dx / n_arm
-    t = vy * ay + vx * ax
-    s = -vy * ax + vx * ay
-    strip = solid & (np.abs(s) <= 2.5 * r)
+    return ay, ax
+
+
+def _wrist_distance(t, strip, r, wrist_range):
+    """How far along the arm (px, ``t``) the wrist lies: where the width of ``strip`` across it stops
+    narrowing within ``wrist_range`` · ``r``; None when the strip has no pixels there."""
     lo, hi = int(np.floor(wrist_range[0] * r)), int(np.ceil(wrist_range[1] * r))
     ti = np.round(t[strip]).astype(int)
     keep = (ti >= lo) & (ti <= hi)
     if not keep.any():
-        return m
+        return None
     prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
     prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
     # the wrist is where the narrowing from the palm stops: the first distance beyond which the
@@ -235,21 +318,15 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     # recede or be cropped, so the global minimum would cut too late)
     i = _end_of_narrowing(prof, max(int(round(0.3 * r)), 2))
     if i > 0:
-        t_w = lo + i
-    else:
-        # no sharp narrowing: a slow taper (a small hand at the coarse search's resolution, r ≈ 7 px,
-        # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
-        # the palm) ends where the width stops falling over taper_window_r; and the wrist lies at least
-        # no_narrowing_wrist r from the palm's centre (an arm as wide as the palm in the image, e.g. a
-        # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
-        # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
-        taper = _end_of_taper(prof, max(int(round(K.TUNING.taper_window_r * r)), K.TUNING.taper_min_samples))
-        t_w = max(lo + taper, int(round(K.TUNING.no_narrowing_wrist * r)))
-    cut = strip & (t > t_w)
-    out = m.copy()
-    out[y0:y1, x0:x1] &= ~cut
-    return out
-
+        return lo + i
+    # no sharp narrowing: a slow taper (a small hand at the coarse search's resolution, r ≈ 7 px,
+    # narrows by less than a pixel a sample: the realistic ×0.8 SR305 scene's cut went ~1 cm into
+    # the palm) ends where the width stops falling over taper_window_r; and the wrist lies at least
+    # no_narrowing_wrist r from the palm's centre (an arm as wide as the palm in the image, e.g. a
+    # tilted palm; the rendered hand/forearm boundary lies at 1.17 r, median of ~1150 rendered frames,
+    # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
+    taper = _end_of_taper(prof, max(int(round(K.TUNING.taper_window_r * r)), K.TUNING.taper_min_samples))
+    return max(lo + taper, int(round(K.TUNING.no_narrowing_wrist * r)))
 
 
 def _filled_places(cand, raw, rad, slack=None, least=None):
