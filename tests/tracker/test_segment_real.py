@@ -452,6 +452,22 @@ def test_compiled_skin_test_is_the_integer_formula(seed):
     np.testing.assert_array_equal(skin_mask(c), want)
 
 
+
+@given(st.integers(0, 2 ** 32 - 1))
+def test_numpy_hsv_is_matplotlibs(seed):
+    """:func:`tracker.segment.rgb_to_hsv` (the skin test's hue path, without importing matplotlib) equals
+    ``matplotlib.colors.rgb_to_hsv`` bit for bit: random 8-bit colours, greys, and ties between the
+    largest channels (which channel's hue formula wins)."""
+    import matplotlib.colors as mcolors
+
+    from tracker.segment import rgb_to_hsv
+
+    rng = np.random.default_rng(seed)
+    c = rng.integers(0, 256, (31, 3)).astype(float)
+    c[0], c[1], c[2], c[3] = (0, 0, 0), (255, 255, 255), (90, 90, 30), (40, 200, 200)
+    c[4:] = np.where(rng.random((27, 3)) < 0.2, c[4:, :1], c[4:])   # more ties with the red channel
+    np.testing.assert_array_equal(rgb_to_hsv(c / 255.0), mcolors.rgb_to_hsv(c / 255.0))
+
 def _refine_numpy(coarse_mask, coarse_depth, depth, step, jump=0.02):
     """:func:`tracker.segment.refine` as it was in numpy (nearest coarse samples by ``np.ix_``, scipy's
     min / max filters)."""
