@@ -82,6 +82,7 @@ def refine_with_coupling(hand, nodes, local, targets, theta, weights, *, noise_m
     prior from both, and keeps the lower cost per frame; limits are the model's. Frames without a
     finite ``theta`` are left alone; fingers in ``skip`` get no prior. Returns ``theta`` refined.
 
+    >>> from handmodel import HandModel
     >>> h = HandModel.load()
     >>> import numpy as np
     >>> th = np.zeros((1, 26)); th[0, 2] = 0.5
@@ -186,6 +187,7 @@ def posterior_sd(hand, nodes, local, theta, weights, present, *, noise_mm, rows=
     (``present``: ``(F, M)`` which markers a frame has) and the prior rows ``(P, c)`` if given.
     A direction the markers leave free has an infinite SD (reported as ``inf``).
 
+    >>> from handmodel import HandModel
     >>> h = HandModel.load()
     >>> n, l = np.arange(h.n_nodes), np.tile([0.0, 0.0, 0.01], (h.n_nodes, 1))
     >>> th = np.zeros((1, 26)); th[0, 2] = 0.5
@@ -263,6 +265,7 @@ def refine_trajectory(hand, nodes, local, targets, theta, weights, *, noise_mm, 
     ``skip`` get no DIP prior. ``posture_rows = (P, c)`` (:func:`prior_rows`) replaces the DIP prior by these
     posture priors. Returns ``theta`` refined.
 
+    >>> from handmodel import HandModel
     >>> h = HandModel.load()
     >>> th = np.zeros((5, 26)); th[:, 2] = 0.5; th[:, 9] = np.linspace(-0.5, -0.3, 5)
     >>> n, l = np.arange(h.n_nodes), np.zeros((h.n_nodes, 3))
