@@ -185,7 +185,7 @@ def test_net_searches_postures_from_the_tracked_pose_first(hand):
 
     truth = make_motion("count", hand=hand).theta
     ren = DepthRenderer(hand, CAM)
-    tr = FrameTracker(hand, TrackerSettings())
+    tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)))  # the true size: no calibration
     tr.track(observe(ren.render(truth[39], labels=False).depth, CAM, tr.settings.observe), CAM)
     wrong = truth[39].copy()
     wrong[~hand.pose_mask] = truth[100][~hand.pose_mask]
