@@ -84,7 +84,7 @@ def test_real_bag_plays_back_as_pyrealsense2_reports(tmp_path):
 
     bag = shared(*BAG)
     r = _run(["live", "--playback", bag, "-o", tmp_path / "t.csv", "--save", tmp_path / "saved",
-              "--rerun", tmp_path / "t.rrd", "--no-check-hand"])
+              "--rerun", tmp_path / "t.rrd", "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
     df, meta = read_tracking(tmp_path / "t.csv")
     assert df["frame"].tolist() == [0, 1] and meta["recording"] == str(bag)
@@ -116,14 +116,14 @@ def test_live_is_the_track_pipeline(synthetic_bag, tmp_path):
     tracking them live gives exactly what ``tracker track`` gives on the saved frames."""
     bag, rec = synthetic_bag
     r = _run(["live", "--playback", bag, "-o", tmp_path / "live.csv", "--save", tmp_path / "saved",
-              "--keypoints", tmp_path / "kp.csv", "--no-check-hand"])
+              "--keypoints", tmp_path / "kp.csv", "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
     src, saved = Recording.open(rec), Recording.open(tmp_path / "saved")
     assert len(saved) == len(src) == 5
     for i in range(len(src)):
         assert np.array_equal(saved.depth_units(i), src.depth_units(i))
     assert np.allclose([saved.camera.fx, saved.camera.cy], [src.camera.fx, src.camera.cy], rtol=1e-6)
-    r = _run(["track", tmp_path / "saved", "-o", tmp_path / "track.csv", "--no-check-hand"])
+    r = _run(["track", tmp_path / "saved", "-o", tmp_path / "track.csv", "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
     live, _ = read_tracking(tmp_path / "live.csv")
     track, _ = read_tracking(tmp_path / "track.csv")
@@ -137,7 +137,7 @@ def test_realtime_playback_is_paced_and_says_what_it_published(synthetic_bag, tm
     """--realtime on a playback: frames at the bag's rate, fits under a budget, the summary counts the
     predicted and dropped frames; every row is a valid status and the fitted ones are the hand."""
     bag, rec = synthetic_bag
-    r = _run(["live", "--playback", bag, "-o", tmp_path / "rt.csv", "--no-check-hand", "--realtime",
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "rt.csv", "--no-check-hand", "--hand-scale", "1", "--realtime",
               "--budget-ms", "5000"])
     assert r.exit_code == 0, r.output
     assert "predicted (fit pending)" in r.output and "dropped (late)" in r.output, r.output
@@ -239,7 +239,7 @@ def test_frames_limit_and_ctrl_c(synthetic_bag, tmp_path, monkeypatch):
     """``--frames N`` stops after N; Ctrl-C during tracking stops after that frame and the outputs
     are still written (the real SIGINT handler of the command)."""
     bag, _ = synthetic_bag
-    r = _run(["live", "--playback", bag, "-o", tmp_path / "two.csv", "--frames", "2", "--no-check-hand"])
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "two.csv", "--frames", "2", "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
     assert read_tracking(tmp_path / "two.csv")[0]["frame"].tolist() == [0, 1]
 
@@ -258,7 +258,7 @@ def test_frames_limit_and_ctrl_c(synthetic_bag, tmp_path, monkeypatch):
     monkeypatch.setattr(run, "track_recording", interrupting)
     before = signal.getsignal(signal.SIGINT)  # ignored when the suite runs as a background job
     r = _run(["live", "--playback", bag, "-o", tmp_path / "stopped.csv", "--rerun", tmp_path / "s.rrd",
-              "--no-check-hand"])
+              "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
     assert read_tracking(tmp_path / "stopped.csv")[0]["frame"].tolist() == [0, 1]
     assert signal.getsignal(signal.SIGINT) is before  # put back
