@@ -18,7 +18,7 @@ from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
 from .coupling import restart_uncoupled
 from .icp import centre_shift, posed_samples
-from .init import fit_single_frame
+from .init import SearchBudget, fit_single_frame
 from .observe import past_wrist, predicted_near
 from .rgb import RgbSeed
 from .wrist import arm_behind, wrist_cue
@@ -38,6 +38,8 @@ class TrackerStats:
         and sizes at an end of ``scale.range``
     size_starts : size-refining searches whose fit replaced the tracked one
     rgb_seeds, rgb_kept : start searches seeded by colour keypoints; how often the seed alone won
+    searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
+        their time (ms)
     """
 
     net_runs: int = 0
@@ -55,6 +57,9 @@ class TrackerStats:
     size_starts: int = 0
     rgb_seeds: int = 0
     rgb_kept: int = 0
+    searches: int = 0
+    searches_cut: int = 0
+    search_ms: float = 0.0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""
@@ -402,8 +407,10 @@ class StartSearch:
     (``colour``), its last fits holding the hand's wrist crease on the arm's line (the frame's ``cue``;
     :class:`tracker.icp.IcpSettings` ``wrist_line_weight``)."""
 
-    def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None):
+    def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None,
+                 budget_ms: float = 0.0):
         self.init, self.cue, self.colour, self.stats = init, cue, colour, stats or TrackerStats()
+        self.budget_ms = budget_ms
 
     def reset(self):
         pass
@@ -415,8 +422,12 @@ class StartSearch:
         self.cue.add(sil)
         # a size calibration's fits do not hold the crease (it moved a real recording's calibrated size,
         # 1.276 → 1.256, and tips by up to 40 px), nor the net's, whose result is compared with the tracked fit's
+        budget = SearchBudget(self.budget_ms)
         theta, corr = fit_single_frame(ctx, pts, self.init, silhouette=sil, normals=nrm, extra=extra + seed,
-                                       wrist=self.cue.of(sil))
+                                       wrist=self.cue.of(sil), budget=budget)
+        self.stats.searches += 1
+        self.stats.searches_cut += bool(budget.cut_)
+        self.stats.search_ms += budget.elapsed_ms
         if seed:
             theta, corr = self.colour.refine(refit, seed[0], theta, corr)
         return theta, corr

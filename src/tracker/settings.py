@@ -121,15 +121,24 @@ class StartSettings(SettingsGroup):
     rgb_seed : start the searches also from the hand fitted to the colour keypoints
         (:mod:`tracker.rgb`, extra ``[rgb]``; False)
     check_hand : on the first frame also fit the mirror-image hand (``hand_check_``; False)
+    search_budget_ms : a start search's budget (ms): once spent, its optional stages are skipped and
+        its best start so far converged (:class:`tracker.init.SearchBudget`; 0 = none, the default:
+        with a budget the result depends on the machine's speed)
     """
 
     wrist_cue: bool = True
     rgb_seed: bool = False
     check_hand: bool = False
+    search_budget_ms: float = 0.0
 
     @classmethod
     def paper(cls):
         return cls(wrist_cue=False)
+
+    def check(self):
+        b = self.search_budget_ms
+        _need(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 <= b < math.inf,
+              "start.search_budget_ms", f"must be a number of ms ≥ 0 (0 = no budget), got {b!r}")
 
 
 @dataclass(frozen=True)

@@ -167,7 +167,7 @@ class FrameTracker:
         self.loss = LossCheck(st.loss, st.scale.range, self.stats)
         self.sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, self.stats)
         self.colour = ColourSeed(keypoint_detector, self.stats) if st.start.rgb_seed else None
-        self.search = StartSearch(st.init, self.cue, self.colour, self.stats)
+        self.search = StartSearch(st.init, self.cue, self.colour, self.stats, st.start.search_budget_ms)
         self.hand_check_ = None
         self.sizes = HandSizes(hand, st, synergies)
         self.use_scale(1.0 if self.sizing.scale_ is None else self.sizing.scale_)

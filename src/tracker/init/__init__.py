@@ -37,6 +37,7 @@ from .scoring import MODEL_TO_DATA_WEIGHT, REJECTED_PAIR_MM, FitContext, data_co
 from .search import (
     COUPLED_RESTART_DEG,
     PAIR_SCORE_MM,
+    SearchBudget,
     finger_search,
     finger_search_batched,
     fit_single_frame,
@@ -59,5 +60,5 @@ __all__ = [
     # overlap
     "finger_capsules", "finger_overlap_mm", "segment_distances", "FINGER_OVERLAP_WEIGHT", "FINGER_OVERLAP_SHARE",
     # search
-    "fit_single_frame", "finger_search", "finger_search_batched", "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
+    "fit_single_frame", "SearchBudget", "finger_search", "finger_search_batched", "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
 ]

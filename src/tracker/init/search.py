@@ -8,6 +8,8 @@ finger-wise restarts (one finger at a time set to a few shapes and refitted) kee
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..coupling import recoupled, uncoupled
@@ -37,8 +39,41 @@ PAIR_SCORE_MM = 1.5
 COUPLED_RESTART_DEG = 30.0
 
 
+class SearchBudget:
+    """A start search's time budget (``budget_ms``; 0 = none), from its construction.
+
+    The halving search asks it before each optional stage (:meth:`spent`); once spent, that stage is
+    skipped — the synergy grid's and finger variants' starts, the longer fits of the best few, the
+    finger-wise restarts — and the best start so far is converged as usual. ``cut_`` names the stages
+    skipped. With a budget the result depends on the machine's speed; without one it does not.
+
+    >>> b = SearchBudget(0.0)
+    >>> b.spent("grid"), b.cut_
+    (False, [])
+    >>> b = SearchBudget(1e-9); time.sleep(0.001)
+    >>> b.spent("grid"), b.spent("fingers"), b.cut_
+    (True, True, ['grid', 'fingers'])
+    """
+
+    def __init__(self, budget_ms: float = 0.0):
+        self.budget_ms = float(budget_ms)
+        self.t0 = time.perf_counter()
+        self.cut_: list[str] = []
+
+    @property
+    def elapsed_ms(self) -> float:
+        return (time.perf_counter() - self.t0) * 1e3
+
+    def spent(self, stage: str) -> bool:
+        """Whether the budget is spent (then ``stage`` is skipped and named in ``cut_``)."""
+        if self.budget_ms > 0 and self.elapsed_ms > self.budget_ms:
+            self.cut_.append(stage)
+            return True
+        return False
+
+
 def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = None, *, theta0=None, mode=None,
-                     silhouette=None, postures=None, normals=None, extra=(), search=True, wrist=None):
+                     silhouette=None, postures=None, normals=None, extra=(), search=True, wrist=None, budget=None):
     """Fit one frame without temporal prior; returns ``(θ, Correspondences)``.
 
     From ``theta0``'s global pose (or candidate placements from the cloud) and several synergy
@@ -48,14 +83,18 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
     ``settings.strategy`` chooses successive halving over batched candidate fits (default) or the
     exhaustive search (see :class:`InitSettings`). ``wrist``: the frame's wrist cue, which the winner's
     last fits hold the hand's wrist crease to (the wrist-line pair, :class:`tracker.icp.IcpSettings`);
-    the candidates' fits leave it out (it reordered close candidates).
+    the candidates' fits leave it out (it reordered close candidates). ``budget``: a
+    :class:`SearchBudget` that cuts the halving search short once spent (the exhaustive search, the
+    reference, runs whole).
     """
     st = settings or InitSettings()
     st.check()
     mode = mode or ("hierarchical" if ctx.synergies is not None else "full")
-    run = _search_halving if st.strategy == "halving" else _search_exhaustive
-    return run(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette, postures=postures, normals=normals,
-               extra=extra, search=search, wrist=wrist)
+    if st.strategy != "halving":
+        return _search_exhaustive(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette,
+                                  postures=postures, normals=normals, extra=extra, search=search, wrist=wrist)
+    return _search_halving(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette, postures=postures,
+                           normals=normals, extra=extra, search=search, wrist=wrist, budget=budget or SearchBudget())
 
 
 def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta0, postures, extra, search):
@@ -93,10 +132,12 @@ def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta
 
 
 def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, silhouette, postures, normals, extra,
-                    search, wrist=None):
+                    search, wrist=None, budget=None):
     """Successive halving: every start fitted briefly on a small thinned cloud (:meth:`FitContext.fit_many`
     per fit mode); the best few fitted longer on larger clouds; the finger-wise restarts
-    (:func:`finger_search_batched`) from the best; the winner converged with all DoF."""
+    (:func:`finger_search_batched`) from the best; the winner converged with all DoF. A spent
+    ``budget`` (:class:`SearchBudget`) skips the stages after it but the convergence."""
+    budget = budget or SearchBudget()
     hand = ctx.hand
 
     def cloud(n):
@@ -127,6 +168,8 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
         # a placement is only roughly turned (the cloud's axes are not the hand's): the synergy grid
         # below is fitted briefly from each pose, so the poses are fitted longer first
         poses = list(ctx.fit_many(poses, pc, mode, 1, 3 * st.refine_icp // 2, normals=nc, **kw)[0])
+    if search and st.search and budget.spent("grid"):
+        search = False  # the postures and extras only: no synergy grid, no finger variants, no restarts
     groups = _start_sets(ctx, poses, st, mode, points, theta0=theta0, postures=postures, extra=extra, search=search)
     T, S = [], []
     for m, starts in groups.items():
@@ -136,12 +179,14 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
     T, S = np.concatenate(T), np.concatenate(S)
     # the longer fits re-centre the subspaces on each start (the grid's postures lie off the mean)
     for k, (n_pts, n_icp) in zip(st.keep, ((st.coarse_points, 4), (st.refine_points, st.refine_icp))):
+        if budget.spent(f"keep {k}"):
+            break
         best = np.argsort(S, kind="stable")[:k]
         p_, n_ = cloud(n_pts)
         T, S = ctx.fit_many(T[best], p_, mode, 0, n_icp, normals=n_, through=True, **kw)
     i = int(np.argmin(S))
     theta = T[i]
-    if search and st.finger_search:
+    if search and st.finger_search and not budget.spent("fingers"):
         theta = finger_search_batched(ctx, theta, points, st, silhouette=silhouette, normals=normals)
     # all DoF at the end (the short hierarchical fits above spend most iterations in the subspaces):
     # converged on the refinement cloud, then a few iterations on the full cloud
