@@ -83,8 +83,16 @@ def test_closest_points_match_brute_force(seed):
     inside_any = np.zeros(len(q), bool)
     for tri, nrm_h, off_h in hulls:
         inside_any |= np.all(q @ nrm_h.T + off_h <= 0, axis=1)
-        for i, p in enumerate(q):
-            cp_i, d_i = _closest_on_triangles(p, tri)
+    # each point visits the hulls nearest its bounding box first and stops at a box farther than the best
+    # triangle found: a box is never nearer than what it holds, so the result is the exhaustive one's
+    lo = np.array([tri.reshape(-1, 3).min(0) for tri, _, _ in hulls])
+    hi = np.array([tri.reshape(-1, 3).max(0) for tri, _, _ in hulls])
+    for i, p in enumerate(q):
+        box_d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        for h in np.argsort(box_d):
+            if box_d[h] >= best_d[i]:
+                break
+            cp_i, d_i = _closest_on_triangles(p, hulls[h][0])
             if d_i < best_d[i]:
                 best_d[i], best_p[i] = d_i, cp_i
     out = ~inside_any  # outside every primitive: the closest point of the union is unique
