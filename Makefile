@@ -36,13 +36,15 @@ demo: $(STAMP)
 
 # two workers, a test file each at a time (module fixtures such as the real frames' fits are made once);
 # a crashed worker is not replaced: xdist's loadfile scheduler can hang on its replacement, and a run that
-# fails at once beats one that hangs until CI's time runs out
+# fails at once beats one that hangs until CI's time runs out. One BLAS thread per worker: two workers
+# already fill two cores, and OpenBLAS threads that wait on each other made small batched solves up to 30× slower
 XDIST = -n 2 --dist loadfile --max-worker-restart 0
+TEST_ENV = OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 test: $(STAMP)
-	$(BIN)/python -m pytest -q $(XDIST) --doctest-modules src tests
+	$(TEST_ENV) $(BIN)/python -m pytest -q $(XDIST) --doctest-modules src tests
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q $(XDIST) -m "not slow" --doctest-modules src tests
+	$(TEST_ENV) $(BIN)/python -m pytest -q $(XDIST) -m "not slow" --doctest-modules src tests
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
