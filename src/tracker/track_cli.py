@@ -75,6 +75,7 @@ def track(
     end: Optional[float] = typer.Option(None, "--end", help="Recording files: last frame time (s from the first depth frame)."),
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
+    search_budget_ms: Optional[float] = typer.Option(None, "--search-budget-ms", help="A start search's budget in ms: once spent, its optional stages are skipped and its best start so far converged (the result then depends on the machine's speed; the summary counts the searches cut) [0 = none]."),
     threads: Optional[int] = typer.Option(None, "--threads", min=0, help="Threads for the fits of a start search (the first frame, a lost frame, the safety net); the result is the same for any count [0 = the cores, at most 4; never more than the cores; 1 per recording with --dask]."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
 ):
@@ -111,7 +112,8 @@ def track(
     settings = _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand,
                          rgb_seed=rgb_seed, finger_lengths=finger_lengths, safety_net=safety_net,
-                         unseen_prior=unseen_prior, no_hand=no_hand, threads=threads)
+                         unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
+                         search_budget_ms=search_budget_ms)
 
     # heavy modules load here, not at import time, so `tracker --help` answers at once
     from .run import TrackJob
@@ -201,12 +203,13 @@ def _check_hand_file(path):
 #: The option of each settings field the command line sets: a settings error names the option.
 _OPTION_OF = {"mode": "--mode", "subspace.variance": "--variance", "subspace.n_pcs": "--pcs",
               "scale.hand_scale": "--hand-scale", "refine.unseen_prior": "--unseen-prior",
-              "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride"}
+              "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride",
+              "start.search_budget_ms": "--search-budget-ms"}
 
 
 def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette, prediction,
               robust, finger_search, projected_steps, hand_scale, check_hand, *, rgb_seed=False, finger_lengths=None,
-              safety_net=None, unseen_prior=None, no_hand=None, threads=None):
+              safety_net=None, unseen_prior=None, no_hand=None, threads=None, search_budget_ms=None):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`_checked`)."""
     from .errors import TrackerError
@@ -221,7 +224,8 @@ def _settings(paper, mode, pcs, variance, stride, smooth, points, icp, gn, dampi
         "correspond": dict(model=model), "predict": dict(share=prediction),
         "init": dict(finger_search=finger_search, threads=threads),
         "scale": dict(hand_scale=_hand_scale(hand_scale), finger_lengths=finger_lengths),
-        "start": dict(check_hand=check_hand, rgb_seed=rgb_seed), "net": dict(enabled=safety_net),
+        "start": dict(check_hand=check_hand, rgb_seed=rgb_seed, search_budget_ms=search_budget_ms),
+        "net": dict(enabled=safety_net),
         "refine": dict(unseen_prior=unseen_prior), "loss": dict(no_hand_rejected=no_hand),
     }
     # an option not given keeps the default's value (the paper's with --paper); --points 0: all points (None)
@@ -319,6 +323,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         wrong = f" (on {tracker.stats.net_wrong_way} the hand pointed against the arm)" if tracker.stats.net_wrong_way else ""
         console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}){wrong}, replaced "
                       f"{tracker.stats.net_replaced}{cost}; re-centred {tracker.stats.recentred}")
+    if tracker.settings.start.search_budget_ms and tracker.stats.searches:
+        st = tracker.stats
+        console.print(f"start searches: {st.searches}, {st.searches_cut} cut short by the "
+                      f"{tracker.settings.start.search_budget_ms:g} ms budget; {st.search_ms / st.searches:.0f} ms each")
     if tracker.settings.start.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
         console.print(f"colour seed: {tracker.stats.rgb_seeds} start searches seeded by colour keypoints"

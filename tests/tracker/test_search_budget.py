@@ -86,3 +86,21 @@ def test_the_budget_names_what_it_cut():
 def test_bad_budgets_are_refused(bad):
     with pytest.raises(TrackerError, match="search_budget_ms"):
         TrackerSettings().replace(start=dict(search_budget_ms=bad)).check()
+
+
+def test_track_command_takes_the_budget_and_says_what_it_cut(tmp_path):
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+
+    def run(*args):
+        return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+
+    r = run("synth", "--frames", "2", "--noise", "none", "-o", tmp_path / "rec")
+    assert r.exit_code == 0, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "t.csv", "--hand-scale", "1", "--search-budget-ms", "0.001")
+    assert r.exit_code == 0, r.output
+    assert "start searches: 1, 1 cut short by the 0.001 ms budget" in r.output, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "u.csv", "--search-budget-ms", "-5")
+    assert r.exit_code == 2 and "--search-budget-ms" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "u.csv").exists()
