@@ -218,6 +218,49 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def arrays_sha256(arrays, names) -> str:
+    """SHA-256 of ``arrays[name]`` for each of ``names`` in that order: per array a header
+    ``name\\0dtype\\0shape\\0`` and its little-endian C-order bytes (the seal of every sealed ``.npz``:
+    synergy bundles, detectors). Arrays not named are not covered.
+
+    >>> import numpy as np
+    >>> a = {"x": np.arange(3, dtype="<f8"), "y": np.array(["a", "b"])}
+    >>> h = arrays_sha256(a, ("x", "y"))
+    >>> arrays_sha256({"y": a["y"], "x": a["x"], "z": 0}, ("x", "y")) == h  # dict order, extra keys
+    True
+    >>> arrays_sha256({**a, "x": a["x"].astype(">f8")}, ("x", "y")) == h  # byte order of the machine
+    True
+    >>> b = a["x"].copy(); b.view(np.uint8)[0] ^= 1
+    >>> arrays_sha256({**a, "x": b}, ("x", "y")) == h, arrays_sha256(a, ("y", "x")) == h
+    (False, False)
+    """
+    import numpy as np  # here, not at the top: this module serves `--help` too
+
+    h = hashlib.sha256()
+    for name in names:
+        a = np.asarray(arrays[name])
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def manifest_sha256(manifest: dict) -> str:
+    """SHA-256 of a manifest without its own ``manifest_sha256`` field, as canonical JSON (keys sorted,
+    no spaces, UTF-8). The manifest holds :func:`arrays_sha256`, so this one hash seals the whole file.
+
+    >>> m = {"b": [1, 2.5], "a": "é", "arrays_sha256": "00"}
+    >>> h = manifest_sha256(m)
+    >>> manifest_sha256(dict(reversed(m.items()))) == manifest_sha256({**m, "manifest_sha256": h}) == h
+    True
+    >>> manifest_sha256({**m, "b": [1, 2.6]}) == h
+    False
+    """
+    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
 def _first_nan(doc, at=(), bad=math.isnan):
     """Path and value of the first NaN (or other float ``bad`` accepts) in a parsed document, or None."""
     if isinstance(doc, float) and bad(doc):

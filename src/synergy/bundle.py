@@ -22,7 +22,6 @@ Examples
 """
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -40,7 +39,9 @@ import numpy as np
 
 from handmodel.dofs import POSTURE_DOF_NAMES
 from handmodel.errors import HandModelError
-from handmodel.fileio import atomic_write_bytes, first_non_finite, load_npz, models_dir, schema_path, sha256_file
+from handmodel import fileio
+from handmodel.fileio import (atomic_write_bytes, first_non_finite, load_npz, manifest_sha256, models_dir,
+                             schema_path, sha256_file)
 from handmodel.model import HandModel
 from handmodel.subspace import Subspace
 from synergy.errors import BundleError, SynergyError
@@ -195,23 +196,8 @@ def _check_manifest(manifest, where) -> None:
 
 
 def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
-    """SHA-256 of the bundle arrays: per name in :data:`ARRAY_NAMES`, a header
-    ``name\\0dtype\\0shape\\0`` and the little-endian C-order bytes."""
-    h = hashlib.sha256()
-    for name in ARRAY_NAMES:
-        a = np.asarray(arrays[name])
-        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
-        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def manifest_sha256(manifest: dict) -> str:
-    """SHA-256 of the manifest without its ``manifest_sha256`` field, as canonical JSON (keys sorted,
-    no spaces, UTF-8). The manifest holds ``arrays_sha256``, so this one hash seals the whole bundle."""
-    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    """The bundle arrays' seal: :func:`handmodel.fileio.arrays_sha256` over :data:`ARRAY_NAMES`."""
+    return fileio.arrays_sha256(arrays, ARRAY_NAMES)
 
 
 def hand_model_ref(name: str = "default", sha256: str | None = None) -> dict:

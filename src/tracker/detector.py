@@ -31,7 +31,6 @@ Examples
 """
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from functools import lru_cache
@@ -40,7 +39,8 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from handmodel.fileio import atomic_write_bytes, load_npz, models_dir
+from handmodel import fileio
+from handmodel.fileio import atomic_write_bytes, load_npz, manifest_sha256, models_dir
 
 from .io.cameras import as_camera
 from .errors import TrackerError
@@ -296,23 +296,8 @@ def forest_arrays(estimators, offsets, n_classes: int = N_CLASSES) -> dict:
 
 # ----------------------------------------------------------------------------- file: write, read, seal
 def arrays_sha256(arrays: dict) -> str:
-    """SHA-256 of the arrays in :data:`ARRAY_NAMES` order: per array a header ``name\\0dtype\\0shape\\0``
-    and its little-endian C-order bytes (the synergy bundles' scheme)."""
-    h = hashlib.sha256()
-    for name in ARRAY_NAMES:
-        a = np.asarray(arrays[name])
-        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
-        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def manifest_sha256(manifest: dict) -> str:
-    """SHA-256 of the manifest without its ``manifest_sha256``, as canonical JSON (keys sorted, no
-    spaces, UTF-8); it holds ``arrays_sha256``, so one hash seals the file."""
-    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    """The detector arrays' seal: :func:`handmodel.fileio.arrays_sha256` over :data:`ARRAY_NAMES`."""
+    return fileio.arrays_sha256(arrays, ARRAY_NAMES)
 
 
 def save_detector(path, arrays: dict, manifest: dict, *, overwrite: bool = False) -> Path:
