@@ -5,7 +5,8 @@ non-rigid step per :class:`Stage` (paper §V: correspondences, then damped Gauss
 stage's subspace). What differs between the paper's full, reduced and hierarchical modes is only the
 list of stages, which the schedule builders below make (with ``stages_per_pass`` > 1 most synergy
 stages take a cheap local pass instead of the closest-point search, the costly part of a fit: a fit
-in the subspace loses nothing by it, one with all DoF does); the parts of a fit are named arguments:
+in the subspace loses nothing by it, one with all DoF does); the parts of a fit are named arguments,
+its settings :class:`tracker.icp_settings.IcpSettings`:
 
 >>> from handmodel import HandModel
 >>> from handmodel.subspace import Subspace
@@ -16,32 +17,26 @@ in the subspace loses nothing by it, one with all DoF does); the parts of a fit 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from handmodel.rigid import euler_to_matrix, horn, matrix_to_euler
-from handmodel.solver import SolverSettings, solve
+from handmodel.solver import solve
 from handmodel.subspace import Subspace
 
 from . import _correspond_kernels as CK
 from . import _fit_kernels as FK
 from . import _observe_kernels as OK
+from ._fit_arrays import NO_SAMPLES, NO_SILHOUETTE, match_rules, stage_arrays, wrist_line
 from ._kernel_arrays import (
-    ENTRY_CLAMP,
-    ENTRY_NONE,
-    ENTRY_THROUGH,
     CapsuleArrays,
     FitTerms,
     GaussNewton,
     HandArrays,
-    MatchRules,
     Pairs,
-    ProjectionArrays,
     SampleArrays,
     SilhouetteArrays,
-    StageArrays,
-    WristLine,
 )
 from .correspond import (
     M2D_CAP_MM,
@@ -55,99 +50,7 @@ from .correspond import (
     silhouette_pairs,
 )
 from .errors import TrackerError
-from .settings_base import SettingsGroup
-from .wrist import arm_line_normal
-
-
-@dataclass(frozen=True)
-class LocalPassSettings(SettingsGroup):
-    """Local passes: after a search of every primitive for each data point's closest (the rigid step's
-    counted as a stage), up to ``stages_per_pass`` − 1 synergy-subspace stages re-project each point onto
-    the primitive it was matched to, the silhouette pairs kept, while the model moved less than ``mm``
-    (mm) since the pass before (1 = a search per stage, the paper's; 3 and 1.0)."""
-
-    stages_per_pass: int = 3
-    mm: float = 1.0
-
-    def check(self):
-        if self.stages_per_pass < 1 or not self.mm >= 0:
-            raise TrackerError("settings", f"stages_per_pass must be ≥ 1 and local_mm ≥ 0, got {self.stages_per_pass}"
-                               f" and {self.mm}")
-
-
-@dataclass(frozen=True)
-class WristLineSettings(SettingsGroup):
-    """In a fit given the frame's wrist cue (a start's last fits), one more pair holds the model's wrist
-    crease on the arm's centre line in the image (:func:`tracker.wrist.arm_line_normal`), weighing like
-    ``weight`` of the valid data pairs (0 = off, the paper's; 0.01), while the crease lies more than
-    ``mm`` across from that line (mm; 3.0), and only up to it."""
-
-    weight: float = 0.01
-    mm: float = 3.0
-
-    def check(self):
-        if not self.weight >= 0 or not self.mm >= 0:
-            raise TrackerError("settings", "wrist_line_weight and wrist_line_mm must not be negative")
-
-
-@dataclass(frozen=True)
-class IcpSettings(SettingsGroup):
-    """Iterations and the estimation of one ICP fit (why each default: ``docs/tracker.md``).
-
-    rigid_iterations, icp_iterations : rigid, then non-rigid iterations per tracked frame (the paper: 1 + 4)
-    gn_iterations : Gauss-Newton steps per non-rigid iteration (5)
-    damping, pose_damping : λ on posture and on the global pose (residuals in mm; the paper's 1 and 0)
-    robust_mm : Cauchy scale of the data-term weights (mm; 0 = plain least squares, the paper's; 8)
-    silhouette_weight : the model→data term's weight (0 = off, the paper's; 1)
-    point_to_plane : point-to-plane data residuals (False)
-    projected_steps : reduced mode: last iterations with all DoF, projected onto the PCs (0 = the paper's α-only)
-    coarse_iterations : hierarchical mode: iterations in the synergy subspace first (1)
-    local : local passes between closest-point searches (:class:`LocalPassSettings`, read as
-        ``stages_per_pass``, ``local_mm``; :func:`tracking_schedule`)
-    wrist_line : a start's wrist-line pair (:class:`WristLineSettings`, read as ``wrist_line_weight``,
-        ``wrist_line_mm``; :func:`fit`'s ``wrist``)
-    """
-
-    rigid_iterations: int = 1
-    icp_iterations: int = 4
-    gn_iterations: int = 5
-    damping: float = 1.0
-    pose_damping: float = 0.0
-    robust_mm: float = 8.0
-    silhouette_weight: float = 1.0
-    point_to_plane: bool = False
-    projected_steps: int = 0
-    coarse_iterations: int = 1
-    local: LocalPassSettings = field(default_factory=LocalPassSettings)
-    wrist_line: WristLineSettings = field(default_factory=WristLineSettings)
-
-    # the nested groups' fields, read where the fit reads them
-    stages_per_pass = property(lambda self: self.local.stages_per_pass)
-    local_mm = property(lambda self: self.local.mm)
-    wrist_line_weight = property(lambda self: self.wrist_line.weight)
-    wrist_line_mm = property(lambda self: self.wrist_line.mm)
-
-    @classmethod
-    def paper(cls):
-        """1 rigid + 4 non-rigid iterations × 5 Gauss-Newton steps, λ 1 on posture and 0 on pose, plain
-        least squares, no silhouette or wrist-line term, one search per stage."""
-        return cls(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0, pose_damping=0.0,
-                   robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, local=LocalPassSettings(stages_per_pass=1),
-                   wrist_line=WristLineSettings(weight=0.0))
-
-    def check(self):
-        if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:
-            raise TrackerError("settings", "icp_iterations and rigid_iterations must be ≥ 0, gn_iterations ≥ 1")
-        self.local.check()
-        self.wrist_line.check()
-        if (self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0
-                or not self.wrist_line_weight >= 0 or not self.wrist_line_mm >= 0):
-            raise TrackerError("settings", "projected_steps, robust_mm, silhouette_weight, wrist_line_weight and "
-                                           "wrist_line_mm must not be negative")
-
-    def solver(self) -> SolverSettings:
-        return SolverSettings(iterations=self.gn_iterations, damping=self.damping, pose_damping=self.pose_damping,
-                              min_points=3)
+from .icp_settings import IcpSettings
 
 
 @dataclass(frozen=True)
@@ -331,89 +234,16 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     out = Pairs.empty(len(pts))
     th = FK.fit_kernel(np.array(hand.check_theta(theta), float), HandArrays.of(hand),
                        CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
-                       *_stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
-                       SampleArrays.of(samples) if sil_on else _NO_SAMPLES,
-                       SilhouetteArrays.of(silhouette) if sil_on else _NO_SILHOUETTE,
+                       *stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
+                       SampleArrays.of(samples) if sil_on else NO_SAMPLES,
+                       SilhouetteArrays.of(silhouette) if sil_on else NO_SILHOUETTE,
                        wrist_line(hand, wrist, st), out, np.zeros(5, np.int64) if stats is None else stats)
     return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
-
-
-def wrist_line(hand, cue, settings):
-    """The wrist-line pair (:class:`IcpSettings` ``wrist_line_weight``) as
-    :class:`~tracker._kernel_arrays.WristLine`: the model's wrist crease as a point of its node and
-    the plane of the wrist ``cue`` (:func:`tracker.wrist.arm_line_normal`); off when the term is off
-    or there is no cue."""
-    if cue is None or not settings.wrist_line_weight > 0:
-        return WristLine(False, 0, _NO_POINT, _NO_POINT, float(settings.wrist_line_weight),
-                         settings.wrist_line_mm / 1000.0)
-    node, local = hand.wrist_crease_local()
-    return WristLine(True, int(node), np.asarray(local, np.float64), arm_line_normal(cue),
-                     float(settings.wrist_line_weight), settings.wrist_line_mm / 1000.0)
-
-
-def match_rules(matcher, normals):
-    """The pairs' rules of ``matcher`` (:class:`tracker.correspond.Matcher`) as
-    :class:`~tracker._kernel_arrays.MatchRules`; no normal test without data ``normals``."""
-    cs = matcher.settings
-    return MatchRules(_CAMERA_CENTRE, bool(cs.facing_only), cs.reject_mm / 1000.0,
-                      float(cs.normal_agreement) if normals is not None else -1.0)
 
 
 #: re-centring needs this many camera-facing model samples to say where the hand is
 MIN_FACING_SAMPLES = 10
 _NO_ROWS = np.zeros((0, 3))
-_NO_POINT = np.zeros(3)
-_CAMERA_CENTRE = np.zeros(3)
-# stand-ins of the silhouette arrays' types when the term is off (one compiled version serves both)
-_NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-_NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
-                                  np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
-_ENTRIES = {"none": ENTRY_NONE, "clamp": ENTRY_CLAMP, "through": ENTRY_THROUGH}
-_PACKED: dict = {}
-
-
-def _stage_arrays(hand, stages, solver):
-    """The stages as the padded arrays of :func:`tracker._fit_kernels.fit_kernel`, ``(StageArrays,
-    ProjectionArrays)`` (kept per list of stages and settings: a tracker fits with the same stages
-    every frame)."""
-    key = (tuple(stages), solver.damping, solver.pose_damping, hand.n_dofs)
-    hit = _PACKED.get(key)
-    if hit is not None:
-        return hit
-    n, S = hand.n_dofs, len(stages)
-    mmax = max([st.subspace.dim for st in stages] + [1])
-    pmax = max([st.project.dim for st in stages if st.project is not None] + [1])
-    st_M, st_mu = np.zeros((S, n, mmax)), np.zeros((S, n))
-    st_m = np.zeros(S, np.int64)
-    st_lo, st_hi, st_damp = np.full((S, mmax), -np.inf), np.full((S, mmax), np.inf), np.zeros((S, mmax))
-    st_eye, st_entry, st_local = np.zeros(S, np.bool_), np.zeros(S, np.int64), np.zeros(S, np.bool_)
-    pr_on, pr_eye, pr_m = np.zeros(S, np.bool_), np.zeros(S, np.bool_), np.zeros(S, np.int64)
-    pr_M, pr_mu = np.zeros((S, n, pmax)), np.zeros((S, n))
-    pr_lo, pr_hi = np.full((S, pmax), -np.inf), np.full((S, pmax), np.inf)
-    for s, stage in enumerate(stages):
-        sp = stage.subspace
-        if sp.M.shape[0] != n:
-            raise TrackerError("stages", f"stage {s}: subspace has {sp.M.shape[0]} rows, the model has {n} DoFs")
-        m = sp.dim
-        st_M[s, :, :m], st_mu[s], st_m[s] = sp.M, sp.mu, m
-        st_lo[s, :m], st_hi[s, :m] = sp.lo, sp.hi
-        st_damp[s, :m] = np.where(sp.pose, solver.pose_damping, solver.damping)
-        st_eye[s] = sp.M.shape == (n, n) and np.array_equal(sp.M, np.eye(n))
-        st_entry[s] = _ENTRIES[stage.entry]
-        st_local[s] = stage.local
-        if stage.project is not None:
-            pj = stage.project
-            k = pj.dim
-            pr_on[s], pr_m[s], pr_M[s, :, :k], pr_mu[s] = True, k, pj.M, pj.mu
-            pr_lo[s, :k], pr_hi[s, :k] = pj.lo, pj.hi
-            pr_eye[s] = pj.M.shape == (n, n) and np.array_equal(pj.M, np.eye(n))
-    out = (StageArrays(st_M, st_mu, st_m, st_lo, st_hi, st_damp, st_eye, st_entry, st_local,
-                       np.asarray(hand.pose_mask, np.bool_)),
-           ProjectionArrays(pr_on, pr_M, pr_mu, pr_m, pr_lo, pr_hi, pr_eye))
-    if len(_PACKED) > 64:
-        _PACKED.clear()
-    _PACKED[key] = out
-    return out
 
 
 def posed_samples(hand, samples, theta):
