@@ -15,7 +15,7 @@ from handmodel.rigid import euler_to_matrix
 
 from ._wrist_kernels import arm_entry
 from .correspond import data_to_model_mm
-from .init import InitSettings, fit_single_frame, score
+from .init import InitSettings, SearchBudget, fit_single_frame, score
 from .parts import TrackerStats, WristCue
 from .wrist import arm_length_m, wrist_cost_mm
 
@@ -30,8 +30,9 @@ class SafetyNet:
     stats : the tracker's :class:`tracker.parts.TrackerStats`
     """
 
-    def __init__(self, settings, cue: WristCue, stats: TrackerStats | None = None):
+    def __init__(self, settings, cue: WristCue, stats: TrackerStats | None = None, budget_ms: float = 0.0):
         self.settings, self.cue, self.stats = settings, cue, stats or TrackerStats()
+        self.budget_ms = budget_ms  # a frame's searches together (start.search_budget_ms; 0 = none)
         self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
         self.search_level = 0.0  # the last start's score: what a good fit scores in this scene
         self._wrist_passed = None  # (θ, arm entry, frames since) of the last hand the wrist test passed
@@ -143,17 +144,21 @@ class SafetyNet:
         """The best ``(score, θ, corr)`` of ``best`` and the cheap searches: anchored on the tracked
         global pose first (a posture gone wrong under a right pose is the common failure), from
         placements in the cloud when that still scores above the threshold (the hand may have turned
-        beyond the tracked pose's reach)."""
+        beyond the tracked pose's reach). Both share the frame's budget (``budget_ms``): the second
+        does not run once the first has spent it."""
         starts = (theta,) if last_good is None else (theta, last_good)
+        budget = SearchBudget(self.budget_ms)
         if self.settings.anchored:
             th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(refit_pose=True), theta0=theta,
-                                       silhouette=sil, normals=nrm, extra=starts)
+                                       silhouette=sil, normals=nrm, extra=starts, budget=budget)
             self.stats.net_anchored += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
-        if not self.settings.anchored or best[0] > self.threshold():
-            th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), silhouette=sil, normals=nrm, extra=starts)
+        if (not self.settings.anchored or best[0] > self.threshold()) and not budget.spent("placements"):
+            th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), silhouette=sil, normals=nrm, extra=starts,
+                                       budget=budget)
             self.stats.net_placed += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
+        self.stats.net_cut += bool(budget.cut_)
         return best
 
 

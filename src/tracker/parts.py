@@ -30,6 +30,7 @@ class TrackerStats:
 
     net_runs, net_replaced, net_ms : safety-net searches, how often their estimate won, their time (ms)
     net_anchored, net_placed : searches from the tracked pose, and from placements in the cloud
+    net_cut : frames whose net searches were cut short by ``start.search_budget_ms``
     net_wrong_way, wrist_tests : frames doubtful for a hand pointing against the arm; wrong-way tests
         run in full
     recentred : predictions moved onto the cloud
@@ -47,6 +48,7 @@ class TrackerStats:
     net_ms: float = 0.0
     net_anchored: int = 0
     net_placed: int = 0
+    net_cut: int = 0
     net_wrong_way: int = 0
     wrist_tests: int = 0
     recentred: int = 0
