@@ -144,8 +144,8 @@ class SafetyNet:
         """The best ``(score, θ, corr)`` of ``best`` and the cheap searches: anchored on the tracked
         global pose first (a posture gone wrong under a right pose is the common failure), from
         placements in the cloud when that still scores above the threshold (the hand may have turned
-        beyond the tracked pose's reach). Both share the frame's budget (``budget_ms``): the second
-        does not run once the first has spent it."""
+        beyond the tracked pose's reach). Both share the frame's budget (``budget_ms``): the search from
+        placements does not follow the anchored one once that has spent it."""
         starts = (theta,) if last_good is None else (theta, last_good)
         budget = SearchBudget(self.budget_ms)
         if self.settings.anchored:
@@ -153,7 +153,7 @@ class SafetyNet:
                                        silhouette=sil, normals=nrm, extra=starts, budget=budget)
             self.stats.net_anchored += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
-        if (not self.settings.anchored or best[0] > self.threshold()) and not budget.spent("placements"):
+        if not self.settings.anchored or (best[0] > self.threshold() and not budget.spent("placements")):
             th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), silhouette=sil, normals=nrm, extra=starts,
                                        budget=budget)
             self.stats.net_placed += 1

@@ -104,3 +104,21 @@ def test_track_command_takes_the_budget_and_says_what_it_cut(tmp_path):
     r = run("track", tmp_path / "rec", "-o", tmp_path / "u.csv", "--search-budget-ms", "-5")
     assert r.exit_code == 2 and "--search-budget-ms" in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "u.csv").exists()
+
+
+def test_the_safety_nets_searches_share_the_budget():
+    """A doubtful tracked frame (the posture of another moment under the right pose, as in
+    test_safety_net): with a spent budget the net's anchored search is cut short and the search from
+    placements does not follow it; without the anchored one, the placements' search still runs (cut)."""
+    truth = make_motion("count", hand=HAND).theta
+    ren = DepthRenderer(HAND, CAM)
+    wrong = truth[39].copy()
+    wrong[~HAND.pose_mask] = truth[100][~HAND.pose_mask]
+    ob = observe(ren.render(truth[40], labels=False).depth, CAM)
+    for anchored, want in ((True, (1, 1, 0, 1)), (False, (1, 0, 1, 1))):
+        tr = _tracker(1e-9)
+        tr.net.settings = tr.net.settings.replace(anchored=anchored, score_mm=0.0)  # every frame doubtful
+        tr.theta, tr.prev, tr.last_good, tr.lost = wrong, wrong, wrong, False
+        tr.track(ob, CAM)
+        st = tr.stats
+        assert (st.net_runs, st.net_anchored, st.net_placed, st.net_cut) == want, st
