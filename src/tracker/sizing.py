@@ -16,13 +16,13 @@ from .correspond import Matcher, ModelSamples
 from .errors import TrackerError
 from .init import FitContext, finger_shapes, score, search_threads, thin
 from .parts import TrackerStats, frame_silhouette, silhouette_mask, usable_points
+from .resize import resized_context
 from .scale import (
     calibrate_scale,
     finger_scales,
     hand_side,
     parabola_scale,
     rescaled,
-    resized_context,
     size_score,
 )
 
@@ -63,7 +63,7 @@ def fit_context(hand, settings, synergies=None):
 
 class HandSizes:
     """The :class:`tracker.init.FitContext` of each hand size, made once per size from the model-sized
-    hand's (:func:`tracker.scale.resized_context`; building one anew samples the surface again, ~30×
+    hand's (:func:`tracker.resize.resized_context`; building one anew samples the surface again, ~30×
     the time); ``n_pcs``: the PCs of the reduced modes."""
 
     def __init__(self, base_hand, settings, synergies=None):

@@ -36,7 +36,7 @@ from .parts import (
     silhouette_mask,
     usable_points,
 )
-from .scale import shaped_context
+from .resize import shaped_context
 from .settings import TrackerSettings
 from .sizing import HandSizes, SizeCalibration, fit_context
 

@@ -7,7 +7,8 @@ from test_init_orientation import scene
 from handmodel import HandModel
 from tracker.correspond import CapsuleModel
 from tracker.errors import TrackerError
-from tracker.scale import finger_bones, finger_scales, shaped_context, shaped_hand
+from tracker.resize import finger_bones, shaped_context, shaped_hand
+from tracker.scale import finger_scales
 from tracker.sim.hands import HandShape
 from tracker.sim.motions import POSTURES
 from tracker.track import FrameTracker, TrackerSettings
