@@ -49,7 +49,7 @@ from PIL import Image
 from scipy import ndimage
 
 from tests.conftest import shared
-from tracker.sim.experiments import experiment_real_frames
+from tracker.sim.real_frames import experiment_real_frames
 
 TIPS = ("thumb", "index", "middle", "ring", "pinky")
 pytestmark = pytest.mark.slow
@@ -61,7 +61,7 @@ AVX2_PATH = {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL"}
 
 _ROWS = """
 import json, sys
-from tracker.sim.experiments import experiment_real_frames
+from tracker.sim.real_frames import experiment_real_frames
 rows = experiment_real_frames(sys.argv[1])
 json.dump([{k: (r[k].tolist() if hasattr(r[k], "tolist") else r[k]) for k in ("name", "uv", "scale", "crease_uv")}
            for r in rows], sys.stdout)

@@ -1,5 +1,6 @@
-"""The experiments report: every experiment of :mod:`tracker.sim.experiments` run once, written as
-``report.md`` with tables next to the paper's numbers and PNG figures (``tracker experiments``)."""
+"""The experiments report: every experiment of :mod:`tracker.sim.experiments` and the labelled real
+frames (:mod:`tracker.sim.real_frames`) run once, written as ``report.md`` with tables next to the
+paper's numbers and PNG figures (``tracker experiments``)."""
 from __future__ import annotations
 
 import io
@@ -19,10 +20,13 @@ from synergy.bundle import load_bundle
 
 from .experiments import (
     FIRST_FRAME_MM, PAPER, REALISTIC_SCENES, REALISTIC_SENSORS, SCENARIO_NAMES, default_camera,
-    REAL_CALIBRATE_EACH, REAL_MASK_DILATE_PX, REAL_MASK_SHARE, REAL_TIP_PX, REAL_TIPS, REAL_WRIST_PX,
-    experiment_density, experiment_icp, experiment_modes, experiment_occlusion, experiment_real_frames,
+    experiment_density, experiment_icp, experiment_modes, experiment_occlusion,
     experiment_realistic,
     experiment_reduced_pcs, experiment_scenarios, experiment_single_frame, segments,
+)
+from .real_frames import (
+    REAL_CALIBRATE_EACH, REAL_MASK_DILATE_PX, REAL_MASK_SHARE, REAL_TIP_PX, REAL_TIPS, REAL_WRIST_PX,
+    experiment_real_frames,
 )
 from .. import TRACKING_HAND
 from ..errors import TrackerError
