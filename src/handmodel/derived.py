@@ -5,17 +5,26 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .chain import ROTATION
+from .chain import read_only as _ro
 from .errors import HandModelError
-from .model import ROTATION, HandModel, Segment, _ro
+
+if TYPE_CHECKING:
+    from .model import HandModel
 
 _MIRROR = np.diag([-1.0, 1.0, 1.0])
 
 
 def mirrored(hand: HandModel) -> HandModel:
-    """See :meth:`HandModel.mirrored`."""
+    """The mirror-image hand (left ↔ right) for the same parameter vector (behind :meth:`HandModel.mirrored`).
+
+    Every joint below the root is conjugated by ``S = diag(-1, 1, 1)`` and each rotation axis
+    ``a`` becomes ``-S a`` (so ``S R_a(q) S = R_{-Sa}(q)``); the root's global pose is unchanged.
+    """
     S = _MIRROR
     rest = hand.rest.copy()
     rest[1:, :3, :3] = S @ rest[1:, :3, :3] @ S
@@ -27,17 +36,13 @@ def mirrored(hand: HandModel) -> HandModel:
             continue
         axes[d] = -(S @ axes[d]) if hand.dof_types[d] == ROTATION else S @ axes[d]
     side = "right" if hand.handedness == "left" else "left"
-    return HandModel(
-        name=hand.name, path=hand.path, sha256=hand.sha256, handedness=side, node_names=hand.node_names,
-        parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names, dof_types=hand.dof_types,
-        dof_axes=_ro(axes), limits=hand.limits, dof_ptr=hand.dof_ptr, dof_idx=hand.dof_idx,
-        segments=hand.segments, mesh_settings=hand.mesh_settings, description=hand.description,
-        provenance=hand.provenance,
-    )
+    return dataclasses.replace(hand, handedness=side, rest=_ro(rest), dof_axes=_ro(axes))
 
 
 def scaled(hand: HandModel, scale: float, bone_scales: dict | None) -> HandModel:
-    """See :meth:`HandModel.scaled`."""
+    """A resized copy: every bone and radius × ``scale``, then the bones ending at the nodes in
+    ``bone_scales`` (node name → factor) × their factor. Capsule lengths follow their bones (behind
+    :meth:`HandModel.scaled`)."""
     if not np.isfinite(scale) or scale <= 0:
         raise HandModelError(hand.path, f"scale must be positive, got {scale}")
     rest = hand.rest.copy()
@@ -54,19 +59,15 @@ def scaled(hand: HandModel, scale: float, bone_scales: dict | None) -> HandModel
             length = float(np.linalg.norm(rest[kids[0], :3, 3]))  # the capsule spans its bone
         else:
             length = sg.length * f
-        segs.append(Segment(sg.joint, sg.shape, length, (sg.radius[0] * f, sg.radius[1] * f), sg.half_thickness * f))
+        segs.append(dataclasses.replace(sg, length=length, radius=(sg.radius[0] * f, sg.radius[1] * f),
+                                        half_thickness=sg.half_thickness * f))
     key = json.dumps({"base": hand.sha256, "scale": scale, "bones": bone_scales or {}}, sort_keys=True).encode()
-    return HandModel(
-        name=hand.name, path=hand.path, sha256=hashlib.sha256(key).hexdigest(), handedness=hand.handedness,
-        node_names=hand.node_names, parents=hand.parents, rest=_ro(rest), dof_names=hand.dof_names,
-        dof_types=hand.dof_types, dof_axes=hand.dof_axes, limits=hand.limits, dof_ptr=hand.dof_ptr,
-        dof_idx=hand.dof_idx, segments=tuple(segs), mesh_settings=hand.mesh_settings, description=hand.description,
-        provenance=hand.provenance,
-    )
+    return dataclasses.replace(hand, sha256=hashlib.sha256(key).hexdigest(), rest=_ro(rest), segments=tuple(segs))
 
 
 def with_joint_positions(hand: HandModel, positions: dict) -> HandModel:
-    """See :meth:`HandModel.with_joint_positions`."""
+    """A copy with the rest positions (in the parent's frame, metres) of some joints replaced, e.g. the
+    finger bases on the palm measured from a subject (behind :meth:`HandModel.with_joint_positions`)."""
     rest = hand.rest.copy()
     for name, v in positions.items():
         v = np.asarray(v, float)

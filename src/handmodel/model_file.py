@@ -6,20 +6,31 @@ import dataclasses
 import hashlib
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
+from .chain import ROTATION, TRANSLATION
+from .chain import read_only as _ro
 from .errors import HandModelError
 from .fileio import atomic_path, load_yaml, plain_values, resolve_model_file, schema_errors, sha256_file
-from .model import ROTATION, TRANSLATION, HandModel, Segment, _ro
+
+if TYPE_CHECKING:
+    from .model import HandModel
 
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0),
          "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 
 
 def read_hand(name_or_path, *, right: bool | None = None) -> HandModel:
-    """See :meth:`HandModel.load`."""
+    """Read a hand file by name (``models/hands/<name>.yaml``) or path, as the hand ``right`` (True: right,
+    False: left, None: the file's own handedness — the shipped models are left); behind :meth:`HandModel.load`.
+
+    A right hand is the mirror image of the left one for the same θ (x → −x in the hand frame);
+    the global pose is not mirrored. A hand file is mirrored when the other hand is asked for:
+    one calibrated on a user's right hand serves their left hand as its mirror image.
+    """
     p = resolve_model_file("hands", name_or_path, HandModelError, "hand model")
     doc = load_yaml(p, HandModelError)
     model = hand_from_doc(doc, p)
@@ -32,7 +43,15 @@ def read_hand(name_or_path, *, right: bool | None = None) -> HandModel:
 
 def write_hand(hand: HandModel, path, *, overwrite: bool = False, name: str | None = None,
                description: str | None = None, provenance: dict | None = None) -> Path:
-    """See :meth:`HandModel.save`."""
+    """Write ``hand`` as a YAML hand-model file (:meth:`HandModel.to_dict`) that :meth:`HandModel.load`
+    reads back (behind :meth:`HandModel.save`).
+
+    The file is written under a temporary name, read back and rebuilt, and only a model identical
+    to ``hand`` (same kinematics, geometry, limits and handedness) is renamed into place; an
+    existing ``path`` is refused (``FileExistsError``) unless ``overwrite``. ``provenance`` (a
+    mapping of plain values) says where the model came from: :func:`tracker.scale.calibrated_hand`
+    puts the calibration's record and the base model's name and SHA-256 there. Returns ``path``.
+    """
     path = Path(path)
     doc = hand.to_dict(name=name, description=description, provenance=provenance)
     text = "# Hand model written by handmodel.HandModel.save; see provenance.\n" + yaml.safe_dump(
@@ -57,6 +76,8 @@ def _validate_schema(doc, path: Path) -> None:
 
 def hand_from_doc(doc, where) -> HandModel:
     """Parse and validate a model document (see :meth:`HandModel.from_dict`)."""
+    from .model import HandModel, Segment  # here: model.py imports this module
+
     where = Path(where) if not isinstance(where, Path) else where
     if not isinstance(doc, dict):
         raise HandModelError(where, "top level must be a mapping")
@@ -168,8 +189,21 @@ def hand_from_doc(doc, where) -> HandModel:
 
 
 def hand_to_doc(hand: HandModel, name, description, provenance) -> dict:
-    """See :meth:`HandModel.to_dict`. Floats go out as Python floats, which YAML writes with their
-    shortest exact repr, so the file reads back bit for bit."""
+    """``hand`` as a hand-model document (``hand-model.schema.json``) that :func:`hand_from_doc` turns
+    back into the same model (behind :meth:`HandModel.to_dict`): every rest transform, DoF axis and
+    limit, segment and the handedness as they are in memory (a scaled or mirrored model is written out,
+    not referred to). ``name``, ``description`` and ``provenance`` replace the model's own when given.
+    Floats go out as Python floats, which YAML writes with their shortest exact repr, so the file reads
+    back bit for bit.
+
+    Examples
+    --------
+    >>> from handmodel import HandModel
+    >>> hand = HandModel.load().scaled(1.2).mirrored()
+    >>> back = HandModel.from_dict(hand_to_doc(hand, None, None, None))
+    >>> back.handedness, bool(np.array_equal(back.keypoints(np.zeros(26)), hand.keypoints(np.zeros(26))))
+    ('right', True)
+    """
     named = {v: k for k, v in _AXES.items()}
     joints = []
     for k, n in enumerate(hand.node_names):

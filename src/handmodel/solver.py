@@ -28,7 +28,7 @@ import numpy as np
 
 from . import _solver_kernels as K
 from .errors import SolverError
-from .model import ROTATION, TRANSLATION
+from .chain import ROTATION, TRANSLATION
 from .rigid import horn, matrix_to_euler
 from .subspace import Subspace
 
