@@ -342,7 +342,7 @@ def compare(
 
     from synergy.bundle import load_bundle
     from synergy.errors import BundleError
-    from synergy.pca import principal_angles
+    from synergy.pca_analysis import principal_angles
 
     ba, bb = load_bundle(a, registry), load_bundle(b, registry)
     if ba.dof_names != bb.dof_names:

@@ -30,7 +30,8 @@ from synergy.c3d import read_c3d, task_from_events
 from synergy.calibrate import Calibration
 from synergy.errors import MarkerSetError, SynergyError, TaskMapError
 from synergy.markers import MarkerSet, available_markersets, choose_markerset, load_markerset
-from synergy.pca import SufficientStats, SynergyModel, heldout_curve
+from synergy.pca import SufficientStats, SynergyModel
+from synergy.pca_analysis import heldout_curve
 from synergy.postures import check_csv_header, postures_from_table, read_csv_postures, read_schroeder26
 from synergy.tasks import TaskMap, label_for
 

@@ -4,6 +4,7 @@ The statistics of a chunk are its row count, mean, centred scatter matrix and pe
 min/max. Chunks merge with Chan et al.'s parallel update, so the fitted model does not
 depend on how the data were split (files, processes, Dask partitions), and no raw
 ``Σxxᵀ`` is ever formed (it loses precision when the mean is large against the spread).
+Checks of a fitted model (held-out reconstruction, principal angles): :mod:`synergy.pca_analysis`.
 
 Examples
 --------
@@ -20,10 +21,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from numbers import Integral, Real
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Mapping
 
 import numpy as np
-from scipy.linalg import subspace_angles
 from sklearn.base import BaseEstimator, ClassNamePrefixFeaturesOutMixin, TransformerMixin
 from sklearn.utils.validation import check_is_fitted
 
@@ -259,12 +259,7 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
     def _set_from_stats(self, stats: SufficientStats) -> None:
         if stats.n < 2:
             raise SynergyError("SynergyModel", f"needs at least 2 samples, got {stats.n} sample(s)")
-        cov = stats.covariance(ddof=1)
-        evals, evecs = np.linalg.eigh(cov)
-        order = np.argsort(evals)[::-1]
-        evals = np.clip(evals[order], 0.0, None)
-        comps = _orient(evecs[:, order].T)
-        total = float(np.trace(cov))
+        comps, evals, ratio = _spectrum(stats)
         self.stats_ = stats
         self.mean_ = stats.mean.copy()
         self.joint_min_ = stats.min.copy()
@@ -272,7 +267,7 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         self.n_samples_ = int(stats.n)
         self.all_components_ = comps
         self.all_explained_variance_ = evals
-        self.all_explained_variance_ratio_ = evals / total if total > 0 else np.zeros_like(evals)
+        self.all_explained_variance_ratio_ = ratio
         d = stats.n_features
         self.pc_min_ = np.full(d, np.inf)
         self.pc_max_ = np.full(d, -np.inf)
@@ -288,22 +283,7 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
     # -- choosing the number of PCs without refitting
     def n_components_for(self, n_components) -> int:
         """Number of PCs meant by ``n_components`` (None, int or variance fraction in (0, 1))."""
-        d = self.all_components_.shape[0]
-        if n_components is None:
-            return min(self.n_samples_, d)
-        if isinstance(n_components, (bool, np.bool_)):
-            raise SynergyError("n_components", f"must be an int or a fraction, got {n_components!r}")
-        if isinstance(n_components, Integral):
-            if not 1 <= n_components <= d:
-                raise SynergyError("n_components", f"must be in 1..{d}, got {n_components}")
-            return int(n_components)
-        if isinstance(n_components, Real) and 0.0 < n_components < 1.0:
-            cum = np.cumsum(self.all_explained_variance_ratio_)
-            # Tolerance so that a fraction reached up to rounding counts as reached.
-            return int(min(np.searchsorted(cum, n_components - 1e-12, side="left") + 1, d))
-        raise SynergyError(
-            "n_components", f"must be None, an int 1..{d} or a float in (0, 1), got {n_components!r}"
-        )
+        return _pc_count(self, n_components)
 
     def with_n_components(self, n_components) -> "SynergyModel":
         """A copy using ``n_components`` PCs (no refit: the full spectrum is kept)."""
@@ -385,10 +365,7 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         d = self.all_components_.shape[0]
         if not 0 <= k <= d:
             raise SynergyError("reconstruction_error", f"k must be in 0..{d}, got {k}")
-        Xc = X - self.mean_
-        C = self.all_components_[:k]
-        R = Xc - (Xc @ C.T) @ C
-        return np.sqrt(np.mean(R * R, axis=0))
+        return _rms_residual(X - self.mean_, self.all_components_[:k])
 
     def reconstruction_curve(self, X_heldout) -> np.ndarray:
         """Per-DoF RMS error (radians) for k = 0..D PCs, shape (D + 1, D).
@@ -398,6 +375,44 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         check_is_fitted(self, "all_components_")
         X = _as_2d_finite(X_heldout, "SynergyModel.reconstruction_curve")
         return np.sqrt(_sq_error_curve(self, X) / X.shape[0])
+
+
+def _spectrum(stats: SufficientStats):
+    """``(components, variances, variance ratios)`` of the covariance of ``stats`` (``ddof=1``): all PCs as
+    rows (:func:`_orient`), largest variance first, negative round-off clipped to 0."""
+    cov = stats.covariance(ddof=1)
+    evals, evecs = np.linalg.eigh(cov)
+    order = np.argsort(evals)[::-1]
+    evals = np.clip(evals[order], 0.0, None)
+    comps = _orient(evecs[:, order].T)
+    total = float(np.trace(cov))
+    return comps, evals, (evals / total if total > 0 else np.zeros_like(evals))
+
+
+def _pc_count(model: SynergyModel, n_components) -> int:
+    """See :meth:`SynergyModel.n_components_for`."""
+    d = model.all_components_.shape[0]
+    if n_components is None:
+        return min(model.n_samples_, d)
+    if isinstance(n_components, (bool, np.bool_)):
+        raise SynergyError("n_components", f"must be an int or a fraction, got {n_components!r}")
+    if isinstance(n_components, Integral):
+        if not 1 <= n_components <= d:
+            raise SynergyError("n_components", f"must be in 1..{d}, got {n_components}")
+        return int(n_components)
+    if isinstance(n_components, Real) and 0.0 < n_components < 1.0:
+        cum = np.cumsum(model.all_explained_variance_ratio_)
+        # Tolerance so that a fraction reached up to rounding counts as reached.
+        return int(min(np.searchsorted(cum, n_components - 1e-12, side="left") + 1, d))
+    raise SynergyError(
+        "n_components", f"must be None, an int 1..{d} or a float in (0, 1), got {n_components!r}"
+    )
+
+
+def _rms_residual(Xc: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Per-DoF RMS of the centred rows ``Xc`` less their projection onto the orthonormal rows of ``C``."""
+    R = Xc - (Xc @ C.T) @ C
+    return np.sqrt(np.mean(R * R, axis=0))
 
 
 def _from_arrays(components, mean, explained_variance, explained_variance_ratio, pc_min, pc_max,
@@ -448,61 +463,3 @@ def _sq_error_curve(model: SynergyModel, X: np.ndarray) -> np.ndarray:
             part[k + 1] = np.sum(R * R, axis=0)
         out = part if i == 0 else out + part
     return out
-
-
-# ----------------------------------------------------------------------------- analysis
-def heldout_curve(groups: Sequence, n_folds: int = 5) -> tuple[np.ndarray, str]:
-    """Out-of-sample reconstruction RMS (radians, all DoF pooled) for k = 0..D PCs.
-
-    With two or more groups (trials) each is held out in turn and the model is refitted
-    from the merged statistics of the others. A single group is cut into ``n_folds``
-    contiguous blocks instead (frames are correlated in time, so random folds would flatter).
-
-    Returns
-    -------
-    rms : ndarray (D + 1,)
-    method : str
-        ``"leave-one-trial-out"`` or ``"blocked-<n>-fold"``.
-    """
-    groups = [_as_2d_finite(g, "heldout_curve") for g in groups]
-    if len(groups) == 1:
-        X = groups[0]
-        if X.shape[0] < 2 * n_folds:
-            raise SynergyError("heldout_curve", f"needs at least {2 * n_folds} samples")
-        groups = np.array_split(X, n_folds)
-        method = f"blocked-{n_folds}-fold"
-    else:
-        method = "leave-one-trial-out"
-    stats = [SufficientStats.from_array(g) for g in groups]
-    sq = None
-    total = 0
-    for i, g in enumerate(groups):
-        rest = SufficientStats.merge_all(s for j, s in enumerate(stats) if j != i)
-        if rest.n < 2 or g.shape[0] == 0:
-            continue
-        part = _sq_error_curve(rest.finalize(), g).sum(axis=1)
-        sq = part if sq is None else sq + part
-        total += g.size
-    if sq is None:
-        raise SynergyError("heldout_curve", "not enough data to hold any group out")
-    return np.sqrt(sq / total), method
-
-
-def principal_angles(A, B, k: int | None = None) -> np.ndarray:
-    """Principal angles (radians, ascending) between the spans of the first ``k`` PCs.
-
-    ``A`` and ``B`` are fitted :class:`SynergyModel` s or arrays whose rows are PCs.
-    """
-    def rows(M):
-        if isinstance(M, SynergyModel):
-            check_is_fitted(M, "all_components_")
-            return M.all_components_
-        return np.atleast_2d(np.asarray(M, dtype=float))
-
-    a, b = rows(A), rows(B)
-    if a.shape[1] != b.shape[1]:
-        raise SynergyError("principal_angles", f"{a.shape[1]} vs {b.shape[1]} DoF")
-    k = min(a.shape[0], b.shape[0]) if k is None else int(k)
-    if not 1 <= k <= min(a.shape[0], b.shape[0]):
-        raise SynergyError("principal_angles", f"k must be in 1..{min(a.shape[0], b.shape[0])}")
-    return np.sort(subspace_angles(a[:k].T, b[:k].T))

@@ -99,7 +99,7 @@ def test_per_task_bundles_differ(mocap, tmp_path):
     r = runner.invoke(app, ["compare", "sim-grasp", "sim-general", "-r", str(tmp_path)])
     assert r.exit_code == 0, r.output
     from synergy.bundle import load_bundle
-    from synergy.pca import principal_angles
+    from synergy.pca_analysis import principal_angles
 
     a = load_bundle("sim-grasp", [tmp_path]).model
     b = load_bundle("sim-general", [tmp_path]).model

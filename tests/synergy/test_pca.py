@@ -15,12 +15,8 @@ from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from handmodel.dofs import POSTURE_DOF_NAMES
 from synergy.errors import SynergyError
-from synergy.pca import (
-    SufficientStats,
-    SynergyModel,
-    heldout_curve,
-    principal_angles,
-)
+from synergy.pca import SufficientStats, SynergyModel
+from synergy.pca_analysis import heldout_curve, principal_angles
 
 DATA = SHARED_DATA
 WEST_HOGAN = DATA / "west_hogan_cyberglove"
