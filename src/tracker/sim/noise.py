@@ -145,19 +145,7 @@ class NoiseModel:
     dark_drop_prob: float = 0.0
 
     def __post_init__(self):
-        if self.depth_step_m < 0:
-            raise TrackerError(f"noise {self.name}", f"depth_step_m must be >= 0, got {self.depth_step_m}")
-        if self.grazing_deg is not None and not 0 <= self.grazing_deg[0] < self.grazing_deg[1] <= 90:
-            raise TrackerError(f"noise {self.name}", f"grazing_deg must be 0 <= start < end <= 90, got {self.grazing_deg}")
-        for p in ("edge_drop_prob", "random_drop_prob", "flying_prob", "dark_drop_prob"):
-            v = getattr(self, p)
-            if not 0.0 <= v <= 1.0:
-                raise TrackerError(f"noise {self.name}", f"{p} must be in [0, 1], got {v}")
-        if self.lateral_px < 0 or self.edge_width_px < 0 or self.disparity_step_px <= 0 or self.baseline_m <= 0:
-            raise TrackerError(f"noise {self.name}", "lateral_px, edge_width_px must be >= 0; disparity step and "
-                                                     "baseline > 0")
-        if self.projector_side not in (-1, 1):
-            raise TrackerError(f"noise {self.name}", "projector_side must be +1 or -1")
+        _check(self)
 
     # ------------------------------------------------------------------ presets
     @classmethod
@@ -193,10 +181,7 @@ class NoiseModel:
 
     @property
     def is_noise_free(self) -> bool:
-        return not (self.axial or self.lateral_px > 0 or self.quantize or self.shadow or self.edge_drop_prob > 0
-                    or self.random_drop_prob > 0 or self.range_m[0] > 0 or np.isfinite(self.range_m[1])
-                    or self.depth_step_m > 0 or self.flying_prob > 0 or self.grazing_deg is not None
-                    or self.dark_drop_prob > 0)
+        return _noise_free(self)
 
     @property
     def needs_incidence(self) -> bool:
@@ -273,11 +258,7 @@ class NoiseModel:
         # work on the bounding box of valid pixels plus the reach of the lateral jitter
         smax = float(self.sigma_lateral(np.cos(_THETA_MAX) if self.angle_terms else None))
         jitter = int(np.ceil(4 * smax))
-        reach = jitter + self.edge_width_px + 1
-        rows, cols = np.flatnonzero(valid.any(1)), np.flatnonzero(valid.any(0))
-        r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, d.shape[0])
-        c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, d.shape[1])
-        win = (slice(r0, r1), slice(c0, c1))
+        win = _window(valid, jitter + self.edge_width_px + 1)
         d = d[win].copy()
         d[~valid[win]] = np.nan
         cosi = None if cos_incidence is None else np.asarray(cos_incidence, float)[win]
@@ -292,6 +273,38 @@ class NoiseModel:
         out[win] = d
         return out
 
+
+def _check(nm):
+    """Refuse a :class:`NoiseModel` whose settings are out of range (``TrackerError`` naming the setting)."""
+    if nm.depth_step_m < 0:
+        raise TrackerError(f"noise {nm.name}", f"depth_step_m must be >= 0, got {nm.depth_step_m}")
+    if nm.grazing_deg is not None and not 0 <= nm.grazing_deg[0] < nm.grazing_deg[1] <= 90:
+        raise TrackerError(f"noise {nm.name}", f"grazing_deg must be 0 <= start < end <= 90, got {nm.grazing_deg}")
+    for p in ("edge_drop_prob", "random_drop_prob", "flying_prob", "dark_drop_prob"):
+        v = getattr(nm, p)
+        if not 0.0 <= v <= 1.0:
+            raise TrackerError(f"noise {nm.name}", f"{p} must be in [0, 1], got {v}")
+    if nm.lateral_px < 0 or nm.edge_width_px < 0 or nm.disparity_step_px <= 0 or nm.baseline_m <= 0:
+        raise TrackerError(f"noise {nm.name}", "lateral_px, edge_width_px must be >= 0; disparity step and "
+                                               "baseline > 0")
+    if nm.projector_side not in (-1, 1):
+        raise TrackerError(f"noise {nm.name}", "projector_side must be +1 or -1")
+
+
+def _noise_free(nm) -> bool:
+    """Whether every part of ``nm`` is off (:attr:`NoiseModel.is_noise_free`)."""
+    return not (nm.axial or nm.lateral_px > 0 or nm.quantize or nm.shadow or nm.edge_drop_prob > 0
+                or nm.random_drop_prob > 0 or nm.range_m[0] > 0 or np.isfinite(nm.range_m[1])
+                or nm.depth_step_m > 0 or nm.flying_prob > 0 or nm.grazing_deg is not None
+                or nm.dark_drop_prob > 0)
+
+
+def _window(valid, reach):
+    """The ``(rows, cols)`` slice pair of the bounding box of ``valid`` grown by ``reach`` pixels (within the image)."""
+    rows, cols = np.flatnonzero(valid.any(1)), np.flatnonzero(valid.any(0))
+    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, valid.shape[0])
+    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, valid.shape[1])
+    return (slice(r0, r1), slice(c0, c1))
 
 
 def _holes(nm, d, cosi, reflectance, camera, jitter, rng):
