@@ -60,12 +60,7 @@ class Segmenter:
     plane: str = "auto"
 
     def __post_init__(self):
-        if self.forearm not in FOREARM_CHOICES:
-            raise ValueError(f"forearm must be one of {', '.join(FOREARM_CHOICES)}, got {self.forearm!r}")
-        if self.plane not in PLANE_CHOICES:
-            raise ValueError(f"plane must be one of {', '.join(PLANE_CHOICES)}, got {self.plane!r}")
-        if not self.z_max > self.z_min:
-            raise ValueError(f"depth range must have far > near, got {self.z_min}, {self.z_max}")
+        _check(self)
 
     def __call__(self, depth, color=None, points=None, *, focal=None, plane=FIND, prefer=None):
         """Boolean hand mask ``(H, W)`` for a depth image in metres (NaN = no data).
@@ -117,11 +112,7 @@ class Segmenter:
         ``plane``: as for :meth:`__call__`."""
         d, f = self._inputs(depth, points, focal)
         H, W = d.shape
-        # snapped to twice the coarse step: the window's coarse pixels are then the whole frame's, and
-        # so is refine's rounding of pixel / step to the nearest coarse pixel (halves go to even)
-        g = 2 * max(int(self.coarse), 1)
-        (y0, y1), (x0, x1) = ((max(int(s.start or 0), 0) // g * g, min(int(n if s.stop is None else s.stop), n))
-                              for s, n in zip(window, (H, W)))
+        (y0, y1), (x0, x1) = _snapped(window, (H, W), self.coarse)
         if y1 - y0 < 2 or x1 - x0 < 2:
             return None
         win = (slice(y0, y1), slice(x0, x1))
@@ -129,19 +120,8 @@ class Segmenter:
                         None if points is None else np.asarray(points)[win], f, (y0, x0), (H, W),
                         plane=self.frame_plane(d, color, focal=f) if plane is FIND else plane,
                         prefer=expected, in_window=True)
-        if not sub.any() or layered:
+        if not sub.any() or layered or not _trusted(sub, (y0, y1, x0, x1), (H, W), expected):
             return None
-        (ya, yb), (xa, xb) = bounds(sub)
-        h, w = sub.shape
-        if ((y0 > 0 and ya < K.TUNING.border_px) or (y1 < H and yb >= h - K.TUNING.border_px)
-                or (x0 > 0 and xa < K.TUNING.border_px) or (x1 < W and xb >= w - K.TUNING.border_px)):
-            return None
-        if expected is not None:
-            cy, cx = (float(v.mean()) + o for v, o in zip(np.nonzero(sub), (y0, x0)))
-            (ey, ex) = expected
-            if not ((ey.start or 0) <= cy < (H if ey.stop is None else ey.stop)
-                    and (ex.start or 0) <= cx < (W if ex.stop is None else ex.stop)):
-                return None
         out = np.zeros((H, W), bool)
         out[win] = sub
         return out
@@ -223,6 +203,50 @@ class Segmenter:
             joins = _joins(mask, dv, mask | reg.beyond | reg.behind, d_all, f, jump=self.jump)
             mask = cut_forearm(mask, dv, f, reg.beyond, seed=reg.seed, joins=joins, prefer=prefer)
         return mask, reg.layered
+
+
+def _check(seg):
+    """Refuse a :class:`Segmenter` with an unknown ``forearm`` or ``plane`` choice or an empty depth range."""
+    if seg.forearm not in FOREARM_CHOICES:
+        raise ValueError(f"forearm must be one of {', '.join(FOREARM_CHOICES)}, got {seg.forearm!r}")
+    if seg.plane not in PLANE_CHOICES:
+        raise ValueError(f"plane must be one of {', '.join(PLANE_CHOICES)}, got {seg.plane!r}")
+    if not seg.z_max > seg.z_min:
+        raise ValueError(f"depth range must have far > near, got {seg.z_min}, {seg.z_max}")
+
+
+def _snapped(window, shape, coarse):
+    """``((y0, y1), (x0, x1))``: the ``window`` (a ``(rows, cols)`` slice pair) within an image of ``shape``,
+    its start snapped down to twice the ``coarse`` step: the window's coarse pixels are then the whole
+    frame's, and so is refine's rounding of pixel / step to the nearest coarse pixel (halves go to even).
+
+    >>> _snapped((slice(13, 40), slice(None, 99)), (60, 80), 2)
+    ((12, 40), (0, 80))
+    """
+    g = 2 * max(int(coarse), 1)
+    return tuple((max(int(s.start or 0), 0) // g * g, min(int(n if s.stop is None else s.stop), n))
+                 for s, n in zip(window, shape))
+
+
+def _trusted(sub, edges, shape, expected):
+    """Whether the mask ``sub`` found in the window ``edges`` = ``(y0, y1, x0, x1)`` of a frame of ``shape``
+    may stand for the whole frame's (:meth:`Segmenter.in_window`): it keeps :attr:`SegmentConstants.border_px`
+    from every window edge that is not an image edge, and its centre lies in ``expected`` (a slice pair
+    of the frame's pixels; None: not tested)."""
+    y0, y1, x0, x1 = edges
+    H, W = shape
+    (ya, yb), (xa, xb) = bounds(sub)
+    h, w = sub.shape
+    if ((y0 > 0 and ya < K.TUNING.border_px) or (y1 < H and yb >= h - K.TUNING.border_px)
+            or (x0 > 0 and xa < K.TUNING.border_px) or (x1 < W and xb >= w - K.TUNING.border_px)):
+        return False
+    if expected is not None:
+        cy, cx = (float(v.mean()) + o for v, o in zip(np.nonzero(sub), (y0, x0)))
+        (ey, ex) = expected
+        if not ((ey.start or 0) <= cy < (H if ey.stop is None else ey.stop)
+                and (ex.start or 0) <= cx < (W if ex.stop is None else ex.stop)):
+            return False
+    return True
 
 
 def _sampled(prefer, origin, step):
