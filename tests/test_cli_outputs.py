@@ -48,7 +48,8 @@ def inp(tmp_path_factory):
     would give), its PNGs as a plain folder, and a half-second simulated mocap trial with its true
     angles."""
     from tracker.io.recording import Recording
-    from tracker.run import DOF_NAMES, write_tracking
+    from handmodel.dofs import DOF_NAMES
+    from tracker.io.tracking_file import write_tracking
 
     d = tmp_path_factory.mktemp("inputs")
     _ok([BIN / "tracker", "synth", "--frames", "3", "-o", d / "rec"])

@@ -25,8 +25,8 @@ _LAZY = {
     "Recording": "io.recording", "RecordingWriter": "io.recording", "open_recording": "io.recording",
     "observe": "observe", "Observation": "observe", "ObserveSettings": "observe",
     "CorrespondSettings": "correspond", "IcpSettings": "icp", "InitSettings": "init",
-    "TrackJob": "run", "run_job": "run", "read_tracking": "run", "write_tracking": "run",
-    "read_keypoints": "run", "write_keypoints": "run", "tracked_hand": "run",
+    "TrackJob": "run", "run_job": "run", "read_tracking": "io.tracking_file", "write_tracking": "io.tracking_file",
+    "read_keypoints": "io.tracking_file", "write_keypoints": "io.tracking_file", "tracked_hand": "io.tracking_file",
     "keypoint_error_mm": "evaluate", "posture_error_deg": "evaluate",
 }
 

@@ -429,13 +429,13 @@ def show(
 
 def _keypoints_by_frame(path, names, n_frames):
     """``(frames, header)``: frame index → (K, 3) keypoints in metres of a keypoints CSV (``tracker track
-    --keypoints``, :func:`tracker.run.read_keypoints`), frames without a fit (NaN) left out, and its
+    --keypoints``, :func:`tracker.io.tracking_file.read_keypoints`), frames without a fit (NaN) left out, and its
     ``# key: value`` header; refused when its columns or frames do not fit the recording."""
     import numpy as np
     import pandas as pd
 
     from .errors import TrackerError
-    from .run import read_keypoints
+    from .io.tracking_file import read_keypoints
 
     df, meta = read_keypoints(path, names)
     cols = [f"{k}_{a}_mm" for k in names for a in "xyz"]

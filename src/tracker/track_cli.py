@@ -346,7 +346,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
         console.print(f"warning: {w}")
     if run.unreadable:
         from .errors import TrackerError
-        from .run import unreadable_text
+        from .batch import unreadable_text
 
         # the outputs are written; the damaged input still ends the command with the error code
         raise TrackerError(recording, unreadable_text(run.unreadable, len(df)))
@@ -370,7 +370,7 @@ def _track_many(recordings, outdir, template, dask, overwrite):
     from handmodel.fileio import atomic_write_text, check_output
 
     from .errors import TrackerError
-    from .run import batch_jobs, track_many
+    from .batch import batch_jobs, track_many
 
     jobs = batch_jobs(recordings, outdir, template)
     summary = Path(outdir) / "summary.csv"
@@ -535,7 +535,7 @@ def evaluate(
     from .evaluate import summarise
     from .plots import error_plot
     from .io.recording import Recording
-    from .run import read_tracking, tracked_hand
+    from .io.tracking_file import read_tracking, tracked_hand
     from .sim.hands import truth_hand
 
     rec = Recording.open(recording)

@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from tracker.batch import SUMMARY_COLUMNS
 from tracker.cli import app
-from tracker.run import SUMMARY_COLUMNS, read_tracking
+from tracker.io.tracking_file import read_tracking
 
 pytest.importorskip("distributed")
 

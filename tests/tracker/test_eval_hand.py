@@ -11,11 +11,12 @@ import pytest
 from typer.testing import CliRunner
 
 from handmodel import HandModel
+from handmodel.dofs import DOF_NAMES
 from tracker import TRACKING_HAND
 from tracker.cli import app
 from tracker.errors import TrackerError
 from tracker.io.recording import Recording
-from tracker.run import DOF_NAMES, tracked_hand, write_tracking
+from tracker.io.tracking_file import tracked_hand, write_tracking
 
 
 def _run(args):

@@ -6,8 +6,8 @@ from test_init_orientation import CAM, kp_mm, scene
 
 from handmodel import HandModel
 from tracker.errors import TrackerError
+from tracker.io.tracking_file import tracking_metadata
 from tracker.scale import extent_scale, rescaled
-from tracker.run import tracking_metadata
 from tracker.sim.motions import POSTURES
 from tracker.track import FrameTracker, TrackerSettings
 from tracker.track_cli import _hand_scale

@@ -83,3 +83,16 @@ def test_the_lazy_names_still_resolve():
 
     assert tracker.Camera is C and tracker.Recording is R and tracker.open_recording is o
     assert tracker.preset("kinect1").width == 640
+
+
+def test_the_tracking_file_and_the_batch_each_have_one_home():
+    from tracker import batch, run
+    from tracker.io import tracking_file
+
+    assert tracker.read_tracking is tracking_file.read_tracking and tracker.tracked_hand is tracking_file.tracked_hand
+    assert tracker.write_keypoints is tracking_file.write_keypoints and tracker.run_job is run.run_job
+    # the one-recording pipeline uses the format and is used by the batch; it offers neither again
+    for name in ("read_tracking", "parse_tracking", "read_keypoints", "tracked_hand", "keypoints_table",
+                 "summary_row", "batch_jobs", "track_many", "SUMMARY_COLUMNS"):
+        assert not hasattr(run, name), name
+    assert batch.track_many.__module__ == "tracker.batch"

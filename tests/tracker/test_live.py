@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from tracker.cli import app
 from tracker.io.recording import Recording
-from tracker.run import read_keypoints, read_tracking
+from tracker.io.tracking_file import read_keypoints, read_tracking
 
 import_pyrealsense2()  # the wheel may be there without the system libusb (.ci/run installs it where it can)
 rosbag1 = pytest.importorskip("rosbags.rosbag1")

@@ -180,7 +180,7 @@ def test_mutated_mkv_never_crashes(tmp_path):
 def test_track_warns_of_a_cut_mkv_and_tracks_what_it_holds(tmp_path):
     """tracker info said the file was cut short, tracker track said nothing: now one warning line on
     stderr, and the frames before the cut are tracked."""
-    from tracker.run import read_tracking
+    from tracker.io.tracking_file import read_tracking
 
     data = _mkv().read_bytes()
     bad = tmp_path / "cut.mkv"

@@ -17,7 +17,7 @@ from tracker.errors import TrackerError
 from tracker.observe import observe
 from tracker.io.recording import Recording
 from tracker.segment import Segmenter
-from tracker.run import read_tracking
+from tracker.io.tracking_file import read_tracking
 from tracker.sim.experiments import REALISTIC_SENSORS
 from tracker.sim.motions import hand_centre, make_motion
 from tracker.sim.noise import NoiseModel

@@ -14,9 +14,10 @@ from tracker.correspond import CorrespondSettings, Matcher
 from tracker.errors import TrackerError
 from tracker.icp import IcpSettings, Stage, fit, search_schedule, tracking_schedule
 from tracker.init import InitSettings
+from tracker.io.tracking_file import (FRAME_COLUMNS, keypoints_table, parse_tracking, read_tracking, tracking_csv,
+                                       write_tracking)
 from tracker.observe import ObserveSettings
-from tracker.run import (FRAME_COLUMNS, keypoints_table, parse_tracking, read_tracking, track_recording,
-                         tracking_csv, write_tracking)
+from tracker.run import track_recording
 from tracker.track import FrameTracker, TrackerSettings
 
 HAND = HandModel.load()

@@ -106,7 +106,7 @@ def test_show_draws_the_fitted_skeletons_of_a_keypoints_csv(scene, tmp_path):
 
     from tracker.cli import app
     from tracker.io.recording import RecordingWriter
-    from tracker.run import keypoints_table
+    from tracker.io.tracking_file import keypoints_table
 
     hand, cam, theta, sil, depth = scene
     with RecordingWriter(tmp_path / "rec", cam, 30, "left") as w:

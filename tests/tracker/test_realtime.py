@@ -12,8 +12,9 @@ from handmodel import HandModel
 from synergy.bundle import load_bundle
 from tracker.cli import app
 from tracker.io.recording import Recording
+from tracker.io.tracking_file import STATUSES, read_tracking
 from tracker.realtime import FrameBudget, paced, predicted_theta
-from tracker.run import STATUSES, read_tracking, track_realtime, track_recording
+from tracker.run import track_realtime, track_recording
 from tracker.sim.synthesize import synthesize
 from tracker.track import FrameTracker, TrackerSettings
 
@@ -109,7 +110,7 @@ def test_predicted_status_reads_back_and_evaluates(recording, tmp_path):
     tr = _tracker(rec)
     df = track_realtime(rec, tr, budget_ms=1e5)
     assert set(df["status"]) <= {"tracked", "reinit"}  # nothing overran: every frame fitted in turn
-    from tracker.run import tracking_metadata, write_tracking
+    from tracker.io.tracking_file import tracking_metadata, write_tracking
 
     df.loc[4, "status"] = "predicted"
     write_tracking(tmp_path / "t.csv", df, tracking_metadata(recording, tr))

@@ -617,7 +617,7 @@ def test_cli_synth_track_eval(tmp_path):
     assert r.exit_code == 2 and "never overwritten" in r.output
     # synth renders the hand track fits (the human hand), --paper fits the paper's unless told otherwise
     from tracker import PAPER_HAND, TRACKING_HAND
-    from tracker.run import read_tracking
+    from tracker.io.tracking_file import read_tracking
 
     assert read_tracking(out)[1]["hand_model"].split()[0] == TRACKING_HAND
     paper_hand = tmp_path / "paper_hand.csv"

@@ -385,7 +385,7 @@ def test_reduced_mode_does_not_call_a_fit_on_the_body_tracked(tmp_path):
 
     from tracker.cli import app
     from tracker.io.recording import Recording
-    from tracker.run import read_tracking, tracked_hand
+    from tracker.io.tracking_file import read_tracking, tracked_hand
 
     rec = tmp_path / "rec"
     r = CliRunner().invoke(app, ["synth", "--motion", "open-close", "--noise", "realsense", "--camera", "sr305",

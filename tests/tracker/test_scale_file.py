@@ -10,7 +10,8 @@ from handmodel import HandModel
 from tracker import TRACKING_HAND
 from tracker.cli import app
 from tracker.errors import TrackerError
-from tracker.run import read_tracking, settings_for_hand, tracking_metadata
+from tracker.io.tracking_file import read_tracking, tracking_metadata
+from tracker.run import settings_for_hand
 from tracker.scale import calibrated_hand
 from tracker.track import FrameTracker, TrackerSettings
 

@@ -85,7 +85,7 @@ def test_tracker_finds_finger_lengths_after_the_size(bundle):
     finger factors found on those frames (each within 5 %; measured 1.5–3.3 % short), the output header
     says so, and the keypoints of the later frames stay on the rendered hand."""
     from tracker.io.cameras import preset
-    from tracker.run import _scale_text
+    from tracker.io.tracking_file import _scale_text
     from tracker.sim.experiments import run_scene
     from tracker.sim.motions import make_motion
 

@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from handmodel.dofs import DOF_NAMES
 from tracker.cli import app
+from tracker.io.tracking_file import FRAME_COLUMNS, tracking_csv
 from tracker.track_cli import _short
-from tracker.run import FRAME_COLUMNS, tracking_csv
 
 
 def _cli(*args, env=None):
@@ -118,7 +118,7 @@ def test_keypoints_name_their_recording_and_show_checks_it(rec, tmp_path, hand):
     """The keypoints CSV had no header, so `show --keypoints` drew another recording's skeletons; its
     one writer now names the recording and hand, its one reader gives them back (and still reads a
     header-less file)."""
-    from tracker.run import keypoints_table, read_keypoints, write_keypoints
+    from tracker.io.tracking_file import keypoints_table, read_keypoints, write_keypoints
 
     df = _results(rec, tmp_path / "res.csv")
     kp = tmp_path / "kp.csv"
@@ -205,9 +205,9 @@ def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path, monkeypatch, slow)
     ("20210326-23…"); cut in the middle, each keeps the part that tells them apart. ``slow``: the times
     as wide as they get (12345 ms a frame, 10000 fps): a loaded machine's 4-digit times had the name's
     minimum width push the header "result" off the table (CI)."""
-    from tracker import run
+    from tracker import batch
 
-    real = run.track_many
+    real = batch.track_many
     # the times fixed, so the name's width is too: as wide as they get, or as narrow (8.2 ms, 99.9 fps)
     ms, fps = (12345.0, 10000.0) if slow else (8.2, 99.9)
 
@@ -215,7 +215,7 @@ def test_narrow_terminal_keeps_the_end_of_each_name(tmp_path, monkeypatch, slow)
         table = real(*a, **kw)
         return table.assign(median_ms=ms, wall_s=table["frames"] / fps)
 
-    monkeypatch.setattr(run, "track_many", timed_many)
+    monkeypatch.setattr(batch, "track_many", timed_many)
     _, lines = _many_names_table(tmp_path, 80)
     firsts = [line.strip("│ ").split("│")[0].strip() for line in lines if "…" in line and "│" in line]
     assert len(firsts) == 2 and firsts[0].endswith("_110") and firsts[1].endswith("_0") and firsts[0] != firsts[1]
@@ -267,7 +267,7 @@ def test_an_unreadable_frame_is_lost_and_the_run_goes_on(tmp_path):
     many recordings: its summary row says so."""
     import shutil
 
-    from tracker.run import read_tracking
+    from tracker.io.tracking_file import read_tracking
     from tracker.sim.synthesize import synthesize
 
     rec = tmp_path / "rec"

@@ -6,7 +6,7 @@ from typer.testing import CliRunner
 
 from tests.conftest import shared
 from tracker.cli import app
-from tracker.run import read_tracking
+from tracker.io.tracking_file import read_tracking
 
 BAG = ("sensor_recordings", "librealsense_single_depth_color_640x480.bag")
 

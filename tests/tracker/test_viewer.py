@@ -13,7 +13,7 @@ pytest.importorskip("rerun")
 
 from tracker.cli import app  # noqa: E402
 from tracker.io.recording import Recording  # noqa: E402
-from tracker.run import read_tracking, tracked_hand  # noqa: E402
+from tracker.io.tracking_file import read_tracking, tracked_hand  # noqa: E402
 from tracker.viewer import FRAME_ENTITIES, HAND_ENTITIES, RerunLog, read_frame, read_frames, snapshot_png  # noqa: E402
 
 
