@@ -85,7 +85,7 @@ class SufficientStats:
     @classmethod
     def from_array(cls, X, chunk_rows: int = _CHUNK_ROWS) -> "SufficientStats":
         """Statistics of the rows of ``X`` (N × D, finite)."""
-        X = _as_2d_finite(X, "SufficientStats.from_array")
+        X = as_2d_finite(X, "SufficientStats.from_array")
         out = cls.empty(X.shape[1])
         if X.shape[0] == 0:
             return out
@@ -176,7 +176,9 @@ class SufficientStats:
         return model
 
 
-def _as_2d_finite(X, where: str) -> np.ndarray:
+def as_2d_finite(X, where: str) -> np.ndarray:
+    """``X`` as a float64 (samples × DoF) array, refused (``SynergyError`` naming ``where``) unless 2-D
+    and finite."""
     X = np.asarray(X, dtype=np.float64)
     if X.ndim != 2:
         raise SynergyError(where, f"expected a 2-D array (samples × DoF), got shape {X.shape}")
@@ -360,7 +362,7 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
     def reconstruction_error(self, X, k: int | None = None) -> np.ndarray:
         """Per-DoF RMS error (radians) of reconstructing ``X`` from the first ``k`` PCs."""
         check_is_fitted(self, "all_components_")
-        X = _as_2d_finite(X, "SynergyModel.reconstruction_error")
+        X = as_2d_finite(X, "SynergyModel.reconstruction_error")
         k = self.n_components_ if k is None else k
         d = self.all_components_.shape[0]
         if not 0 <= k <= d:
@@ -373,8 +375,8 @@ class SynergyModel(ClassNamePrefixFeaturesOutMixin, TransformerMixin, BaseEstima
         The overall RMS is ``np.sqrt((curve ** 2).mean(axis=1))``.
         """
         check_is_fitted(self, "all_components_")
-        X = _as_2d_finite(X_heldout, "SynergyModel.reconstruction_curve")
-        return np.sqrt(_sq_error_curve(self, X) / X.shape[0])
+        X = as_2d_finite(X_heldout, "SynergyModel.reconstruction_curve")
+        return np.sqrt(sq_error_curve(self, X) / X.shape[0])
 
 
 def _spectrum(stats: SufficientStats):
@@ -448,7 +450,7 @@ def _orient(comps: np.ndarray) -> np.ndarray:
     return comps * signs[:, None]
 
 
-def _sq_error_curve(model: SynergyModel, X: np.ndarray) -> np.ndarray:
+def sq_error_curve(model: SynergyModel, X: np.ndarray) -> np.ndarray:
     """Per-DoF sum of squared reconstruction errors for k = 0..D, shape (D + 1, D)."""
     C = model.all_components_
     d = C.shape[0]

@@ -16,7 +16,7 @@ from scipy.linalg import subspace_angles
 from sklearn.utils.validation import check_is_fitted
 
 from synergy.errors import SynergyError
-from synergy.pca import SufficientStats, SynergyModel, _as_2d_finite, _sq_error_curve
+from synergy.pca import SufficientStats, SynergyModel, as_2d_finite, sq_error_curve
 
 
 def heldout_curve(groups: Sequence, n_folds: int = 5) -> tuple[np.ndarray, str]:
@@ -32,7 +32,7 @@ def heldout_curve(groups: Sequence, n_folds: int = 5) -> tuple[np.ndarray, str]:
     method : str
         ``"leave-one-trial-out"`` or ``"blocked-<n>-fold"``.
     """
-    groups = [_as_2d_finite(g, "heldout_curve") for g in groups]
+    groups = [as_2d_finite(g, "heldout_curve") for g in groups]
     if len(groups) == 1:
         X = groups[0]
         if X.shape[0] < 2 * n_folds:
@@ -48,7 +48,7 @@ def heldout_curve(groups: Sequence, n_folds: int = 5) -> tuple[np.ndarray, str]:
         rest = SufficientStats.merge_all(s for j, s in enumerate(stats) if j != i)
         if rest.n < 2 or g.shape[0] == 0:
             continue
-        part = _sq_error_curve(rest.finalize(), g).sum(axis=1)
+        part = sq_error_curve(rest.finalize(), g).sum(axis=1)
         sq = part if sq is None else sq + part
         total += g.size
     if sq is None:
