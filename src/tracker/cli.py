@@ -458,12 +458,15 @@ def compile_kernels():
 
 
 # the synth and experiments commands live with the synthetic lab; tracker.sim.cli imports only typer
-# at the top (the lab's libraries load when a command runs), so registering them keeps --help fast
-from tracker import track_cli  # noqa: E402
+# at the top (the lab's libraries load when a command runs), as the track, live, calibrate and eval
+# modules do, so registering them keeps --help fast
+from tracker import eval_cli, live_cli, track_cli  # noqa: E402
 from tracker.sim import cli as sim_cli  # noqa: E402
 
 sim_cli.register(app, _errors_exit_2)
 track_cli.register(app, _errors_exit_2)
+live_cli.register(app, _errors_exit_2)
+eval_cli.register(app, _errors_exit_2)
 
 
 def main() -> None:

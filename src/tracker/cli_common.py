@@ -1,12 +1,26 @@
-"""What the command modules share (:mod:`tracker.cli`, :mod:`tracker.track_cli`,
-:mod:`tracker.sim.cli`): the progress bar, the check that no output replaces an input, the check that
-a result file belongs to the recording given, and the
-segmenter the ``--depth-range`` / ``--box`` / ``--forearm`` / ``--plane`` options describe. The
-command modules import this one and never each other's helpers.
+"""What the command modules share (:mod:`tracker.cli`, :mod:`tracker.track_cli`, :mod:`tracker.live_cli`,
+:mod:`tracker.eval_cli`, :mod:`tracker.sim.cli`): the progress bar, the check that no output replaces an
+input, the check that a result file belongs to the recording given, the segmenter the ``--depth-range``
+/ ``--box`` / ``--forearm`` / ``--plane`` options describe; and what ``tracker track``, ``live`` and
+``calibrate`` share: those options and the recording's, the output checks, the hand model and the
+:class:`tracker.settings.TrackerSettings` the options ask for. The command modules import this one and
+never each other's helpers; it imports only typer at the top, so ``tracker --help`` stays fast.
 """
 from __future__ import annotations
 
 from pathlib import Path
+
+import typer
+
+# options that several commands take, written once (the same flag, default and help everywhere)
+DEPTH_RANGE = typer.Option(None, "--depth-range", help="NEAR,FAR (m): look for the hand only in this depth range [0.2,1.5].")
+BOX = typer.Option(None, "--box", help="X0,Y0,Z0,X1,Y1,Z1 (m, camera frame: x right, y down, z forward; an empty entry is open): look for the hand only in this box.")
+FOREARM = typer.Option("cut", "--forearm", help="cut (remove the forearm beyond the wrist) or keep (a wristband or sleeve already ends the hand) [cut].")
+PLANE = typer.Option("auto", "--plane", help="The frame's largest plane (a table, floor or wall): auto (left out of the hand's search when no colour frame is used; the skin test does it otherwise), cut (always) or keep [auto].")
+HAND = typer.Option(None, "--hand", help="left or right: the hand tracked, overriding the recording's (a recording file does not say; then left).")
+TOPIC = typer.Option(None, "--topic", help="Depth topic of a ROS bag [found in the file].")
+COLOR_TOPIC = typer.Option(None, "--color-topic", help="Colour topic of a ROS bag [found in the file].")
+START = typer.Option(None, "--start", help="Recording files: first frame time (s from the first depth frame).")
 
 
 def progress_bar(label: str):
@@ -142,3 +156,149 @@ def floats(text, option, n, example):
 
 def finite(v):
     return v == v and v not in (float("inf"), float("-inf"))
+
+
+def say_if_compiling():
+    """One line on stderr when numba's cache holds no compiled kernels (a fresh install): this call
+    compiles them first, which takes minutes."""
+    from .compile import cold_message
+
+    message = cold_message()
+    if message:
+        typer.echo(message, err=True)
+
+
+def hand_side(hand):
+    """``--hand`` checked: left, right or None (the recording's)."""
+    from .errors import TrackerError
+
+    if hand is not None and hand not in ("left", "right"):
+        raise TrackerError("--hand", f"must be left or right, got {hand!r}")
+    return hand
+
+
+def chosen_hand_model(name, paper) -> str:
+    """The ``--hand-model`` asked for, else the tracker's hand (:data:`tracker.TRACKING_HAND`), or the paper's
+    with ``--paper`` (:data:`tracker.PAPER_HAND`)."""
+    from . import PAPER_HAND, TRACKING_HAND
+
+    return name if name is not None else (PAPER_HAND if paper else TRACKING_HAND)
+
+
+def input_file(spec):
+    """The file a ``--hand-model`` or ``--synergies`` value names, or None for a shipped name."""
+    return Path(spec) if spec and Path(spec).is_file() else None
+
+
+def check_outputs(output, keypoints, overlay, rerun, overwrite, folder=False, save_hand=None):
+    """Every output is checked before the frames are tracked: a full or read-only disk, or a folder
+    where a file goes, fails now and not after minutes of tracking."""
+    from handmodel.fileio import check_output
+
+    from .errors import TrackerError
+
+    if folder:
+        check_output(output, folder=True)
+        return
+    if save_hand is not None:
+        check_hand_file(save_hand)
+    for p in (output, keypoints, rerun, save_hand):
+        if p is not None and p.exists() and not overwrite and not p.is_dir():
+            raise TrackerError(p, "exists and is never overwritten (use --overwrite)")
+        if p is not None:
+            check_output(p, overwrite=overwrite)
+    if rerun is not None and rerun.suffix.lower() != ".rrd":
+        raise TrackerError(rerun, "a Rerun recording must end in .rrd")
+    if overlay is not None:
+        check_output(overlay, folder=True)
+        if not overwrite and overlay.is_dir() and any(overlay.glob("overlay_*.png")):
+            raise TrackerError(overlay, "holds overlay PNGs already, never overwritten (use --overwrite)")
+    outs = [p for p in (output, keypoints, overlay, rerun, save_hand) if p is not None]
+    if len(set(outs)) < len(outs):
+        raise TrackerError("track", "-o, --keypoints, --overlay, --rerun and --save-hand need different paths")
+
+
+def check_hand_file(path):
+    """A hand file must end in .yaml or .yml: --hand-model reads any other name as a shipped model's."""
+    from .errors import TrackerError
+
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        raise TrackerError(path, "a hand file must end in .yaml or .yml (--hand-model takes it back by that)")
+
+
+#: The option of each settings field the command line sets: a settings error names the option.
+OPTION_OF = {"mode": "--mode", "subspace.variance": "--variance", "subspace.n_pcs": "--pcs",
+             "scale.hand_scale": "--hand-scale", "refine.unseen_prior": "--unseen-prior",
+             "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride",
+             "start.search_budget_ms": "--search-budget-ms"}
+
+
+def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
+                          prediction, robust, finger_search, projected_steps, hand_scale, check_hand, *,
+                          rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
+                          threads=None, search_budget_ms=None):
+    """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
+    with every option given replacing its value, checked (:func:`checked_settings`)."""
+    from .errors import TrackerError
+    from .settings import TrackerSettings
+
+    if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
+        raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
+    groups = {
+        "observe": dict(stride=stride, smooth=smooth, target_points=points or None),
+        "icp": dict(icp_iterations=icp, gn_iterations=gn, damping=damping, silhouette_weight=silhouette,
+                    robust_mm=robust, projected_steps=projected_steps),
+        "correspond": dict(model=model), "predict": dict(share=prediction),
+        "init": dict(finger_search=finger_search, threads=threads),
+        "scale": dict(hand_scale=parse_hand_scale(hand_scale), finger_lengths=finger_lengths),
+        "start": dict(check_hand=check_hand, rgb_seed=rgb_seed, search_budget_ms=search_budget_ms),
+        "net": dict(enabled=safety_net),
+        "refine": dict(unseen_prior=unseen_prior), "loss": dict(no_hand_rejected=no_hand),
+    }
+    # an option not given keeps the default's value (the paper's with --paper); --points 0: all points (None)
+    given = {g: {k: v for k, v in kv.items() if v is not None or (k == "target_points" and points == 0)}
+             for g, kv in groups.items()}
+    given["subspace"] = dict(n_pcs=pcs, variance=None if pcs else (0.99 if variance is None else variance))
+    base = TrackerSettings.paper() if paper else TrackerSettings()
+    return checked_settings(base.replace(mode=mode, **given))
+
+
+def checked_settings(settings):
+    """``settings`` after ``settings.check()``, whose error names the command-line option of the field
+    (before the synergy bundle a mode needs is loaded: a typo must not read as a missing --synergies)."""
+    from .errors import TrackerError
+
+    try:
+        settings.check()
+    except TrackerError as e:
+        raise TrackerError(OPTION_OF.get(e.where, e.where), e.reason) from None
+    return settings
+
+
+def check_overlay_every(overlay_every):
+    """Refuse an ``--overlay-every`` below 1 (0 drew every frame, as 1 does, without a word)."""
+    from .errors import TrackerError
+
+    if overlay_every < 1:
+        raise TrackerError("--overlay-every", f"must be ≥ 1 (1 = every frame), got {overlay_every}")
+
+
+def parse_hand_scale(text):
+    """``--hand-scale``: "auto" or a factor, checked by :meth:`tracker.settings.ScaleSettings.check`
+    (within the sizes "auto" searches: 0.05 tracked nothing and blamed the segmentation); None when
+    not given."""
+    from .errors import TrackerError
+    from .settings import ScaleSettings
+
+    if text is None:
+        return None
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        lo, hi = ScaleSettings().range
+        raise TrackerError("--hand-scale", f"must be 'auto' or a factor in {lo:g}–{hi:g} (the hand model's size × "
+                                           f"it), got {text!r}") from None
+    checked_settings(ScaleSettings(hand_scale=value))
+    return value

@@ -5,12 +5,12 @@ import pytest
 from test_init_orientation import CAM, kp_mm, scene
 
 from handmodel import HandModel
+from tracker.cli_common import parse_hand_scale
 from tracker.errors import TrackerError
 from tracker.io.tracking_file import tracking_metadata
 from tracker.scale import extent_scale, rescaled
 from tracker.sim.motions import POSTURES
 from tracker.track import FrameTracker, TrackerSettings
-from tracker.track_cli import _hand_scale
 
 BASE = HandModel.load()
 
@@ -36,12 +36,12 @@ def test_hand_scale_outside_the_searched_sizes_refused(bad):
 
 
 def test_cli_hand_scale_option():
-    assert _hand_scale("auto") == "auto" and _hand_scale(" AUTO ") == "auto" and _hand_scale("1.25") == 1.25
-    assert _hand_scale("0.6") == 0.6 and _hand_scale("2") == 2.0
+    assert parse_hand_scale("auto") == "auto" and parse_hand_scale(" AUTO ") == "auto"
+    assert parse_hand_scale("1.25") == 1.25 and parse_hand_scale("0.6") == 0.6 and parse_hand_scale("2") == 2.0
     # 0.05 tracked nothing and 50 fitted nothing, each blaming the segmentation
     for bad in ("0", "-2", "nan", "inf", "large", "0.05", "50", "2.5"):
         with pytest.raises(TrackerError, match="--hand-scale: must be 'auto' or a factor in 0.6–2"):
-            _hand_scale(bad)
+            parse_hand_scale(bad)
 
 
 def test_given_scale_tracks_the_resized_hand_and_says_so():

@@ -66,8 +66,8 @@ def test_recording_io_has_no_import_circle():
 
 
 def test_command_modules_take_no_private_helpers_from_each_other():
-    cli = [SRC / "cli.py", SRC / "track_cli.py", SRC / "sim" / "cli.py"]
-    mods = {"tracker.cli", "tracker.track_cli", "tracker.sim.cli"}
+    cli = [SRC / "cli.py", SRC / "track_cli.py", SRC / "live_cli.py", SRC / "eval_cli.py", SRC / "sim" / "cli.py"]
+    mods = {"tracker.cli", "tracker.track_cli", "tracker.live_cli", "tracker.eval_cli", "tracker.sim.cli"}
     for f in cli:
         package = "tracker.sim" if f.parent.name == "sim" else "tracker"
         deps = _imports(f, package, top_level_only=False)

@@ -72,14 +72,14 @@ def test_check_names_the_field(change, where):
 
 
 def test_the_command_line_names_the_option_of_a_bad_field():
-    from tracker.track_cli import _settings
+    from tracker.cli_common import settings_from_options
 
     args = [False, "full", None, None] + [None] * 12 + [None, False]
     with pytest.raises(TrackerError, match=r"^--unseen-prior: must be within 0..1, got 2.0$"):
-        _settings(*args, unseen_prior=2.0)
+        settings_from_options(*args, unseen_prior=2.0)
     with pytest.raises(TrackerError, match=r"^--no-hand-rejected: must be a share in \[0, 1\)"):
-        _settings(*args, no_hand=1.0)
-    assert _settings(*args, unseen_prior=0.25, safety_net=False).refine.unseen_prior == 0.25
+        settings_from_options(*args, no_hand=1.0)
+    assert settings_from_options(*args, unseen_prior=0.25, safety_net=False).refine.unseen_prior == 0.25
 
 
 def test_loss_check_alone():
