@@ -1,6 +1,7 @@
 """The synthetic lab's commands: ``tracker synth`` (render a motion into a recording folder with
 ground truth), ``tracker experiments`` (the paper's experiments, written as a report) and
-``tracker train-detector`` (the hand-part detector trained on our renders, :mod:`tracker.sim.train_detector`).
+``tracker train-detector`` (the hand detectors trained on our renders: the part forest,
+:mod:`tracker.sim.train_detector`, or the keypoint CNN, :mod:`tracker.sim.train_cnn`).
 
 ``register(app, wrap)`` adds them to the ``tracker`` typer app. The library modules (numba, pandas,
 matplotlib behind them) are imported inside the commands, not at the top, so that ``tracker --help``
@@ -200,10 +201,18 @@ def experiments(
 
 
 def train_detector(
-    output: Path = typer.Option(..., "-o", "--output", help="Folder to write hand-parts-VERSION.npz into."),
+    output: Path = typer.Option(..., "-o", "--output", help="Folder to write the model into (forest: "
+                                "hand-parts-VERSION.npz; cnn: hand-keypoints-cnn-VERSION.onnx and .json)."),
+    family: str = typer.Option("forest", "--family", help="forest (hand-part random forest, scikit-learn) or cnn "
+                               "(keypoint CNN on the hand's box, PyTorch; needs pip install '.[train]')."),
     seed: int = typer.Option(0, "--seed", help="Seed of the training scenes, pixels, features and trees (the "
                              "held-out scenes use other seeds)."),
-    crops: int = typer.Option(600, "--crops", min=1, help="Training crops drawn by the renderer."),
+    crops: Optional[int] = typer.Option(None, "--crops", min=1, help="Training crops drawn by the renderer "
+                                        "[forest: 600, cnn: 4000]."),
+    epochs: int = typer.Option(16, "--epochs", min=1, help="cnn: passes over the training crops."),
+    head: str = typer.Option("heatmap", "--head", help="cnn: heatmap (soft-argmax) or regression."),
+    segmented: int = typer.Option(100, "--segmented", min=0, help="cnn: held-out whole frames evaluated through the "
+                                  "tracker's segmentation."),
     trees: int = typer.Option(3, "--trees", min=1, help="Trees in the forest."),
     depth: int = typer.Option(20, "--depth", min=1, help="Largest tree depth."),
     features: int = typer.Option(400, "--features", min=2, help="Offset pairs the trees choose from."),
@@ -213,11 +222,13 @@ def train_detector(
     orientations: str = typer.Option("sphere", "--orientations", help="Hand orientations drawn: sphere (any) or "
                                      "user (palm, back or side to the camera, turned ±90°, tilted ±50°)."),
     version: str = typer.Option("1.0.0", "--version", help="Version in the file name and manifest."),
-    jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="Cores for fitting the trees."),
+    jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="Cores for fitting the trees (cnn: processes drawing "
+                            "the crops; torch trains on 2 threads)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a model file of that version."),
 ):
-    """Train the hand-part detector on rendered depth crops, evaluate it on held-out scenes (and the
-    labelled real stills with --real-data) and write the sealed model with its manifest."""
+    """Train a hand detector on rendered depth crops (the hand-part forest, or with --family cnn the
+    keypoint CNN), evaluate it on held-out scenes (and the labelled real stills with --real-data) and
+    write the sealed model with its manifest."""
     import re
     import sys
 
@@ -231,16 +242,26 @@ def train_detector(
         raise TrackerError("--orientations", f"must be sphere or user, got {orientations!r}")
     if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
         raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
-    if (output / f"hand-parts-{version}.npz").exists() and not overwrite:
-        raise TrackerError(str(output / f"hand-parts-{version}.npz"), "exists (use --overwrite or --version)")
+    if family not in ("forest", "cnn"):
+        raise TrackerError("--family", f"must be forest or cnn, got {family!r}")
+    if head not in ("heatmap", "regression"):
+        raise TrackerError("--head", f"must be heatmap or regression, got {head!r}")
+    name = f"hand-parts-{version}.npz" if family == "forest" else f"hand-keypoints-cnn-{version}.json"
+    if (output / name).exists() and not overwrite:
+        raise TrackerError(str(output / name), "exists (use --overwrite or --version)")
     check_output(output, folder=True)
     from rich.console import Console
 
     from .dataset import DataRecipe
+
+    if family == "cnn":
+        return _train_cnn(output, seed=seed, crops=crops or 4000, epochs=epochs, head=head, heldout=heldout,
+                          segmented=segmented, real_data=real_data, recipe=DataRecipe(orientations=orientations),
+                          version=version, jobs=jobs, overwrite=overwrite)
     from .train_detector import TrainSettings, build
 
     err = Console(stderr=True, markup=False)
-    settings = TrainSettings(n_crops=crops, n_trees=trees, max_depth=depth, n_features=features, jobs=jobs,
+    settings = TrainSettings(n_crops=crops or 600, n_trees=trees, max_depth=depth, n_features=features, jobs=jobs,
                              max_features=min(40, features))
     command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
     path, manifest = build(output, seed=seed, recipe=DataRecipe(orientations=orientations), settings=settings, heldout=heldout, real_data=real_data,
@@ -252,6 +273,36 @@ def train_detector(
     out.print(f"held-out synthetic ({h['crops']} crops): keypoints found {100 * h['found_share']:.0f} %, "
               f"median {h['px_median']} px / {h['mm_median']} mm, mean {h['mm_mean']} mm; "
               f"part accuracy {100 * h['hand_part_accuracy']:.0f} %")
+    if "real_sr305" in m:
+        r = m["real_sr305"]
+        out.print(f"real SR305 stills ({r['frames']}): tips median {r['tips_px_median']} px, "
+                  f"{r['tips_within_15px']}/{r['tips']} tips within 15 px")
+
+
+def _train_cnn(output, *, seed, crops, epochs, head, heldout, segmented, real_data, recipe, version, jobs, overwrite):
+    """``train-detector --family cnn``: :func:`tracker.sim.train_cnn.build` and its figures."""
+    import sys
+
+    from rich.console import Console
+
+    from .train_cnn import CnnSettings, build, require_torch
+
+    require_torch()
+    err = Console(stderr=True, markup=False)
+    command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
+    settings = CnnSettings(head=head, n_crops=crops, epochs=epochs, jobs=jobs)
+    path, manifest = build(output, seed=seed, recipe=recipe, settings=settings, heldout=heldout, segmented=segmented,
+                           real_data=real_data, version=version, command=command, progress=err.print,
+                           overwrite=overwrite)
+    m = manifest["metrics"]
+    h, j = m["heldout"]["true_box"], m["heldout"]["jittered_box"]
+    out = Console(markup=False)
+    out.print(f"wrote {path} and {path.with_suffix('.onnx').name} ({manifest['training']['seconds']['total']:.0f} s)")
+    out.print(f"held-out synthetic ({m['heldout']['crops']} crops): median {h['mm_median']} mm / {h['px_median']} px "
+              f"(true box), {j['mm_median']} mm (jittered box); centroid {m['heldout']['centroid_mm_median']} mm")
+    if "all" in m["segmented"]:
+        out.print(f"held-out whole frames through the segmentation ({m['segmented']['with_keypoints']} of "
+                  f"{m['segmented']['frames']}): median {m['segmented']['all']['mm_median']} mm")
     if "real_sr305" in m:
         r = m["real_sr305"]
         out.print(f"real SR305 stills ({r['frames']}): tips median {r['tips_px_median']} px, "

@@ -231,12 +231,14 @@ def summary(px, mm, found) -> dict:
             "mm_p90": _r(np.percentile(mm[ok], 90))}
 
 
-def evaluate_real(detector: HandPartForest, data_dir) -> dict:
+def evaluate_real(detector, data_dir, detect_fn=detect) -> dict:
     """The labelled SR305 stills (``../shared/data/realsense_sr305_lada``) as the tracker sees them:
     the ``sr305`` preset, the right hand, the tracker's own segmentation as the mask
     (:func:`tracker.observe.observe`; the labelled mask is not used). Tips: the detected tip
     keypoints against the labelled tips; wrist: the detected wrist joint against the labelled crease
-    (not the same point: the crease lies ~1–2 cm further along the arm). Evaluation only."""
+    (not the same point: the crease lies ~1–2 cm further along the arm). Evaluation only.
+    ``detect_fn(depth, camera, mask, hand, detector=)``: the forest's :func:`tracker.detector.detect`
+    or the CNN's :func:`tracker.keypoint_cnn.detect`."""
     import json
 
     from ..io.cameras import preset
@@ -255,7 +257,7 @@ def evaluate_real(detector: HandPartForest, data_dir) -> dict:
         depth = units_to_metres(read_depth_units(root / f"{name}.png", cam), cam)
         mask = observe(depth, cam).mask
         t0 = time.perf_counter()
-        d = detect(depth, cam, mask, "right", detector=detector)
+        d = detect_fn(depth, cam, mask, "right", detector=detector)
         ms = 1000 * (time.perf_counter() - t0)
         lab = labels[name]
         tips = {t: _r(np.hypot(*(d.keypoints_px[PART_NAMES.index(t + "_tip")] - lab[t]))) for t in
@@ -331,126 +333,3 @@ def evaluate_start(detector: HandPartForest, recipe: DataRecipe, seed: int, n: i
             "detected_mm_median": _r(np.median(det_mm)), "starts": starts,
             "start_mean_keypoint_mm_median": _r(np.median(start_mm)) if start_mm else None,
             "start_within_20mm": int(np.sum(np.array(start_mm) <= 20)), "fit_start_ms_median": _r(np.median(ms))}
-
-
-# ----------------------------------------------------------------------------- family (b), exploratory
-CNN_SIDE = 64
-
-
-def hand_crop_input(crop, side: int = CNN_SIDE):
-    """The CNN's input for a crop given its hand's pixels (a perfect segmentation, as the forest's
-    ``ideal_mask`` row): the mask's square box grown 15 %, sampled to ``side``², depth minus the mask's
-    median over 0.15 m clipped to ±1 (no depth: 1), a right hand mirrored. Returns ``(image, box)``,
-    box = (u0, v0, size_px, median_m), or None without hand pixels."""
-    m = (crop.parts >= 0) & (crop.parts < OTHER) & np.isfinite(crop.depth)
-    if m.sum() < 20:
-        return None
-    rows, cols = np.nonzero(m)
-    cu, cv = (cols.min() + cols.max()) / 2, (rows.min() + rows.max()) / 2
-    size = 1.15 * max(cols.max() - cols.min(), rows.max() - rows.min()) + 2
-    med = float(np.median(crop.depth[m]))
-    g = (np.arange(side) + 0.5) / side * size - size / 2
-    uu = np.clip(np.rint(cu + g), 0, crop.depth.shape[1] - 1).astype(int)
-    vv = np.clip(np.rint(cv + g), 0, crop.depth.shape[0] - 1).astype(int)
-    img = crop.depth[np.ix_(vv, uu)]
-    img = np.where(np.isfinite(img), np.clip((img - med) / 0.15, -1, 1), 1.0).astype(np.float32)
-    if crop.mirror < 0:
-        img = img[:, ::-1].copy()
-    return img, (cu - size / 2, cv - size / 2, size, med)
-
-
-def _cnn_target(crop, box):
-    u0, v0, size, med = box
-    t = np.concatenate([(crop.keypoints_uv[:, 0:1] - u0) / size, (crop.keypoints_uv[:, 1:2] - v0) / size,
-                        (crop.keypoints_z[:, None] - med) / 0.1], axis=1)
-    if crop.mirror < 0:
-        t[:, 0] = 1.0 - t[:, 0]
-    return t.astype(np.float32)
-
-
-def _cnn_xyz(crop, box, out):
-    u0, v0, size, med = box
-    out = np.array(out, float).reshape(N_PARTS, 3)
-    if crop.mirror < 0:
-        out[:, 0] = 1.0 - out[:, 0]
-    u, v, z = u0 + out[:, 0] * size, v0 + out[:, 1] * size, med + out[:, 2] * 0.1
-    fx, fy, cx, cy = crop.camera
-    return np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
-
-
-def cnn_experiment(recipe: DataRecipe, seed: int, n_train: int, n_heldout: int, epochs: int = 15,
-                   progress=None) -> dict:
-    """Family (b), exploratory: a small CNN (4 strided conv blocks, 63 outputs: each keypoint's crop
-    position and depth) trained with PyTorch on CPU on ``n_train`` crops, measured on ``n_heldout``
-    held-out crops (seed ``seed + HELDOUT_SEED_OFFSET``), both given the hand's true pixels. Needs
-    ``torch`` (a training extra); nothing is shipped."""
-    import torch
-    from torch import nn
-
-    say = progress or (lambda msg: None)
-    torch.manual_seed(seed)
-
-    def data(crops):
-        X, Y, keep = [], [], []
-        for c in crops:
-            r = hand_crop_input(c)
-            if r is not None:
-                X.append(r[0])
-                Y.append(_cnn_target(c, r[1]))
-                keep.append((c, r[1]))
-        return torch.from_numpy(np.array(X)[:, None]), torch.from_numpy(np.array(Y).reshape(len(Y), -1)), keep
-
-    t0 = time.perf_counter()
-    say(f"drawing {n_train} + {n_heldout} crops")
-    X, Y, _ = data(draw_crops(recipe, seed, n_train))
-    Xh, Yh, held = data(draw_crops(recipe, seed + HELDOUT_SEED_OFFSET, n_heldout))
-    t_draw = time.perf_counter() - t0
-
-    def block(i, o):
-        return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.BatchNorm2d(o), nn.ReLU(),
-                             nn.Conv2d(o, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU())
-
-    net = nn.Sequential(block(1, 24), block(24, 48), block(48, 96), block(96, 128), nn.AdaptiveAvgPool2d(1),
-                        nn.Flatten(), nn.Linear(128, 256), nn.ReLU(), nn.Linear(256, 3 * N_PARTS))
-    opt = torch.optim.Adam(net.parameters(), 1e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs)
-    g = torch.Generator().manual_seed(seed)
-    for ep in range(epochs):
-        net.train()
-        perm = torch.randperm(len(X), generator=g)
-        total = 0.0
-        for k in range(0, len(X), 64):
-            idx = perm[k:k + 64]
-            loss = nn.functional.smooth_l1_loss(net(X[idx]), Y[idx], beta=0.02)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        sched.step()
-        say(f"epoch {ep + 1}/{epochs}: loss {total / len(X):.4f}")
-    t_fit = time.perf_counter() - t0 - t_draw
-    net.eval()
-    with torch.no_grad():
-        t1 = time.perf_counter()
-        out = net(Xh).numpy()
-        ms = 1000 * (time.perf_counter() - t1) / max(len(Xh), 1)
-    mm, px, base = [], [], []
-    for (c, box), o in zip(held, out):
-        truth = crop_truth_xyz(c)
-        xyz = _cnn_xyz(c, box, o)
-        mm.append(1000 * np.linalg.norm(xyz - truth, axis=1))
-        uv = np.stack([c.camera[0] * xyz[:, 0] / xyz[:, 2] + c.camera[2],
-                       c.camera[1] * xyz[:, 1] / xyz[:, 2] + c.camera[3]], axis=1)
-        px.append(np.linalg.norm(uv - c.keypoints_uv, axis=1))
-        m = (c.parts >= 0) & (c.parts < OTHER) & np.isfinite(c.depth)
-        rows, cols = np.nonzero(m)
-        z = c.depth[rows, cols]
-        fx, fy, cx, cy = c.camera
-        centroid = np.stack([(cols - cx) * z / fx, (rows - cy) * z / fy, z], axis=1).mean(axis=0)
-        base.append(1000 * np.linalg.norm(truth - centroid, axis=1))
-    mm, px, base = np.array(mm), np.array(px), np.array(base)
-    return {"train_crops": int(len(X)), "heldout_crops": int(len(Xh)), "epochs": epochs,
-            "mm_median": _r(np.median(mm)), "mm_mean": _r(np.mean(mm)), "px_median": _r(np.median(px)),
-            "tips_mm_median": _r(np.median(mm[:, [4, 8, 12, 16, 20]])), "centroid_mm_median": _r(np.median(base)),
-            "ms_per_crop_batched": _r(ms), "parameters": int(sum(p.numel() for p in net.parameters())),
-            "seconds": {"draw": round(t_draw, 1), "fit": round(t_fit, 1)}}

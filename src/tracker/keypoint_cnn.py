@@ -1,0 +1,291 @@
+"""Hand keypoints from one depth frame and the hand's segmentation: a small CNN run by onnxruntime.
+
+The hand's box is the square around the mask's pixels, grown by :data:`BOX_GROW`; the depth in it
+is sampled to :data:`INPUT_SIDE`² pixels (nearest pixel: no depth mixed across an edge), minus the
+mask's median depth over :data:`DEPTH_RANGE_M`, clipped to ±1, 1 where there is no depth or no
+image; a right hand is mirrored to a left one (one network serves both). The network gives each
+keypoint's place in the box (0–1), its depth relative to the median (in :data:`Z_SCALE_M`) and the
+spread of its 2-D heatmap (box units; 0 for a network that regresses the keypoints directly); the
+spread becomes the keypoint's confidence (:func:`spread_confidence`). The result is a
+:class:`tracker.detector.Detection`, so :func:`tracker.detector.fit_start` takes it as it takes the
+forest's.
+
+The network is trained by :mod:`tracker.sim.train_cnn` (PyTorch, the ``[train]`` extra) and shipped
+as ONNX under ``models/detectors/`` beside a JSON manifest (training command, data recipe, seed,
+metrics, the ONNX file's SHA-256, sealed by its own ``manifest_sha256``). Inference needs only
+onnxruntime (the ``[detector]`` extra), on one thread. This module never imports :mod:`tracker.sim`
+nor torch.
+
+Examples
+--------
+>>> import numpy as np
+>>> box = hand_box(np.full((40, 60), 0.5), np.pad(np.ones((10, 20), bool), ((5, 25), (10, 30))))
+>>> [round(float(v), 2) for v in box]
+[19.5, 9.5, 26.7, 0.5]
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from handmodel.fileio import atomic_write_bytes, manifest_sha256, models_dir, read_limited
+
+from .detector import N_PARTS, PART_NAMES, Detection
+from .errors import TrackerError
+from .io.cameras import as_camera
+
+CNN_NAME = "hand-keypoints-cnn"
+FORMAT = "hand-keypoint-cnn/1"
+#: The network's input: a square of this many pixels a side.
+INPUT_SIDE = 64
+#: The box's side over the mask's larger extent (a margin for keypoints inside the skin's outline,
+#: and for a segmentation that cuts a finger short).
+BOX_GROW = 1.3
+#: Depth in the input: (depth − the mask's median) / this, clipped to ±1.
+DEPTH_RANGE_M = 0.15
+#: The network's depth output is (keypoint depth − the mask's median) / this.
+Z_SCALE_M = 0.1
+#: A mask with fewer pixels with depth gives no keypoints.
+MIN_MASK_PIXELS = 20
+#: A heatmap spread (box units) of this size gives a confidence of exp(−1).
+SPREAD_SCALE = 0.06
+MAX_ONNX_BYTES = 64 << 20
+MAX_MANIFEST_BYTES = 4 << 20
+
+
+def _require_onnxruntime():
+    try:
+        import onnxruntime
+    except ImportError:
+        raise TrackerError("onnxruntime", "not installed: the keypoint CNN needs it (pip install '.[detector]')") from None
+    return onnxruntime
+
+
+# ----------------------------------------------------------------------------- input and output
+def hand_box(depth, mask, grow: float = BOX_GROW):
+    """``(cu, cv, size, median_m)``: the square box around the mask's pixels with depth (centre in
+    pixels, side ``grow`` × the larger extent + 2 px) and their median depth; None with fewer than
+    :data:`MIN_MASK_PIXELS`."""
+    d = np.asarray(depth)
+    m = np.asarray(mask, bool) & np.isfinite(d) & (d > 0)
+    if m.sum() < MIN_MASK_PIXELS:
+        return None
+    rows, cols = np.nonzero(m)
+    cu, cv = (cols.min() + cols.max()) / 2.0, (rows.min() + rows.max()) / 2.0
+    size = grow * max(cols.max() - cols.min(), rows.max() - rows.min()) + 2.0
+    return float(cu), float(cv), float(size), float(np.median(d[m]))
+
+
+def crop_image(depth, box, mirror: bool, side: int = INPUT_SIDE) -> np.ndarray:
+    """The network's ``(side, side)`` float32 input for ``box`` (:func:`hand_box`): the nearest
+    pixel at each cell's centre, (depth − median) / :data:`DEPTH_RANGE_M` clipped to ±1, 1 where
+    there is no depth or no image; ``mirror`` (a right hand) flips it left–right."""
+    cu, cv, size, med = box
+    d = np.asarray(depth, np.float32)
+    g = (np.arange(side) + 0.5) / side * size - size / 2.0
+    uu = np.floor(cu + g + 0.5).astype(np.int64)
+    vv = np.floor(cv + g + 0.5).astype(np.int64)
+    okc = (uu >= 0) & (uu < d.shape[1])
+    okr = (vv >= 0) & (vv < d.shape[0])
+    img = np.ones((side, side), np.float32)
+    sub = d[np.ix_(vv[okr], uu[okc])]
+    with np.errstate(invalid="ignore"):
+        val = np.where(np.isfinite(sub) & (sub > 0), np.clip((sub - med) / DEPTH_RANGE_M, -1.0, 1.0), 1.0)
+    img[np.ix_(okr, okc)] = val
+    return img[:, ::-1].copy() if mirror else img
+
+
+def box_keypoints(out, box, mirror: bool, camera):
+    """Pixels ``(21, 2)``, depths ``(21,)`` and camera-frame points ``(21, 3)`` of the network's
+    output ``(21, 3)`` (x, y in the box 0–1, z relative in :data:`Z_SCALE_M`) for ``box``."""
+    cu, cv, size, med = box
+    o = np.asarray(out, float).reshape(N_PARTS, 3)
+    x = 1.0 - o[:, 0] if mirror else o[:, 0]
+    u = cu - size / 2.0 + x * size
+    v = cv - size / 2.0 + o[:, 1] * size
+    z = med + o[:, 2] * Z_SCALE_M
+    xyz = np.stack([(u - camera.cx) * z / camera.fx, (v - camera.cy) * z / camera.fy, z], axis=1)
+    return np.stack([u, v], axis=1), z, xyz
+
+
+def spread_confidence(spread) -> np.ndarray:
+    """0–1 from each keypoint's heatmap spread (box units): exp(−(spread / :data:`SPREAD_SCALE`)²);
+    1 for a network without heatmaps (spread 0)."""
+    s = np.asarray(spread, float)
+    return np.exp(-(s / SPREAD_SCALE) ** 2)
+
+
+# ----------------------------------------------------------------------------- the model
+@dataclass(eq=False)
+class KeypointCNN:
+    """A verified ONNX network with its manifest; the onnxruntime session is made on first use.
+
+    Parameters
+    ----------
+    onnx_bytes : bytes
+        The ONNX model (its SHA-256 is the manifest's ``onnx_sha256``).
+    manifest : dict
+    path : Path or None
+        The manifest file it was read from.
+    """
+
+    onnx_bytes: bytes
+    manifest: dict
+    path: Path | None = None
+    _session: object = field(default=None, repr=False)
+
+    @property
+    def session(self):
+        if self._session is None:
+            ort = _require_onnxruntime()
+            opts = ort.SessionOptions()
+            opts.intra_op_num_threads = 1  # one core: the tracker's other work runs beside it
+            opts.inter_op_num_threads = 1
+            self._session = ort.InferenceSession(self.onnx_bytes, opts, providers=["CPUExecutionProvider"])
+        return self._session
+
+    def run(self, images) -> tuple[np.ndarray, np.ndarray]:
+        """``(keypoints (B, 21, 3), spread (B, 21))`` of inputs ``(B, side, side)``."""
+        x = np.ascontiguousarray(np.asarray(images, np.float32)[:, None])
+        kp, spread = self.session.run(["keypoints", "spread"], {"depth": x})
+        return kp, spread
+
+
+def _cnn_paths(path) -> tuple[Path, Path]:
+    p = Path(path)
+    base = p.with_suffix("") if p.suffix in (".json", ".onnx") else p
+    return base.with_suffix(".json"), base.with_suffix(".onnx")
+
+
+def onnx_sha256(data: bytes) -> str:
+    import hashlib
+
+    return hashlib.sha256(data).hexdigest()
+
+
+def save_cnn(path, onnx_bytes: bytes, manifest: dict, *, overwrite: bool = False) -> Path:
+    """Write ``<path>.onnx`` and its sealed ``<path>.json`` manifest (the ONNX's SHA-256 and the
+    manifest's own), each verified by reading it back; returns the manifest's path."""
+    jpath, opath = _cnn_paths(path)
+    m = dict(manifest, format=FORMAT, onnx_file=opath.name, onnx_sha256=onnx_sha256(onnx_bytes))
+    m["manifest_sha256"] = manifest_sha256(m)
+    for p in (jpath, opath):
+        if p.exists() and not overwrite:
+            raise TrackerError(str(p), "exists (give another output folder or version)")
+    try:
+        atomic_write_bytes(opath, onnx_bytes, overwrite=overwrite)
+        text = json.dumps(m, indent=1, sort_keys=True, allow_nan=False) + "\n"
+        atomic_write_bytes(jpath, text.encode("utf-8"), overwrite=overwrite)
+    except OSError as exc:
+        raise TrackerError(str(exc.filename or jpath), f"cannot write ({exc.strerror or exc})") from None
+    read_cnn(jpath)
+    return jpath
+
+
+def read_cnn(path) -> KeypointCNN:
+    """Read and verify a keypoint CNN (its ``.json`` manifest or ``.onnx``, the other beside it):
+    the manifest's seal, then the ONNX bytes against its ``onnx_sha256`` (before onnxruntime sees
+    them)."""
+    jpath, opath = _cnn_paths(path)
+    raw = read_limited(jpath, MAX_MANIFEST_BYTES, TrackerError)
+    try:
+        manifest = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TrackerError(str(jpath), f"manifest is not JSON ({getattr(exc, 'msg', exc)})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise TrackerError(str(jpath), f"not a {FORMAT} manifest")
+    if manifest.get("manifest_sha256") != manifest_sha256(manifest):
+        raise TrackerError(str(jpath), "manifest does not match its manifest_sha256 (manifest edited?)")
+    if manifest.get("onnx_file") != opath.name:
+        raise TrackerError(str(jpath), f"names {manifest.get('onnx_file')!r}, not {opath.name!r}")
+    data = read_limited(opath, MAX_ONNX_BYTES, TrackerError)
+    if onnx_sha256(data) != manifest.get("onnx_sha256"):
+        raise TrackerError(str(opath), "does not match the manifest's onnx_sha256 (file modified?)")
+    if manifest.get("input_side") != INPUT_SIDE or manifest.get("box_grow") != BOX_GROW:
+        raise TrackerError(str(jpath), "made for another input (input_side, box_grow) than this version reads")
+    return KeypointCNN(data, manifest, jpath)
+
+
+def cnn_path(name: str = CNN_NAME) -> Path:
+    """The shipped network of that name (newest version under ``models/detectors/``) or a path."""
+    p = Path(name)
+    if p.suffix in (".json", ".onnx"):
+        return _cnn_paths(p)[0]
+    folder = models_dir() / "detectors"
+    found = sorted(folder.glob(f"{name}-*.json"), key=lambda q: [int(x) if x.isdigit() else x
+                                                                   for x in q.stem[len(name) + 1:].split(".")])
+    if not found:
+        raise TrackerError(str(folder), f"no keypoint CNN {name!r} shipped")
+    return found[-1]
+
+
+@lru_cache(maxsize=4)
+def _cached(path: str, mtime: float) -> KeypointCNN:
+    return read_cnn(path)
+
+
+def load_cnn(name_or_path: str = CNN_NAME) -> KeypointCNN:
+    """The network by name (shipped, newest version) or path, read and verified once per process."""
+    p = cnn_path(str(name_or_path))
+    try:
+        return _cached(str(p.resolve()), p.stat().st_mtime)
+    except FileNotFoundError:
+        raise TrackerError(str(p), "no such keypoint CNN manifest") from None
+
+
+# ----------------------------------------------------------------------------- detection
+def _nothing(pixels: int = 0) -> Detection:
+    return Detection(np.full((N_PARTS, 2), np.nan), np.full(N_PARTS, np.nan), np.full((N_PARTS, 3), np.nan),
+                     np.zeros(N_PARTS), 0.0, pixels)
+
+
+def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN | None = None) -> Detection:
+    """The hand's 21 keypoints (:data:`tracker.detector.PART_NAMES` order) from one depth frame.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, NaN or 0 where none.
+    camera : a camera (``tracker.io.cameras``) or preset name
+    mask : (H, W) bool
+        The hand's segmentation (``tracker.observe.observe(...).mask``): it places the box and the
+        depth origin; the network reads every pixel in the box.
+    hand : "left" or "right"
+    detector : the network (default: the shipped one)
+
+    Returns
+    -------
+    Detection
+        Every keypoint has a place when the mask has :data:`MIN_MASK_PIXELS` pixels with depth
+        (confidence from the heatmaps' spread); otherwise none (NaN, confidence 0, hand score 0).
+        ``hand_score`` is the mean confidence: the network was not trained on crops without a hand,
+        so it says how sure the keypoints are, not whether a hand is there.
+    """
+    if hand not in ("left", "right"):
+        raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
+    cam = as_camera(camera)
+    d = np.asarray(depth_m, np.float32)
+    if d.ndim != 2 or d.shape != (int(cam.height), int(cam.width)):
+        raise TrackerError("depth", f"shape {d.shape} does not match the camera's {int(cam.height)}×{int(cam.width)}")
+    if mask is None:
+        raise TrackerError("mask", "the keypoint CNN needs the hand's segmentation (observe(...).mask)")
+    m = np.asarray(mask, bool)
+    if m.shape != d.shape:
+        raise TrackerError("mask", f"shape {m.shape} differs from the depth's {d.shape}")
+    box = hand_box(d, m)
+    if box is None:
+        return _nothing(int(m.sum()))
+    net = detector or load_cnn()
+    mirror = hand == "right"
+    out, spread = net.run(crop_image(d, box, mirror)[None])
+    uv, z, xyz = box_keypoints(out[0], box, mirror, cam)
+    conf = spread_confidence(spread[0])
+    return Detection(uv, z, xyz, conf, float(conf.mean()), int(m.sum()))
+
+
+__all__ = ["CNN_NAME", "INPUT_SIDE", "BOX_GROW", "KeypointCNN", "PART_NAMES", "box_keypoints", "cnn_path",
+           "crop_image", "detect", "hand_box", "load_cnn", "read_cnn", "save_cnn", "spread_confidence"]
