@@ -39,6 +39,7 @@ class TrackerStats:
         and sizes at an end of ``scale.range``
     size_starts : size-refining searches whose fit replaced the tracked one
     rgb_seeds, rgb_kept : start searches seeded by colour keypoints; how often the seed alone won
+    detector_seeds : start searches seeded by the depth keypoint detector's hand (``start.detector``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
     """
@@ -59,6 +60,7 @@ class TrackerStats:
     size_starts: int = 0
     rgb_seeds: int = 0
     rgb_kept: int = 0
+    detector_seeds: int = 0
     searches: int = 0
     searches_cut: int = 0
     search_ms: float = 0.0
@@ -350,6 +352,52 @@ class ColourSeed:
         return theta, corr
 
 
+def depth_detector(name: str):
+    """The depth keypoint detector called ``name`` as ``detect(depth_m, camera, mask, hand) -> Detection``:
+    a model file or name under ``models/detectors/`` — the ONNX keypoint CNN (:mod:`tracker.keypoint_cnn`,
+    extra ``[detector]``) for ``.onnx`` files and names starting with ``hand-keypoints``, else the hand-part
+    forest (:mod:`tracker.detector`). Loaded here, once: a missing or damaged file is a
+    :class:`tracker.errors.TrackerError` when the tracker is built, not on its first start."""
+    from functools import partial
+
+    if str(name).endswith(".onnx") or str(name).startswith("hand-keypoints"):
+        from .keypoint_cnn import detect, load_cnn
+
+        return partial(detect, detector=load_cnn(name))
+    from .detector import detect, load_detector
+
+    return partial(detect, detector=load_detector(name))
+
+
+class KeypointSeed:
+    """Start searches seeded by the hand fitted to a depth keypoint detector's keypoints
+    (``start.detector``): ``detect(depth_m, camera, mask, hand) -> tracker.detector.Detection`` on the
+    frame and the start's segmentation, :func:`tracker.detector.fit_start` (with the synergy bundle, the
+    subspace fills the fingers it did not find). The seed is one more start of the search, ranked by the
+    same score as the others (Sharp et al. 2015 seed their model fit the same way)."""
+
+    def __init__(self, detect, synergies=None, stats: TrackerStats | None = None):
+        self.detect, self.synergies, self.stats = detect, synergies, stats or TrackerStats()
+
+    def reset(self):
+        pass
+
+    def start(self, hand, sil) -> tuple:
+        """``(θ,)`` fitted to the keypoints detected in the frame's hand region, or ``()``."""
+        from .detector import fit_start
+
+        if sil is None or sil.empty or sil.camera is None:
+            return ()
+        depth = sil.frame_depth if getattr(sil, "frame_depth", None) is not None else sil.depth
+        if depth is None:
+            return ()
+        th = fit_start(self.detect(depth, sil.camera, sil.mask, hand.handedness), hand, self.synergies)
+        if th is None:
+            return ()
+        self.stats.detector_seeds += 1
+        return (th,)
+
+
 class Prediction:
     """The start of a tracked frame's fit and the points it fits (:class:`tracker.settings.PredictSettings`):
     the last θ moved on by its last change, the points gated by the hand predicted there (``gate``)
@@ -405,14 +453,14 @@ class Prediction:
 
 class StartSearch:
     """A frame fitted without one before it (the first, after a loss): the single-frame search
-    (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ and the colour seed
-    (``colour``), its last fits holding the hand's wrist crease on the arm's line (the frame's ``cue``;
+    (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ, the colour seed
+    (``colour``) and the depth keypoint detector's (``keypoints``, :class:`KeypointSeed`), its last fits holding the hand's wrist crease on the arm's line (the frame's ``cue``;
     :class:`tracker.icp.IcpSettings` ``wrist_line_weight``)."""
 
     def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None,
-                 budget_ms: float = 0.0):
+                 budget_ms: float = 0.0, keypoints: KeypointSeed | None = None):
         self.init, self.cue, self.colour, self.stats = init, cue, colour, stats or TrackerStats()
-        self.budget_ms = budget_ms
+        self.budget_ms, self.keypoints = budget_ms, keypoints
 
     def reset(self):
         pass
@@ -422,6 +470,8 @@ class StartSearch:
         extra = () if last_good is None else (last_good,)
         seed = () if self.colour is None else self.colour.start(ctx.hand, color, depth, camera)
         self.cue.add(sil)
+        if self.keypoints is not None:
+            extra += self.keypoints.start(ctx.hand, sil)
         # a size calibration's fits do not hold the crease (it moved a real recording's calibrated size,
         # 1.276 → 1.256, and tips by up to 40 px), nor the net's, whose result is compared with the tracked fit's
         budget = SearchBudget(self.budget_ms)

@@ -121,6 +121,9 @@ class StartSettings(SettingsGroup):
     rgb_seed : start the searches also from the hand fitted to the colour keypoints
         (:mod:`tracker.rgb`, extra ``[rgb]``; False)
     check_hand : on the first frame also fit the mirror-image hand (``hand_check_``; False)
+    detector : a depth keypoint detector (a name or file under ``models/detectors/``,
+        :func:`tracker.parts.depth_detector`) whose fitted hand seeds the start searches ("" = none, the
+        default: neither shipped detector is yet good enough, docs/experiments/detector.md)
     search_budget_ms : a start search's budget (ms): once spent, its optional stages are skipped and
         its best start so far converged (:class:`tracker.init.SearchBudget`; 0 = none, the default:
         with a budget the result depends on the machine's speed)
@@ -129,6 +132,7 @@ class StartSettings(SettingsGroup):
     wrist_cue: bool = True
     rgb_seed: bool = False
     check_hand: bool = False
+    detector: str = ""
     search_budget_ms: float = 0.0
 
     @classmethod
@@ -139,6 +143,8 @@ class StartSettings(SettingsGroup):
         b = self.search_budget_ms
         _need(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 <= b < math.inf,
               "start.search_budget_ms", f"must be a number of ms ≥ 0 (0 = no budget), got {b!r}")
+        _need(isinstance(self.detector, str), "start.detector",
+              f"must be a detector's name or file (\"\" = none), got {self.detector!r}")
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,12 @@ from .icp import fit, posed_samples, tracking_schedule
 from .init import fit_single_frame, score
 from .net import SafetyNet
 from .observe import hand_window
+from .parts import depth_detector as load_depth_detector
 from .parts import (
     ColourSeed,
     FingerRestart,
     Gate,
+    KeypointSeed,
     LossCheck,
     Prediction,
     Recentring,
@@ -139,6 +141,8 @@ class FrameTracker:
     settings : TrackerSettings
     synergies : a synergy bundle (``synergy.bundle.Bundle``) or ``None`` (full mode only)
     keypoint_detector : the colour seed's detector instead of MediaPipe (``start.rgb_seed``)
+    depth_detector : ``detect(depth_m, camera, mask, hand) -> Detection`` seeding the start searches, instead
+        of the one ``start.detector`` names (:class:`tracker.parts.KeypointSeed`)
 
     Attributes
     ----------
@@ -149,7 +153,8 @@ class FrameTracker:
     colour : the :class:`tracker.parts.ColourSeed` with ``start.rgb_seed``, else None
     """
 
-    def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None, keypoint_detector=None):
+    def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None, keypoint_detector=None,
+                 depth_detector=None):
         self.base_hand = hand
         self.settings = st = settings or TrackerSettings()
         st.check()
@@ -158,7 +163,7 @@ class FrameTracker:
         self.synergies = synergies
         self.stats = TrackerStats()
         self.cue = WristCue(st.start.wrist_cue, self.stats)
-        self.net = SafetyNet(st.net, self.cue, self.stats)
+        self.net = SafetyNet(st.net, self.cue, self.stats, st.start.search_budget_ms)
         self.gate = Gate(st.observe, st.loss.min_points, st.net.enabled and st.mode != "reduced", self.stats)
         self.recentring = Recentring(st.correspond.reject_mm, self.stats)
         self.prediction = Prediction(st.predict, self.gate, self.recentring, self.stats)
@@ -167,7 +172,10 @@ class FrameTracker:
         self.loss = LossCheck(st.loss, st.scale.range, self.stats)
         self.sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, self.stats)
         self.colour = ColourSeed(keypoint_detector, self.stats) if st.start.rgb_seed else None
-        self.search = StartSearch(st.init, self.cue, self.colour, self.stats, st.start.search_budget_ms)
+        if depth_detector is None and st.start.detector:
+            depth_detector = load_depth_detector(st.start.detector)
+        keypoints = None if depth_detector is None else KeypointSeed(depth_detector, synergies, self.stats)
+        self.search = StartSearch(st.init, self.cue, self.colour, self.stats, st.start.search_budget_ms, keypoints)
         self.hand_check_ = None
         self.sizes = HandSizes(hand, st, synergies)
         self.use_scale(1.0 if self.sizing.scale_ is None else self.sizing.scale_)
