@@ -66,3 +66,19 @@ def test_the_shipped_forest_loads_by_name_and_a_bad_name_is_one_error():
     with pytest.raises(TrackerError):
         FrameTracker(HAND, TrackerSettings().replace(start=dict(detector="no-such-detector")))
     assert FrameTracker(HAND, TrackerSettings()).search.keypoints is None  # off by default
+
+
+def test_track_command_takes_a_detector(tmp_path):
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+
+    def run(*args):
+        return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+
+    assert run("synth", "--frames", "2", "--noise", "none", "-o", tmp_path / "rec").exit_code == 0
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "t.csv", "--hand-scale", "1", "--detector", "hand-parts")
+    assert r.exit_code == 0 and "start searches seeded by hand-parts's keypoints" in r.output, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "u.csv", "--detector", "no-such-detector")
+    assert r.exit_code == 2 and "no-such-detector" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "u.csv").exists()
