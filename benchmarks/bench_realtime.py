@@ -14,7 +14,10 @@ Sequences (rendered by :func:`tracker.sim.synthesize.synthesize`, seed 0, forear
 (a fist every 2 s), grasp-back (a power grasp seen from the back), rotate (palm → back), fast (1.1 m/s
 sweeps), under Kinect v1 and RealSense SR305 noise, hands 0.8× and 1.5× the model.
 
+``--search-budget-ms B`` adds this tree with the start searches' budget (``start.search_budget_ms``).
+
 Run: .venv/bin/python benchmarks/bench_realtime.py [--frames 60] [--peer REV] [--no-peer] [--no-stills]
+[--search-budget-ms B]
 """
 from __future__ import annotations
 
@@ -39,8 +42,12 @@ import json, sys, time
 t_import = time.time()
 from tracker.run import TrackJob, run_job
 rec, out, synergies = sys.argv[1:4]
+kw = {}
+if len(sys.argv) > 4:  # a start-search budget (this tree only: the peer has none)
+    from tracker.settings import TrackerSettings
+    kw["settings"] = TrackerSettings().replace(start=dict(search_budget_ms=float(sys.argv[4])))
 stamps = []
-run_job(TrackJob(rec, out, synergies=synergies, overwrite=True),
+run_job(TrackJob(rec, out, synergies=synergies, overwrite=True, **kw),
         on_frame=lambda frame, r, ob: stamps.append((time.time(), r.status)))
 print(json.dumps({"import": t_import, "stamps": stamps}))
 """
@@ -54,10 +61,12 @@ def child_env(src: Path) -> dict:
     return env
 
 
-def track_timed(src: Path, rec: Path, out: Path) -> dict:
-    """Spawn a process that tracks ``rec`` with the tree at ``src``; the times as seen from here."""
+def track_timed(src: Path, rec: Path, out: Path, budget_ms: float = 0.0) -> dict:
+    """Spawn a process that tracks ``rec`` with the tree at ``src`` (``budget_ms``: the start searches'
+    budget); the times as seen from here."""
     t0 = time.time()
-    p = subprocess.run([sys.executable, "-c", DRIVER, str(rec), str(out), "fingerfist"], env=child_env(src),
+    extra = [str(budget_ms)] if budget_ms else []
+    p = subprocess.run([sys.executable, "-c", DRIVER, str(rec), str(out), "fingerfist", *extra], env=child_env(src),
                        capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"tracking {rec} with {src} failed:\n{p.stderr[-2000:]}")
@@ -115,20 +124,24 @@ def main():
     ap.add_argument("--peer", default=PEER_REV, help="git revision of the peer tree")
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--no-stills", action="store_true")
+    ap.add_argument("--search-budget-ms", type=float, default=0.0,
+                    help="also this tree with this start-search budget (start.search_budget_ms)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
         tmp = Path(tmp)
         recs = make_recordings(tmp / "recs", a.frames, not a.no_stills)
-        trees = [("this tree", ROOT / "src")]
+        trees = [("this tree", ROOT / "src", 0.0)]
+        if a.search_budget_ms:
+            trees.append((f"budget {a.search_budget_ms:g} ms", ROOT / "src", a.search_budget_ms))
         if not a.no_peer:
-            trees.append((f"peer {a.peer}", peer_tree(a.peer, tmp / "peer") / "src"))
-        for _, src in trees:  # warm each tree's numba cache, untimed
+            trees.append((f"peer {a.peer}", peer_tree(a.peer, tmp / "peer") / "src", 0.0))
+        for _, src, _ in trees:  # warm each tree's numba cache, untimed
             track_timed(src, recs[0][1], tmp / "warm.csv")
         print(f"{'recording':36s} {'tree':14s} {'first s':>8s} {'p50 ms':>7s} {'p95 ms':>7s} {'max ms':>7s} "
               f"{'>33 ms':>7s} {'lost':>5s}")
         for name, rec in recs:
-            for tree, src in trees:
-                r = track_timed(src, rec, tmp / "t.csv")
+            for tree, src, budget in trees:
+                r = track_timed(src, rec, tmp / "t.csv", budget)
                 f = r["frames_ms"]
                 print(f"{name:36s} {tree:14s} {r['first_s']:8.2f} {percentile(f, 50):7.1f} {percentile(f, 95):7.1f} "
                       f"{max(f) if f else float('nan'):7.1f} {sum(x > 33.0 for x in f):4d}/{len(f):<3d}"
