@@ -128,6 +128,86 @@ def _output_theta(theta) -> np.ndarray:
     return out
 
 
+def frame_result(stats, n_dofs, theta, status, n_in, t0, fit_mm=float("nan"), used=0, rejected=1.0,
+                 net="") -> FrameResult:
+    """A frame's :class:`FrameResult`: θ as output (NaN when the frame gives none), the time since ``t0``
+    and a snapshot of the tracker's ``stats`` after the frame."""
+    out = np.full(n_dofs, np.nan) if theta is None else _output_theta(theta)
+    return FrameResult(out, status, fit_mm, used, n_in, (time.perf_counter() - t0) * 1e3, rejected, net,
+                       stats.snapshot())
+
+
+def no_hand(stats, n_dofs, corr, n_in, t0) -> FrameResult:
+    """The result of a frame whose start found no hand (``corr``: its fit's pairs, None when its region was
+    too small to fit), counted in ``stats``: lost, no θ."""
+    stats.no_hand += 1
+    stats.too_few += corr is None
+    return frame_result(stats, n_dofs, None, "lost", n_in, t0, rejected=1.0 if corr is None else corr.rejected_share)
+
+
+class TrackerParts(NamedTuple):
+    """The named parts of a :class:`FrameTracker` (:func:`build_parts`)."""
+
+    cue: WristCue
+    net: SafetyNet
+    gate: Gate
+    recentring: Recentring
+    prediction: Prediction
+    prior: UnseenPrior
+    restart: FingerRestart
+    loss: LossCheck
+    sizing: SizeCalibration
+    colour: ColourSeed | None
+    search: StartSearch
+    sizes: HandSizes
+
+
+def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats, keypoint_detector=None,
+                depth_detector=None) -> TrackerParts:
+    """The parts tracking ``hand`` with ``settings`` (checked), each built from its settings group and
+    counting into ``stats``; the arguments as :class:`FrameTracker`'s. Raises
+    :class:`tracker.errors.TrackerError` when the mode needs the synergy bundle and none is given."""
+    st = settings
+    st.check()
+    if st.mode != "full" and synergies is None:
+        raise TrackerError("synergies", f"mode {st.mode!r} needs a synergy bundle (--synergies)")
+    cue = WristCue(st.start.wrist_cue, stats)
+    net = SafetyNet(st.net, cue, stats, st.start.search_budget_ms)
+    gate = Gate(st.observe, st.loss.min_points, st.net.enabled and st.mode != "reduced", stats)
+    recentring = Recentring(st.correspond.reject_mm, stats)
+    prediction = Prediction(st.predict, gate, recentring, stats)
+    prior = UnseenPrior(hand, synergies, st.refine, st.mode, stats)
+    restart = FingerRestart(st.refine, st.mode, stats)
+    loss = LossCheck(st.loss, st.scale.range, stats)
+    sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, stats)
+    colour = ColourSeed(keypoint_detector, stats) if st.start.rgb_seed else None
+    if depth_detector is None and st.start.detector:
+        depth_detector = load_depth_detector(st.start.detector)
+    keypoints = None if depth_detector is None else KeypointSeed(depth_detector, synergies, stats)
+    search = StartSearch(st.init, cue, colour, stats, st.start.search_budget_ms, keypoints)
+    return TrackerParts(cue, net, gate, recentring, prediction, prior, restart, loss, sizing, colour, search,
+                        HandSizes(hand, st, synergies))
+
+
+def tracking_stages(settings: TrackerSettings, context) -> list:
+    """The tracking ICP's stages on ``context``'s parametrisations (:func:`tracker.icp.tracking_schedule`)."""
+    st = settings.icp
+    return tracking_schedule(settings.mode, st.icp_iterations, context.full, context.reduced,
+                             projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations,
+                             stages_per_pass=st.stages_per_pass)
+
+
+def next_window(tracker: FrameTracker, camera):
+    """Where to segment ``tracker``'s next frame (``observe(..., window=...)``): :func:`tracker.observe.hand_window`
+    of the hand predicted for it, grown by ``observe.window_m``; None — the whole frame — when no hand is
+    tracked (not started, lost, its size still being calibrated) or windows are off."""
+    st = tracker.settings
+    if not st.observe.window_m or tracker.lost or tracker.theta is None or tracker.sizing.calibrating():
+        return None
+    P, _ = posed_samples(tracker.hand, tracker.context.score_samples, tracker.predict())
+    return hand_window(P, camera, st.observe.window_m)
+
+
 class FrameTracker:
     """Track one hand through a sequence of point clouds (camera frame, metres).
 
@@ -155,29 +235,12 @@ class FrameTracker:
 
     def __init__(self, hand, settings: TrackerSettings | None = None, synergies=None, keypoint_detector=None,
                  depth_detector=None):
-        self.base_hand = hand
-        self.settings = st = settings or TrackerSettings()
-        st.check()
-        if st.mode != "full" and synergies is None:
-            raise TrackerError("synergies", f"mode {st.mode!r} needs a synergy bundle (--synergies)")
-        self.synergies = synergies
+        self.base_hand, self.synergies, self.hand_check_ = hand, synergies, None
+        self.settings = settings or TrackerSettings()
         self.stats = TrackerStats()
-        self.cue = WristCue(st.start.wrist_cue, self.stats)
-        self.net = SafetyNet(st.net, self.cue, self.stats, st.start.search_budget_ms)
-        self.gate = Gate(st.observe, st.loss.min_points, st.net.enabled and st.mode != "reduced", self.stats)
-        self.recentring = Recentring(st.correspond.reject_mm, self.stats)
-        self.prediction = Prediction(st.predict, self.gate, self.recentring, self.stats)
-        self.prior = UnseenPrior(hand, synergies, st.refine, st.mode, self.stats)
-        self.restart = FingerRestart(st.refine, st.mode, self.stats)
-        self.loss = LossCheck(st.loss, st.scale.range, self.stats)
-        self.sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, self.stats)
-        self.colour = ColourSeed(keypoint_detector, self.stats) if st.start.rgb_seed else None
-        if depth_detector is None and st.start.detector:
-            depth_detector = load_depth_detector(st.start.detector)
-        keypoints = None if depth_detector is None else KeypointSeed(depth_detector, synergies, self.stats)
-        self.search = StartSearch(st.init, self.cue, self.colour, self.stats, st.start.search_budget_ms, keypoints)
-        self.hand_check_ = None
-        self.sizes = HandSizes(hand, st, synergies)
+        (self.cue, self.net, self.gate, self.recentring, self.prediction, self.prior, self.restart, self.loss,
+         self.sizing, self.colour, self.search, self.sizes) = build_parts(hand, self.settings, synergies, self.stats,
+                                                                          keypoint_detector, depth_detector)
         self.use_scale(1.0 if self.sizing.scale_ is None else self.sizing.scale_)
         self.reset()
 
@@ -198,16 +261,11 @@ class FrameTracker:
             self.context = shaped_context(self.context, self.base_hand, scale, self.sizing.finger_scales_)
         self.hand = self.context.hand
         self.limits, self.full, self.reduced = self.context.limits, self.context.full, self.context.reduced
-        st = self.settings.icp
-        self.stages = tracking_schedule(self.settings.mode, st.icp_iterations, self.full, self.reduced,
-                                        projected_steps=st.projected_steps, coarse_iterations=st.coarse_iterations,
-                                        stages_per_pass=st.stages_per_pass)
+        self.stages = tracking_stages(self.settings, self.context)
 
     def reset(self):
         """Forget the sequence: the next frame starts afresh (the size is kept)."""
-        self.last_good = None
-        self.theta = None
-        self.prev = None
+        self.last_good = self.theta = self.prev = None
         self.lost = True
         self.net.reset()
 
@@ -251,13 +309,14 @@ class FrameTracker:
             # nothing seen: no θ is output (an unreadable frame's row repeated the frame before it, which
             # a user of the rows cannot tell from a measurement); the next start may still begin there
             self.lost = True
-            return self._result(None, "lost", n_in, t0, rejected=1.0)
+            return frame_result(self.stats, self.hand.n_dofs, None, "lost", n_in, t0)
         if self.sizing.calibrating() or self.lost or self.theta is None:
             whole = frame_depth if frame_depth is not None else depth
             frame = self._start(pts, nrm, sil, n_in, t0, color, whole, camera)
         else:
             frame = self._follow(pts, nrm, sil)
-        if isinstance(frame, FrameResult):  # a start that found no hand
+        if isinstance(frame, FrameResult):  # a start that found no hand: lost, the state as before it
+            self.lost = True
             return frame
         # refine: a start has no earlier frame that holds its unseen joints: all the way. The net's
         # replacement half the way, as tracked frames: it starts from the tracked fit too, and all the way
@@ -273,7 +332,7 @@ class FrameTracker:
     def _start(self, pts, nrm, sil, n_in, t0, color, depth, camera):
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
         if self.loss.too_small(n_in, sil):
-            return self._no_hand(None, n_in, t0)
+            return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
         if self.sizing.calibrating():
             self.cue.add(sil)
             theta, corr, found = self.sizing.calibrate(self, pts, nrm, sil)
@@ -282,7 +341,7 @@ class FrameTracker:
             theta, corr = self.search(self.context, pts, nrm, sil, self.last_good, refit, color, depth, camera)
             found = not self.loss.found_nothing(corr)
         if not found:
-            return self._no_hand(corr, n_in, t0)
+            return no_hand(self.stats, self.hand.n_dofs, corr, n_in, t0)
         self.prev = None
         self.net.reset()
         if self.settings.net.enabled:
@@ -330,31 +389,12 @@ class FrameTracker:
             self.lost, status, self.theta, self.prev = True, "lost", theta, None
         # a fit on something else gives no θ (as a start that found no hand: the frame's row must not
         # read as a hand's pose)
-        return self._result(None if frame.far_lost else theta, status, n_in, t0, fit_mm, corr.used, float(rejected),
-                            frame.net)
-
-    def _result(self, theta, status, n_in, t0, fit_mm=float("nan"), used=0, rejected=1.0, net="") -> FrameResult:
-        out = np.full(self.hand.n_dofs, np.nan) if theta is None else _output_theta(theta)
-        return FrameResult(out, status, fit_mm, used, n_in, (time.perf_counter() - t0) * 1e3, rejected, net,
-                           self.stats.snapshot())
-
-    def _no_hand(self, corr, n_in, t0) -> FrameResult:
-        """A frame whose start found no hand (``corr``: its fit's pairs, None when its region was too
-        small to fit): lost, no θ, the tracker's state as before it."""
-        self.lost = True
-        self.stats.no_hand += 1
-        self.stats.too_few += corr is None
-        return self._result(None, "lost", n_in, t0, rejected=1.0 if corr is None else corr.rejected_share)
+        return frame_result(self.stats, self.hand.n_dofs, None if frame.far_lost else theta, status, n_in, t0, fit_mm,
+                            corr.used, float(rejected), frame.net)
 
     def segment_window(self, camera):
-        """Where to segment the next frame (``observe(..., window=...)``): :func:`tracker.observe.hand_window`
-        of the hand predicted for it, grown by ``observe.window_m``; None — the whole frame — when no
-        hand is tracked (not started, lost, its size still being calibrated) or windows are off."""
-        st = self.settings
-        if not st.observe.window_m or self.lost or self.theta is None or self.sizing.calibrating():
-            return None
-        P, _ = posed_samples(self.hand, self.context.score_samples, self.predict())
-        return hand_window(P, camera, st.observe.window_m)
+        """Where to segment the next frame (``observe(..., window=...)``; :func:`next_window`)."""
+        return next_window(self, camera)
 
     def _fit(self, start, pts, nrm, sil):
         """The tracking ICP from ``start`` (:func:`tracker.icp.fit`, this frame's stages)."""
@@ -363,4 +403,5 @@ class FrameTracker:
                    normals=nrm, samples=ctx.samples, silhouette=sil)
 
 
-__all__ = ["FrameResult", "HandCheck", "FrameTracker", "TrackerSettings", "TrackerStats", "check_hand", "fit_context"]
+__all__ = ["FrameResult", "HandCheck", "FrameTracker", "TrackerParts", "TrackerSettings", "TrackerStats", "build_parts",
+           "check_hand", "fit_context", "frame_result", "next_window", "no_hand", "tracking_stages"]

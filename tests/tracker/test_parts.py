@@ -22,7 +22,7 @@ from tracker.settings import (
     TrackerSettings,
 )
 from tracker.sim.motions import make_motion
-from tracker.track import FrameTracker
+from tracker.track import FrameTracker, build_parts
 
 HAND = HandModel.load()
 
@@ -134,6 +134,21 @@ def test_prediction_alone_adds_the_last_change_but_not_the_rotation():
     want[post] = np.clip(want[post], lim[post, 0], lim[post, 1])
     np.testing.assert_allclose(out, want)
     np.testing.assert_array_equal(pred.theta(now, None, HAND, lim), now)
+
+
+def test_the_parts_share_one_count_the_cue_and_the_gate():
+    stats = TrackerStats()
+    parts = build_parts(HAND, TrackerSettings().replace(start=dict(rgb_seed=True)), None, stats,
+                        keypoint_detector=lambda color: None, depth_detector=lambda depth, camera, mask, hand: None)
+    assert all(p.stats is stats for p in parts if hasattr(p, "stats"))
+    assert sum(hasattr(p, "stats") for p in parts) == 11  # all but the hand sizes
+    assert parts.net.cue is parts.cue and parts.search.cue is parts.cue and parts.search.colour is parts.colour
+    assert parts.prediction.gate is parts.gate and parts.prediction.recentring is parts.recentring
+    assert parts.search.keypoints is not None and parts.search.keypoints.stats is stats
+    plain = build_parts(HAND, TrackerSettings(), None, TrackerStats())
+    assert plain.colour is None and plain.search.keypoints is None
+    with pytest.raises(TrackerError, match="needs a synergy bundle"):
+        build_parts(HAND, TrackerSettings(mode="reduced"), None, stats)
 
 
 def test_each_frame_result_carries_the_counts_so_far():
