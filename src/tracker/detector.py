@@ -9,8 +9,9 @@ pixel ``x`` with offsets ``u``, ``v`` (metres at 1 m) is
 
 ``f`` the focal lengths: the offsets shrink with depth, so a feature reads the same part of a hand
 at any distance and through any camera. A probe off the image or on a pixel without depth reads
-:data:`BACKGROUND_M`. ``A`` (:func:`offset_map`) mirrors the offsets for a right hand (one forest
-serves both) and turns them with the hand in the image plane: two layers (after Keskin's
+:data:`~tracker._detector_kernels.BACKGROUND_M` (the compiled probe, feature and mean shift:
+:mod:`tracker._detector_kernels`). ``A`` (:func:`offset_map`) mirrors the offsets for a right hand
+(one forest serves both) and turns them with the hand in the image plane: two layers (after Keskin's
 multi-layered forests), a first forest whose pixels vote the hand's turn (:data:`ROLL_BINS` bins),
 then the parts forest reading offsets turned by it (or by a turn the caller knows, e.g. from the
 previous frame's fit) — a hand seen at any turn reads as one with its fingers up. A part's keypoint is the densest mode (mean shift) of its
@@ -42,6 +43,7 @@ import numpy as np
 from handmodel import fileio
 from handmodel.fileio import atomic_write_bytes, load_npz, manifest_sha256, models_dir
 
+from ._detector_kernels import feature, mean_shift
 from .io.cameras import as_camera
 from .errors import TrackerError
 
@@ -53,8 +55,6 @@ N_PARTS = len(PART_NAMES)
 #: Class index of every pixel that is not the hand (arm, sleeve, body, table, object, flying pixels).
 OTHER = N_PARTS
 N_CLASSES = N_PARTS + 1
-#: What a probe off the image or on a pixel without depth reads (metres): far behind any hand.
-BACKGROUND_M = 10.0
 FORMAT = "hand-part-forest/1"
 DETECTOR_NAME = "hand-parts"
 #: The in-image turn of the hand is voted in this many bins of 360°/ROLL_BINS (the first layer).
@@ -66,32 +66,7 @@ ARRAY_NAMES = (*(f"roll_{n}" for n in FOREST_ARRAYS), *FOREST_ARRAYS, "keypoint_
 MAX_FILE_BYTES = 200 * 1024 * 1024
 
 
-# ----------------------------------------------------------------------------- compiled kernels
-@nb.njit(cache=True, inline="always")
-def _probe(depth, r, c, dr, dc):
-    rr = int(np.floor(r + dr + 0.5))
-    cc = int(np.floor(c + dc + 0.5))
-    if rr < 0 or cc < 0 or rr >= depth.shape[0] or cc >= depth.shape[1]:
-        return BACKGROUND_M
-    v = depth[rr, cc]
-    if not (v > 0.0):  # NaN or no data
-        return BACKGROUND_M
-    return v
-
-
-@nb.njit(cache=True)
-def _feature(depth, r, c, d0, fx, fy, A, ux, uy, vx, vy):
-    """One depth-difference feature at pixel (r, c) whose depth is ``d0`` (float32 result, as the
-    forest was trained on); ``A`` (2, 2) maps the offsets into the image (mirror, roll)."""
-    pu = A[0, 0] * ux + A[0, 1] * uy
-    pv = A[1, 0] * ux + A[1, 1] * uy
-    qu = A[0, 0] * vx + A[0, 1] * vy
-    qv = A[1, 0] * vx + A[1, 1] * vy
-    a = _probe(depth, r, c, fy * pv / d0, fx * pu / d0)
-    b = _probe(depth, r, c, fy * qv / d0, fx * qu / d0)
-    return np.float32(a - b)
-
-
+# ----------------------------------------------------------------------------- features, the forest walk
 def offset_map(mirror: float = 1.0, roll: float = 0.0) -> np.ndarray:
     """``(2, 2)``: offsets of the hand's canonical frame (a left hand, fingers up) into the image: a
     right hand mirrored (x negated), a hand turned by ``roll`` radians in the image turned with it.
@@ -112,8 +87,8 @@ def feature_matrix(depth, rows, cols, fx, fy, A, offsets):
     for i in range(n):
         d0 = depth[rows[i], cols[i]]
         for j in range(F):
-            out[i, j] = _feature(depth, rows[i], cols[i], d0, fx, fy, A, offsets[j, 0], offsets[j, 1],
-                                 offsets[j, 2], offsets[j, 3])
+            out[i, j] = feature(depth, rows[i], cols[i], d0, fx, fy, A, offsets[j, 0], offsets[j, 1],
+                                offsets[j, 2], offsets[j, 3])
     return out
 
 
@@ -130,8 +105,8 @@ def forest_proba(depth, rows, cols, fx, fy, A, offsets, thresholds, left, right,
         for t in range(T):
             k = roots[t]
             while left[k] >= 0:
-                f = _feature(depth, r, c, d0, fx, fy, A, offsets[k, 0], offsets[k, 1], offsets[k, 2],
-                             offsets[k, 3])
+                f = feature(depth, r, c, d0, fx, fy, A, offsets[k, 0], offsets[k, 1], offsets[k, 2],
+                            offsets[k, 3])
                 k = left[k] if np.float64(f) <= thresholds[k] else right[k]
             lv = leaf[k]
             for j in range(C):
@@ -139,43 +114,6 @@ def forest_proba(depth, rows, cols, fx, fy, A, offsets, thresholds, left, right,
         for j in range(C):
             out[i, j] /= T
     return out
-
-
-@nb.njit(cache=True)
-def _mean_shift(P, w, seeds, bandwidth, iterations):
-    """The densest mode of the weighted points ``P`` (N, 3) reached from ``seeds`` (S, 3) by a
-    Gaussian mean shift; returns ``(mode, density)``."""
-    best = np.full(3, np.nan)
-    best_d = -1.0
-    inv = 1.0 / (bandwidth * bandwidth)
-    for s in range(seeds.shape[0]):
-        m = seeds[s].copy()
-        dens = 0.0
-        for _ in range(iterations):
-            acc = np.zeros(3)
-            dens = 0.0
-            for i in range(P.shape[0]):
-                d2 = 0.0
-                for a in range(3):
-                    q = P[i, a] - m[a]
-                    d2 += q * q
-                k = w[i] * np.exp(-d2 * inv)
-                dens += k
-                for a in range(3):
-                    acc[a] += k * P[i, a]
-            if dens <= 0.0:
-                break
-            step = 0.0
-            for a in range(3):
-                q = acc[a] / dens
-                step += (q - m[a]) ** 2
-                m[a] = q
-            if step < 1e-10:
-                break
-        if dens > best_d:
-            best_d = dens
-            best[:] = m
-    return best, best_d
 
 
 # ----------------------------------------------------------------------------- results
@@ -439,8 +377,8 @@ def parts_to_keypoints(points, proba, push_m, *, bandwidth_m=0.012, min_prob=0.2
             continue
         Q, w = P[sel], p[sel] * P[sel, 2] ** 2
         order = np.argsort(-w)[:seeds]
-        mode, _ = _mean_shift(np.ascontiguousarray(Q), np.ascontiguousarray(w), np.ascontiguousarray(Q[order]),
-                              float(bandwidth_m), iterations)
+        mode, _ = mean_shift(np.ascontiguousarray(Q), np.ascontiguousarray(w), np.ascontiguousarray(Q[order]),
+                             float(bandwidth_m), iterations)
         near = np.sum((Q - mode) ** 2, axis=1) <= bandwidth_m ** 2
         if not near.any():
             continue
