@@ -8,6 +8,8 @@ render
     hand mesh z-buffered through a pinhole camera (depth, segment labels, colour, incidence), with
     optional :class:`~tracker.sim.render.Clutter` (bare or sleeved forearm, torso, table, box or
     cylinder), each clutter element with its own label.
+meshes
+    The clutter's closed triangle meshes (forearm and sleeve tubes, torso and box superellipsoids, cylinder).
 _kernels
     The numba kernels of the renderer and of the sensor noise.
 raycast
