@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from synergy.c3d import read_c3d, write_c3d
+from synergy.c3d import read_c3d
+from synergy.c3d_write import write_c3d
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TARGET = 1.5

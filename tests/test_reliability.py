@@ -17,7 +17,8 @@ import pytest
 from handmodel import fileio
 from handmodel.cliutil import error_line, errors_exit_2
 from handmodel.errors import ToolkitError
-from synergy.c3d import read_c3d, write_c3d
+from synergy.c3d import read_c3d
+from synergy.c3d_write import write_c3d
 from synergy.errors import BundleError, TaskMapError
 from synergy.tasks import load_task_map
 from tracker.errors import RecordingError

@@ -17,7 +17,8 @@ from handmodel import HandModel
 from handmodel.dofs import DOF_NAMES
 from handmodel.fileio import atomic_write_text
 
-from .c3d import TASK_EVENT, write_c3d
+from .c3d import TASK_EVENT
+from .c3d_write import write_c3d
 from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
 

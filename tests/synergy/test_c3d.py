@@ -15,7 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from synergy.c3d import MarkerData, read_c3d, write_c3d
+from synergy.c3d import MarkerData, read_c3d
+from synergy.c3d_write import write_c3d
 from synergy.errors import C3DError
 
 DATA = SHARED_DATA

@@ -7,7 +7,7 @@ from typer.testing import CliRunner
 from handmodel import HandModel
 from handmodel.dofs import anatomical_limits
 from synergy.angles import markers_to_angles, read_angles_csv
-from synergy.c3d import write_c3d
+from synergy.c3d_write import write_c3d
 from synergy.calibrate import calibrate, load_calibration, save_calibration, scale_only
 from synergy.cli import app
 from synergy.errors import SynergyError

@@ -9,7 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from conftest import shared
-from synergy.c3d import read_c3d, write_c3d
+from synergy.c3d import read_c3d
+from synergy.c3d_write import write_c3d
 from synergy.calibrate import Calibration, save_calibration
 from synergy.cli import app
 from synergy.errors import MarkerSetError

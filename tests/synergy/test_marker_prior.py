@@ -12,7 +12,7 @@ from handmodel import HandModel
 from handmodel.solver import SolverSettings, fit_points
 from synergy.angles import markers_to_angles, read_angles_csv, write_angles_csv
 from synergy.ik_priors import posterior_sd, prior_driven, prior_rows, refine_with_prior
-from synergy.c3d import write_c3d
+from synergy.c3d_write import write_c3d
 from synergy.cli import app
 from synergy.prior import PosturePrior
 from synergy.simulate import motion, simulate_markers, weak_protocol

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from synergy.c3d import write_c3d
+from synergy.c3d_write import write_c3d
 from synergy.cli import app
 from synergy.errors import MarkerSetError
 from synergy.markers import (
