@@ -12,7 +12,7 @@ from .errors import SynergyError
 _LAZY = {
     "SynergyModel": "pca", "SufficientStats": "pca",
     "Bundle": "bundle", "load_bundle": "bundle", "read_bundle": "bundle", "save_bundle": "bundle",
-    "select_bundle": "bundle", "list_bundles": "bundle",
+    "select_bundle": "bundle", "list_bundles": "registry",
     "read_c3d": "c3d",
     "markers_to_angles": "angles", "read_angles_csv": "angles", "write_angles_csv": "angles",
     "read_trial": "fit", "fit_trials": "fit", "bundle_from_trials": "fit",

@@ -2,9 +2,9 @@
 
 A bundle holds the full PCA of a training set (arrays listed in :data:`ARRAY_NAMES`)
 plus a JSON ``manifest`` (``data_schema/synergy-bundle.schema.json``) with provenance,
-a hash of the arrays and a hash of the manifest itself (so neither can be edited unnoticed). A registry is a folder of bundles; lookups search the
-folders given by the caller, then ``SYNERGY_PATH`` (``os.pathsep``-separated), then the
-shipped ``models/synergies``.
+a hash of the arrays and a hash of the manifest itself (so neither can be edited unnoticed). A registry
+is a folder of bundles (:mod:`synergy.registry`); lookups search the folders given by the caller, then
+``SYNERGY_PATH`` (``os.pathsep``-separated), then the shipped ``models/synergies``.
 
 Examples
 --------
@@ -25,7 +25,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import re
 import zipfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -45,14 +44,15 @@ from handmodel.fileio import (atomic_write_bytes, first_non_finite, load_npz, ma
 from handmodel.model import HandModel
 from handmodel.subspace import Subspace
 from synergy.errors import BundleError, SynergyError
+from synergy.registry import (FILE_RE, VERSION_RE, BundleRef, check_name_version, list_bundles, next_version,
+                              registry_paths, target_registry, version_taken, version_tuple)
 
 if TYPE_CHECKING:  # the annotations only; see read_bundle
     from synergy.pca import SynergyModel
 
 __all__ = [
-    "ARRAY_NAMES", "Bundle", "BundleRef", "arrays_sha256", "hand_model_ref", "list_bundles", "load_bundle",
-    "check_new_bundle", "manifest_sha256", "next_version", "read_bundle", "registry_paths", "save_bundle",
-    "ranked_bundles", "select_bundle", "selection_key", "target_registry",
+    "ARRAY_NAMES", "Bundle", "arrays_sha256", "hand_model_ref", "load_bundle", "manifest_sha256", "read_bundle",
+    "save_bundle", "ranked_bundles", "select_bundle", "selection_key",
 ]
 
 #: Arrays of a bundle, in the canonical order used by :func:`arrays_sha256`.
@@ -62,120 +62,6 @@ ARRAY_NAMES = (
 )
 SCHEMA_VERSION = 2  # 2: the manifest carries manifest_sha256
 GENERATOR = "synergistic-hand-tracking"
-_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-_VERSION_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
-_FILE_RE = re.compile(r"^(?P<name>.+)-(?P<version>(?:0|[1-9]\d*)\.(?:0|[1-9]\d*)\.(?:0|[1-9]\d*))\.npz$")
-
-
-# ----------------------------------------------------------------------------- registries
-@dataclass(frozen=True)
-class BundleRef:
-    """A bundle file found in a registry (from its file name only)."""
-
-    name: str
-    version: str
-    path: Path
-
-    @property
-    def version_key(self) -> tuple[int, int, int]:
-        return _vkey(self.version)
-
-
-def _vkey(version: str) -> tuple[int, int, int]:
-    return tuple(int(x) for x in version.split("."))  # type: ignore[return-value]
-
-
-def registry_paths(registries: Sequence[str | os.PathLike] | None = None) -> list[Path]:
-    """Registry folders in search order: ``registries``, ``SYNERGY_PATH``, shipped."""
-    env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
-    out: list[Path] = []
-    seen = set()
-    for p in [*(registries or []), *env, models_dir() / "synergies"]:
-        p = Path(p).expanduser()
-        key = os.path.normcase(os.path.abspath(p))
-        if key not in seen:
-            seen.add(key)
-            out.append(p)
-    return out
-
-
-def list_bundles(registries: Sequence[str | os.PathLike] | None = None) -> list[BundleRef]:
-    """Bundle files in all registries, in search order (a name@version may appear twice)."""
-    refs = []
-    for folder in registry_paths(registries):
-        if not folder.is_dir():
-            continue
-        found = [(_FILE_RE.match(f.name), f) for f in folder.iterdir() if f.is_file()]
-        found = [BundleRef(m["name"], m["version"], f) for m, f in found if m]
-        refs += sorted(found, key=lambda r: (r.name, r.version_key))
-    return refs
-
-
-def next_version(name: str, folder: str | os.PathLike) -> str:
-    """Next patch version after the highest ``name`` in ``folder`` (``1.0.0`` if none)."""
-    versions = [
-        _vkey(m["version"])
-        for f in (Path(folder).iterdir() if Path(folder).is_dir() else ())
-        if (m := _FILE_RE.match(f.name)) and m["name"] == name
-    ]
-    if not versions:
-        return "1.0.0"
-    a, b, c = max(versions)
-    return f"{a}.{b}.{c + 1}"
-
-
-def target_registry(registry: str | os.PathLike | None, name: str) -> Path:
-    """The folder a new bundle ``name`` goes into: ``registry``, else the first ``SYNERGY_PATH`` folder.
-
-    Raises
-    ------
-    BundleError
-        Naming the bundle, when neither is given.
-    """
-    if registry is None:
-        env = [p for p in os.environ.get("SYNERGY_PATH", "").split(os.pathsep) if p.strip()]
-        if not env:
-            raise BundleError(name, "no target registry: pass one (CLI: -o DIR) or set SYNERGY_PATH")
-        registry = env[0]
-    return Path(registry)
-
-
-def _check_name_version(name: str, version: str | None) -> None:
-    if not _NAME_RE.match(name):
-        raise BundleError(name, "bad bundle name: use letters, digits, '_', '.', '-'")
-    if version is not None and not _VERSION_RE.match(version):
-        raise BundleError(name, f"bad version {version!r}: expected MAJOR.MINOR.PATCH")
-
-
-def _version_taken(path: Path, version: str) -> BundleError:
-    return BundleError(path, f"version {version} exists; bundle versions are immutable")
-
-
-def check_new_bundle(name: str, version: str | None = None, registry: str | os.PathLike | None = None) -> Path:
-    """Fail now, not after the trials are converted, if :func:`save_bundle` would refuse the bundle.
-
-    Checks the name, the version's form, that there is a target registry and that an explicit
-    ``version`` is not there already. :func:`save_bundle` checks all of it again when it writes (another
-    writer may take the version in between). Returns the registry folder.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> reg = tempfile.mkdtemp()
-    >>> check_new_bundle("demo", "1.0.0", reg) == Path(reg)
-    True
-    >>> check_new_bundle("demo", "1.0", reg)
-    Traceback (most recent call last):
-    ...
-    synergy.errors.BundleError: demo: bad version '1.0': expected MAJOR.MINOR.PATCH
-    """
-    _check_name_version(name, version)
-    folder = target_registry(registry, name)
-    if version is not None:
-        path = folder / f"{name}-{version}.npz"
-        if path.exists() or path.is_symlink():  # a dangling link would still make the final link fail
-            raise _version_taken(path, version)
-    return folder
 
 
 # ----------------------------------------------------------------------------- manifest helpers
@@ -311,7 +197,7 @@ def save_bundle(
         raise BundleError(name, "model is not fitted")
     if not (np.isfinite(model.pc_min_).all() and np.isfinite(model.pc_max_).all()):
         raise BundleError(name, "PC limits are missing: call model.update_limits(X) on the training data")
-    _check_name_version(name, version)
+    check_name_version(name, version)
     d = model.mean_.shape[0]
     if dof_names is None:
         dof_names = getattr(model, "feature_names_in_", None)
@@ -354,7 +240,7 @@ def save_bundle(
             return atomic_write_bytes(path, buf.getvalue(), overwrite=False)
         except FileExistsError:
             if version is not None:
-                raise _version_taken(path, ver) from None
+                raise version_taken(path, ver) from None
             # A concurrent writer took this version: take the next one.
         except OSError as exc:
             raise BundleError(path, f"cannot write ({exc.strerror or exc})") from None
@@ -413,7 +299,7 @@ def _verified(path: Path) -> tuple[dict, dict]:
     _check_arrays(arrays, manifest, path)
     if arrays_sha256(arrays) != manifest["arrays_sha256"]:
         raise BundleError(path, "arrays do not match the manifest's arrays_sha256 (file modified?)")
-    m = _FILE_RE.match(path.name)
+    m = FILE_RE.match(path.name)
     if m and (m["name"], m["version"]) != (manifest["name"], manifest["version"]):
         raise BundleError(
             path, f"file name says {m['name']}@{m['version']} but manifest says "
@@ -452,13 +338,13 @@ def load_bundle(spec: str | os.PathLike, registries: Sequence[str | os.PathLike]
     if s.endswith(".npz") or os.sep in s or "/" in s or (os.altsep and os.altsep in s):
         return read_bundle(s)
     name, _, version = s.partition("@")
-    if version and not _VERSION_RE.match(version):
+    if version and not VERSION_RE.match(version):
         raise BundleError(s, f"bad version {version!r}: expected NAME@MAJOR.MINOR.PATCH")
     refs = list_bundles(registries)
     hits = [r for r in refs if r.name == name and (not version or r.version == version)]
     if not hits:
         where = ", ".join(str(p) for p in registry_paths(registries))
-        same = sorted({r.version for r in refs if r.name == name}, key=_vkey)
+        same = sorted({r.version for r in refs if r.name == name}, key=version_tuple)
         hint = f" (versions: {', '.join(same)})" if same else f" (bundles: {', '.join(sorted({r.name for r in refs})) or 'none'})"
         raise BundleError(s, f"no such bundle in registries {where}{hint}")
     best = max(hits, key=lambda r: r.version_key)  # max keeps the first (earlier registry) on ties

@@ -38,7 +38,7 @@ def _warn_same_version(name, version, target) -> None:
     user's own ``fingerfist@1.0.0`` replaced the shipped one in every lookup without a word)."""
     if version is None:
         return
-    from synergy.bundle import list_bundles
+    from synergy.registry import list_bundles
 
     others = [r.path.parent for r in list_bundles([target])
               if r.name == name and r.version == version and r.path.parent.resolve() != Path(target).resolve()]
@@ -98,7 +98,7 @@ def fit(
 ):
     """Fit synergies on posture files and save a new bundle version."""
     from handmodel.fileio import check_output
-    from synergy.bundle import check_new_bundle
+    from synergy.registry import check_new_bundle
 
     # Everything that would refuse the bundle at the end is checked first: the conversion takes minutes.
     target = check_new_bundle(name, None, registry)  # the name, and a registry given or in SYNERGY_PATH
@@ -242,7 +242,8 @@ def list_(registry: List[Path] = typer.Option(None, "-r", "--registry", help=REG
     from rich.table import Table
     from rich.text import Text
 
-    from synergy.bundle import list_bundles, verified_manifest
+    from synergy.bundle import verified_manifest
+    from synergy.registry import list_bundles
     from synergy.errors import BundleError
 
     t = Table(title="synergy bundles")

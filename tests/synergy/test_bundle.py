@@ -19,11 +19,9 @@ from synergy.bundle import (
     ARRAY_NAMES,
     Bundle,
     arrays_sha256,
-    list_bundles,
     load_bundle,
     manifest_sha256,
     read_bundle,
-    registry_paths,
     save_bundle,
     select_bundle,
 )
@@ -34,6 +32,7 @@ from handmodel import HandModel
 from handmodel.dofs import POSE_DOF_NAMES, POSTURE_DOF_NAMES
 from handmodel.subspace import Subspace
 from synergy.pca import SynergyModel
+from synergy.registry import list_bundles, registry_paths
 
 DATA = SHARED_DATA
 FINGERFIST = DATA / "htrack_schroeder" / "fingerfist.txt"
