@@ -158,9 +158,11 @@ class KeypointCNN:
 
 
 def _cnn_paths(path) -> tuple[Path, Path]:
+    """The manifest and the network of ``path`` (either, or their common stem: ``name-1.0.0``, whose
+    ``.0`` is no suffix)."""
     p = Path(path)
-    base = p.with_suffix("") if p.suffix in (".json", ".onnx") else p
-    return base.with_suffix(".json"), base.with_suffix(".onnx")
+    stem = p.name[: -len(p.suffix)] if p.suffix in (".json", ".onnx") else p.name
+    return p.parent / f"{stem}.json", p.parent / f"{stem}.onnx"
 
 
 def onnx_sha256(data: bytes) -> str:
@@ -189,9 +191,9 @@ def save_cnn(path, onnx_bytes: bytes, manifest: dict, *, overwrite: bool = False
 
 
 def read_cnn(path) -> KeypointCNN:
-    """Read and verify a keypoint CNN (its ``.json`` manifest or ``.onnx``, the other beside it):
-    the manifest's seal, then the ONNX bytes against its ``onnx_sha256`` (before onnxruntime sees
-    them)."""
+    """Read and verify a keypoint CNN (its ``.json`` manifest or ``.onnx``, the other beside it under
+    the same stem): the manifest's seal, then the ONNX bytes against its ``onnx_sha256`` (before
+    onnxruntime sees them; the pair may be renamed, not mixed)."""
     jpath, opath = _cnn_paths(path)
     raw = read_limited(jpath, MAX_MANIFEST_BYTES, TrackerError)
     try:
@@ -202,8 +204,6 @@ def read_cnn(path) -> KeypointCNN:
         raise TrackerError(str(jpath), f"not a {FORMAT} manifest")
     if manifest.get("manifest_sha256") != manifest_sha256(manifest):
         raise TrackerError(str(jpath), "manifest does not match its manifest_sha256 (manifest edited?)")
-    if manifest.get("onnx_file") != opath.name:
-        raise TrackerError(str(jpath), f"names {manifest.get('onnx_file')!r}, not {opath.name!r}")
     data = read_limited(opath, MAX_ONNX_BYTES, TrackerError)
     if onnx_sha256(data) != manifest.get("onnx_sha256"):
         raise TrackerError(str(opath), "does not match the manifest's onnx_sha256 (file modified?)")
