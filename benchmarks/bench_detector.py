@@ -1,7 +1,8 @@
-"""The hand-part detector on one core: ms per frame for the detection alone, for the detection plus
-the start fitted to its keypoints (``tracker.detector.fit_start``), and today's start search
-(``FrameTracker.track`` on a first frame at size 1, the tracker's defaults) as the peer, on the same
-frames in the same run; and the shipped model's install weight.
+"""The hand detectors on one core: ms per frame for the detection alone — the hand-part forest
+(``tracker.detector.detect``) and the keypoint CNN (``tracker.keypoint_cnn.detect``, onnxruntime on one
+thread) — for the detection plus the start fitted to its keypoints (``tracker.detector.fit_start``),
+and today's start search (``FrameTracker.track`` on a first frame at size 1, the tracker's defaults)
+as the peer, on the same frames in the same run; and the shipped models' install weight.
 
 Frames: SR305 640×480 renders drawn by the detector's own data recipe with held-out seeds (hand,
 clutter, noise), the hand's segmentation by the tracker (``observe``) as the mask.
@@ -24,6 +25,7 @@ from synergy.bundle import load_bundle  # noqa: E402
 from tracker import TRACKING_HAND  # noqa: E402
 from tracker.io.cameras import preset  # noqa: E402
 from tracker.detector import detect, detector_path, fit_start, load_detector  # noqa: E402
+from tracker import keypoint_cnn  # noqa: E402
 from tracker.observe import observe  # noqa: E402
 from tracker.sim.dataset import DataRecipe, draw_scene  # noqa: E402
 from tracker.track import FrameTracker, TrackerSettings  # noqa: E402
@@ -52,8 +54,9 @@ def main():
     data = frames(a.frames)
     obs = [observe(c.depth, cam) for c in data]
     detect(data[0].depth, cam, obs[0].mask)  # compile
+    keypoint_cnn.detect(data[0].depth, cam, obs[0].mask)  # the session
     rows = {}
-    t_det, t_start, t_peer = [], [], []
+    t_det, t_start, t_cnn, t_cnn_start, t_peer = [], [], [], [], []
     clock = (time.perf_counter, time.process_time)  # wall and this process's CPU: the machine may be shared
     for c, ob in zip(data, obs):
         t0 = [f() for f in clock]
@@ -63,6 +66,13 @@ def main():
         t2 = [f() for f in clock]
         t_det.append([1000 * (b - a) for a, b in zip(t0, t1)])
         t_start.append([1000 * (b - a) for a, b in zip(t0, t2)])
+        t0 = [f() for f in clock]
+        k = keypoint_cnn.detect(c.depth, cam, ob.mask)
+        t1 = [f() for f in clock]
+        fit_start(k, hand, bundle)
+        t2 = [f() for f in clock]
+        t_cnn.append([1000 * (b - a) for a, b in zip(t0, t1)])
+        t_cnn_start.append([1000 * (b - a) for a, b in zip(t0, t2)])
         if not a.no_peer:
             tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
             t3 = [f() for f in clock]
@@ -70,6 +80,8 @@ def main():
             t_peer.append([1000 * (f() - t) for f, t in zip(clock, t3)])
     rows["detect (mask from observe)"] = t_det
     rows["detect + fit_start (synergies)"] = t_start
+    rows["keypoint CNN detect (mask from observe; onnxruntime, 1 thread)"] = t_cnn
+    rows["keypoint CNN detect + fit_start (synergies)"] = t_cnn_start
     if t_peer:
         rows["peer: today's start search (FrameTracker.track, first frame, size 1)"] = t_peer
     print(f"{len(data)} SR305 frames, one core")
@@ -79,6 +91,10 @@ def main():
         print(f"{k:70s} {np.median(v[:, 0]):10.1f} {np.max(v[:, 0]):8.1f} {np.median(v[:, 1]):14.1f}")
     p = detector_path()
     print(f"model {p.name}: {p.stat().st_size / 1e6:.2f} MB on disk, {load_detector().arrays['thresholds'].size} nodes")
+    q = keypoint_cnn.cnn_path()
+    net = keypoint_cnn.load_cnn()
+    print(f"model {q.with_suffix('.onnx').name}: {len(net.onnx_bytes) / 1e6:.2f} MB on disk, "
+          f"{net.manifest['training']['parameters']} parameters; needs onnxruntime")
 
 
 if __name__ == "__main__":

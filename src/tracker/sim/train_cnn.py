@@ -325,9 +325,12 @@ def _errors(model, samples, boxes, batch: int = 256):
 
 
 def _stats(mm, px) -> dict:
-    return {"mm_median": _r(np.median(mm)), "mm_mean": _r(np.mean(mm)), "mm_p90": _r(np.percentile(mm, 90)),
-            "px_median": _r(np.median(px)), "px_mean": _r(np.mean(px)), "tips_mm_median": _r(np.median(mm[:, TIPS])),
-            "wrist_mm_median": _r(np.median(mm[:, 0]))}
+    """Errors over the keypoints found (the forest leaves some NaN; the CNN places all)."""
+    with np.errstate(all="ignore"):
+        return {"found_share": round(float(np.isfinite(mm).mean()), 4), "mm_median": _r(np.nanmedian(mm)),
+                "mm_mean": _r(np.nanmean(mm)), "mm_p90": _r(np.nanpercentile(mm, 90)),
+                "px_median": _r(np.nanmedian(px)), "px_mean": _r(np.nanmean(px)),
+                "tips_mm_median": _r(np.nanmedian(mm[:, TIPS])), "wrist_mm_median": _r(np.nanmedian(mm[:, 0]))}
 
 
 def evaluate_samples(model, samples, st: CnnSettings, seed: int = 0) -> dict:
@@ -355,12 +358,14 @@ def evaluate_samples(model, samples, st: CnnSettings, seed: int = 0) -> dict:
             "mm_median_confidence_lt_0.5": _r(np.median(mm[~hi])) if (~hi).any() else None}
 
 
-def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=None) -> dict:
+def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=None, detect_fn=detect) -> dict:
     """The held-out scenes (seed ``seed + HELDOUT_SEED_OFFSET``, the crops' scenes) rendered as whole
     frames, the box from the tracker's own segmentation (:func:`tracker.observe.observe`), and the
     start fitted to the keypoints (:func:`tracker.detector.fit_start`, the tracker's hand at size 1,
     ``synergies`` when given): keypoint errors in mm and px, the share of frames whose mask holds at
-    least half the hand's true pixels ("on the hand"), the start's mean keypoint error, ms."""
+    least half the hand's true pixels ("on the hand"), the start's mean keypoint error, ms.
+    ``detect_fn(depth, camera, mask, hand, detector=)``: the CNN's, or the forest's
+    :func:`tracker.detector.detect` to compare on the same frames."""
     from handmodel import HandModel
 
     from .. import TRACKING_HAND
@@ -379,7 +384,7 @@ def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=N
         mask = observe(c.depth, cam).mask
         t1 = time.perf_counter()
         right = c.mirror < 0
-        d = detect(c.depth, cam, mask, "right" if right else "left", detector=model)
+        d = detect_fn(c.depth, cam, mask, "right" if right else "left", detector=model)
         det_ms.append(1000 * (time.perf_counter() - t1))
         seg_ms.append(1000 * (t1 - t0))
         if not d.found.any():
@@ -403,6 +408,9 @@ def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=N
         out["starts"] = int(np.isfinite(starts).sum())
         out["start_mean_keypoint_mm_median"] = _r(np.nanmedian(starts))
         out["starts_within_20mm"] = int(np.sum(starts <= 20))
+        if on.any():
+            out["start_on_hand_mm_median"] = _r(np.nanmedian(starts[on]))
+            out["starts_on_hand_within_20mm"] = int(np.sum(starts[on] <= 20))
     return out
 
 
