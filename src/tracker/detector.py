@@ -317,17 +317,21 @@ def _check_forest(a: dict, n_classes: int, path: Path) -> None:
         raise TrackerError(str(path), "a child precedes its parent (the walk could loop)")
 
 
+def newest_shipped(name: str, suffix: str, what: str = "detector") -> Path:
+    """The newest version of the model file ``<name>-<version><suffix>`` under ``models/detectors/``
+    (versions compared number by number: 1.10.0 after 1.9.0)."""
+    folder = models_dir() / "detectors"
+    found = sorted(folder.glob(f"{name}-*{suffix}"), key=lambda q: [int(x) if x.isdigit() else x
+                                                                    for x in q.stem[len(name) + 1:].split(".")])
+    if not found:
+        raise TrackerError(str(folder), f"no {what} {name!r} shipped")
+    return found[-1]
+
+
 def detector_path(name: str = DETECTOR_NAME) -> Path:
     """The shipped detector file of that name (the newest version under ``models/detectors/``) or a path."""
     p = Path(name)
-    if p.suffix == ".npz":
-        return p
-    folder = models_dir() / "detectors"
-    found = sorted(folder.glob(f"{name}-*.npz"), key=lambda q: [int(x) if x.isdigit() else x
-                                                                  for x in q.stem[len(name) + 1:].split(".")])
-    if not found:
-        raise TrackerError(str(folder), f"no detector {name!r} shipped")
-    return found[-1]
+    return p if p.suffix == ".npz" else newest_shipped(name, ".npz")
 
 
 @lru_cache(maxsize=4)

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from handmodel.fileio import atomic_write_bytes, manifest_sha256, models_dir, read_limited
+from handmodel.fileio import atomic_write_bytes, manifest_sha256, read_limited
 
-from .detector import N_PARTS, PART_NAMES, Detection
+from .detector import N_PARTS, PART_NAMES, Detection, newest_shipped
 from .errors import TrackerError
 from .io.cameras import as_camera
 
@@ -217,12 +217,7 @@ def cnn_path(name: str = CNN_NAME) -> Path:
     p = Path(name)
     if p.suffix in (".json", ".onnx"):
         return _cnn_paths(p)[0]
-    folder = models_dir() / "detectors"
-    found = sorted(folder.glob(f"{name}-*.json"), key=lambda q: [int(x) if x.isdigit() else x
-                                                                   for x in q.stem[len(name) + 1:].split(".")])
-    if not found:
-        raise TrackerError(str(folder), f"no keypoint CNN {name!r} shipped")
-    return found[-1]
+    return newest_shipped(name, ".json", "keypoint CNN")
 
 
 @lru_cache(maxsize=4)
