@@ -325,8 +325,11 @@ def _errors(model, samples, boxes, batch: int = 256):
 
 
 def _stats(mm, px) -> dict:
-    """Errors over the keypoints found (the forest leaves some NaN; the CNN places all)."""
-    with np.errstate(all="ignore"):
+    """Errors over the keypoints found (the forest leaves some NaN; the CNN places all; None where none is)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN slice: _r makes it None
         return {"found_share": round(float(np.isfinite(mm).mean()), 4), "mm_median": _r(np.nanmedian(mm)),
                 "mm_mean": _r(np.nanmean(mm)), "mm_p90": _r(np.nanpercentile(mm, 90)),
                 "px_median": _r(np.nanmedian(px)), "px_mean": _r(np.nanmean(px)),
@@ -352,7 +355,7 @@ def evaluate_samples(model, samples, st: CnnSettings, seed: int = 0) -> dict:
     return {"crops": len(samples), "true_box": _stats(mm, px), "jittered_box": _stats(jm, jp),
             "centroid_mm_median": _r(np.median(base)),
             "spread_quartiles": [_r(q, 4) for q in np.quantile(spread, [0.25, 0.5, 0.75])],
-            "mm_median_by_spread_third": [_r(np.median(mm[third == k])) for k in range(3)],
+            "mm_median_by_spread_third": [_median(mm[third == k]) for k in range(3)],
             "confidence_ge_0.5_share": round(float(hi.mean()), 4),
             "mm_median_confidence_ge_0.5": _r(np.median(mm[hi])) if hi.any() else None,
             "mm_median_confidence_lt_0.5": _r(np.median(mm[~hi])) if (~hi).any() else None}
@@ -406,12 +409,18 @@ def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=N
         if on.any():
             out["on_hand_frames"] = _stats(mm[on], px[on])
         out["starts"] = int(np.isfinite(starts).sum())
-        out["start_mean_keypoint_mm_median"] = _r(np.nanmedian(starts))
+        out["start_mean_keypoint_mm_median"] = _median(starts)
         out["starts_within_20mm"] = int(np.sum(starts <= 20))
         if on.any():
-            out["start_on_hand_mm_median"] = _r(np.nanmedian(starts[on]))
+            out["start_on_hand_mm_median"] = _median(starts[on])
             out["starts_on_hand_within_20mm"] = int(np.sum(starts[on] <= 20))
     return out
+
+
+def _median(x):
+    """The median of the finite values (None without any: no start was fitted)."""
+    x = np.asarray(x, float)
+    return _r(np.median(x[np.isfinite(x)])) if np.isfinite(x).any() else None
 
 
 def evaluate_starts(model, samples, synergies=None, n: int = 100) -> dict:
@@ -440,7 +449,7 @@ def evaluate_starts(model, samples, synergies=None, n: int = 100) -> dict:
                                                                       axis=1).mean())
     res = np.array(res)
     return {"crops": len(S), "synergies": synergies is not None, "detected_mm_median": _r(np.median(det)),
-            "starts": int(np.isfinite(res).sum()), "start_mean_keypoint_mm_median": _r(np.nanmedian(res)),
+            "starts": int(np.isfinite(res).sum()), "start_mean_keypoint_mm_median": _median(res),
             "start_within_20mm": int(np.sum(res <= 20)), "fit_start_ms_median": _r(np.median(ms))}
 
 
