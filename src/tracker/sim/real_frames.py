@@ -33,7 +33,7 @@ def _frame_order(name):
     return (rec, int(idx)) if idx.isdigit() else (name, -1)
 
 
-def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0):
+def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0, settings=None):
     """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
     PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
     tracked as a user would: the ``sr305`` preset, the right hand, defaults, the hand size calibrated on
@@ -49,7 +49,8 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in). ``calibrate_each``: the
     hand is calibrated instead on each recording's first ``calibrate_each`` labelled frames, each fitted
     from its own start (:meth:`FrameTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
-    lengths), and every frame is tracked on that hand."""
+    lengths), and every frame is tracked on that hand. ``settings``: the :class:`TrackerSettings` instead of
+    the defaults (e.g. ``start.detector``)."""
     import json
 
     from PIL import Image
@@ -66,6 +67,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
         raise TrackerError(str(root / "labels" / "labels.json"), f"cannot read the frame labels ({e})") from None
     cam = preset("sr305")
     bundle = load_bundle("fingerfist")
+    base = settings or TrackerSettings()
     # in recording order: "first labelled frame" is the earliest (230536_30, not 230536_110 as text sorts)
     names = sorted((k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v), key=_frame_order)
     rows, sizes, calibrated = [], {}, {}
@@ -73,7 +75,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     if calibrate_each:
         for recording in dict.fromkeys(n.split("_")[0] for n in names):
             first = [n for n in names if n.split("_")[0] == recording][:calibrate_each]
-            tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True), TrackerSettings(), synergies=bundle)
+            tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True), base, synergies=bundle)
             tr.calibrate_each([observe(depths[n], cam) for n in first], cam)
             calibrated[recording] = tr
     for k, name in enumerate(names):
@@ -85,7 +87,7 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             tr.reset()
         else:
             tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True),
-                             TrackerSettings().replace(scale=dict(hand_scale=sizes.get(recording, "auto"))), synergies=bundle)
+                             base.replace(scale=dict(hand_scale=sizes.get(recording, "auto"))), synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)
         sizes.setdefault(recording, tr.scale_)
