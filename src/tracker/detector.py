@@ -334,18 +334,22 @@ def detector_path(name: str = DETECTOR_NAME) -> Path:
     return p if p.suffix == ".npz" else newest_shipped(name, ".npz")
 
 
-@lru_cache(maxsize=4)
-def _cached(path: str, mtime: float) -> HandPartForest:
-    return read_detector(path)
+@lru_cache(maxsize=8)
+def _read_cached(path: str, mtime: float, reader):
+    return reader(path)
+
+
+def read_once(path: Path, reader, what: str):
+    """``reader(path)``, once per process and version of the file (its modification time)."""
+    try:
+        return _read_cached(str(path.resolve()), path.stat().st_mtime, reader)
+    except FileNotFoundError:
+        raise TrackerError(str(path), f"no such {what}") from None
 
 
 def load_detector(name_or_path: str = DETECTOR_NAME) -> HandPartForest:
     """The detector by name (shipped, newest version) or ``.npz`` path, read once per process."""
-    p = detector_path(str(name_or_path))
-    try:
-        return _cached(str(p.resolve()), p.stat().st_mtime)
-    except FileNotFoundError:
-        raise TrackerError(str(p), "no such detector file") from None
+    return read_once(detector_path(str(name_or_path)), read_detector, "detector file")
 
 
 # ----------------------------------------------------------------------------- detection

@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, manifest_sha256, read_limited
 
-from .detector import N_PARTS, PART_NAMES, Detection, newest_shipped
+from .detector import N_PARTS, PART_NAMES, Detection, newest_shipped, read_once
 from .errors import TrackerError
 from .io.cameras import as_camera
 
@@ -220,18 +219,9 @@ def cnn_path(name: str = CNN_NAME) -> Path:
     return newest_shipped(name, ".json", "keypoint CNN")
 
 
-@lru_cache(maxsize=4)
-def _cached(path: str, mtime: float) -> KeypointCNN:
-    return read_cnn(path)
-
-
 def load_cnn(name_or_path: str = CNN_NAME) -> KeypointCNN:
     """The network by name (shipped, newest version) or path, read and verified once per process."""
-    p = cnn_path(str(name_or_path))
-    try:
-        return _cached(str(p.resolve()), p.stat().st_mtime)
-    except FileNotFoundError:
-        raise TrackerError(str(p), "no such keypoint CNN manifest") from None
+    return read_once(cnn_path(str(name_or_path)), read_cnn, "keypoint CNN manifest")
 
 
 # ----------------------------------------------------------------------------- detection
