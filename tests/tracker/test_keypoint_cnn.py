@@ -192,3 +192,12 @@ def test_save_and_read_a_versioned_network(tmp_path):
     assert read_cnn(tmp_path / "hand-keypoints-cnn-2.0.0.onnx").manifest["onnx_sha256"] == net.manifest["onnx_sha256"]
     with pytest.raises(TrackerError, match="exists"):
         save_cnn(out, net.onnx_bytes, body)
+
+
+def test_shipped_network_carries_no_exporter_trace():
+    """torch's exporter writes each node's Python stack trace (the build machine's file paths) into the
+    ONNX file; the shipped file has none (``train_cnn.without_trace``)."""
+    from tracker.keypoint_cnn import cnn_path
+
+    data = cnn_path().with_suffix(".onnx").read_bytes()
+    assert b"pkg.torch.onnx.stack_trace" not in data and b"site-packages" not in data

@@ -302,7 +302,15 @@ def export_onnx(net) -> bytes:
                                  dynamic_shapes=({0: torch.export.Dim("batch")},), dynamo=True, verbose=False)
     except ImportError as exc:
         raise TrackerError("onnx", f"the exporter needs onnx and onnxscript ({exc}; pip install '.[train]')") from None
-    return prog.model_proto.SerializeToString()
+    return without_trace(prog.model_proto).SerializeToString()
+
+
+def without_trace(model):
+    """The ONNX model without the exporter's per-node trace (stack traces with the build machine's file
+    paths, fx node names): what runs is unchanged, and the shipped file names no machine."""
+    for node in model.graph.node:
+        del node.metadata_props[:]
+    return model
 
 
 # ----------------------------------------------------------------------------- experiments and the product
