@@ -353,6 +353,18 @@ def load_detector(name_or_path: str = DETECTOR_NAME) -> HandPartForest:
 
 
 # ----------------------------------------------------------------------------- detection
+def checked_frame(depth_m, camera, hand: str):
+    """``(camera, depth as float32)`` for a detector, after the checks every detector makes: the hand
+    is "left" or "right", the depth an image of the camera's size."""
+    if hand not in ("left", "right"):
+        raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
+    cam = as_camera(camera)
+    d = np.asarray(depth_m, np.float32)
+    if d.ndim != 2 or d.shape != (int(cam.height), int(cam.width)):
+        raise TrackerError("depth", f"shape {d.shape} does not match the camera's {int(cam.height)}×{int(cam.width)}")
+    return cam, d
+
+
 def candidate_pixels(depth, mask=None, *, stride: int = 2, depth_range=(0.15, 2.0)):
     """``(rows, cols)`` to classify: the mask's pixels with depth, or without a mask every valid
     pixel in ``depth_range``, on a ``stride`` grid."""
@@ -423,12 +435,7 @@ def detect(depth_m, camera, mask=None, hand: str = "left", *, detector: HandPart
     -------
     Detection
     """
-    if hand not in ("left", "right"):
-        raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
-    cam = as_camera(camera)
-    d = np.asarray(depth_m, np.float32)
-    if d.ndim != 2 or d.shape != (int(cam.height), int(cam.width)):
-        raise TrackerError("depth", f"shape {d.shape} does not match the camera's {int(cam.height)}×{int(cam.width)}")
+    cam, d = checked_frame(depth_m, camera, hand)
     det = detector or load_detector()
     d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan)).astype(np.float32)
     rows, cols = candidate_pixels(d, mask, stride=stride)

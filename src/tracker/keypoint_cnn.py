@@ -33,9 +33,8 @@ import numpy as np
 
 from handmodel.fileio import atomic_write_bytes, manifest_sha256, read_limited
 
-from .detector import N_PARTS, PART_NAMES, Detection, newest_shipped, read_once
+from .detector import N_PARTS, PART_NAMES, Detection, checked_frame, newest_shipped, read_once
 from .errors import TrackerError
-from .io.cameras import as_camera
 
 CNN_NAME = "hand-keypoints-cnn"
 FORMAT = "hand-keypoint-cnn/1"
@@ -252,12 +251,7 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
         ``hand_score`` is the mean confidence: the network was not trained on crops without a hand,
         so it says how sure the keypoints are, not whether a hand is there.
     """
-    if hand not in ("left", "right"):
-        raise TrackerError("hand", f"must be 'left' or 'right', got {hand!r}")
-    cam = as_camera(camera)
-    d = np.asarray(depth_m, np.float32)
-    if d.ndim != 2 or d.shape != (int(cam.height), int(cam.width)):
-        raise TrackerError("depth", f"shape {d.shape} does not match the camera's {int(cam.height)}×{int(cam.width)}")
+    cam, d = checked_frame(depth_m, camera, hand)
     if mask is None:
         raise TrackerError("mask", "the keypoint CNN needs the hand's segmentation (observe(...).mask)")
     m = np.asarray(mask, bool)
