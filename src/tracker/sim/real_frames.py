@@ -11,6 +11,7 @@ import numpy as np
 from handmodel import HandModel
 
 from .. import TRACKING_HAND
+from ..errors import TrackerError
 from ..io.cameras import preset
 from ..observe import observe
 from ..track import FrameTracker, TrackerSettings
@@ -33,6 +34,18 @@ def _frame_order(name):
     return (rec, int(idx)) if idx.isdigit() else (name, -1)
 
 
+def read_labels(data_dir) -> dict:
+    """The labelled stills' ``labels/labels.json`` (name → wrist and fingertip pixels); unreadable or not
+    JSON → one :class:`TrackerError` naming the file."""
+    import json
+
+    path = Path(data_dir) / "labels" / "labels.json"
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise TrackerError(str(path), f"cannot read the frame labels ({e})") from None
+
+
 def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0, settings=None):
     """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
     PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
@@ -51,20 +64,14 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     from its own start (:meth:`FrameTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
     lengths), and every frame is tracked on that hand. ``settings``: the :class:`TrackerSettings` instead of
     the defaults (e.g. ``start.detector``)."""
-    import json
-
     from PIL import Image
     from scipy import ndimage
 
     from synergy.bundle import load_bundle
-    from ..errors import TrackerError
     from ..io.images import read_depth_units, units_to_metres
 
     root = Path(data_dir)
-    try:
-        labels = json.loads((root / "labels" / "labels.json").read_text())
-    except (OSError, ValueError) as e:
-        raise TrackerError(str(root / "labels" / "labels.json"), f"cannot read the frame labels ({e})") from None
+    labels = read_labels(root)
     cam = preset("sr305")
     bundle = load_bundle("fingerfist")
     base = settings or TrackerSettings()

@@ -239,17 +239,13 @@ def evaluate_real(detector, data_dir, detect_fn=detect) -> dict:
     (not the same point: the crease lies ~1–2 cm further along the arm). Evaluation only.
     ``detect_fn(depth, camera, mask, hand, detector=)``: the forest's :func:`tracker.detector.detect`
     or the CNN's :func:`tracker.keypoint_cnn.detect`."""
-    import json
-
     from ..io.cameras import preset
     from ..io.images import read_depth_units, units_to_metres
     from ..observe import observe
+    from .real_frames import read_labels
 
     root = Path(data_dir)
-    try:
-        labels = json.loads((root / "labels" / "labels.json").read_text())
-    except (OSError, ValueError) as e:
-        raise TrackerError(str(root / "labels" / "labels.json"), f"cannot read the frame labels ({e})") from None
+    labels = read_labels(root)
     cam = preset("sr305")
     names = sorted(k for k, v in labels.items() if isinstance(v, dict) and "wrist" in v)
     rows = []
