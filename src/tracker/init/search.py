@@ -94,7 +94,7 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
         return _search_exhaustive(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette,
                                   postures=postures, normals=normals, extra=extra, search=search, wrist=wrist)
     return _search_halving(ctx, points, st, theta0=theta0, mode=mode, silhouette=silhouette, postures=postures,
-                           normals=normals, extra=extra, search=search, wrist=wrist, budget=budget or SearchBudget())
+                           normals=normals, extra=extra, search=search, wrist=wrist, budget=budget)
 
 
 def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta0, postures, extra, search):
