@@ -454,7 +454,8 @@ class Prediction:
 class StartSearch:
     """A frame fitted without one before it (the first, after a loss): the single-frame search
     (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ, the colour seed
-    (``colour``) and the depth keypoint detector's (``keypoints``, :class:`KeypointSeed`), its last fits holding the hand's wrist crease on the arm's line (the frame's ``cue``;
+    (``colour``) and the depth keypoint detector's (``keypoints``, :class:`KeypointSeed`), its last fits
+    holding the hand's wrist crease on the arm's line (the frame's ``cue``;
     :class:`tracker.icp.IcpSettings` ``wrist_line_weight``)."""
 
     def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None,
@@ -467,6 +468,7 @@ class StartSearch:
 
     def __call__(self, ctx, pts, nrm, sil, last_good, refit, color=None, depth=None, camera=None):
         """``(θ, corr)`` on ``ctx``'s hand; ``refit(start)``: the tracking ICP the colour seed is refined by."""
+        budget = SearchBudget(self.budget_ms)  # the seeds' detection and fits count too
         extra = () if last_good is None else (last_good,)
         seed = () if self.colour is None else self.colour.start(ctx.hand, color, depth, camera)
         self.cue.add(sil)
@@ -474,7 +476,6 @@ class StartSearch:
             extra += self.keypoints.start(ctx.hand, sil)
         # a size calibration's fits do not hold the crease (it moved a real recording's calibrated size,
         # 1.276 → 1.256, and tips by up to 40 px), nor the net's, whose result is compared with the tracked fit's
-        budget = SearchBudget(self.budget_ms)
         theta, corr = fit_single_frame(ctx, pts, self.init, silhouette=sil, normals=nrm, extra=extra + seed,
                                        wrist=self.cue.of(sil), budget=budget)
         self.stats.searches += 1
