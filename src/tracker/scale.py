@@ -228,7 +228,7 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, cut=True):
+                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, cut=True, seeds=None, size_guess=None):
     """The user's hand size from one frame, with one single-frame search. The cloud's extent against
     the open model's gives a first guess ``g`` (right for an open hand, too small for a curled one,
     which the cloud cannot tell apart); the search runs at ``guess`` × ``g`` and :func:`fit_scale`
@@ -241,14 +241,20 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     points on the fingers' side of the first fit's wrist (:func:`hand_side`; ``cut=False``: all).
     ``context_for(s)``: the
     :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`tracker.resize.resized_context`).
+    ``seeds(hand)``: more starts of the first search on that hand, and ``size_guess`` another guess of
+    the size, taken where it is larger than the extent's (a keypoint detector's:
+    :func:`tracker.detector.keypoint_scale`).
     Returns ``(scale, θ, corr)``; :func:`calibrate_scale_searched` is the earlier, ~10× slower
     calibration (several full searches)."""
     st = settings or InitSettings()
     lo, hi = scale_range
     base = context_for(1.0)
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
-    s0 = float(np.clip(g * guess, lo, hi))
-    th0, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
+    # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
+    # SR305 stills): the larger is the nearer
+    s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
+    extra = () if seeds is None else tuple(seeds(context_for(s0).hand))
+    th0, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals, extra=extra)
     all_points, all_normals = points, normals
     if cut:
         # the size is searched on the points on the fingers' side of this fit's wrist (hand_side)

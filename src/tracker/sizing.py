@@ -140,7 +140,7 @@ class SizeCalibration:
         at most ``trust_mm`` or after ``frames`` frames, until then the next frame is calibrated again."""
         st = self.settings
         s, theta, corr = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
-                                         scale_range=st.range)
+                                         scale_range=st.range, **self._detected(tr, sil))
         if tr.loss.no_hand_sized(s, corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
             tr.sizes.keep(1.0 if self.scale_ is None else self.scale_)
@@ -160,6 +160,22 @@ class SizeCalibration:
         # the sizes the search probed are not needed again
         tr.sizes.keep(best)
         return theta, corr, True
+
+    def _detected(self, tr, sil) -> dict:
+        """The keypoint detector's part in a calibration (``start.detector``): the size from its
+        keypoints and the hand fitted to them as a start of the search at that size."""
+        from .detector import detect_in, fit_start, keypoint_scale
+
+        seed = tr.search.keypoints
+        det = None if seed is None else detect_in(seed.detect, sil, tr.base_hand.handedness)
+        if det is None:
+            return {}
+        self.stats.detector_seeds += 1
+
+        def seeds(hand):
+            th = fit_start(det, hand, seed.synergies)
+            return () if th is None else (th,)
+        return {"seeds": seeds, "size_guess": keypoint_scale(det, tr.context_for(1.0).hand)}
 
     def refine(self, tr, pts, nrm, sil):
         """One more tracked frame's size estimate; the size becomes the median of the estimates, θ

@@ -100,3 +100,22 @@ def test_the_shipped_cnn_seeds_a_rendered_fist():
     assert tr.stats.detector_seeds == 1
     print(f"\nfit {plain.fit_mm:.2f} mm without the seed, {r.fit_mm:.2f} mm with it")
     assert r.fit_mm <= plain.fit_mm + 0.1, (plain.fit_mm, r.fit_mm)
+
+
+def test_the_size_calibration_search_takes_the_seed():
+    """The first frame of a hand of unknown size (``hand_scale='auto'``) is fitted by the size calibration's
+    search: an exact detector's seed joins it there too, and the frame comes out as the seed's posture
+    (the fist from the back that the unseeded paper's start misses)."""
+    truth = make_motion("grasp-back", hand=HAND).theta[45]
+    ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM)
+    st = TrackerSettings().replace(init=dict(search=False, finger_search=False))
+    plain = FrameTracker(HAND, st)
+    e_plain = posture_error_deg(plain.track(ob, CAM).theta, truth, HAND.pose_mask)
+    calls = []
+    tr = FrameTracker(HAND, st, depth_detector=oracle(truth, calls))
+    r = tr.track(ob, CAM)
+    assert tr.stats.detector_seeds >= 1 and all(c[2] == HAND.handedness for c in calls)
+    e_seed = posture_error_deg(r.theta, truth, HAND.pose_mask)
+    print(f"\nsize {plain.scale_:.3f} / {tr.scale_:.3f}; posture {e_plain:.1f} deg without, {e_seed:.1f} deg with the seed")
+    assert abs(tr.scale_ - 1.0) < 0.05
+    assert e_seed < 5.0 and e_seed < e_plain, (e_plain, e_seed)

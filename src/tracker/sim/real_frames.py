@@ -46,7 +46,18 @@ def read_labels(data_dir) -> dict:
         raise TrackerError(str(path), f"cannot read the frame labels ({e})") from None
 
 
-def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0, settings=None):
+def _not_found(name, tr, kn, lab, mask, status) -> dict:
+    """The row of a frame the tracker gave no θ (``status``): infinite distances, no keypoint in the mask."""
+    inf = float("inf")
+    tips = {t: inf for t in REAL_TIPS if t in lab}
+    return {"name": name, "scale": float(tr.scale_ or float("nan")), "fingers": dict(tr.finger_scales_ or {}),
+            "uv": np.full((len(kn), 2), np.nan), "names": kn, "labels": lab, "mask": mask, "tips_px": tips,
+            "tip_ends_px": dict(tips), "ends_uv": np.full((len(REAL_TIPS), 2), np.nan), "wrist_px": inf,
+            "wrist_joint_px": inf, "crease_uv": np.full(2, np.nan), "in_mask": 0.0, "ok": False, "status": status}
+
+
+def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibrate_each=0, settings=None,
+                           alone=False):
     """Every labelled real SR305 frame of ``data_dir`` (``../shared/data/realsense_sr305_lada``: depth
     PNGs, ``labels/labels.json`` with wrist and fingertip pixels, ``labels/<name>_hand.png`` hand masks)
     tracked as a user would: the ``sr305`` preset, the right hand, defaults, the hand size calibrated on
@@ -58,12 +69,14 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
     ``ends_uv``),
     ``wrist_px`` (the labelled crease → the model hand's end, :meth:`HandModel.wrist_crease`, projected
     at ``crease_uv``), ``wrist_joint_px`` (→ the wrist joint), ``in_mask`` (share of keypoints inside the mask dilated by
-    :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met). ``overlay_dir``: an overlay PNG per frame
+    :data:`REAL_MASK_DILATE_PX`) and ``ok`` (every floor met); a frame the tracker found no hand in has
+    infinite distances and ``status`` (e.g. ``"no hand"``). ``overlay_dir``: an overlay PNG per frame
     (:func:`tracker.plots.overlay_png`, the labelled tips and wrist drawn in). ``calibrate_each``: the
     hand is calibrated instead on each recording's first ``calibrate_each`` labelled frames, each fitted
     from its own start (:meth:`FrameTracker.calibrate_each`, ``tracker calibrate --each``: size and finger
     lengths), and every frame is tracked on that hand. ``settings``: the :class:`TrackerSettings` instead of
-    the defaults (e.g. ``start.detector``)."""
+    the defaults (e.g. ``start.detector``). ``alone``: each frame is tracked as a recording of one still
+    (the size calibrated on that frame itself), as a user tracking a single image would."""
     from PIL import Image
     from scipy import ndimage
 
@@ -94,13 +107,20 @@ def experiment_real_frames(data_dir, *, overlay_dir=None, progress=None, calibra
             tr.reset()
         else:
             tr = FrameTracker(HandModel.load(TRACKING_HAND, right=True),
-                             base.replace(scale=dict(hand_scale=sizes.get(recording, "auto"))), synergies=bundle)
+                             base.replace(scale=dict(hand_scale="auto" if alone else sizes.get(recording, "auto"))),
+                             synergies=bundle)
         ob = observe(depth, cam)
         res = tr.track(ob, cam)
         sizes.setdefault(recording, tr.scale_)
-        uv = cam.project(tr.hand.keypoints(res.theta))
         kn = list(tr.hand.keypoint_names)
         lab = labels[name]
+        if res.theta is None or not np.all(np.isfinite(res.theta)):
+            # no hand found: every distance infinite, so the frame fails every floor
+            rows.append(_not_found(name, tr, kn, lab, mask, res.status))
+            if progress is not None:
+                progress(k + 1, len(names), name)
+            continue
+        uv = cam.project(tr.hand.keypoints(res.theta))
         tips = {t: float(np.hypot(*(uv[kn.index(t + "_tip")] - lab[t]))) for t in REAL_TIPS if t in lab}
         # the label is the finger's outermost point by its definition: the model finger's end
         # (HandModel.fingertip_ends) measured beside the tip keypoint, which the floors use
