@@ -78,6 +78,25 @@ def test_back_of_hand_scenario_faces_the_dorsal_side_to_the_camera(hand):
     assert (palm_dot_view(hand, make_motion("open-close", hand=hand, frames=90).theta) < -0.8).all()
 
 
+def test_fist_scenarios_start_closed_and_face_as_named(hand):
+    """The harder scenes of issue 38: a tracker meets the hand as a fist (its first frame), palm or thumb side
+    to the camera; the pinch brings the thumb and index tips together."""
+    from tracker.sim.motions import FIST, OPEN
+
+    palm = make_motion("fist-palm", hand=hand, frames=90).theta
+    side = make_motion("fist-side", hand=hand, frames=90).theta
+    np.testing.assert_allclose(palm[0, 6:], FIST)
+    np.testing.assert_allclose(side[0, 6:], FIST)
+    assert np.abs(palm[45, 6:] - OPEN).max() < 1e-9  # open half-way through its 3 s
+    assert (palm_dot_view(hand, palm) < -0.8).all()
+    assert (np.abs(palm_dot_view(hand, side)) < 0.45).all()  # the palm faces sideways
+    pinch = make_motion("pinch", hand=hand, frames=90).theta
+    names = list(hand.keypoint_names)
+    gap = np.linalg.norm(hand.keypoints(pinch)[:, names.index("thumb_tip")]
+                         - hand.keypoints(pinch)[:, names.index("index_tip")], axis=1)
+    assert gap.min() < 0.4 * gap[0], (gap.min(), gap[0])  # the PINCH posture: 78 -> 28 mm
+
+
 def test_back_of_hand_grasp_hides_the_fingertips(hand):
     """At full grasp the distal finger segments are (nearly) hidden from the back, not from the palm."""
     from types import SimpleNamespace

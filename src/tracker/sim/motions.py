@@ -352,6 +352,25 @@ def _grasp_back(hand, frames, fps, seed):
     return with_path(keyframes([OPEN, GRASP], frames, fps, 3.0, hold=0.3), hand, fps, path)
 
 
+@_scenario("fist-palm", "a fist, palm to the camera, opening and closing again every 3 s; the first frame is "
+                        "the fist (a tracker meets the hand closed, its size unknown)")
+def _fist_palm(hand, frames, fps, seed):
+    return with_path(keyframes([FIST, OPEN], frames, fps, 3.0, hold=0.3), hand, fps)
+
+
+@_scenario("fist-side", "the fist-palm motion with the thumb side to the camera (fingers curl across the view)")
+def _fist_side(hand, frames, fps, seed):
+    path = GlobalPath(facing="side", wobble_deg=(8.0, 8.0, 6.0))
+    return with_path(keyframes([FIST, OPEN], frames, fps, 3.0, hold=0.3), hand, fps, path)
+
+
+@_scenario("pinch", "thumb and index close to a pinch (tips 28 mm apart) and open every 2.5 s, palm to the "
+                    "camera turned 30° towards the thumb side")
+def _pinch(hand, frames, fps, seed):
+    path = GlobalPath(tilt_deg=(0.0, -30.0, 0.0))
+    return with_path(keyframes([OPEN, PINCH], frames, fps, 2.5, hold=0.3), hand, fps, path)
+
+
 @_scenario("rotate", "hand closing and opening while it turns from palm to back and back (0–180° about the "
                      "vertical in 6 s)", 6.0)
 def _rotate(hand, frames, fps, seed):
