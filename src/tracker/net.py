@@ -33,7 +33,7 @@ class SafetyNet:
     def __init__(self, settings, cue: WristCue, stats: TrackerStats | None = None, budget_ms: float = 0.0):
         self.settings, self.cue, self.stats = settings, cue, stats or TrackerStats()
         self.budget_ms = budget_ms  # a frame's searches together (start.search_budget_ms; 0 = none)
-        self._scores = deque(maxlen=30)  # the undoubted frames' scores the scene's level is taken from
+        self._scores = deque(maxlen=30)  # the undoubted frames' (and replacements') scores: the scene's level
         self.search_level = 0.0  # the last start's score: what a good fit scores in this scene
         self._wrist_passed = None  # (θ, arm entry, frames since) of the last hand the wrist test passed
 
@@ -43,8 +43,14 @@ class SafetyNet:
 
     def threshold(self) -> float:
         """The score (mm) above which a frame is doubtful: ``score_mm``, or ``score_ratio`` × the scene's
-        level (the median of the last undoubted frames' scores, or the last start's if higher)."""
-        level = max(np.median(self._scores) if self._scores else 0.0, self.search_level)
+        level (the ``level_quantile`` of the last undoubted frames' scores and, with ``level_replaced``, the
+        net's replacements', or the last start's if higher). A low quantile, not the median: fits that
+        pass under the threshold raise it, and where most of them are mediocre (fast sweeps under the
+        Kinect v1 noise: scores of 2–3 mm where a right fit scores ~1) the median follows them up and
+        the net stops seeing them (the threshold 1.2 → 6.7 mm in 80 frames, the posture 23° off)."""
+        q = self.settings.level_quantile
+        level = max((np.median(self._scores) if q == 0.5 else np.quantile(self._scores, q)) if self._scores else 0.0,
+                    self.search_level)
         return max(self.settings.score_mm, self.settings.score_ratio * level)
 
     def doubtful(self, ctx, theta, pred, s, sil=None, points=None, near_mm=None) -> str:
@@ -64,6 +70,17 @@ class SafetyNet:
         if turn > st.jump_deg or moved > st.jump_mm:
             return "jump"
         return ""
+
+    def is_motion(self, before, after) -> bool:
+        """Whether the change of the global pose from θ ``before`` (the frame before) to a replacement
+        ``after`` is within the jump limits (``jump_deg``, ``jump_mm``): the hand's motion, which the next
+        prediction may go on with (:attr:`tracker.settings.PredictSettings.through_net`: a hand faster than
+        the fit's reach is replaced frame after frame, and each replacement predicted without its motion
+        missed the next frame again by ~37 mm), not a correction of a wrong fit (the turn to the back
+        under the Kinect v1 noise: a hand turned back over, repeated as a velocity, put the next
+        prediction 80–100 mm off)."""
+        turn, moved = pose_change(after, before)
+        return turn <= self.settings.jump_deg and moved <= self.settings.jump_mm
 
     def far_off(self, ctx, theta, points, *, most=None, near_mm=None) -> bool:
         """Whether more than ``far_share`` of ``points`` lie farther than ``far_mm`` from the hand at
@@ -137,6 +154,10 @@ class SafetyNet:
                      <= _without_cue(ctx, theta, c_all, sil) + st.wrist.fit_mm)):
             self.stats.net_replaced += 1
             self._wrist_passed = None
+            if st.level_replaced:
+                # what the search found is what a right fit scores in this scene: without it, a run of
+                # replaced frames leaves the level to the mediocre fits that passed, and it creeps up
+                self._scores.append(best[0])
             return best[1], best[2], all_pts, all_nrm, "replaced"
         return theta, corr, pts, nrm, "kept"
 

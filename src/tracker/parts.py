@@ -9,10 +9,13 @@ Every part has the one interface :class:`FramePart`: its counts go to the tracke
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+
+from handmodel.rigid import euler_to_matrix, matrix_to_euler
 
 from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
@@ -423,6 +426,8 @@ class Prediction:
                 step[post] = (step[post] @ components.T) @ components
             out = out + step
             out[post] = np.clip(out[post], limits[post, 0], limits[post, 1])
+            if self.settings.turn:
+                out[3:6] = turned_on(theta[3:6], prev[3:6], float(self.settings.share))
         return out
 
     def points(self, hand, samples, pred, pts, nrm):
@@ -449,6 +454,43 @@ class Prediction:
             fit_keep = ~arm[keep]
             pts, nrm = all_pts[fit_keep], None if all_nrm is None else all_nrm[fit_keep]
         return pred, recentred, pts, nrm, all_pts, all_nrm
+
+
+def turned_on(angles, before, share=1.0) -> np.ndarray:
+    """XYZ Euler angles of the rotation ``angles`` turned on by ``share`` of its last change (from
+    ``before``), about the same axis: constant angular velocity. The angles are the solution nearest
+    ``angles`` (θ keeps its turns: a fit starts from it; two Euler triples give each rotation, and a
+    difference of Euler angles is no rotation near the middle angle's ±90°).
+
+    >>> np.round(turned_on(np.array([0.0, 0.3, 0.0]), np.array([0.0, 0.1, 0.0])), 6).tolist()
+    [0.0, 0.5, 0.0]
+    >>> np.round(turned_on(np.array([0.2, 1.5, 0.0]), np.array([0.2, 1.4, 0.0])), 6).tolist()  # past +90°
+    [0.2, 1.6, 0.0]
+    """
+    R, R0 = euler_to_matrix(angles), euler_to_matrix(before)
+    step = R @ R0.T
+    if share != 1.0:
+        step = _scaled_rotation(step, share)
+    a, b, c = matrix_to_euler(step @ R)
+    best = None
+    for cand in (np.array([a, b, c]), np.array([a + math.pi, math.pi - b, c + math.pi])):
+        # the turns nearest the last angles, each angle on its own
+        cand = cand + 2.0 * math.pi * np.round((np.asarray(angles, float) - cand) / (2.0 * math.pi))
+        if best is None or np.abs(cand - angles).sum() < np.abs(best - angles).sum():
+            best = cand
+    return best
+
+
+def _scaled_rotation(R, share) -> np.ndarray:
+    """The rotation about ``R``'s axis by ``share`` of its angle (Rodrigues; scalars by :mod:`math`, so that
+    the bits do not depend on the processor)."""
+    angle = math.acos(min(1.0, max(-1.0, (float(np.trace(R)) - 1.0) / 2.0)))
+    if angle < 1e-12:
+        return np.eye(3)
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2.0 * math.sin(angle))
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    t = share * angle
+    return np.eye(3) + math.sin(t) * K + (1.0 - math.cos(t)) * (K @ K)
 
 
 class StartSearch:

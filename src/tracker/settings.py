@@ -71,14 +71,22 @@ class PredictSettings(SettingsGroup):
     share : share of the last frame's change added to its θ (0 = off; 1.0)
     recentre : move the prediction onto the cloud when their centres lie farther apart than the
         rejection radius (:class:`tracker.recentre.Recentring`; True, the paper: False)
+    turn : the global rotation's last change added too (``share`` of it, as a rotation about the same
+        axis; True, the paper: False)
+    through_net : the safety net's replacement keeps the hand's motion: the next prediction moves the
+        global pose on by its change from the frame before to the replacement, when that is within the
+        net's jump limits (:meth:`tracker.net.SafetyNet.is_motion`; the posture's change is a correction,
+        not motion) (True, the paper: False)
     """
 
     share: float = 1.0
     recentre: bool = True
+    turn: bool = True
+    through_net: bool = True
 
     @classmethod
     def paper(cls):
-        return cls(recentre=False)
+        return cls(recentre=False, turn=False, through_net=False)
 
 
 @dataclass(frozen=True)
@@ -222,6 +230,8 @@ class SafetyNetSettings(SettingsGroup):
     far_share : doubtful when more than this share of the points lie farther than ``far_mm`` from
         the hand (0 = off; 0.1)
     far_mm : see ``far_share`` (mm; 15)
+    level_replaced : a replacement's score counts towards the scene's level too (True, the paper: False)
+    level_quantile : the scene's level is this quantile of those scores (0.25; the paper: 0.5, the median)
     wrist : the wrong-way test (:class:`WristTestSettings`)
     """
 
@@ -234,13 +244,17 @@ class SafetyNetSettings(SettingsGroup):
     margin_mm: float = 0.2
     far_share: float = 0.1
     far_mm: float = 15.0
+    level_replaced: bool = True
+    level_quantile: float = 0.25
     wrist: WristTestSettings = field(default_factory=WristTestSettings)
 
     @classmethod
     def paper(cls):
-        return cls(enabled=False)
+        return cls(enabled=False, level_replaced=False, level_quantile=0.5)
 
     def check(self):
+        _need(0.0 < self.level_quantile <= 0.5, "net.level_quantile",
+              f"must be a quantile in (0, 0.5] (the scene's level is a low score), got {self.level_quantile!r}")
         self.wrist.check()
 
 

@@ -376,7 +376,13 @@ class FrameTracker:
         theta, corr, status = frame.theta, frame.corr, frame.status
         fit_mm, rejected = corr.fit_error_mm(), corr.rejected_share
         if self.loss.kept(fit_mm, rejected) and not frame.far_lost:
-            self.prev, self.theta = (self.theta if status == "tracked" else None), theta
+            before = self.theta
+            self.prev, self.theta = (before if status == "tracked" else None), theta
+            if frame.net == "replaced" and self.settings.predict.through_net and self.net.is_motion(before, theta):
+                # the global pose moves on from the frame before; the posture does not: the net's
+                # replacement corrects a posture gone wrong, and that correction is no motion
+                self.prev = theta.copy()
+                self.prev[:6] = before[:6]
             if frame.recentred and self.prev is not None:
                 # the jump was no velocity: the next prediction must not repeat it
                 self.prev = self.prev.copy()

@@ -118,9 +118,9 @@ def test_recentring_alone_moves_a_prediction_that_missed_the_cloud():
     assert part(HAND, samples, near, cloud) is near and stats.recentred == 1
 
 
-def test_prediction_alone_adds_the_last_change_but_not_the_rotation():
+def test_prediction_alone_adds_the_last_change_but_not_the_rotation_without_turn():
     gate = Gate(ObserveSettings(), 30, False)
-    pred = Prediction(PredictSettings(share=0.5), gate, Recentring(50.0))
+    pred = Prediction(PredictSettings(share=0.5, turn=False), gate, Recentring(50.0))
     lim = np.array(HAND.limits, float)
     prev = np.zeros(HAND.n_dofs)
     now = prev.copy()
