@@ -9,7 +9,9 @@ Protocols (all with 0.5 mm noise, a subject unlike the model):
   calibration; the prior in the IK where a joint is weakly observed), ``prior=None`` and
   ``prior='fingerfist'``; "before" is the calibration without neutral frames and no posture prior
   (the code before issue 40); and the same trial converted with the oracle calibration (the
-  subject's true bones and marker places) to tell calibration error from IK ambiguity.
+  subject's true bones and marker places) to tell calibration error from IK ambiguity, and once more
+  with the markers on each chain's last bone at their nominal places (the subject's ±2 mm off them
+  unknown): the best a calibration without a known posture can know of the last joints' zeros.
 - ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
   ROM + static to calibrate, power grasp to convert, 6 Hz).
 
@@ -32,6 +34,7 @@ from handmodel.dofs import anatomical_limits
 from synergy.angles import AUTO_GAIN, markers_to_angles
 from synergy.calibrate import Calibration, calibrate
 from synergy.markers import load_markerset
+from synergy.subject import last_bone_markers
 from synergy.simulate import WEAK_PROXIMAL, moved_markers, subject_protocol, weak_protocol
 
 SMOOTH_HZ = 6.0
@@ -54,10 +57,14 @@ def false_limits(df, theta, hand):
     return out
 
 
-def oracle(ms, hand, trial):
+def oracle(ms, hand, trial, nominal=False):
+    """The subject's true calibration; ``nominal``: with the markers on each chain's last bone at their
+    nominal places (what a calibration without a known posture can know of those joints' zeros)."""
     truth = moved_markers(ms, WEAK_PROXIMAL)
     _, local = truth.attachments(hand.scaled(1.0, trial.bone_scales))
-    offsets = {m.label: local[i] + np.asarray(trial.marker_shift[m.label]) for i, m in enumerate(truth.markers)}
+    kept = last_bone_markers(hand.parents, truth.attachments(hand)[0]) if nominal else np.zeros(len(local), bool)
+    offsets = {m.label: local[i] + (0.0 if kept[i] else np.asarray(trial.marker_shift[m.label]))
+               for i, m in enumerate(truth.markers)}
     return Calibration(scale=1.0, bone_scales=dict(trial.bone_scales), offsets=offsets, method="oracle",
                        hand="left", markerset=ms.name, median_residual_mm=0.5)
 
@@ -75,6 +82,7 @@ def main():
     ap.add_argument("--protocols", nargs="+", default=["weak", "subjects"])
     ap.add_argument("--seeds", type=seeds_arg, default=list(range(16)))
     ap.add_argument("--weak-seeds", type=seeds_arg, default=list(range(4)))
+    ap.add_argument("--motions", nargs="+", default=["fretting", "power_grasp"])
     args = ap.parse_args()
     hand = HandModel.load()
     kw = {"smooth_hz": SMOOTH_HZ, "check_hand": None}
@@ -82,9 +90,10 @@ def main():
     if "weak" in args.protocols:
         ms = load_markerset("hand19")
         print("weak protocol (hand19, proximal markers at 0.2, no static): angles RMS (°) before | default "
-              "(auto) | prior none | prior fingerfist | oracle calibration: none, fingerfist | neutral frames, "
+              "(auto) | prior none | prior fingerfist | oracle calibration: none, fingerfist, none with the "
+              "last-bone markers at their nominal places | neutral frames, "
               "auto's IK prior | false limits (before/default/none/fingerfist)")
-        for motion in ("fretting", "power_grasp"):
+        for motion in args.motions:
             for seed in args.weak_seeds:
                 tr, th = weak_protocol(seed, motion)
                 old = calibrate(tr, ms, hand, require_gain=AUTO_GAIN)
@@ -93,6 +102,8 @@ def main():
                 orc = oracle(ms, hand, tr)
                 orc_got = [rms_deg(markers_to_angles(tr, ms, calibration=orc, prior=pr, **kw), th)
                            for pr in (None, "fingerfist")]
+                orc_got.append(rms_deg(markers_to_angles(tr, ms, calibration=oracle(ms, hand, tr, nominal=True),
+                                                         prior=None, **kw), th))
                 src = runs[1].attrs["calibration"].get("static_source", "")
                 neutral = src.split(" ")[0] if src else "0"
                 chose = (runs[1].attrs["posture_prior"] or {}).get("name") or "none"

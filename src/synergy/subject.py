@@ -20,6 +20,12 @@ OFFSET_SD_MM = {"skin": 5.0, "calibrate_offset": 15.0, "joint_centre": 2.0}
 
 #: A calibration whose held-out residual exceeds its training residual by this factor is flagged overfit.
 OVERFIT_RATIO = 1.25
+#: Without a known posture (no static trial, no neutral frames), the prior SD (mm) of the place of a
+#: skin marker on the last marked bone of a chain (a nail marker) at most: its place along the arc about
+#: the chain's last joint is that joint's zero, which only the nominal place fixes, and a looser
+#: prior lets the fit's other misfits turn it (weakly observed fretting, tuning seeds 100-107:
+#: mean 5.86 -> 5.30°, worst 10.3 -> 6.7°; docs/experiments/marker-prior.md).
+LAST_BONE_SD_MM = 1.5
 
 
 def marker_offset_sd_mm(marker) -> float:
@@ -46,13 +52,29 @@ class _Layout:
     along: np.ndarray    # (M,) fraction along that bone
     prior_sd: np.ndarray  # (n_s,)
     base_sd_mm: float
+    last_bone_sd_mm: float | None = None
 
     @property
     def size(self):
         return 3 * len(self.bases) + len(self.lengths) + 3 * len(self.markers)
 
 
-def _layout(model, ms, nodes, *, bone_sd, offset_scale, base_sd_fraction=0.15):
+def last_bone_markers(parents, nodes):
+    """Whether each marker rides on the last marked bone of its chain (no other marker below it).
+
+    >>> last_bone_markers(np.array([-1, 0, 1, 2]), np.array([0, 1, 3, 3])).tolist()
+    [False, False, True, True]
+    """
+    below = np.zeros(len(parents), bool)  # nodes with a marked node strictly below them
+    for n in set(int(k) for k in nodes):
+        k = int(parents[n])
+        while k >= 0:
+            below[k] = True
+            k = int(parents[k])
+    return ~below[np.asarray(nodes)]
+
+
+def _layout(model, ms, nodes, *, bone_sd, offset_scale, base_sd_fraction=0.15, last_bone_sd_mm=None):
     N = model.n_nodes
     par = model.parents
     anc = np.zeros((N, N), bool)
@@ -73,10 +95,15 @@ def _layout(model, ms, nodes, *, bone_sd, offset_scale, base_sd_fraction=0.15):
     bases = [k for k in range(N) if par[k] == 0 and carried[k]]
     lengths = [k for k in range(N) if par[k] > 0 and (carried[k] or k in seg_child)]
     sd_m = np.array([marker_offset_sd_mm(m) * offset_scale for m in ms.markers])
+    if last_bone_sd_mm is not None:
+        # a marker the set says to calibrate (a glove's) has no nominal place worth holding it to
+        held = last_bone_markers(par, nodes) & ~np.array([bool(m.calibrate_offset) for m in ms.markers])
+        sd_m = np.where(held & (sd_m > 0), np.minimum(sd_m, last_bone_sd_mm), sd_m)
     free = [i for i in range(M) if sd_m[i] > 0]
     bsd = [max(base_sd_fraction * 1000.0 * np.linalg.norm(model.rest[k, :3, 3]), 5.0) for k in bases]
     prior = np.r_[np.repeat(bsd, 3), np.full(len(lengths), bone_sd), np.repeat(sd_m[free], 3)]
-    return _Layout(bases, lengths, free, anc, seg_child, along, prior, float(np.mean(bsd)) if bsd else 0.0)
+    return _Layout(bases, lengths, free, anc, seg_child, along, prior, float(np.mean(bsd)) if bsd else 0.0,
+                   last_bone_sd_mm)
 
 
 def _apply(model0, ms, right, scale, lay, s):
@@ -223,11 +250,14 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
     Frames of a static trial (``tg_static``) are fitted with their posture pulled to
     ``static_posture`` (default: the model's zero, a flat hand): a marker on the last bone of a
     chain can turn about its joint together with that joint's angle without changing any marker
-    position, so only a known posture fixes where such a joint's zero is."""
+    position, so only a known posture fixes where such a joint's zero is; without one (a
+    ``posture_prior`` instead), such markers keep their nominal places (:data:`LAST_BONE_SD_MM`)."""
     model0 = hand.scaled(scale)
     lim = anatomical_limits(model0)
     nodes0, local0 = ms.attachments(model0, right, scale=scale)
-    lay = _layout(model0, ms, nodes0, bone_sd=bone_sd, offset_scale=offset_scale)
+    known = tg_static is not None and len(tg_static)
+    lay = _layout(model0, ms, nodes0, bone_sd=bone_sd, offset_scale=offset_scale,
+                  last_bone_sd_mm=None if known or posture_prior is None else LAST_BONE_SD_MM)
     th0, rep0 = _ik(model0, nodes0, local0, tg_train, weights, lim)
     ok = rep0.iterations >= 0
     if ok.sum() < 3:
@@ -256,6 +286,8 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
         th_ref[:n_tr, post] = posture_prior.mean
         th_w[:n_tr, post] = np.sqrt(share) / np.radians(posture_prior.sd_deg)
         cal.method += f" + posture prior {posture_prior.name}"
+        if lay.last_bone_sd_mm is not None:
+            cal.method += f" + last-bone markers within {lay.last_bone_sd_mm:g} mm of their places"
     s = None
     for rnd in range(rounds):
         if s is not None:
