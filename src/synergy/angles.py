@@ -241,7 +241,8 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         # samples, and its calibration then fails the held-out check (a 0.5 s grasp at 6 Hz)
         # without a static trial, the trial's own open-hand frames (if any) stand in for one; a trial
         # without those (a fretting hand) has the posture prior hold its calibration frames' postures,
-        # weighed as one posture (fretting: 6.8-16.0° -> 5.6-7.1°, docs/experiments/marker-prior.md)
+        # weighed as one posture, the markers on each chain's last bone held to their places (fretting:
+        # 6.8-16.0° -> 4.9-6.6°; the rest needs a known posture, docs/experiments/marker-prior.md)
         named = resolve_prior(DEFAULT_PRIOR if isinstance(prior, str) and prior == "auto" else prior)
         cal = calibrate(data, ms, base, right=right, static=static, require_gain=AUTO_GAIN, smooth_hz=smooth_hz,
                         neutral=static is None, posture_prior=named, prior_frames=CALIBRATION_PRIOR_FRAMES)
