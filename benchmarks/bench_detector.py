@@ -1,6 +1,6 @@
 """The hand detectors on one core: ms per frame for the detection alone — the hand-part forest
 (``tracker.detector.detect``) and the keypoint CNN (``tracker.keypoint_cnn.detect``, onnxruntime on one
-thread) — for the detection plus the start fitted to its keypoints (``tracker.detector.fit_start``),
+thread) — for the detection plus the start fitted to its keypoints (``tracker.keypoint_fit.fit_start``),
 and today's start search (``FrameTracker.track`` on a first frame at size 1, the tracker's defaults)
 as the peer, on the same frames in the same run; and the shipped models' install weight.
 
@@ -24,7 +24,8 @@ from handmodel import HandModel  # noqa: E402
 from synergy.bundle import load_bundle  # noqa: E402
 from tracker import TRACKING_HAND  # noqa: E402
 from tracker.io.cameras import preset  # noqa: E402
-from tracker.detector import detect, detector_path, fit_start, load_detector  # noqa: E402
+from tracker.detector import detect, detector_path, load_detector  # noqa: E402
+from tracker.keypoint_fit import fit_start  # noqa: E402
 from tracker import keypoint_cnn  # noqa: E402
 from tracker.observe import observe  # noqa: E402
 from tracker.sim.dataset import DataRecipe, draw_scene  # noqa: E402

@@ -1,6 +1,8 @@
 """Rigid registration (Horn 1987, closed-form unit quaternions) and XYZ Euler angles (R = Rx·Ry·Rz)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import libm
@@ -94,3 +96,40 @@ def matrix_to_euler(R):
     a = libm.atan2(-R[..., 1, 2], R[..., 2, 2])
     c = libm.atan2(-R[..., 0, 1], R[..., 0, 0])
     return np.stack([a, b, c], axis=-1)
+
+
+def turned_on(angles, before, share=1.0) -> np.ndarray:
+    """XYZ Euler angles of the rotation ``angles`` turned on by ``share`` of its last change (from
+    ``before``), about the same axis: constant angular velocity. The angles are the solution nearest
+    ``angles`` (θ keeps its turns: a fit starts from it; two Euler triples give each rotation, and a
+    difference of Euler angles is no rotation near the middle angle's ±90°).
+
+    >>> np.round(turned_on(np.array([0.0, 0.3, 0.0]), np.array([0.0, 0.1, 0.0])), 6).tolist()
+    [0.0, 0.5, 0.0]
+    >>> np.round(turned_on(np.array([0.2, 1.5, 0.0]), np.array([0.2, 1.4, 0.0])), 6).tolist()  # past +90°
+    [0.2, 1.6, 0.0]
+    """
+    R, R0 = euler_to_matrix(angles), euler_to_matrix(before)
+    step = R @ R0.T
+    if share != 1.0:
+        step = scaled_rotation(step, share)
+    a, b, c = matrix_to_euler(step @ R)
+    best = None
+    for cand in (np.array([a, b, c]), np.array([a + math.pi, math.pi - b, c + math.pi])):
+        # the turns nearest the last angles, each angle on its own
+        cand = cand + 2.0 * math.pi * np.round((np.asarray(angles, float) - cand) / (2.0 * math.pi))
+        if best is None or np.abs(cand - angles).sum() < np.abs(best - angles).sum():
+            best = cand
+    return best
+
+
+def scaled_rotation(R, share) -> np.ndarray:
+    """The rotation about ``R``'s axis by ``share`` of its angle (Rodrigues; scalars by :mod:`math`, so that
+    the bits do not depend on the processor)."""
+    angle = math.acos(min(1.0, max(-1.0, (float(np.trace(R)) - 1.0) / 2.0)))
+    if angle < 1e-12:
+        return np.eye(3)
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2.0 * math.sin(angle))
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    t = share * angle
+    return np.eye(3) + math.sin(t) * K + (1.0 - math.cos(t)) * (K @ K)

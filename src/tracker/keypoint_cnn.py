@@ -7,7 +7,7 @@ image; a right hand is mirrored to a left one (one network serves both). The net
 keypoint's place in the box (0–1), its depth relative to the median (in :data:`Z_SCALE_M`) and the
 spread of its 2-D heatmap (box units; 0 for a network that regresses the keypoints directly); the
 spread becomes the keypoint's confidence (:func:`spread_confidence`). The result is a
-:class:`tracker.detector.Detection`, so :func:`tracker.detector.fit_start` takes it as it takes the
+:class:`tracker.detector.Detection`, so :func:`tracker.keypoint_fit.fit_start` takes it as it takes the
 forest's.
 
 The network is trained by :mod:`tracker.sim.train_cnn` (PyTorch, the ``[train]`` extra) and shipped

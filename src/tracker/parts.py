@@ -9,13 +9,12 @@ Every part has the one interface :class:`FramePart`: its counts go to the tracke
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from handmodel.rigid import euler_to_matrix, matrix_to_euler
+from handmodel.rigid import turned_on
 
 from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
@@ -375,7 +374,7 @@ def depth_detector(name: str):
 class KeypointSeed:
     """Start searches seeded by the hand fitted to a depth keypoint detector's keypoints
     (``start.detector``): ``detect(depth_m, camera, mask, hand) -> tracker.detector.Detection`` on the
-    frame and the start's segmentation, :func:`tracker.detector.fit_start` (with the synergy bundle, the
+    frame and the start's segmentation, :func:`tracker.keypoint_fit.fit_start` (with the synergy bundle, the
     subspace fills the fingers it did not find). The seed is one more start of the search, ranked by the
     same score as the others (Sharp et al. 2015 seed their model fit the same way)."""
 
@@ -387,14 +386,10 @@ class KeypointSeed:
 
     def start(self, hand, sil) -> tuple:
         """``(θ,)`` fitted to the keypoints detected in the frame's hand region, or ``()``."""
-        from .detector import fit_start
+        from .keypoint_fit import detect_in, fit_start
 
-        if sil is None or sil.empty or sil.camera is None:
-            return ()
-        depth = sil.frame_depth if getattr(sil, "frame_depth", None) is not None else sil.depth
-        if depth is None:
-            return ()
-        th = fit_start(self.detect(depth, sil.camera, sil.mask, hand.handedness), hand, self.synergies)
+        det = detect_in(self.detect, sil, hand.handedness)
+        th = None if det is None else fit_start(det, hand, self.synergies)
         if th is None:
             return ()
         self.stats.detector_seeds += 1
@@ -454,43 +449,6 @@ class Prediction:
             fit_keep = ~arm[keep]
             pts, nrm = all_pts[fit_keep], None if all_nrm is None else all_nrm[fit_keep]
         return pred, recentred, pts, nrm, all_pts, all_nrm
-
-
-def turned_on(angles, before, share=1.0) -> np.ndarray:
-    """XYZ Euler angles of the rotation ``angles`` turned on by ``share`` of its last change (from
-    ``before``), about the same axis: constant angular velocity. The angles are the solution nearest
-    ``angles`` (θ keeps its turns: a fit starts from it; two Euler triples give each rotation, and a
-    difference of Euler angles is no rotation near the middle angle's ±90°).
-
-    >>> np.round(turned_on(np.array([0.0, 0.3, 0.0]), np.array([0.0, 0.1, 0.0])), 6).tolist()
-    [0.0, 0.5, 0.0]
-    >>> np.round(turned_on(np.array([0.2, 1.5, 0.0]), np.array([0.2, 1.4, 0.0])), 6).tolist()  # past +90°
-    [0.2, 1.6, 0.0]
-    """
-    R, R0 = euler_to_matrix(angles), euler_to_matrix(before)
-    step = R @ R0.T
-    if share != 1.0:
-        step = _scaled_rotation(step, share)
-    a, b, c = matrix_to_euler(step @ R)
-    best = None
-    for cand in (np.array([a, b, c]), np.array([a + math.pi, math.pi - b, c + math.pi])):
-        # the turns nearest the last angles, each angle on its own
-        cand = cand + 2.0 * math.pi * np.round((np.asarray(angles, float) - cand) / (2.0 * math.pi))
-        if best is None or np.abs(cand - angles).sum() < np.abs(best - angles).sum():
-            best = cand
-    return best
-
-
-def _scaled_rotation(R, share) -> np.ndarray:
-    """The rotation about ``R``'s axis by ``share`` of its angle (Rodrigues; scalars by :mod:`math`, so that
-    the bits do not depend on the processor)."""
-    angle = math.acos(min(1.0, max(-1.0, (float(np.trace(R)) - 1.0) / 2.0)))
-    if angle < 1e-12:
-        return np.eye(3)
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2.0 * math.sin(angle))
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    t = share * angle
-    return np.eye(3) + math.sin(t) * K + (1.0 - math.cos(t)) * (K @ K)
 
 
 class StartSearch:

@@ -243,7 +243,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`tracker.resize.resized_context`).
     ``seeds(hand)``: more starts of the first search on that hand, and ``size_guess`` another guess of
     the size, taken where it is larger than the extent's (a keypoint detector's:
-    :func:`tracker.detector.keypoint_scale`).
+    :func:`tracker.keypoint_fit.keypoint_scale`).
     Returns ``(scale, θ, corr)``; :func:`calibrate_scale_searched` is the earlier, ~10× slower
     calibration (several full searches)."""
     st = settings or InitSettings()

@@ -164,7 +164,7 @@ class SizeCalibration:
     def _detected(self, tr, sil) -> dict:
         """The keypoint detector's part in a calibration (``start.detector``): the size from its
         keypoints and the hand fitted to them as a start of the search at that size."""
-        from .detector import detect_in, fit_start, keypoint_scale
+        from .keypoint_fit import detect_in, fit_start, keypoint_scale
 
         seed = tr.search.keypoints
         det = None if seed is None else detect_in(seed.detect, sil, tr.base_hand.handedness)

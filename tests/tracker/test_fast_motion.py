@@ -11,7 +11,8 @@ from handmodel import HandModel
 from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tracker.observe import ObserveSettings
-from tracker.parts import Gate, Prediction, Recentring, turned_on
+from handmodel.rigid import turned_on
+from tracker.parts import Gate, Prediction, Recentring
 from tracker.settings import PredictSettings, SafetyNetSettings
 from tracker.sim import experiments as E
 from tracker.sim.motions import make_motion

@@ -75,7 +75,7 @@ def evaluate_samples(model, samples, st: CnnSettings, seed: int = 0) -> dict:
 def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=None, detect_fn=detect) -> dict:
     """The held-out scenes (seed ``seed + HELDOUT_SEED_OFFSET``, the crops' scenes) rendered as whole
     frames, the box from the tracker's own segmentation (:func:`tracker.observe.observe`), and the
-    start fitted to the keypoints (:func:`tracker.detector.fit_start`, the tracker's hand at size 1,
+    start fitted to the keypoints (:func:`tracker.keypoint_fit.fit_start`, the tracker's hand at size 1,
     ``synergies`` when given): keypoint errors in mm and px, the share of frames whose mask holds at
     least half the hand's true pixels ("on the hand"), the start's mean keypoint error, ms.
     ``detect_fn(depth, camera, mask, hand, detector=)``: the CNN's, or the forest's
@@ -83,7 +83,7 @@ def evaluate_segmented(model, recipe: DataRecipe, seed: int, n: int, synergies=N
     from handmodel import HandModel
 
     from .. import TRACKING_HAND
-    from ..detector import fit_start
+    from ..keypoint_fit import fit_start
     from ..observe import observe
 
     whole = replace(recipe, window_m=100.0)  # the crop window past the image: the whole frame
@@ -140,7 +140,8 @@ def evaluate_starts(model, samples, synergies=None, n: int = 100) -> dict:
     from handmodel import HandModel
 
     from .. import TRACKING_HAND
-    from ..detector import Detection, fit_start
+    from ..detector import Detection
+    from ..keypoint_fit import fit_start
     from ..keypoint_cnn import spread_confidence
 
     hands = {m: HandModel.load(TRACKING_HAND, right=m) for m in (False, True)}

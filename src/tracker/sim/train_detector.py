@@ -299,7 +299,7 @@ def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: 
 
 def evaluate_start(detector: HandPartForest, recipe: DataRecipe, seed: int, n: int, *, ideal_mask: bool = False,
                    synergies=None) -> dict:
-    """The detector's keypoints and the start fitted to them (:func:`tracker.detector.fit_start` on
+    """The detector's keypoints and the start fitted to them (:func:`tracker.keypoint_fit.fit_start` on
     the tracker's hand at size 1, with ``synergies`` when given) on ``n`` held-out crops (seed
     ``seed + HELDOUT_SEED_OFFSET``): keypoint errors in mm against the rendered hand's. With
     ``ideal_mask`` the detector is given the true hand pixels (a perfect segmentation), otherwise
@@ -307,7 +307,7 @@ def evaluate_start(detector: HandPartForest, recipe: DataRecipe, seed: int, n: i
     from handmodel import HandModel
 
     from .. import TRACKING_HAND
-    from ..detector import fit_start
+    from ..keypoint_fit import fit_start
 
     hands = {m: HandModel.load(TRACKING_HAND, right=m) for m in (False, True)}
     det_mm, start_mm, starts, ms = [], [], 0, []
