@@ -92,16 +92,20 @@ class FrameBudget:
 
 def predicted_theta(last, before=None) -> np.ndarray:
     """The hand of the last fit ``last`` moved on by its change since ``before`` (both θ, or None), the
-    global rotation kept, as the tracker's own prediction does: what a frame gets whose fit is pending.
+    global rotation turned on by its last turn (:func:`handmodel.rigid.turned_on`), as the tracker's own
+    prediction does by default (``predict.turn``): what a frame gets whose fit is pending.
 
-    >>> predicted_theta(np.array([0.0, 0, 0, 0.1, 0, 0, 1.0]), np.array([0.0, 0, 0, 0.0, 0, 0, 0.8]))
-    array([0. , 0. , 0. , 0.1, 0. , 0. , 1.2])
+    >>> np.round(predicted_theta(np.array([0.0, 0, 0, 0.1, 0, 0, 1.0]), np.array([0.0, 0, 0, 0.0, 0, 0, 0.8])), 6)
+    array([0. , 0. , 0. , 0.2, 0. , 0. , 1.2])
     """
+    from handmodel.rigid import turned_on
+
     theta = np.array(last, float)
     if before is not None and np.all(np.isfinite(before)):
-        change = theta - np.asarray(before, float)
-        change[3:6] = 0.0
-        theta = theta + change
+        before = np.asarray(before, float)
+        moved = theta + (theta - before)
+        moved[3:6] = turned_on(theta[3:6], before[3:6])
+        theta = moved
     return theta
 
 
