@@ -92,8 +92,8 @@ class FrameBudget:
 
 def predicted_theta(last, before=None) -> np.ndarray:
     """The hand of the last fit ``last`` moved on by its change since ``before`` (both θ, or None), the
-    global rotation turned on by its last turn (:func:`handmodel.rigid.turned_on`), as the tracker's own
-    prediction does by default (``predict.turn``): what a frame gets whose fit is pending.
+    global rotation turned on by its last turn (:func:`handmodel.rigid.turned_on`; the tracker's own
+    prediction does so with ``predict.turn``): what a frame gets whose fit is pending.
 
     >>> np.round(predicted_theta(np.array([0.0, 0, 0, 0.1, 0, 0, 1.0]), np.array([0.0, 0, 0, 0.0, 0, 0, 0.8])), 6)
     array([0. , 0. , 0. , 0.2, 0. , 0. , 1.2])

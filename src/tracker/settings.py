@@ -72,7 +72,7 @@ class PredictSettings(SettingsGroup):
     recentre : move the prediction onto the cloud when their centres lie farther apart than the
         rejection radius (:class:`tracker.recentre.Recentring`; True, the paper: False)
     turn : the global rotation's last change added too (``share`` of it, as a rotation about the same
-        axis; True, the paper: False)
+        axis; False: on, a real still's wrist in the 19 stills tracked as one recording went to 51 px)
     through_net : the safety net's replacement keeps the hand's motion: the next prediction moves the
         global pose on by its change from the frame before to the replacement, when that is within the
         net's jump limits (:meth:`tracker.net.SafetyNet.is_motion`; the posture's change is a correction,
@@ -81,7 +81,7 @@ class PredictSettings(SettingsGroup):
 
     share: float = 1.0
     recentre: bool = True
-    turn: bool = True
+    turn: bool = False
     through_net: bool = True
 
     @classmethod
