@@ -17,6 +17,12 @@ def detect_in(detect, sil, hand: str):
     return None if depth is None else detect(depth, sil.camera, sil.mask, hand)
 
 
+def confident(detection: Detection, min_confidence: float = 0.2) -> np.ndarray:
+    """Which keypoints were found: finite and at least ``min_confidence`` confident."""
+    kp = np.asarray(detection.keypoints_xyz, float)
+    return np.isfinite(kp).all(axis=1) & (np.asarray(detection.confidence) >= min_confidence)
+
+
 def keypoint_scale(detection: Detection, hand_model, *, min_confidence: float = 0.2, min_bones: int = 4):
     """The hand's size relative to ``hand_model`` from the detected keypoints, or None: the summed length of
     the bones whose two ends were found (joint to joint, posture-free) over the model's. Long bones weigh
@@ -30,7 +36,7 @@ def keypoint_scale(detection: Detection, hand_model, *, min_confidence: float = 
     1.3
     """
     kp = np.asarray(detection.keypoints_xyz, float)
-    ok = np.isfinite(kp).all(axis=1) & (np.asarray(detection.confidence) >= min_confidence)
+    ok = confident(detection, min_confidence)
     child = np.arange(1, len(kp))
     parent = np.where((child - 1) % 4 == 0, 0, child - 1)  # wrist, then each finger base → tip
     both = ok[child] & ok[parent]
@@ -52,7 +58,7 @@ def fit_start(detection: Detection, hand_model, synergies=None, *, min_confidenc
     from handmodel.solver import fit_keypoints
 
     kp = np.array(detection.keypoints_xyz, float)
-    use = np.isfinite(kp).all(axis=1) & (np.asarray(detection.confidence) >= min_confidence)
+    use = confident(detection, min_confidence)
     if use.sum() < min_keypoints:
         return None
     kp[~use] = np.nan

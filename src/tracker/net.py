@@ -49,6 +49,7 @@ class SafetyNet:
         Kinect v1 noise: scores of 2–3 mm where a right fit scores ~1) the median follows them up and
         the net stops seeing them (the threshold 1.2 → 6.7 mm in 80 frames, the posture 23° off)."""
         q = self.settings.level_quantile
+        # the median itself at 0.5 (paper()): np.quantile's interpolation differs from it in the last bit
         level = max((np.median(self._scores) if q == 0.5 else np.quantile(self._scores, q)) if self._scores else 0.0,
                     self.search_level)
         return max(self.settings.score_mm, self.settings.score_ratio * level)

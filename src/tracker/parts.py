@@ -386,10 +386,16 @@ class KeypointSeed:
 
     def start(self, hand, sil) -> tuple:
         """``(θ,)`` fitted to the keypoints detected in the frame's hand region, or ``()``."""
-        from .keypoint_fit import detect_in, fit_start
+        from .keypoint_fit import detect_in
 
-        det = detect_in(self.detect, sil, hand.handedness)
-        th = None if det is None else fit_start(det, hand, self.synergies)
+        return self.fit(detect_in(self.detect, sil, hand.handedness), hand)
+
+    def fit(self, detection, hand) -> tuple:
+        """``(θ,)`` of ``hand`` fitted to a ``detection`` (None: nothing detected), or ``()``; counted in
+        ``stats.detector_seeds``."""
+        from .keypoint_fit import fit_start
+
+        th = None if detection is None else fit_start(detection, hand, self.synergies)
         if th is None:
             return ()
         self.stats.detector_seeds += 1

@@ -90,12 +90,15 @@ class FrameBudget:
         self._worker.shutdown(wait=True)
 
 
-def predicted_theta(last, before=None) -> np.ndarray:
+def predicted_theta(last, before=None, turn=False) -> np.ndarray:
     """The hand of the last fit ``last`` moved on by its change since ``before`` (both θ, or None), the
-    global rotation turned on by its last turn (:func:`handmodel.rigid.turned_on`; the tracker's own
-    prediction does so with ``predict.turn``): what a frame gets whose fit is pending.
+    global rotation kept, or with ``turn`` turned on by its last turn (:func:`handmodel.rigid.turned_on`),
+    as the tracker's own prediction does (``predict.turn``): what a frame gets whose fit is pending.
 
-    >>> np.round(predicted_theta(np.array([0.0, 0, 0, 0.1, 0, 0, 1.0]), np.array([0.0, 0, 0, 0.0, 0, 0, 0.8])), 6)
+    >>> last, before = np.array([0.0, 0, 0, 0.1, 0, 0, 1.0]), np.array([0.0, 0, 0, 0.0, 0, 0, 0.8])
+    >>> predicted_theta(last, before)
+    array([0. , 0. , 0. , 0.1, 0. , 0. , 1.2])
+    >>> np.round(predicted_theta(last, before, turn=True), 6)
     array([0. , 0. , 0. , 0.2, 0. , 0. , 1.2])
     """
     from handmodel.rigid import turned_on
@@ -104,7 +107,7 @@ def predicted_theta(last, before=None) -> np.ndarray:
     if before is not None and np.all(np.isfinite(before)):
         before = np.asarray(before, float)
         moved = theta + (theta - before)
-        moved[3:6] = turned_on(theta[3:6], before[3:6])
+        moved[3:6] = turned_on(theta[3:6], before[3:6]) if turn else theta[3:6]
         theta = moved
     return theta
 

@@ -97,7 +97,7 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
                 ob, seen = None, list(fitted)  # a copy: the worker may be replacing it
                 last = seen[-1] if seen else None
                 found = last is not None and np.all(np.isfinite(last))
-                theta = (predicted_theta(last, seen[0] if len(seen) == 2 else None) if found
+                theta = (predicted_theta(last, seen[0] if len(seen) == 2 else None, tracker.settings.predict.turn) if found
                          else np.full(tracker.hand.n_dofs, np.nan))
                 r = FrameResult(theta, "predicted" if found else "lost", float("nan"), 0, 0,
                                 (time.perf_counter() - t0) * 1000.0)

@@ -164,18 +164,14 @@ class SizeCalibration:
     def _detected(self, tr, sil) -> dict:
         """The keypoint detector's part in a calibration (``start.detector``): the size from its
         keypoints and the hand fitted to them as a start of the search at that size."""
-        from .keypoint_fit import detect_in, fit_start, keypoint_scale
+        from .keypoint_fit import detect_in, keypoint_scale
 
         seed = tr.search.keypoints
         det = None if seed is None else detect_in(seed.detect, sil, tr.base_hand.handedness)
         if det is None:
             return {}
-        self.stats.detector_seeds += 1
-
-        def seeds(hand):
-            th = fit_start(det, hand, seed.synergies)
-            return () if th is None else (th,)
-        return {"seeds": seeds, "size_guess": keypoint_scale(det, tr.context_for(1.0).hand)}
+        return {"seeds": lambda hand: seed.fit(det, hand),
+                "size_guess": keypoint_scale(det, tr.context_for(1.0).hand)}
 
     def refine(self, tr, pts, nrm, sil):
         """One more tracked frame's size estimate; the size becomes the median of the estimates, θ

@@ -146,7 +146,7 @@ class HandTracker:
             return HandResult("lost", nan, kp, float("nan"), 0, (time.perf_counter() - t0) * 1000.0)
         last = self._last[-1]
         before = self._last[0].theta if len(self._last) == 2 and self._last[0].found else None
-        theta = predicted_theta(last.theta, before)
+        theta = predicted_theta(last.theta, before, self.core.settings.predict.turn)
         return replace(last, status="predicted", theta=theta, keypoints=self._last_hand.keypoints(theta),
                        points=0, mask=None, ms=(time.perf_counter() - t0) * 1000.0)
 
