@@ -165,9 +165,9 @@ def fingerfist():
     return np.loadtxt(shared("htrack_schroeder", "fingerfist.txt"))
 
 
-def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0):
+def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0, motion="open-close", frames=30):
     """``(camera, depth, colour, labels)``: frame ``frame`` of a realistic scene as
-    :func:`tracker.sim.experiments.run_scene` renders it — open/close (30 frames, motion ``seed``), the
+    :func:`tracker.sim.experiments.run_scene` renders it — ``motion`` (``frames`` frames, motion ``seed``), the
     model ``hand`` × ``scale`` with :func:`~tracker.sim.experiments.realistic_fingers` (``seed``),
     ``spec``'s clutter sized with it and placed from the motion's mean hand centre, ``sensor``'s camera
     and noise (seeded ``[noise_seed, frame]``; ``experiment_realistic(seed=s)``'s scene ``j`` is
@@ -183,7 +183,7 @@ def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0):
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale, E.realistic_fingers(scale, seed)).apply(hand)
-    truth = make_motion("open-close", hand=shown, frames=30, seed=seed).theta
+    truth = make_motion(motion, hand=shown, frames=frames, seed=seed).theta
     R = euler_to_matrix(truth[:, 3:6])
     clutter = Clutter.parse(spec).sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
         (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))

@@ -44,6 +44,17 @@ class SegmentConstants:
     palm_width_share: float = 0.93  # places at least this share of the widest count as palm candidates …
     palm_fill_slack: float = 0.1  # … when the mask fills their disk within this share of the best-filled one …
     palm_fill_min: float = 0.85  # … or at least this share of it (_filled_places)
+    # the widest place within fingers' reach of the region's far end is the palm when at least this share of the
+    # widest place's width (_hand_end_palm; realistic fist-side scenes: fists seen from the thumb side 0.83-1.08 of
+    # the forearm's width, the fingers of the opening hand seen edge-on 0.28-0.44)
+    hand_end_width_share: float = 0.6
+    # … and its radius need only be this (m; cut_forearm's palm_radius_m otherwise): a fist seen from the thumb side
+    # is thinner than a palm is wide (0.8x, Kinect v1 and SR305 noise: 14 mm)
+    side_fist_radius_m: float = 0.013
+    # such a fist's wrist ends the narrowest stretch (its heel: widths within this share of the least) …
+    heel_width_tol: float = 0.1
+    # … within this many of its radii r of the region's far end (the fist-side scenes: the rendered wrist 4.6-5.3 r)
+    heel_reach_r: float = 6.0
     # the wrist and the arm (cut_forearm), in palm radii r unless the name says otherwise
     no_narrowing_wrist: float = 1.3  # least wrist distance (r) from the palm centre when nothing narrows sharply
     taper_window_r: float = 0.4  # … and how far (r) a slow taper must stop falling for its end to be the wrist …

@@ -70,7 +70,16 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
 
     The palm is the largest inscribed circle of the region (centre c, radius r) — among circles
     nearly as large that the mask before closing fills nearly as well as the best-filled one
-    (:func:`_filled_places`), the one farthest from where the region goes on. Outside 1.6 r, the
+    (:func:`_filled_places`), the one farthest from where the region goes on. Where the region reaches
+    farther past that circle than fingers can (:attr:`SegmentConstants.arm_reach_r` r to its far end
+    from where it goes on), the circle is on the arm and the hand is at that far end: the palm is then the
+    largest circle from which the far end is within fingers' reach, when it is at least
+    :attr:`SegmentConstants.hand_end_width_share` as wide as the largest (a fist seen from its thumb side
+    is narrower than the forearm, and every circle nearly as large was on the arm; the fingers of a hand
+    seen edge-on are far narrower, and the first circle stays) (:func:`_hand_end_palm`). Such a palm
+    (a side fist) may be as thin as :attr:`SegmentConstants.side_fist_radius_m`, and its wrist ends the
+    hand's heel, the narrowest stretch beyond it (:func:`_heel_end`) — the rules below would cut at
+    the fist's edge. Outside 1.6 r, the
     parts that leave the circle are fingers or the forearm; the forearm is at least 0.45 r wide
     and goes on past the region — it reaches the image border or ``beyond`` (pixels of the same
     surface left out of the region), where fingers end in an edge (fingers held together are as
@@ -100,11 +109,12 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     dt = _edt(~solid)
     go_on = _going_on(beyond, solid, dt, crop, m.shape)
     touch = None if joins is None else _dilate(np.asarray(joins, bool)[y0:y1, x0:x1], 2) & solid
-    cy, cx = _palm_centre(sub, dt, solid, go_on, touch, crop, m.shape, seed, prefer)
+    cy, cx, at_end = _palm_centre(sub, dt, solid, go_on, touch, crop, m.shape, seed, prefer)
     r = float(dt[cy, cx])
     zc = _palm_depth(depth, m, crop, cy, cx)
     r_m = r * zc / focal
-    if not (palm_radius_m[0] <= r_m <= palm_radius_m[1]):
+    least = min(palm_radius_m[0], K.TUNING.side_fist_radius_m) if at_end else palm_radius_m[0]
+    if not (least <= r_m <= palm_radius_m[1]):
         return m
     # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
     vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
@@ -125,7 +135,7 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     t = vy * ay + vx * ax
     s = -vy * ax + vx * ay
     strip = solid & (np.abs(s) <= 2.5 * r)
-    t_w = _wrist_distance(t, strip, r, wrist_range)
+    t_w = _heel_end(t, strip, r) if at_end else _wrist_distance(t, strip, r, wrist_range)
     if t_w is None:
         return m
     cut = strip & (t > t_w)
@@ -160,11 +170,12 @@ def _going_on(beyond, solid, dt, crop, shape):
 
 
 def _palm_centre(sub, dt, solid, go_on, touch, crop, shape, seed, prefer):
-    """``(cy, cx)`` in the crop: the palm's centre, the widest place — among places nearly as wide (a fist
-    is hardly wider than a forearm) and filled by the mask before closing (``sub``), the one farthest from
+    """``(cy, cx, at_end)`` in the crop: the palm's centre, the widest place — among places nearly as wide (a
+    fist is hardly wider than a forearm) and filled by the mask before closing (``sub``), the one farthest from
     where the region goes on (``go_on``), or from a contact about a palm wide (``touch``: where another
     object meets the region) when nothing goes on, or nearest the ``seed`` when neither; inside ``prefer``
-    first (the tracker's prediction, whole-frame slices)."""
+    first (the tracker's prediction, whole-frame slices). Away from where the region goes on, the palm
+    may be found at the region's far end instead (:func:`_hand_end_palm`; ``at_end``)."""
     y0, y1, x0, x1 = crop
     cand = _filled_places(dt >= K.TUNING.palm_width_share * dt.max(), sub, float(dt.max()))
     if prefer is not None:
@@ -189,13 +200,50 @@ def _palm_centre(sub, dt, solid, go_on, touch, crop, shape, seed, prefer):
             away = np.isin(tl, wide)
     if away.any():
         far = _edt(away)
-        return np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+        cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+        return _hand_end_palm(cy, cx, dt, sub, solid, far)
     if seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
         # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
         # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
         near = _edt(np.asarray(seed, bool)[y0:y1, x0:x1])
-        return np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape)
-    return np.unravel_index(int(np.argmax(dt)), dt.shape)
+        return (*np.unravel_index(int(np.argmin(np.where(cand, near, np.inf))), dt.shape), False)
+    return (*np.unravel_index(int(np.argmax(dt)), dt.shape), False)
+
+
+def _hand_end_palm(cy, cx, dt, sub, solid, far):
+    """``(cy, cx, at_end)``: the palm :func:`_palm_centre` chose, or (``at_end`` True) the palm at the region's far
+    end from where it goes on (``far``: the distance from there) when the region reaches farther past
+    ``(cy, cx)`` than fingers can (:attr:`SegmentConstants.arm_reach_r` of its radius ``dt``): the widest
+    places — nearly as wide and filled, as in :func:`_palm_centre` — among those from which that far end is
+    within fingers' reach, when they are at least :attr:`SegmentConstants.hand_end_width_share` as wide as the
+    widest place. A fist seen from the thumb's side is narrower than the forearm, so every place nearly as
+    wide as the widest was on the arm (the realistic fist-side scenes, 1.0x, Kinect v1: the palm placed
+    10 r down the arm and the fist cut off as the arm's end); the fingers of a hand seen edge-on, thinner
+    than its arm, are far narrower (0.3-0.4 of it) and leave the first choice (there the widest place
+    nearest them is the arm's end at the wrist, and the cut beyond it keeps the hand).
+
+    >>> solid = np.zeros((40, 12), bool); solid[2:10, 2:9] = True; solid[10:40, 3:11] = True   # fist, arm
+    >>> dt = _edt(~solid); far = 39.0 - np.arange(40.0)[:, None] + 0 * dt                        # goes on below
+    >>> [int(v) for v in _hand_end_palm(30, 6, dt, solid, solid, far)]   # the arm's place -> the fist's
+    [5, 5, 1]
+    >>> solid = np.zeros((70, 12), bool); solid[2:32, 6:8] = True; solid[32:70, 3:11] = True   # finger, arm
+    >>> far = 69.0 - np.arange(70.0)[:, None] + np.zeros((1, 12))
+    >>> [int(v) for v in _hand_end_palm(60, 6, _edt(~solid), solid, solid, far)]
+    [60, 6, 0]
+    """
+    ey, ex = np.unravel_index(int(np.argmax(np.where(solid, far, -1.0))), dt.shape)
+    reach = K.TUNING.arm_reach_r
+    if np.hypot(cy - ey, cx - ex) <= reach * dt[cy, cx]:
+        return cy, cx, False
+    vy, vx = np.broadcast_arrays(np.arange(dt.shape[0])[:, None] - ey, np.arange(dt.shape[1])[None, :] - ex)
+    # the places a hand's palm can be: its fingers reach the far end from there
+    near = solid & (np.hypot(vy, vx) <= reach * dt)
+    top = float(dt[near].max()) if near.any() else 0.0
+    if top < K.TUNING.hand_end_width_share * float(dt.max()):
+        # only fingers reach the far end (a hand seen edge-on, thinner than its arm): the palm is not there
+        return cy, cx, False
+    cand = _filled_places(near & (dt >= K.TUNING.palm_width_share * top), sub, top)
+    return (*np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape), True)
 
 
 def _palm_depth(depth, m, crop, cy, cx):
@@ -327,6 +375,34 @@ def _wrist_distance(t, strip, r, wrist_range):
     # but 1.2 r cut into the palm of realistic-scene frames the size is calibrated on: 0.977 -> 0.954)
     taper = _end_of_taper(prof, max(int(round(K.TUNING.taper_window_r * r)), K.TUNING.taper_min_samples))
     return max(lo + taper, int(round(K.TUNING.no_narrowing_wrist * r)))
+
+
+def _heel_end(t, strip, r):
+    """How far along the arm (px, ``t``) the wrist of a fist seen from its side lies (:func:`cut_forearm`'s
+    palm at the region's far end, radius ``r``): where the narrowest stretch of ``strip`` — widths within
+    :attr:`SegmentConstants.heel_width_tol` of the least — ends, looked for from 0.9 r out to
+    :attr:`SegmentConstants.heel_reach_r` past the region's far end; None when the strip has no pixels there.
+
+    The hand's heel narrows away from the fist and widens into the forearm at the wrist, so the end of the
+    narrowing (:func:`_wrist_distance`) lies at the fist's edge: it cut off 34-49 % of the hand in the
+    realistic fist-side scenes, this 9-21 %.
+
+    >>> t = np.arange(60.0)[:, None] - 10 + np.zeros((1, 30)); strip = np.zeros((60, 30), bool)
+    >>> strip[:20, 5:25] = True; strip[20:38, 10:20] = True; strip[38:, 8:22] = True   # fist, heel, arm
+    >>> _heel_end(t, strip, 8.0)   # the heel's last row is t = 27 (the 5-sample smoothing ends it a sample early)
+    26
+    """
+    t0 = float(t[strip].min())
+    lo, hi = int(np.floor(0.9 * r)), int(np.ceil(t0 + K.TUNING.heel_reach_r * r))
+    ti = np.round(t[strip]).astype(int)
+    keep = (ti >= lo) & (ti <= hi)
+    if hi <= lo or not keep.any():
+        return None
+    prof = ndimage.uniform_filter1d(np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float), 5,
+                                    mode="nearest")
+    i = int(np.argmin(prof))
+    wider = np.flatnonzero(prof[i:] > (1.0 + K.TUNING.heel_width_tol) * prof[i])
+    return lo + i + (int(wider[0]) - 1 if wider.size else prof.size - 1 - i)
 
 
 def _filled_places(cand, raw, rad, slack=None, least=None):
