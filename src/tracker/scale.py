@@ -249,7 +249,8 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     st = settings or InitSettings()
     lo, hi = scale_range
     base = context_for(1.0)
-    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
+    n_post = int((~base.hand.pose_mask).sum())
+    g = extent_scale(base.hand, points, np.zeros(n_post))
     # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
     # SR305 stills): the larger is the nearer
     s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
@@ -263,13 +264,35 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     sub = thin(points, st.coarse_points)
     nsub = None if normals is None else normals[sub]
     kw = {"silhouette": silhouette, "normals": nsub}
-    s1, th1, _, _ = fit_scale(context_for, th0, context_for(s0).hand, points[sub], max(lo, s0 / width),
-                              min(hi, s0 * width), **kw)
-    if abs(math.log(s1 / s0)) > research:
-        ctx = context_for(s1)
-        th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
-                                  theta0=th1, extra=(th1,))
-        s1, th1, _, _ = fit_scale(context_for, th2, ctx.hand, points[sub], max(lo, s1 / 1.1), min(hi, s1 * 1.1), **kw)
+
+    def sized(s0, th0):
+        """The size within ``width`` of ``s0`` from the fit ``th0`` there: ``(score, size, θ)``."""
+        s1, th1, _, q = fit_scale(context_for, th0, context_for(s0).hand, points[sub], max(lo, s0 / width),
+                                  min(hi, s0 * width), **kw)
+        if abs(math.log(s1 / s0)) > research:
+            ctx = context_for(s1)
+            th2, _ = fit_single_frame(ctx, points, InitSettings.cheap(), silhouette=silhouette, normals=normals,
+                                      theta0=th1, extra=(th1,))
+            s1, th1, _, q = fit_scale(context_for, th2, ctx.hand, points[sub], max(lo, s1 / 1.1), min(hi, s1 * 1.1),
+                                      **kw)
+        return q, s1, th1
+
+    best = sized(s0, th0)
+    # a fit curled at a size from the open hand's extent is the fist's ambiguity: a smaller hand half
+    # curled covers a fist too, and the probes of fit_scale, each a short fit from that posture, cannot
+    # curl it enough at the right size (a 1.5x fist seen from the palm: 0.84x); a first fit that explains
+    # its cloud poorly may be that too (the same fist on SR305: 20 mm, 0.67x, then called "no hand"). The
+    # search runs again at the size a closed hand of this extent would have; that size wins when it scores
+    # better and well (a large closed hand covers any compact blob a little)
+    curled = extent_scale(base.hand, all_points, th0[~base.hand.pose_mask]) / g
+    if curled > CURLED_EXTENT or best[0] > POOR_SIZE_SCORE_MM:
+        s_c = float(np.clip(extent_scale(base.hand, all_points, closed_posture(base)) * guess, lo, hi))
+        if math.log(s_c / best[1]) > research:
+            th_c, _ = fit_single_frame(context_for(s_c), points, st, silhouette=silhouette, normals=normals)
+            closed = sized(s_c, th_c)
+            if closed[0] <= min(best[0], CLOSED_GOOD_MM):
+                best = closed
+    _, s1, th1 = best
     fine = thin(points, st.refine_points)
     s1, th1, _, _ = parabola_scale(context_for, th1, context_for(s1).hand, points[fine], s1, silhouette=silhouette,
                                    normals=None if normals is None else normals[fine])
@@ -277,6 +300,27 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     ctx = context_for(s1)
     th, corr = ctx.fit(th1, all_points, "full", 1, st.icp_iterations, silhouette=silhouette, normals=all_normals)
     return s1, th, corr
+
+
+#: :func:`calibrate_scale` searches again at a closed hand's size when the first fit's posture makes the
+#: cloud's extent guess this much larger than the open hand's (an open hand's fit: about 1.0)
+CURLED_EXTENT = 1.08
+#: … or when its size score (:func:`size_score`, mm) is above this (a good fit scores 1-4 mm; as
+#: :class:`tracker.settings.ScaleSettings`'s default ``trust_mm``)
+POOR_SIZE_SCORE_MM = 6.0
+#: … and the closed hand's size is taken only where its size score is at most this (mm): the realistic
+#: fist-palm scenes' first frames scored 1.4-2.6 mm closed (3.6-20 mm at the open hand's size); a strip of
+#: wall edge in a hand-less recording (librealsense's sample bag) 7.0-7.8 mm as a 1.9x fist
+CLOSED_GOOD_MM = 4.0
+
+
+def closed_posture(ctx) -> np.ndarray:
+    """The posture angles of a closed hand in ``ctx``'s limits: every finger but the thumb at the fully
+    curled row of :data:`tracker.init.candidates.FINGER_SHAPES_DEG` (only its extent is used)."""
+    theta = np.zeros(ctx.hand.n_dofs)
+    for fi, vals in ctx.finger_shapes[1:]:
+        theta[fi] = vals[3]
+    return theta[~ctx.hand.pose_mask]
 
 
 # ------------------------------------------------------------------------------ per-finger lengths
