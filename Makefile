@@ -41,7 +41,7 @@ demo: $(STAMP)
 XDIST = -n 2 --dist loadfile --max-worker-restart 0
 TEST_ENV = OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 test: $(STAMP)
-	$(TEST_ENV) $(BIN)/python -m pytest -q $(XDIST) --doctest-modules src tests
+	$(TEST_ENV) $(BIN)/python -m pytest -q $(XDIST) --durations=20 --doctest-modules src tests
 
 test-fast: $(STAMP)
 	$(TEST_ENV) $(BIN)/python -m pytest -q $(XDIST) -m "not slow" --doctest-modules src tests

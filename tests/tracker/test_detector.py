@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from handmodel import HandModel
 from tracker import TRACKING_HAND
-from tracker.detector import (N_CLASSES, N_PARTS, OTHER, PART_NAMES, Detection, HandPartForest, detect,
+from tracker.detector import (N_CLASSES, N_PARTS, OTHER, PART_NAMES, Detection, detect,
                               detector_path, feature_matrix, forest_arrays, forest_proba, load_detector,
                               offset_map, read_detector)
 from tracker.keypoint_fit import fit_start
