@@ -230,19 +230,11 @@ class LossCheck:
         region = n_points if sil is None or sil.empty else int(np.count_nonzero(sil.mask))
         return region < self.settings.start_min_pixels
 
-    def found_nothing(self, corr, hand=None, theta=None) -> bool:
+    def found_nothing(self, corr) -> bool:
         """Whether a start's fit (its pairs ``corr``) rejects more than ``no_hand_rejected`` of its points:
-        what it fitted is no hand. With the fitted ``hand`` and ``theta``, the points of a forearm past its
-        wrist (:func:`forearm_points`) count as explained: the forearm a wrist cut leaves in the mask is no
-        hand's surface either, and a fist, which covers less of the mask than an open hand, was called
-        "no hand" for it (a 1.0x fist seen from the palm, SR305, forearm and torso: 27 % rejected)."""
+        what it fitted is no hand."""
         limit = self.settings.no_hand_rejected
-        if not limit or len(corr.valid) == 0:
-            return False
-        if hand is None or theta is None or corr.points is None or not np.all(np.isfinite(theta)):
-            return corr.rejected_share > limit
-        explained = corr.valid | forearm_points(corr.points, hand, theta)
-        return 1.0 - float(explained.mean()) > limit
+        return bool(limit) and len(corr.valid) > 0 and corr.rejected_share > limit
 
     def size_out(self, s) -> bool:
         """Whether a calibrated size ``s`` lies at an end of ``scale_range`` (within 1 %): what was
@@ -251,51 +243,17 @@ class LossCheck:
         lo, hi = self.scale_range
         return bool(self.settings.no_hand_rejected) and not lo * 1.01 < s < hi / 1.01
 
-    def no_hand_sized(self, s, corr, hand=None, theta=None) -> bool:
-        """Whether a calibrating start (size ``s``, pairs ``corr``; the fitted ``hand`` at ``theta``) found no
-        hand: its size at an end of the range (counted in ``stats.size_out``) or its fit's rejections
-        (:meth:`found_nothing`)."""
+    def no_hand_sized(self, s, corr) -> bool:
+        """Whether a calibrating start (size ``s``, pairs ``corr``) found no hand: its size at an end of the
+        range (counted in ``stats.size_out``) or its fit's rejections."""
         out = self.size_out(s)
         self.stats.size_out += out
-        return out or self.found_nothing(corr, hand, theta)
+        return out or self.found_nothing(corr)
 
     def kept(self, fit_mm, rejected) -> bool:
         """Whether a fit is good enough to track from (not lost): ``lost_fit_mm``, ``lost_rejected``."""
         st = self.settings
         return bool(np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected)
-
-
-#: :func:`forearm_points`: how far from the hand's axis a forearm's points lie, in palm widths (a forearm
-#: is about 0.75 palm widths across at the wrist, and widens towards the elbow)
-FOREARM_RADIUS_PALMS = 0.6
-#: … and how far past the wrist, in hand lengths (wrist to middle-finger base)
-FOREARM_REACH_HANDS = 2.5
-
-
-def forearm_points(points, hand, theta) -> np.ndarray:
-    """Which ``points`` may be the forearm of ``hand`` at ``theta``: past its wrist (behind it along the
-    wrist → middle-finger-base axis) and within :data:`FOREARM_RADIUS_PALMS` palm widths of
-    the wrist → middle-finger-base axis carried on past the wrist, at most :data:`FOREARM_REACH_HANDS` hand
-    lengths; a surface spreading beside the hand (a wall, a body) is not.
-
-    >>> from handmodel import HandModel
-    >>> hand = HandModel.load("human"); theta = np.zeros(hand.n_dofs); kp = hand.keypoints(theta)
-    >>> axis = (kp[9] - kp[0]) / np.linalg.norm(kp[9] - kp[0])
-    >>> side = np.cross(axis, kp[5] - kp[17]); side /= np.linalg.norm(side)
-    >>> pts = np.array([kp[0] - 0.05 * axis, kp[0] - 0.05 * axis + 0.1 * side, kp[9]])
-    >>> forearm_points(pts, hand, theta).tolist()   # on the arm's line; beside it; the hand
-    [True, False, False]
-    """
-    p = np.asarray(points, float)
-    kp = hand.keypoints(np.asarray(theta, float))
-    axis = kp[9] - kp[0]
-    length = max(float(np.linalg.norm(axis)), 1e-9)
-    axis = axis / length
-    rel = p - kp[0]
-    t = rel @ axis
-    radial = np.linalg.norm(rel - t[:, None] * axis, axis=1)
-    palm = float(np.linalg.norm(kp[5] - kp[17]))
-    return (t < 0) & (t > -FOREARM_REACH_HANDS * length) & (radial <= FOREARM_RADIUS_PALMS * palm)
 
 
 def silhouette_mask(observation):

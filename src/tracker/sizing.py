@@ -141,7 +141,7 @@ class SizeCalibration:
         st = self.settings
         s, theta, corr = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
                                          scale_range=st.range, **self._detected(tr, sil))
-        if tr.loss.no_hand_sized(s, corr, tr.context_for(s).hand, theta):
+        if tr.loss.no_hand_sized(s, corr):
             # the sizes the search probed are not needed again (a long stretch without a hand)
             tr.sizes.keep(1.0 if self.scale_ is None else self.scale_)
             return theta, corr, False
@@ -262,9 +262,9 @@ class SizeCalibration:
             if len(pts) < min_points:
                 continue
             tr.cue.add(sil)
-            size, th, corr = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
-                                             scale_range=st.range)
-            if tr.loss.no_hand_sized(size, corr, tr.context_for(size).hand, th):
+            size, _, corr = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
+                                            scale_range=st.range)
+            if tr.loss.no_hand_sized(size, corr):
                 self.stats.no_hand += 1
                 continue
             est.append(size)

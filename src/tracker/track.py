@@ -339,7 +339,7 @@ class FrameTracker:
         else:
             refit = partial(self._fit, pts=pts, nrm=nrm, sil=sil)  # the colour seed's refinement
             theta, corr = self.search(self.context, pts, nrm, sil, self.last_good, refit, color, depth, camera)
-            found = not self.loss.found_nothing(corr, self.hand, theta)
+            found = not self.loss.found_nothing(corr)
         if not found:
             return no_hand(self.stats, self.hand.n_dofs, corr, n_in, t0)
         self.prev = None
