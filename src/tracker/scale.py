@@ -237,7 +237,10 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     new size from that fit (a much wrong size favours a wrong posture) and the size is searched again
     within 10 %; a last :func:`parabola_scale` (±6 %, longer fits on ``refine_points`` of the cloud)
     from a fit at (nearly) the final size settles it (the probes of a wide search start from a pose
-    fitted at another size and lean towards it). Sizes are compared by :func:`size_score` on the
+    fitted at another size and lean towards it). When the first fit is curled (:data:`CURLED_EXTENT`) or
+    poor (:data:`POOR_SIZE_SCORE_MM`), the search also runs at the size a closed hand of the cloud's extent
+    would have (:func:`closed_posture`) and that size is kept when it scores better and at most
+    :data:`CLOSED_GOOD_MM` (a fist is as wide as a smaller hand half curled). Sizes are compared by :func:`size_score` on the
     points on the fingers' side of the first fit's wrist (:func:`hand_side`; ``cut=False``: all).
     ``context_for(s)``: the
     :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`tracker.resize.resized_context`).
@@ -249,8 +252,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     st = settings or InitSettings()
     lo, hi = scale_range
     base = context_for(1.0)
-    n_post = int((~base.hand.pose_mask).sum())
-    g = extent_scale(base.hand, points, np.zeros(n_post))
+    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
     # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
     # SR305 stills): the larger is the nearer
     s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
