@@ -43,16 +43,19 @@ from .resize import FINGERS, shaped_context, shaped_hand
 _MODEL_SPREAD = {}
 
 
-def extent_scale(hand, points, posture) -> float:
+def extent_scale(hand, points, posture, *, keep=True) -> float:
     """A first guess of the hand's global scale: the spread of the cloud over that of the model's
     palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
-    this only brackets the scale; :func:`fit_scale` finds it."""
+    this only brackets the scale; :func:`fit_scale` finds it. ``keep``: the model's spread at this
+    posture is kept for the next call (the fixed postures; not a fitted one, met once)."""
     key = (hand.sha256, hand.handedness, np.asarray(posture, float).tobytes())
-    if key not in _MODEL_SPREAD:
-        # sampling the model's surface costs ~0.1 s, a tenth of the calibration's budget: once per hand
+    ev_m = _MODEL_SPREAD.get(key)
+    if ev_m is None:
+        # sampling the model's surface costs ~0.05-0.1 s, a tenth of the calibration's budget: once per hand
         ms = _palm_side(hand, posture)[3]
-        _MODEL_SPREAD[key] = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
-    ev_m = _MODEL_SPREAD[key]
+        ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+        if keep:
+            _MODEL_SPREAD[key] = ev_m
     ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
     return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
 
@@ -286,8 +289,8 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     # its cloud poorly may be that too (the same fist on SR305: 20 mm, 0.67x, then called "no hand"). The
     # search runs again at the size a closed hand of this extent would have; that size wins when it scores
     # better and well (a large closed hand covers any compact blob a little)
-    curled = extent_scale(base.hand, all_points, th0[~base.hand.pose_mask]) / g
-    if curled > CURLED_EXTENT or best[0] > POOR_SIZE_SCORE_MM:
+    if (best[0] > POOR_SIZE_SCORE_MM
+            or extent_scale(base.hand, all_points, th0[~base.hand.pose_mask], keep=False) / g > CURLED_EXTENT):
         s_c = float(np.clip(extent_scale(base.hand, all_points, closed_posture(base)) * guess, lo, hi))
         if math.log(s_c / best[1]) > research:
             th_c, _ = fit_single_frame(context_for(s_c), points, st, silhouette=silhouette, normals=normals)
