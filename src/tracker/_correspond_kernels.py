@@ -10,6 +10,8 @@ from numba import njit
 from handmodel._geometry_kernels import closest_local, closest_points_facing
 from handmodel.kinematics import fk_single
 
+from ._kernel_arrays import HandArrays, SampleArrays, SilhouetteArrays
+
 #: below this depth (m) a model point is at or behind the camera: it has no pixel
 MIN_DEPTH_M = 1e-3
 MM = 1000.0
@@ -129,6 +131,19 @@ def model_to_data_mean(theta, hand, samples, sil, tolerance_mm, tolerance_px, ca
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
     return _model_to_data_at(G, samples, sil, tolerance_mm, tolerance_px, cap_mm)
+
+
+@njit(cache=True)
+def pose_samples_entry(theta, hand, samples, P, N):
+    """:func:`pose_samples` with its named tuples given as plain tuples (:func:`tracker._kernel_arrays.plain`)."""
+    pose_samples(theta, HandArrays(*hand), SampleArrays(*samples), P, N)
+
+
+@njit(cache=True, nogil=True)
+def model_to_data_mean_entry(theta, hand, samples, sil, tolerance_mm, tolerance_px, cap_mm):
+    """:func:`model_to_data_mean` with its named tuples given as plain tuples."""
+    return model_to_data_mean(theta, HandArrays(*hand), SampleArrays(*samples), SilhouetteArrays(*sil),
+                              tolerance_mm, tolerance_px, cap_mm)
 
 
 @njit(cache=True, inline="always")

@@ -14,8 +14,6 @@ from ._kernel_arrays import (
     ENTRY_THROUGH,
     MatchRules,
     ProjectionArrays,
-    SampleArrays,
-    SilhouetteArrays,
     StageArrays,
     WristLine,
 )
@@ -24,10 +22,6 @@ from .wrist import arm_line_normal
 
 _NO_POINT = np.zeros(3)
 _CAMERA_CENTRE = np.zeros(3)
-# stand-ins of the silhouette arrays' types when the term is off (one compiled version serves both)
-NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
-                                 np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
 _ENTRIES = {"none": ENTRY_NONE, "clamp": ENTRY_CLAMP, "through": ENTRY_THROUGH}
 _PACKED: dict = {}
 

@@ -27,7 +27,21 @@ from handmodel._solver_kernels import (
 )
 
 from ._correspond_kernels import hand_frames, match, match_same, new_frames
-from ._kernel_arrays import ENTRY_CLAMP, ENTRY_THROUGH
+from ._kernel_arrays import (
+    ENTRY_CLAMP,
+    ENTRY_THROUGH,
+    CapsuleArrays,
+    FitTerms,
+    GaussNewton,
+    HandArrays,
+    MatchRules,
+    Pairs,
+    ProjectionArrays,
+    SampleArrays,
+    SilhouetteArrays,
+    StageArrays,
+    WristLine,
+)
 from ._silhouette_kernels import silhouette_pairs_kernel
 
 #: the moments per node (:func:`node_moments`)
@@ -794,3 +808,11 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
     match(G, caps, points, normals, rules, out)
     stats[3] += 1
     return theta
+
+
+@njit(cache=True, nogil=True)
+def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+    """:func:`fit_kernel` with its named tuples given as plain tuples (:func:`tracker._kernel_arrays.plain`)."""
+    return fit_kernel(theta0, HandArrays(*hand), CapsuleArrays(*caps), points, normals, MatchRules(*rules),
+                      StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms),
+                      SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), Pairs(*out), stats)

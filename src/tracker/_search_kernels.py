@@ -9,6 +9,7 @@ from numba import njit
 from handmodel._geometry_kernels import closest_points_facing
 
 from ._correspond_kernels import MM, _model_to_data_at, hand_frames, new_frames
+from ._kernel_arrays import CapsuleArrays, HandArrays, SampleArrays, ScoreTerms, SilhouetteArrays, WristCueArrays
 from ._wrist_kernels import wrist_cost_at
 
 #: numpy's pairwise sum adds blocks of up to this many elements in 8 accumulators
@@ -122,3 +123,10 @@ def search_score(theta, hand, caps, points, valid, terms, samples, sil, cue):
     if cue.on:
         s += wrist_cost_at(G, cue.point, cue.direction, cue.reach_mm, cue.turn_mm)
     return s
+
+
+@njit(cache=True, nogil=True)
+def search_score_entry(theta, hand, caps, points, valid, terms, samples, sil, cue):
+    """:func:`search_score` with its named tuples given as plain tuples (:func:`tracker._kernel_arrays.plain`)."""
+    return search_score(theta, HandArrays(*hand), CapsuleArrays(*caps), points, valid, ScoreTerms(*terms),
+                        SampleArrays(*samples), SilhouetteArrays(*sil), WristCueArrays(*cue))

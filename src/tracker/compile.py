@@ -27,7 +27,7 @@ COMPILE_MINUTES = "2–7"
 #: the packages whose numba kernels are counted
 PACKAGES = ("handmodel", "tracker")
 #: a kernel every tracking run calls: no cache entry for it means the kernels were never compiled
-PROBE = ("tracker._fit_kernels", "fit_kernel")
+PROBE = ("tracker._fit_kernels", "fit_entry")
 
 
 def _cache_index(dispatcher) -> dict:

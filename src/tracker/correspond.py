@@ -8,6 +8,7 @@ outside the hand silhouette back onto it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -215,8 +216,8 @@ class ModelSamples:
 
 
 class Silhouette:
-    """The hand silhouette of one frame with its distance transform (computed once per frame, on the
-    bounding box of the mask plus a margin)."""
+    """The hand silhouette of one frame with its distance transform (on the bounding box of the mask
+    plus a margin; computed once, when first used: the paper's method fits without it)."""
 
     def __init__(self, mask, depth, camera, margin=48):
         self.mask = np.asarray(mask, bool)
@@ -230,11 +231,32 @@ class Silhouette:
         self.u0 = max(cols[0] - margin, 0)
         v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
         u1 = min(cols[-1] + margin + 1, self.mask.shape[1])
-        sub = self.mask[self.v0:v1, self.u0:u1]
+        # the window as it is now: the transform is made later, of what this frame's mask was
+        self._sub = self.mask[self.v0:v1, self.u0:u1].copy()
+
+    @cached_property
+    def _transform(self):
+        sub = self._sub
         h, w = sub.shape
-        self.dist, self.iv, self.iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
-        # scipy's distance_transform_edt(~sub, return_indices=True) compiled: every tracked frame builds one
-        feature_transform(sub, self.dist, self.iv, self.iu)
+        dist, iv, iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
+        # scipy's distance_transform_edt(~sub, return_indices=True) compiled
+        feature_transform(sub, dist, iv, iu)
+        return dist, iv, iu
+
+    @property
+    def dist(self):
+        """Distance (px) of each window pixel to the nearest silhouette pixel, ``(h, w)``."""
+        return self._transform[0]
+
+    @property
+    def iv(self):
+        """Row of that nearest silhouette pixel (window coordinates)."""
+        return self._transform[1]
+
+    @property
+    def iu(self):
+        """Column of that nearest silhouette pixel (window coordinates)."""
+        return self._transform[2]
 
 
 #: a model sample projecting this far (px) outside the silhouette gets a silhouette pair: the

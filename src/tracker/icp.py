@@ -28,8 +28,10 @@ from handmodel.subspace import Subspace
 from . import _correspond_kernels as CK
 from . import _fit_kernels as FK
 from . import _observe_kernels as OK
-from ._fit_arrays import NO_SAMPLES, NO_SILHOUETTE, match_rules, stage_arrays, wrist_line
+from ._fit_arrays import match_rules, stage_arrays, wrist_line
 from ._kernel_arrays import (
+    NO_SAMPLES,
+    NO_SILHOUETTE,
     CapsuleArrays,
     FitTerms,
     GaussNewton,
@@ -37,6 +39,7 @@ from ._kernel_arrays import (
     Pairs,
     SampleArrays,
     SilhouetteArrays,
+    plain,
 )
 from .correspond import (
     M2D_CAP_MM,
@@ -232,12 +235,12 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     terms = FitTerms(float(st.robust_mm), bool(st.point_to_plane), bool(moments), st.local_mm / 1000.0, sil_on,
                      float(st.silhouette_weight), SILHOUETTE_TOLERANCE_PX, int(n_rigid))
     out = Pairs.empty(len(pts))
-    th = FK.fit_kernel(np.array(hand.check_theta(theta), float), HandArrays.of(hand),
-                       CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
-                       *stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
-                       SampleArrays.of(samples) if sil_on else NO_SAMPLES,
-                       SilhouetteArrays.of(silhouette) if sil_on else NO_SILHOUETTE,
-                       wrist_line(hand, wrist, st), out, np.zeros(5, np.int64) if stats is None else stats)
+    th = FK.fit_entry(*plain(np.array(hand.check_theta(theta), float), HandArrays.of(hand),
+                             CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
+                             *stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
+                             SampleArrays.of(samples) if sil_on else NO_SAMPLES,
+                             SilhouetteArrays.of(silhouette) if sil_on else NO_SILHOUETTE,
+                             wrist_line(hand, wrist, st), out, np.zeros(5, np.int64) if stats is None else stats))
     return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
 
 
@@ -251,8 +254,8 @@ def posed_samples(hand, samples, theta):
     (``samples.pose(theta)`` in one compiled call: the tracker poses the predicted hand every frame
     for the gate and the re-centring)."""
     P, N = np.empty((len(samples.nodes), 3)), np.empty((len(samples.nodes), 3))
-    CK.pose_samples(np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(hand), SampleArrays.of(samples),
-                    P, N)
+    CK.pose_samples_entry(*plain(np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(hand),
+                                 SampleArrays.of(samples), P, N))
     return P, N
 
 
@@ -275,10 +278,10 @@ def model_to_data_mean(samples, theta, silhouette, *, tolerance_mm=M2D_TOLERANCE
     :class:`tracker.correspond.ModelSamples` (posed with their own hand)."""
     if silhouette.empty:
         return float(cap_mm)
-    return float(CK.model_to_data_mean(np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(samples.hand),
-                                       SampleArrays.of(samples),
-                                       SilhouetteArrays.of(silhouette, depth=np.asarray(silhouette.depth, np.float64)),
-                                       float(tolerance_mm), float(tolerance_px), float(cap_mm)))
+    return float(CK.model_to_data_mean_entry(*plain(
+        np.ascontiguousarray(theta, dtype=np.float64), HandArrays.of(samples.hand), SampleArrays.of(samples),
+        SilhouetteArrays.of(silhouette, depth=np.asarray(silhouette.depth, np.float64)),
+        float(tolerance_mm), float(tolerance_px), float(cap_mm))))
 
 
 def capsule_pass(hand, matcher, theta, points, normals, segments=None):

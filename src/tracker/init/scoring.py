@@ -11,14 +11,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._kernel_arrays import (
+    NO_SAMPLES,
+    NO_SILHOUETTE,
     CapsuleArrays,
     HandArrays,
     SampleArrays,
     ScoreTerms,
     SilhouetteArrays,
     WristCueArrays,
+    plain,
 )
-from .._search_kernels import data_cost_mean, search_score
+from .._search_kernels import data_cost_mean, search_score_entry
 from ..correspond import (
     DATA_CAP_MM,
     M2D_CAP_MM,
@@ -147,21 +150,17 @@ def _score_compiled(ctx, theta, corr, silhouette, samples, cue) -> float:
     terms = ScoreTerms(REJECTED_PAIR_MM, DATA_CAP_MM, on, MODEL_TO_DATA_WEIGHT, M2D_TOLERANCE_MM, M2D_TOLERANCE_PX,
                        M2D_CAP_MM)
     sil = (SilhouetteArrays.of(silhouette, depth=np.asarray(silhouette.depth, np.float64)) if on
-           else _NO_SILHOUETTE)
+           else NO_SILHOUETTE)
     wrist = (WristCueArrays(True, np.asarray(cue.point, np.float64), np.asarray(cue.direction, np.float64),
                             WRIST_REACH_MM, WRIST_TURN_MM) if cue is not None
              else WristCueArrays(False, _ZERO3, _ZERO3, WRIST_REACH_MM, WRIST_TURN_MM))
-    return float(search_score(np.array(ctx.hand.check_theta(theta), float), HandArrays.of(ctx.hand),
-                              CapsuleArrays.of(ctx.matcher.surface.caps),
-                              np.ascontiguousarray(corr.points, dtype=np.float64),
-                              np.ascontiguousarray(corr.valid, dtype=np.bool_), terms,
-                              SampleArrays.of(samples) if on else _NO_SAMPLES, sil, wrist))
+    return float(search_score_entry(*plain(np.array(ctx.hand.check_theta(theta), float), HandArrays.of(ctx.hand),
+                                           CapsuleArrays.of(ctx.matcher.surface.caps),
+                                           np.ascontiguousarray(corr.points, dtype=np.float64),
+                                           np.ascontiguousarray(corr.valid, dtype=np.bool_), terms,
+                                           SampleArrays.of(samples) if on else NO_SAMPLES, sil, wrist)))
 
 
-# stand-ins of the model→data arrays' types when the term is off (one compiled version serves both)
-_NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-_NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
-                                  np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)
 _ZERO3 = np.zeros(3)
 
 
