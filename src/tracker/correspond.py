@@ -223,10 +223,12 @@ class Silhouette:
         self.mask = np.asarray(mask, bool)
         self.depth = depth
         self.camera = camera
-        rows, cols = np.flatnonzero(self.mask.any(1)), np.flatnonzero(self.mask.any(0))
+        rows = np.flatnonzero(self.mask.any(1))
         self.empty = rows.size == 0
         if self.empty:
             return
+        # the columns over the mask's rows only (a hand is a small part of the frame)
+        cols = np.flatnonzero(self.mask[rows[0]:rows[-1] + 1].any(0))
         self.v0 = max(rows[0] - margin, 0)
         self.u0 = max(cols[0] - margin, 0)
         v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
