@@ -5,7 +5,10 @@ from tracker.sim.report import STEPS, run_steps
 
 
 def test_parts_in_two_workers_equal_one_by_one():
-    names = ["occlusion", "density"]
+    """Two parts run in two worker processes give what they give one after the other in this process, and
+    the progress is told once per part. The two are the cheapest of the report's parts (quick: occlusion
+    ~1.7 s, the single frames ~1.7 s; the density sweep, compared before, ~4.5 s in each run)."""
+    names = ["occlusion", "single"]
     assert set(names) <= set(STEPS)
     seen = []
     alone = run_steps(names, quick=True, jobs=1)
@@ -14,8 +17,11 @@ def test_parts_in_two_workers_equal_one_by_one():
     assert alone["occlusion"].keys() == both["occlusion"].keys()
     for k in alone["occlusion"]:
         assert np.isclose(alone["occlusion"][k], both["occlusion"][k]), k
-    # the density rows: (stride, share, error, ms) — errors equal, times are the machine's
-    assert [(k, round(e, 9)) for k, _, e, _ in alone["density"]] == [(k, round(e, 9)) for k, _, e, _ in both["density"]]
+    # the single frames: every error and share the same to the last bit; "s_<method>" are the machine's seconds
+    assert alone["single"].keys() == both["single"].keys()
+    for k in alone["single"]:
+        if not k.startswith("s_"):
+            np.testing.assert_equal(both["single"][k], alone["single"][k], err_msg=k)
 
 
 def test_real_part_needs_its_folder_and_reports_bad_labels(tmp_path):
