@@ -53,7 +53,11 @@ def node_frames(hand: HandModel, theta) -> np.ndarray:
 
 def points(hand: HandModel, theta, nodes, local) -> np.ndarray:
     """World positions ``(..., P, 3)`` of points rigidly attached to ``nodes`` (``local`` in the node frames)."""
-    G = node_frames(hand, theta)
+    return frame_points(node_frames(hand, theta), nodes, local)
+
+
+def frame_points(G, nodes, local) -> np.ndarray:
+    """:func:`points` from the node frames ``G`` ``(..., n_nodes, 4, 4)`` (:func:`node_frames`) at hand."""
     nodes = np.asarray(nodes, np.int64)
     local = np.asarray(local, float)
     Gs = G[..., nodes, :, :]

@@ -7,11 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .chain import frame_points
+
 if TYPE_CHECKING:
     from .model import HandModel
 
 
-def wrist_crease(hand: HandModel, theta) -> np.ndarray:
+def wrist_crease(hand: HandModel, theta, frames=None) -> np.ndarray:
     """The middle of the model hand's edge towards the forearm, ``(..., 3)`` metres.
 
     Where a wrist-crease label (the middle of the skin crease, the hand's end in a hand mask)
@@ -25,6 +27,8 @@ def wrist_crease(hand: HandModel, theta) -> np.ndarray:
     array([ 0.  , -8.77,  0.  ])
     """
     root, local = wrist_crease_local(hand)
+    if frames is not None:  # the node frames at θ, when the caller has them
+        return frame_points(frames, [root], [local])[..., 0, :]
     return hand.points(theta, [root], [local])[..., 0, :]
 
 

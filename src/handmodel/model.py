@@ -218,9 +218,10 @@ class HandModel:
         return np.zeros(self.n_dofs)
 
     # ------------------------------------------------------------------ surface landmarks (handmodel.landmarks)
-    def wrist_crease(self, theta) -> np.ndarray:
-        """Where a wrist-crease label belongs, ``(..., 3)`` metres (:func:`handmodel.landmarks.wrist_crease`)."""
-        return landmarks.wrist_crease(self, theta)
+    def wrist_crease(self, theta, frames=None) -> np.ndarray:
+        """Where a wrist-crease label belongs, ``(..., 3)`` metres (:func:`handmodel.landmarks.wrist_crease`;
+        ``frames``: the node frames at θ, when at hand)."""
+        return landmarks.wrist_crease(self, theta, frames)
 
     def wrist_crease_local(self) -> tuple[int, np.ndarray]:
         """``(node, offset)``: :meth:`wrist_crease` as a point of the root node (its frame, metres)."""

@@ -20,7 +20,7 @@ import numpy as np
 
 def plain(*args) -> tuple:
     """``args`` with every named tuple as a plain tuple (the arguments of a kernel's ``*_entry``)."""
-    return tuple(tuple(a) if isinstance(a, tuple) else a for a in args)
+    return tuple([tuple(a) if isinstance(a, tuple) else a for a in args])
 
 
 class HandArrays(NamedTuple):

@@ -130,3 +130,9 @@ def search_score_entry(theta, hand, caps, points, valid, terms, samples, sil, cu
     """:func:`search_score` with its named tuples given as plain tuples (:func:`tracker._kernel_arrays.plain`)."""
     return search_score(theta, HandArrays(*hand), CapsuleArrays(*caps), points, valid, ScoreTerms(*terms),
                         SampleArrays(*samples), SilhouetteArrays(*sil), WristCueArrays(*cue))
+
+
+@njit(cache=True, nogil=True)
+def data_cost_mean_entry(G, caps, points, valid, rejected_mm, cap_mm):
+    """:func:`data_cost_mean` with ``caps`` given as a plain tuple (:func:`tracker._kernel_arrays.plain`)."""
+    return data_cost_mean(G, CapsuleArrays(*caps), points, valid, rejected_mm, cap_mm)

@@ -129,9 +129,10 @@ class Recentring:
     def reset(self):
         pass
 
-    def __call__(self, hand, samples, pred, pts):
-        """``pred`` itself, or a moved copy (``samples``: the context's score samples)."""
-        shift = centre_shift(pts, posed_samples(hand, samples, pred))
+    def __call__(self, hand, samples, pred, pts, posed=None):
+        """``pred`` itself, or a moved copy (``samples``: the context's score samples; ``posed``: them
+        posed at ``pred``, :func:`tracker.icp.posed_samples`, when at hand)."""
+        shift = centre_shift(pts, posed_samples(hand, samples, pred) if posed is None else posed)
         if shift is None or np.linalg.norm(shift) * 1000.0 <= self.reject_mm:
             return pred
         self.stats.recentred += 1
@@ -302,20 +303,21 @@ class Gate:
     def reset(self):
         pass
 
-    def __call__(self, hand, samples, pred, pts):
+    def __call__(self, hand, samples, pred, pts, posed=None):
         """``(keep, arm)``: the points near the hand at ``pred`` (all True when the prediction is not
         trusted), and those of them past its wrist (None when off, not trusted, none is past or too few
-        would remain)."""
+        would remain). ``posed``: the ``samples`` posed at ``pred`` when at hand."""
         ob = self.observe
-        P, N = posed_samples(hand, samples, pred)
+        P, N = posed_samples(hand, samples, pred) if posed is None else posed
         near = predicted_near(pts, P, ob.gate_mm / 1000.0, normals=N, min_share=ob.gate_min_share,
                               min_points=self.min_points)
         if near is None:
             return np.ones(len(pts), bool), None
         if not self.arm:
             return near, None
-        axis = hand.joint_frames(pred)[0, :3, 1]
-        arm = near & past_wrist(pts, hand.wrist_crease(pred), axis, ob.arm_gate_mm / 1000.0)
+        G = hand.node_frames(pred)
+        axis = G[hand.joint_indices[0], :3, 1]  # the root joint's frame: the hand's direction
+        arm = near & past_wrist(pts, hand.wrist_crease(pred, frames=G), axis, ob.arm_gate_mm / 1000.0)
         if not arm.any() or np.count_nonzero(near & ~arm) < max(self.min_points, 1):
             return near, None
         return near, arm
@@ -437,9 +439,11 @@ class Prediction:
         recentred = False
         # clutter the segmentation left beside the hand (table, torso, arm) cannot pull the fit; the
         # gate tests the prediction first, so that clutter cannot re-centre a prediction that was right
-        keep, arm = self.gate(hand, samples, pred, pts) if self.gate.on else (None, None)
+        # the samples posed once for the gate and the re-centring
+        posed = posed_samples(hand, samples, pred) if self.gate.on or self.settings.recentre else None
+        keep, arm = self.gate(hand, samples, pred, pts, posed) if self.gate.on else (None, None)
         if self.settings.recentre and (keep is None or keep.all()):
-            moved = self.recentring(hand, samples, pred, pts)
+            moved = self.recentring(hand, samples, pred, pts, posed)
             recentred, pred = moved is not pred, moved
             if recentred and keep is not None:
                 keep, arm = self.gate(hand, samples, pred, pts)

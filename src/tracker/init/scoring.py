@@ -21,7 +21,7 @@ from .._kernel_arrays import (
     WristCueArrays,
     plain,
 )
-from .._search_kernels import data_cost_mean, search_score_entry
+from .._search_kernels import data_cost_mean_entry, search_score_entry
 from ..correspond import (
     DATA_CAP_MM,
     M2D_CAP_MM,
@@ -176,9 +176,10 @@ def data_cost_mm(ctx: FitContext, theta, corr, *, data_mm=None, frames=None) -> 
         # compiled (a search scores hundreds of fits; the numpy path below is its definition)
         surf = ctx.matcher.surface
         G = frames if frames is not None and surf.hand is ctx.hand else surf.hand.node_frames(theta)
-        return float(data_cost_mean(np.ascontiguousarray(G, dtype=np.float64), CapsuleArrays.of(surf.caps),
-                                    np.ascontiguousarray(corr.points, dtype=np.float64),
-                                    np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM, DATA_CAP_MM))
+        return float(data_cost_mean_entry(*plain(np.ascontiguousarray(G, dtype=np.float64), CapsuleArrays.of(surf.caps),
+                                                 np.ascontiguousarray(corr.points, dtype=np.float64),
+                                                 np.ascontiguousarray(corr.valid, dtype=np.bool_), REJECTED_PAIR_MM,
+                                                 DATA_CAP_MM)))
     if data_mm is not None:
         d = np.asarray(data_mm, float)
     elif corr.points is not None:
