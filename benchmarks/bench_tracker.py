@@ -77,7 +77,9 @@ def run(hand, bundle, cam, truth, obs, mode, ours, **kw):
 
 # the parts of FrameTracker.step timed by the breakdown: (label, object, attribute); a part's own
 # __call__ is patched on its class (Python looks special methods up on the type). The finger restarts'
-# refits count in "ICP fit" (they call it), the net's cheap search in "net test"
+# refits count in "ICP fit" (they call it), the net's cheap search in "net test"; the silhouette's distance
+# transform is made where first used (the fit's silhouette term: "ICP fit"), the predicted hand's samples,
+# posed once for the gate and the re-centring, in "other"
 PARTS = [("silhouette", track_module, "frame_silhouette"), ("gate", parts_module.Gate, "__call__"),
          ("re-centre", parts_module.Recentring, "__call__"), ("ICP fit", track_module, "fit"),
          ("net test", net_module.SafetyNet, "__call__")]
