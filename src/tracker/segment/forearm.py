@@ -9,6 +9,7 @@ from scipy import ndimage
 
 from .._segment_kernels import (
     closed_filled,
+    disk_counts,
     label_max,
 )
 from . import constants as K
@@ -426,9 +427,13 @@ def _filled_places(cand, raw, rad, slack=None, least=None):
     if ys.size < 2:
         return cand
     k = int(np.ceil(rad))
-    dy, dx = np.nonzero(np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad)
-    padded = np.pad(np.asarray(raw, bool), k)
-    fill = padded[ys[:, None] + dy[None, :], xs[:, None] + dx[None, :]].mean(axis=1)
+    disk = np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad
+    # each disk row's columns (a disk's rows are runs); the share of the disk the mask fills, as its mean was
+    cols = np.arange(-k, k + 1)
+    lo = np.where(disk.any(1), np.where(disk, cols, k + 1).min(1), 1)
+    hi = np.where(disk.any(1), np.where(disk, cols, -k - 1).max(1), 0)
+    fill = disk_counts(np.ascontiguousarray(raw, dtype=np.bool_), ys.astype(np.int64), xs.astype(np.int64),
+                       lo.astype(np.int64), hi.astype(np.int64)) / np.count_nonzero(disk)
     keep = fill >= min(fill.max() - slack, least)
     out = np.zeros_like(cand)
     out[ys[keep], xs[keep]] = True
