@@ -416,6 +416,30 @@ def test_compiled_nearest_pixels_are_scipys(h, w, seed, share):
     np.testing.assert_array_equal(iu, wu)
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 50), st.integers(1, 50), st.integers(0, 2 ** 32 - 1), st.floats(0.0, 1.0),
+       st.floats(0.3, 20.0))
+def test_compiled_disk_fill_is_the_mean_over_the_disk(h, w, seed, share, rad):
+    """The forearm cut's palm fill, counted by rows' running counts (compiled), is the mean of the raw mask
+    over each place's disk (outside the image unset), to the last bit: the places it keeps are the same."""
+    from tracker.segment.forearm import _filled_places
+
+    rng = np.random.default_rng(seed)
+    raw = rng.random((h, w)) < share
+    cand = rng.random((h, w)) < 0.3
+    k = int(np.ceil(rad))
+    dy, dx = np.nonzero(np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad)
+    ys, xs = np.nonzero(cand)
+    if ys.size < 2:
+        return
+    fill = np.pad(raw, k)[ys[:, None] + dy[None, :], xs[:, None] + dx[None, :]].mean(axis=1)
+    for slack, least in ((0.05, 0.85), (0.0, 1.0), (1.0, 0.0)):
+        want = np.zeros_like(cand)
+        keep = fill >= min(fill.max() - slack, least)
+        want[ys[keep], xs[keep]] = True
+        np.testing.assert_array_equal(_filled_places(cand, raw, rad, slack, least), want)
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.integers(1, 30), st.integers(1, 30), st.integers(0, 2 ** 32 - 1), st.floats(0.05, 0.95))
 def test_compiled_components_are_scipys(h, w, seed, fill):
