@@ -428,12 +428,12 @@ def _filled_places(cand, raw, rad, slack=None, least=None):
         return cand
     k = int(np.ceil(rad))
     disk = np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad
-    # each disk row's columns (a disk's rows are runs); the share of the disk the mask fills, as its mean was
+    # each disk row's columns (a disk's rows are runs; an empty row's lo > hi); the share of the disk the
+    # mask fills, as its mean was
     cols = np.arange(-k, k + 1)
-    lo = np.where(disk.any(1), np.where(disk, cols, k + 1).min(1), 1)
-    hi = np.where(disk.any(1), np.where(disk, cols, -k - 1).max(1), 0)
+    lo, hi = np.where(disk, cols, k + 1).min(1), np.where(disk, cols, -k - 1).max(1)
     fill = disk_counts(np.ascontiguousarray(raw, dtype=np.bool_), ys.astype(np.int64), xs.astype(np.int64),
-                       lo.astype(np.int64), hi.astype(np.int64)) / np.count_nonzero(disk)
+                       lo, hi) / np.count_nonzero(disk)
     keep = fill >= min(fill.max() - slack, least)
     out = np.zeros_like(cand)
     out[ys[keep], xs[keep]] = True
