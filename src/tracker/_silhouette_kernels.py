@@ -72,16 +72,18 @@ def feature_transform(mask, dist, iv, iu):
     """The exact Euclidean distance of every pixel to the nearest ``mask`` pixel (0 on the mask) into
     ``dist`` and that pixel's row and column into ``iv``/``iu``: what
     ``scipy.ndimage.distance_transform_edt(~mask, return_indices=True)`` returns (the same distances;
-    of several equally near mask pixels either may be named), in two separable passes (Felzenszwalb &
-    Huttenlocher 2012: per column the nearest mask pixel, then per row the lower envelope of the
-    parabolas). Returns False (outputs unset) when the mask is empty. Every tracked frame builds its
-    silhouette's transform; scipy's takes ~4× as long."""
+    of several equally near mask pixels this names the one of the smallest column, then of the
+    smallest row), in two separable passes (Felzenszwalb & Huttenlocher 2012: per column the nearest
+    mask pixel, then per row the lower envelope of the parabolas). Returns False (outputs unset) when
+    the mask is empty. Every tracked frame builds its silhouette's transform: ~150 µs on a hand's
+    207 × 167 window, scipy's ~1 ms."""
     H, W = mask.shape
     # per column: the nearest mask pixel's row (−1: none; the upper one on ties, as scipy's)
     gr = np.empty((H, W), np.int32)
     if not nearest_rows(mask, gr):
         return False
-    # per row: the lower envelope of u ↦ (u − q)² + (v − gr[v, q])² over the columns q with a mask pixel
+    # per row: the lower envelope of u ↦ (u − q)² + (v − gr[v, q])² over the columns q with a mask pixel;
+    # parabola k of the envelope is the lowest from zs[k] on (zs[0] = −inf)
     cols = np.empty(W, np.int64)
     fs = np.empty(W)
     zs = np.empty(W + 1)
@@ -92,6 +94,9 @@ def feature_transform(mask, dist, iv, iu):
             if r < 0:
                 continue
             fq = float((v - r) * (v - r) + q * q)
+            # where the new parabola drops below parabola k (one division a step: the pass is bound by
+            # it); parabola 0 is never dropped, its zs is −inf
+            s = -np.inf
             while k >= 0:
                 s = (fq - fs[k]) / (2.0 * (q - cols[k]))
                 if s <= zs[k]:
@@ -101,17 +106,23 @@ def feature_transform(mask, dist, iv, iu):
             k += 1
             cols[k] = q
             fs[k] = fq
-            zs[k] = -np.inf if k == 0 else (fq - fs[k - 1]) / (2.0 * (q - cols[k - 1]))
-            zs[k + 1] = np.inf
-        j = 0
-        for u in range(W):
-            while zs[j + 1] < u:
-                j += 1
+            zs[k] = s
+        zs[k + 1] = np.inf
+        # pixel u takes the first parabola j with zs[j + 1] >= u (the left one at a breakpoint): whole
+        # runs of pixels at a time, the distances in a loop the compiler vectorises
+        u = 0
+        for j in range(k + 1):
+            z = zs[j + 1]
+            end = W if z >= W else int(math.floor(z)) + 1
+            if end <= u:
+                continue
             q = cols[j]
             rv = gr[v, q]
-            du = u - q
-            dv = v - rv
-            dist[v, u] = np.sqrt(float(du * du + dv * dv))
-            iv[v, u] = rv
-            iu[v, u] = q
+            dv2 = float((v - rv) * (v - rv))
+            for x in range(u, end):
+                du = float(x - q)
+                dist[v, x] = np.sqrt(du * du + dv2)
+            iv[v, u:end] = rv
+            iu[v, u:end] = q
+            u = end
     return True

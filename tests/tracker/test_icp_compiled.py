@@ -296,6 +296,28 @@ def test_feature_transform_is_scipys():
     assert not feature_transform(np.zeros((3, 4), bool), d, iv, iu)
 
 
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 24), st.integers(1, 24), st.sampled_from([0.01, 0.05, 0.3, 0.9]), st.integers(0, 2**32 - 1))
+def test_feature_transform_names_the_leftmost_then_upmost_of_equally_near_pixels(h, w, share, seed):
+    """Against a brute force over every mask pixel: the distance, and of equally near mask pixels the
+    one of the smallest column, then of the smallest row (the tracker's silhouette pairs and the net's
+    arm entry read these pixels: another tie rule changes the tracked θ). Ties are common on small
+    integer grids; a transform naming the right-hand one of two equally near pixels fails."""
+    rng = np.random.default_rng(seed)
+    m = rng.random((h, w)) < share
+    m[rng.integers(h), rng.integers(w)] = True
+    mv, mu = np.nonzero(m)
+    V, U = np.mgrid[:h, :w]
+    d2 = (V[..., None] - mv) ** 2 + (U[..., None] - mu) ** 2
+    best = d2.min(-1)
+    first = np.where(d2 == best[..., None], mu * (h + 1) + mv, np.iinfo(np.int64).max).argmin(-1)
+    d, iv, iu = np.empty((h, w)), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
+    assert feature_transform(m, d, iv, iu)
+    np.testing.assert_array_equal(d, np.sqrt(best.astype(float)))
+    np.testing.assert_array_equal(iv, mv[first])
+    np.testing.assert_array_equal(iu, mu[first])
+
+
 def test_silhouette_matches_scipys_transform(frames):
     """A tracked frame's Silhouette holds scipy's distances and the same nearest pixels (no ties on a
     rendered hand's mask), so the silhouette pairs do not change."""
