@@ -164,10 +164,13 @@ class SizeCalibration:
     def _detected(self, tr, sil) -> dict:
         """The keypoint detector's part in a calibration (``start.detector``): the size from its
         keypoints and the hand fitted to them as a start of the search at that size."""
+        seed = tr.search.keypoints
+        if seed is None:
+            return {}
+        # loaded with a detector only: without one a run loads neither the fit nor the forests
         from .keypoint_fit import detect_in, keypoint_scale
 
-        seed = tr.search.keypoints
-        det = None if seed is None else detect_in(seed.detect, sil, tr.base_hand.handedness)
+        det = detect_in(seed.detect, sil, tr.base_hand.handedness)
         if det is None:
             return {}
         return {"seeds": lambda hand: seed.fit(det, hand),

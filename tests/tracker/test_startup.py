@@ -1,0 +1,52 @@
+"""Start-up (issue 39): what a tracking process loads, and what the ``tracker`` program leaves to its end.
+
+Each check runs in a fresh interpreter: what one test imported would hide another's import.
+"""
+import subprocess
+import sys
+
+
+def _python(code: str) -> str:
+    """The last line ``code`` prints in a fresh interpreter."""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout.strip().splitlines()[-1]
+
+
+def test_tracking_modules_load_no_bundle_reader_detector_or_plots():
+    # a run without synergies, detector or overlays needs none of these: the bundle reader (and its
+    # schema validator), the keypoint fit (and the forests), matplotlib; each is loaded by the
+    # function that uses it (scale.calibration_record, sizing's detector seed, run's overlays)
+    heavy = ("synergy.bundle", "jsonschema", "tracker.keypoint_fit", "tracker.detector", "matplotlib",
+             "tracker.plots")
+    out = _python("import sys, tracker.run, tracker.track, tracker.sizing, tracker.scale; "
+                  f"print([m for m in {heavy!r} if m in sys.modules])")
+    assert out == "[]", out
+
+
+def test_calibration_record_still_names_the_tool():
+    # the lazily loaded generator name is the bundle's (one owner), as before
+    out = _python("import types, tracker.scale as s, synergy.bundle as b\n"
+                  "from tracker.settings import TrackerSettings\n"
+                  "t = types.SimpleNamespace(scale_estimates_=[1.1, 1.3], scale_=1.2, settings=TrackerSettings())\n"
+                  "rec = s.calibration_record(t)\n"
+                  "print(rec['tool'].startswith(b.GENERATOR + ' ' + b.generator_version() + ' '))")
+    assert out == "True", out
+
+
+def test_the_program_freezes_its_objects_for_the_exit_but_the_app_does_not():
+    # tracker's entry (main) skips the exit's collection of every object (~0.4 s); the typer app run
+    # inside a process that goes on (a test, a notebook) must keep collecting its garbage
+    code = ("import gc, sys\n"
+            "from typer.testing import CliRunner\n"
+            "from tracker.cli import app, main\n"
+            "r = CliRunner().invoke(app, ['--help'])\n"
+            "assert r.exit_code == 0, r.output\n"
+            "after_app = gc.get_freeze_count()\n"
+            "sys.argv = ['tracker', '--help']\n"
+            "try:\n"
+            "    main()\n"
+            "except SystemExit as e:\n"
+            "    assert not e.code, e.code\n"
+            "print(after_app, gc.get_freeze_count() > 0)")
+    assert _python(code) == "0 True"
