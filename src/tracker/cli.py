@@ -473,12 +473,16 @@ def main() -> None:
     """The ``tracker`` program: runs the command, then leaves the objects it made to the process's end.
 
     ``gc.freeze()`` on the way out: the interpreter's shutdown would otherwise walk the ~200,000 objects
-    of numpy, pandas, numba and the loaded kernels with the cyclic collector, ~0.4 s of a 2.5 s ``tracker
+    of numpy, pandas, numba and the loaded kernels with the cyclic collector, ~0.4 s of a 2.7 s ``tracker
     track`` of one still (``benchmarks/bench_startup.py``), to free memory the process is about to give
-    back anyway. Only here, in the program's entry: ``app`` called in a process that goes on (a test's
-    ``CliRunner``) collects as usual."""
+    back anyway; a tracking command freezes its start-up's objects as soon as it has started
+    (:class:`tracker.cli_common.StartUp`). Only in the program's entry: ``app`` called in a process that
+    goes on (a test's ``CliRunner``) collects as usual."""
     import gc
 
+    from .cli_common import StartUp
+
+    StartUp.program = True
     try:
         app()
     finally:

@@ -34,6 +34,42 @@ def progress_bar(label: str):
                     console=console, transient=True, disable=not console.is_terminal)
 
 
+class StartUp:
+    """A tracking command's start-up without Python's cyclic garbage collector: its imports, the kernels
+    numba loads from its cache and the first frame (size calibration, start search) make ~200,000
+    objects that all live to the end, and each of the collector's passes over them found nothing to
+    free (0.28 s of a 2.4 s ``tracker track`` of one still, ``benchmarks/bench_startup.py``).
+
+    A context manager: the collector is paused on entry; :meth:`done` (called once the first frame's
+    result is in, again at will) or the exit turns it back on as it was. In the ``tracker`` program
+    (:attr:`program`, set by :func:`tracker.cli.main`: the process ends with its command) the objects
+    made so far are frozen first (``gc.freeze``), so the collections of the frames that follow skip
+    them too; a command run inside a process that goes on (a test) leaves them to the collector."""
+
+    #: the process is the ``tracker`` program's (:func:`tracker.cli.main`)
+    program = False
+
+    def __enter__(self):
+        import gc
+
+        self._paused = gc.isenabled()
+        gc.disable()
+        return self
+
+    def done(self):
+        """The start-up is over: the collector runs again (if it ran before)."""
+        import gc
+
+        if self._paused:
+            self._paused = False
+            if StartUp.program:
+                gc.freeze()
+            gc.enable()
+
+    def __exit__(self, *exc):
+        self.done()
+
+
 def check_not_inputs(inputs, outputs):
     """Refuse an output that is one of the command's inputs or lies inside an input folder (a
     recording): ``--overwrite`` replaces earlier outputs, never what the command reads.

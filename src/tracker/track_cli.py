@@ -16,7 +16,7 @@ import typer
 
 from .cli_common import (BOX, COLOR_TOPIC, DEPTH_RANGE, FOREARM, HAND, PLANE, START, TOPIC, check_not_inputs,
                          check_outputs, check_overlay_every, chosen_hand_model, hand_side, input_file,
-                         progress_bar, say_if_compiling, segmenter_from_options, settings_from_options)
+                         progress_bar, say_if_compiling, segmenter_from_options, settings_from_options, StartUp)
 
 
 def track(
@@ -97,35 +97,39 @@ def track(
     else:
         check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     check_overlay_every(overlay_every)
-    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
-    # Dask's workers already run recordings side by side
-    threads = 1 if threads is None and dask is not None else threads
-    settings = settings_from_options(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
-                         prediction, robust, finger_search, projected_steps, hand_scale, check_hand,
-                         rgb_seed=rgb_seed, finger_lengths=finger_lengths, safety_net=safety_net,
-                         unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
-                         search_budget_ms=search_budget_ms, detector=detector)
+    # the collector is off until the first frame's result is in (cli_common.StartUp)
+    with StartUp() as start_up:
+        segmenter = segmenter_from_options(depth_range, box, forearm, plane)
+        # Dask's workers already run recordings side by side
+        threads = 1 if threads is None and dask is not None else threads
+        settings = settings_from_options(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
+                             prediction, robust, finger_search, projected_steps, hand_scale, check_hand,
+                             rgb_seed=rgb_seed, finger_lengths=finger_lengths, safety_net=safety_net,
+                             unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
+                             search_budget_ms=search_budget_ms, detector=detector)
 
-    # heavy modules load here, not at import time, so `tracker --help` answers at once
-    from .run import TrackJob
+        # heavy modules load here, not at import time, so `tracker --help` answers at once
+        from .run import TrackJob
 
-    say_if_compiling()
+        say_if_compiling()
 
-    job = TrackJob(recording=str(recordings[0]), output=str(output), settings=settings, synergies=synergies,
-                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
-                   keypoints=None if keypoints is None else str(keypoints),
-                   overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
-                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
-                   hand=hand_side(hand), topic=topic, color_topic=color_topic, start_s=start, end_s=end, every=every,
-                   save_hand=None if save_hand is None else str(save_hand), hand_scale_asked=hand_scale is not None)
-    if len(recordings) > 1 or dask is not None:
-        _track_many(recordings, output, job, dask, overwrite)
-        return
-    _track_one(job, recordings[0], output, keypoints, overlay, mode, paper)
+        job = TrackJob(recording=str(recordings[0]), output=str(output), settings=settings, synergies=synergies,
+                       registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                       keypoints=None if keypoints is None else str(keypoints),
+                       overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
+                       rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
+                       hand=hand_side(hand), topic=topic, color_topic=color_topic, start_s=start, end_s=end, every=every,
+                       save_hand=None if save_hand is None else str(save_hand), hand_scale_asked=hand_scale is not None)
+        if len(recordings) > 1 or dask is not None:
+            start_up.done()  # the modules are loaded; the recordings are tracked with the collector on
+            _track_many(recordings, output, job, dask, overwrite)
+            return
+        _track_one(job, recordings[0], output, keypoints, overlay, mode, paper, start_up)
 
 
-def _track_one(job, recording, output, keypoints, overlay, mode, paper):
-    """One recording: progress bar, outputs, the result table."""
+def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up):
+    """One recording: progress bar, outputs, the result table; ``start_up`` (:class:`StartUp`) is done at
+    the first frame's result."""
     from rich.console import Console
     from rich.table import Table
 
@@ -138,7 +142,12 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper):
             f"warning: {recording}: {rec.damage}; tracking the {len(rec)} frame{'s' * (len(rec) != 1)} it holds")
     with progress_bar("tracking") as progress:
         bar = progress.add_task("track", total=_length(rec))
-        run = run_job(job, lambda frame, r, ob: progress.advance(bar), source=rec)
+
+        def each(frame, r, ob):
+            progress.advance(bar)
+            start_up.done()
+
+        run = run_job(job, each, source=rec)
     df, tracker, rec, wall_s = run.df, run.tracker, run.recording, run.wall_s
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")

@@ -50,3 +50,48 @@ def test_the_program_freezes_its_objects_for_the_exit_but_the_app_does_not():
             "    assert not e.code, e.code\n"
             "print(after_app, gc.get_freeze_count() > 0)")
     assert _python(code) == "0 True"
+
+
+def test_start_up_pauses_the_collector_and_gives_it_back_as_it_was():
+    # in a process that goes on (program False) nothing is frozen; a collector that was off stays off
+    code = ("import gc\n"
+            "from tracker.cli_common import StartUp\n"
+            "seen = []\n"
+            "with StartUp() as s:\n"
+            "    seen.append(gc.isenabled())\n"
+            "    s.done()\n"
+            "    seen.append(gc.isenabled())\n"
+            "    s.done()\n"
+            "seen.append(gc.isenabled())\n"
+            "gc.disable()\n"
+            "with StartUp() as s:\n"
+            "    s.done()\n"
+            "seen.append(gc.isenabled())\n"
+            "gc.enable()\n"
+            "try:\n"
+            "    with StartUp():\n"
+            "        raise KeyError\n"
+            "except KeyError:\n"
+            "    seen.append(gc.isenabled())\n"
+            "print(seen, gc.get_freeze_count())")
+    assert _python(code) == "[False, True, True, False, True] 0"
+    # in the tracker program the start-up's objects are frozen when it is done
+    code = ("import gc\n"
+            "from tracker.cli_common import StartUp\n"
+            "StartUp.program = True\n"
+            "with StartUp() as s:\n"
+            "    x = [[] for _ in range(1000)]\n"
+            "    s.done()\n"
+            "print(gc.isenabled(), gc.get_freeze_count() >= 1000)")
+    assert _python(code) == "True True"
+
+
+def test_a_failed_track_in_a_process_that_goes_on_leaves_the_collector_on(tmp_path):
+    # the command fails after its start-up began (no such recording): the collector is on again,
+    # nothing frozen (a notebook or test process keeps collecting its garbage)
+    code = ("import gc\n"
+            "from typer.testing import CliRunner\n"
+            "from tracker.cli import app\n"
+            f"r = CliRunner().invoke(app, ['track', {str(tmp_path / 'none')!r}, '-o', {str(tmp_path / 'o.csv')!r}])\n"
+            "print(r.exit_code, 'no such recording' in r.output, gc.isenabled(), gc.get_freeze_count())")
+    assert _python(code) == "2 True True 0"
