@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from synergy.bundle import GENERATOR, generator_version
+
 from .coupling import recoupled, uncoupled
 from .errors import TrackerError
 from .icp import model_to_data_mean
@@ -420,10 +422,6 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
     estimate before shrinking and its standard error (log) over the frames, the recording
     and the ``frames`` (indices) tracked until the size was settled, the settings that shaped the
     estimate, the tool and its version, and the time (UTC)."""
-    # the bundle module (and its schema validator, ~40 ms) loads only when a hand file is written: a
-    # tracking run needs neither
-    from synergy.bundle import GENERATOR, generator_version
-
     est = [float(e) for e in tracker.scale_estimates_]
     med = float(np.median(est)) if est else float(tracker.scale_)
     st = tracker.settings

@@ -13,25 +13,16 @@ def _python(code: str) -> str:
     return r.stdout.strip().splitlines()[-1]
 
 
-def test_tracking_modules_load_no_bundle_reader_detector_or_plots():
-    # a run without synergies, detector or overlays needs none of these: the bundle reader (and its
-    # schema validator), the keypoint fit (and the forests), matplotlib; each is loaded by the
-    # function that uses it (scale.calibration_record, sizing's detector seed, run's overlays)
-    heavy = ("synergy.bundle", "jsonschema", "tracker.keypoint_fit", "tracker.detector", "matplotlib",
-             "tracker.plots")
-    out = _python("import sys, tracker.run, tracker.track, tracker.sizing, tracker.scale; "
-                  f"print([m for m in {heavy!r} if m in sys.modules])")
-    assert out == "[]", out
-
-
-def test_calibration_record_still_names_the_tool():
-    # the lazily loaded generator name is the bundle's (one owner), as before
-    out = _python("import types, tracker.scale as s, synergy.bundle as b\n"
-                  "from tracker.settings import TrackerSettings\n"
-                  "t = types.SimpleNamespace(scale_estimates_=[1.1, 1.3], scale_=1.2, settings=TrackerSettings())\n"
-                  "rec = s.calibration_record(t)\n"
-                  "print(rec['tool'].startswith(b.GENERATOR + ' ' + b.generator_version() + ' '))")
-    assert out == "True", out
+def test_tracking_modules_load_no_detector_or_plots():
+    # a run without a detector or overlays needs neither the keypoint fit (and its forests) nor
+    # matplotlib: each is loaded by the function that uses it (sizing's detector seed, run's overlays)
+    heavy = ("tracker.keypoint_fit", "tracker.detector", "matplotlib", "tracker.plots")
+    out = _python("import sys, types, tracker.run, tracker.track, tracker.sizing\n"
+                  # a size calibration without a detector seed asks for none of them either
+                  "tr = types.SimpleNamespace(search=types.SimpleNamespace(keypoints=None))\n"
+                  "extra = tracker.sizing.SizeCalibration._detected(None, tr, None)\n"
+                  f"print(extra, [m for m in {heavy!r} if m in sys.modules])")
+    assert out == "{} []", out
 
 
 def test_the_program_freezes_its_objects_for_the_exit_but_the_app_does_not():
