@@ -18,7 +18,7 @@ import typer
 from .cli_common import (BOX, COLOR_TOPIC, DEPTH_RANGE, FOREARM, HAND, PLANE, START, TOPIC, check_hand_file,
                          check_not_inputs, check_outputs, check_overlay_every, chosen_hand_model, hand_side,
                          input_file, progress_bar, say_if_compiling, segmenter_from_options,
-                         settings_from_options)
+                         settings_from_options, StartUp)
 
 
 def live(
@@ -77,60 +77,63 @@ def live(
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
     check_overlay_every(overlay_every)
-    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
-    settings = settings_from_options(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
-                         None, None, hand_scale, check_hand)
+    # the collector is off until the first frame's result is in (cli_common.StartUp)
+    with StartUp() as start_up:
+        segmenter = segmenter_from_options(depth_range, box, forearm, plane)
+        settings = settings_from_options(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
+                             None, None, hand_scale, check_hand)
 
-    # heavy modules (and the optional pyrealsense2) load here, so `tracker --help` answers at once
-    import signal
+        # heavy modules (and the optional pyrealsense2) load here, so `tracker --help` answers at once
+        import signal
 
-    from rich.console import Console
+        from rich.console import Console
 
-    from .live import RealSenseSource
-    from .io.recording import RecordingWriter
-    from .run import TrackJob, run_job
+        from .live import RealSenseSource
+        from .io.recording import RecordingWriter
+        from .run import TrackJob, run_job
 
-    say_if_compiling()
+        say_if_compiling()
 
-    source = RealSenseSource(playback, serial=serial, width=width, height=height, fps=fps, color=color,
-                             max_frames=frames, max_seconds=seconds, handedness=hand)
-    err = Console(stderr=True, markup=False)
-    job = TrackJob(recording=str(playback) if playback is not None else f"realsense {source.name}",
-                   output=str(output), settings=settings, synergies=synergies,
-                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
-                   keypoints=None if keypoints is None else str(keypoints),
-                   overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
-                   rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
-                   handedness=hand, hand_scale_asked=hand_scale is not None,
-                   budget_ms=budget_ms if budget_ms is not None else 1000.0 / source.fps, pace=playback is not None)
-    if not (playback is None if realtime is None else realtime):
-        job = replace(job, budget_ms=None, pace=False)
+        source = RealSenseSource(playback, serial=serial, width=width, height=height, fps=fps, color=color,
+                                 max_frames=frames, max_seconds=seconds, handedness=hand)
+        err = Console(stderr=True, markup=False)
+        job = TrackJob(recording=str(playback) if playback is not None else f"realsense {source.name}",
+                       output=str(output), settings=settings, synergies=synergies,
+                       registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                       keypoints=None if keypoints is None else str(keypoints),
+                       overlay=None if overlay is None else str(overlay), overlay_every=overlay_every,
+                       rerun=None if rerun is None else str(rerun), rerun_spawn=rerun_spawn, overwrite=overwrite,
+                       handedness=hand, hand_scale_asked=hand_scale is not None,
+                       budget_ms=budget_ms if budget_ms is not None else 1000.0 / source.fps, pace=playback is not None)
+        if not (playback is None if realtime is None else realtime):
+            job = replace(job, budget_ms=None, pace=False)
 
-    def interrupted(signum, stack):
-        # the first Ctrl-C ends the stream after this frame and the outputs are written; a second aborts
-        source.stop()
-        err.print("stopping after this frame (Ctrl-C again to abort without outputs)")
-        signal.signal(signal.SIGINT, previous)
+        def interrupted(signum, stack):
+            # the first Ctrl-C ends the stream after this frame and the outputs are written; a second aborts
+            source.stop()
+            err.print("stopping after this frame (Ctrl-C again to abort without outputs)")
+            signal.signal(signal.SIGINT, previous)
 
-    previous = signal.signal(signal.SIGINT, interrupted)
-    writer = None
-    try:
-        if save is not None:
-            writer = RecordingWriter(save, source.camera, source.fps, hand, overwrite=overwrite,
-                                     source=f"tracker live, {source.name}")
-        with source, progress_bar(f"tracking {source.name}") as progress:
-            bar = progress.add_task("live", total=frames)
+        previous = signal.signal(signal.SIGINT, interrupted)
+        writer = None
+        try:
+            if save is not None:
+                writer = RecordingWriter(save, source.camera, source.fps, hand, overwrite=overwrite,
+                                         source=f"tracker live, {source.name}")
+            with source, progress_bar(f"tracking {source.name}") as progress:
+                bar = progress.add_task("live", total=frames)
 
-            def on_frame(frame, r, ob):
-                if writer is not None:
-                    writer.write(frame.depth, frame.color if source._color and frame.color is not None else None)
-                progress.advance(bar)
+                def on_frame(frame, r, ob):
+                    if writer is not None:
+                        writer.write(frame.depth, frame.color if source._color and frame.color is not None else None)
+                    progress.advance(bar)
+                    start_up.done()
 
-            run = run_job(job, on_frame, source=source)
-        if writer is not None:
-            writer.close()
-    finally:
-        signal.signal(signal.SIGINT, previous)
+                run = run_job(job, on_frame, source=source)
+            if writer is not None:
+                writer.close()
+        finally:
+            signal.signal(signal.SIGINT, previous)
     df = run.df
     st = df["status"]
     console = Console(markup=False)  # paths are printed as typed, never read as markup
@@ -188,27 +191,33 @@ def calibrate(
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)
-    segmenter = segmenter_from_options(depth_range, box, forearm, plane)
-    settings = settings_from_options(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
-                         None, None, "auto", False)
-    if finger_lengths is not None:
-        settings = settings.replace(scale=dict(finger_lengths=finger_lengths))
+    # the collector is off until the first frame is in (cli_common.StartUp)
+    with StartUp() as start_up:
+        segmenter = segmenter_from_options(depth_range, box, forearm, plane)
+        settings = settings_from_options(False, "full", None, 0.99, None, None, None, None, None, None, None, None, None, None,
+                             None, None, "auto", False)
+        if finger_lengths is not None:
+            settings = settings.replace(scale=dict(finger_lengths=finger_lengths))
 
-    # heavy modules load here, not at import time, so `tracker --help` answers at once
-    from rich.console import Console
-    from rich.table import Table
+        # heavy modules load here, not at import time, so `tracker --help` answers at once
+        from rich.console import Console
+        from rich.table import Table
 
-    from .run import TrackJob, calibrate_job
+        from .run import TrackJob, calibrate_job
 
-    say_if_compiling()
+        say_if_compiling()
 
-    job = TrackJob(recording=str(recording), output="", settings=settings, synergies=synergies,
-                   registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
-                   overwrite=overwrite, hand=hand_side(hand), topic=topic, color_topic=color_topic, start_s=start)
-    with progress_bar("calibrating") as progress:
-        bar = progress.add_task("calibrate", total=None)
-        out, tracker, used = calibrate_job(job, output, max_frames=frames, each=each,
-                                           on_frame=lambda frame, r, ob: progress.advance(bar))
+        job = TrackJob(recording=str(recording), output="", settings=settings, synergies=synergies,
+                       registries=tuple(str(r) for r in registry or ()), hand_model=hand_model, segmenter=segmenter,
+                       overwrite=overwrite, hand=hand_side(hand), topic=topic, color_topic=color_topic, start_s=start)
+        with progress_bar("calibrating") as progress:
+            bar = progress.add_task("calibrate", total=None)
+
+            def on_frame(frame, r, ob):
+                progress.advance(bar)
+                start_up.done()
+
+            out, tracker, used = calibrate_job(job, output, max_frames=frames, each=each, on_frame=on_frame)
     cal = out.calibration
     how = "each from its own start" if each else "tracked"
     table = Table(title=f"hand calibrated on {recording} ({len(used)} frames {how}: {used[0]}–{used[-1]})")

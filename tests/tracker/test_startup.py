@@ -77,12 +77,14 @@ def test_start_up_pauses_the_collector_and_gives_it_back_as_it_was():
     assert _python(code) == "True True"
 
 
-def test_a_failed_track_in_a_process_that_goes_on_leaves_the_collector_on(tmp_path):
-    # the command fails after its start-up began (no such recording): the collector is on again,
+def test_a_failed_track_or_calibrate_in_a_process_that_goes_on_leaves_the_collector_on(tmp_path):
+    # each command fails after its start-up began (no such recording): the collector is on again,
     # nothing frozen (a notebook or test process keeps collecting its garbage)
-    code = ("import gc\n"
-            "from typer.testing import CliRunner\n"
-            "from tracker.cli import app\n"
-            f"r = CliRunner().invoke(app, ['track', {str(tmp_path / 'none')!r}, '-o', {str(tmp_path / 'o.csv')!r}])\n"
-            "print(r.exit_code, 'no such recording' in r.output, gc.isenabled(), gc.get_freeze_count())")
-    assert _python(code) == "2 True True 0"
+    none = str(tmp_path / "none")
+    for args in (["track", none, "-o", str(tmp_path / "o.csv")], ["calibrate", none, "-o", str(tmp_path / "h.yaml")]):
+        code = ("import gc\n"
+                "from typer.testing import CliRunner\n"
+                "from tracker.cli import app\n"
+                f"r = CliRunner().invoke(app, {args!r})\n"
+                "print(r.exit_code, 'no such recording' in r.output, gc.isenabled(), gc.get_freeze_count())")
+        assert _python(code) == "2 True True 0", args
