@@ -72,6 +72,12 @@ def wrapped_angles(angles):
 def euler_to_matrix(angles):
     """R = Rx(a)·Ry(b)·Rz(c), batched over leading axes."""
     a = np.asarray(angles, float)
+    if a.shape == (3,):
+        # one rotation (the tracker's per-frame tests): the same products on Python floats, half the time
+        (ca, cb, cc), (sa, sb, sc) = np.cos(a).tolist(), np.sin(a).tolist()
+        return np.array([[cb * cc, -cb * sc, sb],
+                         [ca * sc + sa * sb * cc, ca * cc - sa * sb * sc, -sa * cb],
+                         [sa * sc - ca * sb * cc, sa * cc + ca * sb * sc, ca * cb]])
     ca, sa = np.cos(a[..., 0]), np.sin(a[..., 0])
     cb, sb = np.cos(a[..., 1]), np.sin(a[..., 1])
     cc, sc = np.cos(a[..., 2]), np.sin(a[..., 2])

@@ -187,7 +187,7 @@ class SafetyNet:
 def pose_change(a, b) -> tuple:
     """``(degrees, mm)``: how far the global pose of θ ``a`` is turned and moved from ``b``'s."""
     R = euler_to_matrix(a[3:6]) @ euler_to_matrix(b[3:6]).T
-    turn = math.degrees(math.acos(float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    turn = math.degrees(math.acos(min(max(float((np.trace(R) - 1.0) / 2.0), -1.0), 1.0)))
     return turn, float(np.linalg.norm(np.asarray(a[:3]) - np.asarray(b[:3])) * 1000.0)
 
 

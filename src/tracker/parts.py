@@ -277,6 +277,9 @@ def usable_points(points, normals, max_points):
     """Finite points (at most ``max_points``, evenly spread) and their normals; NaN normals (unknown)
     stay: the normal test is skipped for them."""
     pts = np.asarray(points, float).reshape(-1, 3)
+    if np.isfinite(pts).all() and not (max_points and len(pts) > max_points):
+        # every point finite, none to drop: copies, as the selection below makes (~20 µs a frame less)
+        return pts.copy(), None if normals is None else np.asarray(normals, float).reshape(-1, 3).copy()
     keep = np.isfinite(pts).all(1)
     if max_points and keep.sum() > max_points:
         idx = np.flatnonzero(keep)

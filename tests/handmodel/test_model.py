@@ -238,3 +238,18 @@ def test_fingertip_ends_are_where_the_model_surface_ends(rot, scale, right):
     past = model(theta, ends + 0.001 * axis, facing_only=False, reject=1.0)
     np.testing.assert_allclose(past.distance, 0.001, atol=1e-6)
     assert np.array_equal(past.nodes, hand.parents[tips])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(-20.0, 20.0, allow_nan=False), min_size=3, max_size=3))
+def test_one_rotation_is_the_batched_rotation_to_the_last_bit(angles):
+    """euler_to_matrix's path for one rotation (Python floats, the tracker's per-frame tests) gives the
+    batched path's matrix bit for bit, and it is a rotation: a sign or a factor swapped in either path
+    fails (the safety net's jump test compares their turns with a threshold)."""
+    from handmodel.rigid import euler_to_matrix
+
+    a = np.array(angles)
+    R = euler_to_matrix(a)
+    np.testing.assert_array_equal(R, euler_to_matrix(a[None])[0])
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
