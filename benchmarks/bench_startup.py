@@ -13,9 +13,11 @@ of the child — since on a shared machine wall time also measures the other job
 - ``tracker track`` of that still: the whole command, outputs written.
 
 One untimed run first warms numba's cache (``tracker compile`` does it at install). The kernels are
-this tree's (``src`` first on the path).
+this tree's (``src`` first on the path). ``--peer DIR``: the same rows with another checkout's ``src``
+(e.g. a ``git worktree`` of an earlier commit; its numba cache is its own, warmed the same way),
+interleaved with this tree's in the same run, so both see the same load.
 
-Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5]
+Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--peer ../wt-old]
 """
 from __future__ import annotations
 
@@ -44,17 +46,18 @@ print(json.dumps({"import": t_import, "stamps": stamps}))
 """
 
 
-def env():
+def env(src=ROOT / "src"):
     e = dict(os.environ)
-    e["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + e.get("PYTHONPATH", "")
+    e["PYTHONPATH"] = str(src) + os.pathsep + e.get("PYTHONPATH", "")
     return e
 
 
-def timed(cmd):
-    """``(wall s, cpu s, stdout)`` of one child process (cpu: the child's user + sys)."""
+def timed(cmd, src=ROOT / "src"):
+    """``(wall s, cpu s, stdout, start time)`` of one child process (cpu: the child's user + sys) with
+    the package of ``src``."""
     before = os.times()
     t0 = time.time()
-    p = subprocess.run(cmd, env=env(), capture_output=True, text=True)
+    p = subprocess.run(cmd, env=env(src), capture_output=True, text=True)
     wall = time.time() - t0
     after = os.times()
     if p.returncode != 0:
@@ -81,8 +84,15 @@ def make_still(folder: Path) -> Path:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--peer", type=Path, default=None,
+                    help="another checkout (its src/) timed with the same rows, interleaved")
     args = ap.parse_args()
     py = sys.executable
+    trees = {"this tree": ROOT / "src"}
+    if args.peer is not None:
+        if not (args.peer / "src" / "tracker").is_dir():
+            raise SystemExit(f"--peer {args.peer}: no src/tracker in it")
+        trees["peer"] = args.peer.resolve() / "src"
     with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp:
         tmp = Path(tmp)
         rec = make_still(tmp)
@@ -95,28 +105,33 @@ def main():
             "tracker track of one still (whole command)": [py, "-m", "tracker.cli", "track", str(rec), "-o",
                                                            str(out), "--overwrite"],
         }
-        timed(rows["tracker track of one still (whole command)"])  # warms the cache
-        walls = {k: [] for k in rows}
-        cpus = {k: [] for k in rows}
-        first = []
+        for src in trees.values():
+            timed(rows["tracker track of one still (whole command)"], src)  # warms the cache
+        walls = {(t, k): [] for t in trees for k in rows}
+        cpus = {(t, k): [] for t in trees for k in rows}
+        first = {t: [] for t in trees}
         for _ in range(args.repeats):
             for label, cmd in rows.items():
-                wall, cpu, stdout, t0 = timed(cmd)
-                if label.startswith("process start"):
-                    res = json.loads(stdout.strip().splitlines()[-1])
-                    first.append((res["import"] - t0, res["stamps"][0] - t0))
-                    wall = res["stamps"][0] - t0
-                walls[label].append(wall)
-                cpus[label].append(cpu)
+                for tree, src in trees.items():
+                    wall, cpu, stdout, t0 = timed(cmd, src)
+                    if label.startswith("process start"):
+                        res = json.loads(stdout.strip().splitlines()[-1])
+                        first[tree].append((res["import"] - t0, res["stamps"][0] - t0))
+                        wall = res["stamps"][0] - t0
+                    walls[tree, label].append(wall)
+                    cpus[tree, label].append(cpu)
     print(f"bench_startup: median of {args.repeats} fresh processes each, warm numba cache, "
-          f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
-    print(f"  {'':58s} {'wall s':>8s} {'CPU s':>8s}")
-    for label in rows:
-        print(f"  {label:58s} {statistics.median(walls[label]):8.2f} {statistics.median(cpus[label]):8.2f}")
-    imp = statistics.median(a for a, _ in first)
-    frame = statistics.median(b - a for a, b in first)
-    print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration and start search "
-          f"included) {frame:.2f} s (wall, medians); CPU of the whole child above")
+          f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}"
+          + (f"; peer: {args.peer}" if args.peer is not None else ""))
+    for tree in trees:
+        print(f"  {tree + ':':58s} {'wall s':>8s} {'CPU s':>8s}")
+        for label in rows:
+            print(f"  {label:58s} {statistics.median(walls[tree, label]):8.2f} "
+                  f"{statistics.median(cpus[tree, label]):8.2f}")
+        imp = statistics.median(a for a, _ in first[tree])
+        frame = statistics.median(b - a for a, b in first[tree])
+        print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration and start search "
+              f"included) {frame:.2f} s (wall, medians); CPU of the whole child above")
 
 
 if __name__ == "__main__":
