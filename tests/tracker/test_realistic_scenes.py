@@ -2,6 +2,8 @@
 specification, resized rendered hands and their truth file, the realistic-scenes experiment."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -34,7 +36,9 @@ def test_every_clutter_element_has_its_own_label_and_the_hand_is_untouched(hand,
     plain = render(hand, theta, cam)
     r = render(hand, theta, cam, clutter="sleeve,torso=0.1,table,cylinder", color=True, reflectance=True)
     present = {k for k, v in CLUTTER_LABELS.items() if (r.labels == v).sum() > 200}
-    assert present == set(CLUTTER_LABELS)  # forearm (bare near the wrist), sleeve, torso, table, object
+    # a sleeved upper arm is cloth (the sleeve's label): the bare upper arm's label shows in a scene of its own
+    assert present == set(CLUTTER_LABELS) - {"upper_arm"}  # forearm (bare near the wrist), sleeve, torso, table, object
+    assert (render(hand, theta, cam, clutter="upperarm").labels == CLUTTER_LABELS["upper_arm"]).sum() > 200
     assert len(set(CLUTTER_LABELS.values()) | {-1}) == len(CLUTTER_LABELS) + 1 and max(CLUTTER_LABELS.values()) < -1
     hand_px = r.labels >= 0
     assert np.array_equal(hand_px, r.hand_mask)
@@ -117,6 +121,150 @@ def test_clutter_parse_and_errors():
             Clutter.parse(bad)
     with pytest.raises(TrackerError):
         Clutter(forearm=False, sleeve=True)
+
+
+# ----------------------------------------------------------------------------- the upper arm
+@pytest.fixture(scope="module")
+def raised(theta):
+    """The test posture 15 cm higher in the image, so the elbow and a sideways upper arm are in view."""
+    out = theta.copy()
+    out[1] -= 0.15
+    return out
+
+
+def _elbow(hand, th, c):
+    """The forearm's far end, wrist frame (0, −forearm_length_m, 0), in the camera frame."""
+    G0 = hand.node_frames(th)[0]
+    return G0[:3, :3] @ np.array([0.0, -c.forearm_length_m, 0.0]) + G0[:3, 3]
+
+
+def _depth_components(mask, depth, tol):
+    """Sizes of the pieces of ``mask`` joined by 4-neighbours whose depths differ by < ``tol`` (largest first)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    idx = np.full(mask.shape, -1)
+    idx[mask] = np.arange(mask.sum())
+    rows, cols = [], []
+    for a, b in ((np.s_[:-1, :], np.s_[1:, :]), (np.s_[:, :-1], np.s_[:, 1:])):
+        ok = mask[a] & mask[b] & (np.abs(depth[a] - depth[b]) < tol)
+        rows.append(idx[a][ok])
+        cols.append(idx[b][ok])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    n = int(mask.sum())
+    _, lab = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
+    return np.sort(np.bincount(lab))[::-1]
+
+
+@pytest.mark.parametrize("direction", [None, (1.0, 0.0, 0.0), (0.0, 0.6, 0.8)])
+def test_upper_arm_joins_the_forearm_at_the_elbow(hand, cam, raised, direction):
+    """Forearm and upper arm are one surface: their pixels form one piece whose neighbours differ by < 3 cm in
+    depth (the default arm, one sideways in the image, one down and away), and where the two labels touch near
+    the elbow's pixel the depth steps by < 1 cm somewhere. The elbow follows the hand."""
+    c = Clutter(upper_arm=True) if direction is None else Clutter(upper_arm=True, upper_arm_dir=direction)
+    ren = DepthRenderer(hand, cam)
+    r = ren.render(raised, clutter=c)
+    fore, upper = r.labels == CLUTTER_LABELS["forearm"], r.labels == CLUTTER_LABELS["upper_arm"]
+    assert fore.sum() > 1000 and upper.sum() > 300
+    sizes = _depth_components(fore | upper, r.depth, 0.03)
+    assert sizes[0] == (fore | upper).sum(), sizes[:4]
+    e = _elbow(hand, raised, c)
+    ue, ve = cam.fx * e[0] / e[2] + cam.cx, cam.fy * e[1] / e[2] + cam.cy
+    near = np.hypot(*np.meshgrid(np.arange(cam.width) - ue, np.arange(cam.height) - ve)) < 30
+    steps = [np.abs(r.depth[a] - r.depth[b])[((fore[a] & upper[b]) | (upper[a] & fore[b])) & near[a]]
+             for a, b in ((np.s_[:-1, :], np.s_[1:, :]), (np.s_[:, :-1], np.s_[:, 1:]))]
+    assert np.concatenate(steps).min() < 0.01
+    # the upper arm's surface nearest the elbow lies within its half-thickness (+ 1 cm) of it
+    v, u = np.nonzero(upper)
+    z = r.depth[v, u].astype(float)
+    X = np.stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z], 1)
+    assert np.linalg.norm(X - e, axis=1).min() < c.upper_arm_elbow_m[1] + 0.01
+    # a hand 5 cm to the right takes its elbow and upper arm along: the label's columns shift by fx·0.05/z
+    moved = raised.copy()
+    moved[0] += 0.05
+    m = ren.render(moved, clutter=c).labels == CLUTTER_LABELS["upper_arm"]
+    shift = np.nonzero(m)[1].mean() - u.mean()
+    assert abs(shift - cam.fx * 0.05 / np.median(z)) < 4, shift
+
+
+def test_upper_arm_runs_its_length_along_its_direction(hand, cam, raised):
+    """Sideways in the image the whole upper arm is seen: its far cap ends ``upper_arm_length_m`` from the
+    elbow along the direction (the farthest pixel within 3 px of the cap's projection), half as long at half the
+    length."""
+    for length in (0.30, 0.15):
+        c = Clutter(upper_arm=True, upper_arm_dir=(1.0, 0.0, 0.0), upper_arm_length_m=length)
+        r = render(hand, raised, cam, clutter=c)
+        e = _elbow(hand, raised, c)
+        far = e + (length, 0.0, 0.0)
+        u_far = cam.fx * far[0] / (far[2] - c.upper_arm_shoulder_m[1]) + cam.cx  # the cap's nearest edge
+        cols = np.nonzero(r.labels == CLUTTER_LABELS["upper_arm"])[1]
+        assert abs(cols.max() - u_far) < 3, (length, cols.max(), u_far)
+
+
+def test_default_upper_arm_goes_back_behind_the_elbow(hand, cam, raised):
+    """The default arm runs away from the camera: its seen surface reaches ≥ 10 cm deeper than the elbow (the
+    far end 0.24 m deeper, hidden behind the forearm or past the torso's front), and it is skin."""
+    c = Clutter(upper_arm=True)
+    r = render(hand, raised, cam, clutter=c, reflectance=True)
+    upper = r.labels == CLUTTER_LABELS["upper_arm"]
+    e = _elbow(hand, raised, c)
+    assert np.nanmax(r.depth[upper]) > e[2] + 0.10
+    d = np.asarray(c.upper_arm_dir) / np.linalg.norm(c.upper_arm_dir)
+    assert (e + c.upper_arm_length_m * d)[2] > e[2] + 0.2
+    assert np.allclose(r.reflectance[upper], MATERIALS["skin"][2])
+
+
+def test_upper_arm_off_by_default_and_its_settings_then_change_nothing(hand, cam, raised):
+    """No ``upperarm`` token, no upper arm: the frame is bit-identical whatever the absent arm's length or
+    direction, and the token changes it."""
+    base = Clutter.parse("forearm,torso")
+    assert Clutter().upper_arm is False and base.upper_arm is False
+    a = render(hand, raised, cam, clutter="forearm,torso", color=True, reflectance=True)
+    odd = replace(base, upper_arm=False, upper_arm_length_m=0.6, upper_arm_dir=(1.0, 0.0, 0.0))
+    b = render(hand, raised, cam, clutter=odd, color=True, reflectance=True)
+    for x, y in ((a.depth, b.depth), (a.labels, b.labels), (a.color, b.color), (a.face, b.face),
+                 (a.reflectance, b.reflectance)):
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
+    on = render(hand, raised, cam, clutter="forearm,upperarm,torso")
+    assert (on.labels == CLUTTER_LABELS["upper_arm"]).sum() > 300 and not np.array_equal(on.labels, a.labels)
+
+
+def test_sleeved_upper_arm_is_cloth(hand, cam, raised):
+    """With a sleeve the upper arm is the sleeve's cloth (its label and dark material; no bare upper-arm pixel)
+    and as much wider than the bare arm as the sleeve is (``sleeve_scale`` × + ``sleeve_ease_m``)."""
+    side = {"upper_arm_dir": (1.0, 0.0, 0.0)}
+    bare = render(hand, raised, cam, clutter=Clutter(upper_arm=True, **side))
+    c = Clutter(sleeve=True, upper_arm=True, **side)
+    dressed = render(hand, raised, cam, clutter=c, reflectance=True)
+    sleeve_only = render(hand, raised, cam, clutter=Clutter(sleeve=True))
+    assert not (dressed.labels == CLUTTER_LABELS["upper_arm"]).any()
+    cloth = (dressed.labels == CLUTTER_LABELS["sleeve"]) & (sleeve_only.labels != CLUTTER_LABELS["sleeve"])
+    assert cloth.sum() > 1000 and np.allclose(dressed.reflectance[cloth], MATERIALS["sleeve"][2])
+    e = _elbow(hand, raised, c)
+    col = int(round(cam.fx * (e[0] + 0.15) / e[2] + cam.cx))  # halfway along the arm
+    h = c.upper_arm_elbow_m[0] + 0.5 * (c.upper_arm_shoulder_m[0] - c.upper_arm_elbow_m[0])
+    widen = 2 * ((c.sleeve_scale - 1) * h + c.sleeve_ease_m) * cam.fy / e[2]  # ≈ 29 px
+    rows_bare = (bare.labels[:, col] == CLUTTER_LABELS["upper_arm"]).sum()
+    rows_dressed = (dressed.labels[:, col] == CLUTTER_LABELS["sleeve"]).sum()
+    assert abs(rows_dressed - rows_bare - widen) < 4, (rows_bare, rows_dressed, widen)
+
+
+def test_upper_arm_parse_describe_round_trip_and_errors():
+    for spec, text in (("upperarm", "forearm+upperarm"), ("forearm,upperarm,torso", "forearm+upperarm,torso@0.15m"),
+                       ("sleeve,upperarm,torso=0.05,box", "forearm+sleeve+upperarm,torso@0.05m,box"),
+                       ("sleeve,torso=0.2,cylinder,table", "forearm+sleeve,torso@0.2m,table,cylinder")):
+        c = Clutter.parse(spec)
+        assert c.describe() == text and Clutter.parse(text) == c
+    c = Clutter.parse("upperarm")
+    assert c.forearm and c.upper_arm and c.parts == ("forearm", "upper_arm")
+    for bad in ("upperarm=0.3", "arm"):
+        with pytest.raises(TrackerError):
+            Clutter.parse(bad)
+    with pytest.raises(TrackerError):
+        Clutter(forearm=False, upper_arm=True)
+    for kw in ({"upper_arm_dir": (0.0, 0.0, 0.0)}, {"upper_arm_length_m": 0.0}, {"upper_arm_elbow_m": (0.04, -0.01)}):
+        with pytest.raises(TrackerError):
+            Clutter(upper_arm=True, **kw)
 
 
 def test_fixed_clutter_does_not_follow_the_hand(hand, cam, theta):
@@ -327,6 +475,11 @@ def test_clutter_sized_scales_the_arm_with_the_hand():
     assert np.allclose(c.forearm_wrist_m, np.multiply(1.3, base.forearm_wrist_m))
     assert np.allclose(c.forearm_far_m, np.multiply(1.3, base.forearm_far_m))
     assert np.isclose(c.sleeve_start_m, 1.3 * base.sleeve_start_m)
+    up, up_base = Clutter.parse("upperarm").sized(0.8), Clutter.parse("upperarm")
+    assert np.isclose(up.upper_arm_length_m, 0.8 * up_base.upper_arm_length_m)
+    assert np.allclose(up.upper_arm_elbow_m, np.multiply(0.8, up_base.upper_arm_elbow_m))
+    assert np.allclose(up.upper_arm_shoulder_m, np.multiply(0.8, up_base.upper_arm_shoulder_m))
+    assert up.upper_arm_dir == up_base.upper_arm_dir  # the shoulder's direction is the body's, not a size
     assert c.torso_size_m == base.torso_size_m and c.torso_gap_m == base.torso_gap_m  # the body stays
     assert base.sized(1.0) is base
 

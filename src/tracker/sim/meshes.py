@@ -1,5 +1,5 @@
-"""Closed triangle meshes of the renderer's clutter (:class:`tracker.sim.render.Clutter`): the forearm and
-its sleeve as tapered elliptic tubes, the torso and the box as superellipsoids, the cylinder; faces
+"""Closed triangle meshes of the renderer's clutter (:class:`tracker.sim.render.Clutter`): the forearm, its
+sleeve and the upper arm as tapered elliptic tubes, the torso and the box as superellipsoids, the cylinder; faces
 oriented outward, as the renderer's back-face culling needs."""
 from __future__ import annotations
 
@@ -58,6 +58,38 @@ def sleeve_mesh(c: Clutter):
     half0 = [c.sleeve_scale * (w + s0 * (f - w)) + c.sleeve_ease_m for w, f in zip(c.forearm_wrist_m, c.forearm_far_m)]
     half1 = [c.sleeve_scale * f + c.sleeve_ease_m for f in c.forearm_far_m]
     return tube(-c.sleeve_start_m, -c.forearm_length_m - 0.01, half0, half1, n_rings=6)
+
+
+def arm_frame(direction):
+    """Rotation (3, 3) whose y column is the unit ``direction`` and whose x column lies in the camera's image
+    plane (perpendicular to the optical axis z, or camera x when ``direction`` is along z): a tube built along y
+    and rotated by it shows its width, not its thickness, to the camera. A proper rotation (determinant +1),
+    so the tube's outward faces stay outward.
+
+    >>> R = arm_frame((0.0, -0.6, 0.8))
+    >>> np.round(R[:, 1], 3).tolist(), round(float(R[2, 0]), 12), round(float(np.linalg.det(R)), 12)
+    ([0.0, -0.6, 0.8], 0.0, 1.0)
+    """
+    y = np.asarray(direction, float)
+    y = y / np.linalg.norm(y)
+    x = np.cross(y, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-9:  # straight along the optical axis: any width direction is as good
+        x = np.array([1.0, 0.0, 0.0])
+    x = x / np.linalg.norm(x)
+    return np.stack([x, y, np.cross(x, y)], 1)
+
+
+def upper_arm_mesh(c: Clutter):
+    """The upper arm about the elbow, in camera axes (vertices, outward faces): a tube from
+    ``upper_arm_elbow_m`` half-axes at the elbow to ``upper_arm_shoulder_m`` at ``upper_arm_length_m``
+    along ``upper_arm_dir``. It starts its elbow half-width behind the elbow (inside the forearm's end), so
+    a bent elbow shows a rounded point and no crack between the two tubes. With ``c.sleeve`` it is the
+    sleeve's cloth, widened as the sleeve is (``sleeve_scale`` × + ``sleeve_ease_m``)."""
+    h0, h1 = c.upper_arm_elbow_m, c.upper_arm_shoulder_m
+    if c.sleeve:
+        h0, h1 = ([c.sleeve_scale * v + c.sleeve_ease_m for v in h] for h in (h0, h1))
+    V, F = tube(-h0[0], c.upper_arm_length_m, h0, h1, n_around=24, n_rings=8)
+    return np.ascontiguousarray(V @ arm_frame(c.upper_arm_dir).T), F
 
 
 def superellipsoid(half, e, n_lat=28, n_lon=56):
