@@ -212,6 +212,11 @@ def test_default_upper_arm_goes_back_behind_the_elbow(hand, cam, raised):
     d = np.asarray(c.upper_arm_dir) / np.linalg.norm(c.upper_arm_dir)
     assert (e + c.upper_arm_length_m * d)[2] > e[2] + 0.2
     assert np.allclose(r.reflectance[upper], MATERIALS["skin"][2])
+    # and it does not bulge toward the camera past the forearm's front at the elbow, which no elbow does
+    fore = r.labels == CLUTTER_LABELS["forearm"]
+    ue, ve = cam.fx * e[0] / e[2] + cam.cx, cam.fy * e[1] / e[2] + cam.cy
+    near = np.hypot(*np.meshgrid(np.arange(cam.width) - ue, np.arange(cam.height) - ve)) < 40
+    assert np.nanmin(r.depth[upper]) >= np.nanmin(r.depth[fore & near]) - 0.003
 
 
 def test_upper_arm_off_by_default_and_its_settings_then_change_nothing(hand, cam, raised):

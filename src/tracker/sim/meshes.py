@@ -82,13 +82,14 @@ def arm_frame(direction):
 def upper_arm_mesh(c: Clutter):
     """The upper arm about the elbow, in camera axes (vertices, outward faces): a tube from
     ``upper_arm_elbow_m`` half-axes at the elbow to ``upper_arm_shoulder_m`` at ``upper_arm_length_m``
-    along ``upper_arm_dir``. It starts its elbow half-width behind the elbow (inside the forearm's end), so
-    a bent elbow shows a rounded point and no crack between the two tubes. With ``c.sleeve`` it is the
-    sleeve's cloth, widened as the sleeve is (``sleeve_scale`` × + ``sleeve_ease_m``)."""
+    along ``upper_arm_dir``. It starts at the elbow itself, its first ring around the forearm's end: started
+    behind the elbow (an olecranon) it would stick out toward the camera past the forearm's front wherever the
+    arm runs away from the camera, nearer than any real elbow is. With ``c.sleeve`` it is the sleeve's cloth,
+    widened as the sleeve is (``sleeve_scale`` × + ``sleeve_ease_m``)."""
     h0, h1 = c.upper_arm_elbow_m, c.upper_arm_shoulder_m
     if c.sleeve:
         h0, h1 = ([c.sleeve_scale * v + c.sleeve_ease_m for v in h] for h in (h0, h1))
-    V, F = tube(-h0[0], c.upper_arm_length_m, h0, h1, n_around=24, n_rings=8)
+    V, F = tube(0.0, c.upper_arm_length_m, h0, h1, n_around=24, n_rings=8)
     return np.ascontiguousarray(V @ arm_frame(c.upper_arm_dir).T), F
 
 
