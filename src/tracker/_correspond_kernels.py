@@ -41,13 +41,17 @@ def match(G, caps, points, normals, rules, out):
     Returns the number of valid pairs."""
     closest_points_facing(G, caps.node, caps.shape, caps.length, caps.r0, caps.r1, caps.thickness, points,
                           rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d)
-    use_n = normals.shape[0] == points.shape[0] and rules.agreement > -1.0
+    # the tuples' arrays as locals before the loop: an array taken from a tuple inside it costs a
+    # reference count update at each use
+    node, seg, out_n, out_d, out_node, out_valid = caps.node, out.seg, out.n, out.d, out.node, out.valid
+    reject, agreement = rules.reject_m, rules.agreement
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
     nv = 0
     for i in range(points.shape[0]):
-        s = out.seg[i]
-        out.node[i] = caps.node[s] if s >= 0 else 0
-        ok = s >= 0 and _pair_ok(normals, out.n, out.d, i, rules.reject_m, rules.agreement, use_n)
-        out.valid[i] = ok
+        s = seg[i]
+        out_node[i] = node[s] if s >= 0 else 0
+        ok = s >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
+        out_valid[i] = ok
         if ok:
             nv += 1
     return nv
@@ -70,34 +74,36 @@ def match_same(G, caps, points, normals, rules, out):
     """:func:`match` with every point kept on the primitive it was matched to (``out.seg``): its
     closest point there at the frames ``G``, no search over the others (a point whose primitive now
     faces away, or that had none, is left unpaired). Returns the number of valid pairs."""
-    use_n = normals.shape[0] == points.shape[0] and rules.agreement > -1.0
-    out_p, out_n, out_d, out_valid = out.p, out.n, out.d, out.valid
-    cam = rules.camera
+    # the tuples' arrays as locals before the loop (see match)
+    out_p, out_n, out_d, out_valid, seg = out.p, out.n, out.d, out.valid, out.seg
+    node, shape, length, r0, r1, thickness = caps.node, caps.shape, caps.length, caps.r0, caps.r1, caps.thickness
+    cam, facing_only, reject, agreement = rules.camera, rules.facing_only, rules.reject_m, rules.agreement
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
     q = np.empty(3)
     loc = np.empty(7)
     nv = 0
     for i in range(points.shape[0]):
-        s = out.seg[i]
+        s = seg[i]
         out_valid[i] = False
         if s < 0:
             continue
-        j = caps.node[s]
+        j = node[s]
         d0 = points[i, 0] - G[j, 0, 3]
         d1 = points[i, 1] - G[j, 1, 3]
         d2 = points[i, 2] - G[j, 2, 3]
         for r in range(3):
             q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
-        closest_local(caps.shape[s], caps.length[s], caps.r0[s], caps.r1[s], caps.thickness[s], q, loc)
+        closest_local(shape[s], length[s], r0[s], r1[s], thickness[s], q, loc)
         for r in range(3):
             out_p[i, r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
             out_n[i, r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
         out_d[i] = abs(loc[6])
-        if rules.facing_only:
+        if facing_only:
             view = ((out_p[i, 0] - cam[0]) * out_n[i, 0] + (out_p[i, 1] - cam[1]) * out_n[i, 1]
                     + (out_p[i, 2] - cam[2]) * out_n[i, 2])
             if view > 0.0:
                 continue
-        ok = _pair_ok(normals, out_n, out_d, i, rules.reject_m, rules.agreement, use_n)
+        ok = _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
         out_valid[i] = ok
         if ok:
             nv += 1

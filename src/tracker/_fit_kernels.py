@@ -735,8 +735,9 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
             # the same directions through θ; θ itself is always admitted (see tracker.icp.through)
             a = np.empty(m)
             _to_alpha(theta, M, mu, m, stages.eye[s], a)
+            pose_mask = stages.pose_mask
             for r in range(n):
-                mu[r] = 0.0 if stages.pose_mask[r] else theta[r]
+                mu[r] = 0.0 if pose_mask[r] else theta[r]
             for c in range(m):
                 lo[c] = min(lo[c] - a[c], 0.0)
                 hi[c] = max(hi[c] - a[c], 0.0)
