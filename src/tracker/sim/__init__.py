@@ -6,7 +6,7 @@ Modules
 render
     :class:`~tracker.sim.render.DepthRenderer` / :func:`~tracker.sim.render.render`: the LBS-posed
     hand mesh z-buffered through a pinhole camera (depth, segment labels, colour, incidence), with
-    optional :class:`~tracker.sim.render.Clutter` (bare or sleeved forearm, torso, table, box or
+    optional :class:`~tracker.sim.clutter.Clutter` (bare or sleeved forearm, torso, table, box or
     cylinder), each clutter element with its own label.
 meshes
     The clutter's closed triangle meshes (forearm and sleeve tubes, torso and box superellipsoids, cylinder).

@@ -69,7 +69,7 @@ def synth(
     from .motions import make_motion
     from .noise import NoiseModel
     from ..io.cameras import as_camera
-    from .render import Clutter
+    from .clutter import Clutter
     from .synthesize import synthesize
 
     clut = Clutter.parse(clutter)

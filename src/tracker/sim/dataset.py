@@ -45,7 +45,8 @@ from ..errors import TrackerError
 from .hands import FINGERS, HandShape
 from .motions import FACING, FIST, POSTURES, fingerfist_path, hand_centre, read_schroeder26
 from .noise import NoiseModel
-from .render import Clutter, DepthRenderer
+from .clutter import Clutter
+from .render import DepthRenderer
 
 #: Sensors: camera intrinsics and the noise preset drawn with them. D4xx: a D435's depth stream at
 #: 640×480 (fx ≈ 383 px; the exact value differs by unit).

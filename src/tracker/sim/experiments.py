@@ -32,7 +32,8 @@ from ..track import FrameTracker, TrackerSettings
 from .hands import FINGERS, HandShape, wrist_to_middle_tip_mm
 from .motions import GlobalPath, fingerfist_path, hand_centre, make_motion, read_schroeder26, with_path
 from .noise import NoiseModel
-from .render import Clutter, DepthRenderer
+from .clutter import Clutter
+from .render import DepthRenderer
 
 PAPER = {
     "fig8_error_5icp_deg": 2.0, "fig9_ms_stride3": 40.0, "occluded_full_deg": 12.0, "occluded_reduced_deg": 4.0,
@@ -309,7 +310,7 @@ def experiment_single_frame(hand, bundle, camera, n=12, icp=30, seed=0, methods=
 
 
 # ------------------------------------------------------------------------------ realistic scenes
-#: Scene label → clutter spec (:meth:`tracker.sim.render.Clutter.parse`); every cluttered scene has the forearm,
+#: Scene label → clutter spec (:meth:`tracker.sim.clutter.Clutter.parse`); every cluttered scene has the forearm,
 #: as a real hand does.
 REALISTIC_SCENES = {"hand alone": None, "+forearm": "forearm", "+forearm+torso": "forearm,torso",
                     "+table": "forearm,table", "+object": "forearm,box",

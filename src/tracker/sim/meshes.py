@@ -1,4 +1,4 @@
-"""Closed triangle meshes of the renderer's clutter (:class:`tracker.sim.render.Clutter`): the forearm, its
+"""Closed triangle meshes of the renderer's clutter (:class:`tracker.sim.clutter.Clutter`): the forearm, its
 sleeve and the upper arm as tapered elliptic tubes, the torso and the box as superellipsoids, the cylinder; faces
 oriented outward, as the renderer's back-face culling needs."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 from handmodel import libm
 
 if TYPE_CHECKING:
-    from .render import Clutter
+    from .clutter import Clutter
 
 
 def closed_mesh(rings):

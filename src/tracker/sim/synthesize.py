@@ -24,7 +24,8 @@ from .hands import HandShape, wrist_to_middle_tip_mm, write_hand_truth
 from .motions import Motion, hand_centre, make_motion
 from .noise import NoiseModel
 from ..io.cameras import as_camera
-from .render import Clutter, DepthRenderer
+from .clutter import Clutter
+from .render import DepthRenderer
 
 
 @dataclass(frozen=True)
