@@ -50,7 +50,7 @@ class SafetyNet:
         the net stops seeing them (the threshold 1.2 → 6.7 mm in 80 frames, the posture 23° off)."""
         q = self.settings.level_quantile
         # the median itself at 0.5 (paper()): np.quantile's interpolation differs from it in the last bit
-        level = max((np.median(self._scores) if q == 0.5 else np.quantile(self._scores, q)) if self._scores else 0.0,
+        level = max((np.median(self._scores) if q == 0.5 else linear_quantile(self._scores, q)) if self._scores else 0.0,
                     self.search_level)
         return max(self.settings.score_mm, self.settings.score_ratio * level)
 
@@ -182,6 +182,30 @@ class SafetyNet:
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
         self.stats.net_cut += bool(budget.cut_)
         return best
+
+
+def linear_quantile(values, q) -> float:
+    """``np.quantile(values, q)`` (its default, linear method) of a short sequence, to the last bit: the
+    same index and interpolation arithmetic on the sorted values, without numpy's ~40 µs a call (the net's
+    threshold takes it on most frames of a cluttered scene).
+
+    >>> linear_quantile([3.0, 1.0, 2.0, 10.0], 0.25), float(np.quantile([3.0, 1.0, 2.0, 10.0], 0.25))
+    (1.75, 1.75)
+    """
+    a = sorted(float(x) for x in values)
+    n = len(a)
+    if any(x != x for x in a):
+        return math.nan
+    v = (n - 1) * q  # numpy's virtual index of the linear method
+    if v >= n - 1:
+        return a[-1]
+    if v < 0:
+        return a[0]
+    lo = math.floor(v)
+    t = v - lo
+    x, y = a[int(lo)], a[int(lo) + 1]
+    d = y - x
+    return y - d * (1 - t) if t >= 0.5 else x + d * t
 
 
 def pose_change(a, b) -> tuple:

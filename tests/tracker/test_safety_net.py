@@ -3,8 +3,11 @@ prediction and the rejection radius reach (a dropped run of frames, a fast turn)
 the same frame, an easy sequence never calls the search, and the paper's method has neither."""
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from handmodel.rigid import euler_to_matrix, matrix_to_euler
 from tracker.io.cameras import preset
@@ -411,3 +414,15 @@ def test_reduced_mode_does_not_call_a_fit_on_the_body_tracked(tmp_path):
             lost = df["status"].to_numpy() == "lost"
             assert np.isnan(theta[lost]).all()
     assert worst["--safety-net"] <= 30.0 and worst["--no-safety-net"] > 100.0, worst
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=40),
+       st.floats(0.0, 1.0, allow_nan=False))
+def test_the_nets_quantile_is_numpys_to_the_last_bit(values, q):
+    """The net's level (``linear_quantile``) equals numpy's default quantile bit for bit, for any length,
+    ties and quantile: an off-by-one index, the other interpolation form (a·(1−t) + b·t) or numpy's older
+    virtual index (n·q + 1 − q − 1) each fail."""
+    from tracker.net import linear_quantile
+
+    assert linear_quantile(collections.deque(values), q) == float(np.quantile(values, q))
