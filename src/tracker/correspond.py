@@ -19,6 +19,7 @@ from handmodel.geometry import surface_samples
 from ._kernel_arrays import SampleArrays, SilhouetteArrays
 from ._silhouette_kernels import feature_transform, silhouette_pairs_kernel
 from .errors import TrackerError
+from .segment.ops import bounds
 from .settings_base import SettingsGroup
 
 
@@ -215,29 +216,6 @@ class ModelSamples:
         return P, N
 
 
-def mask_rows(mask):
-    """``(first, last)``: the first and the last row of a 2-D bool ``mask`` holding a pixel, or None
-    when it holds none.
-
-    >>> m = np.zeros((40, 8), bool); m[[3, 30], [5, 1]] = True
-    >>> mask_rows(m), mask_rows(np.zeros((2, 2), bool))
-    ((3, 30), None)
-    """
-    flat = mask.reshape(-1)
-    first = int(flat.argmax())  # numpy stops at the first True: a few µs where any(1) takes ~20 on a VGA frame
-    if not flat[first]:
-        return None
-    first //= mask.shape[1]
-    hi = mask.shape[0]
-    # the last row from the bottom up, in blocks of rows (a reversed view would be copied)
-    while True:
-        lo = max(hi - 32, first)
-        block = mask[lo:hi].reshape(-1)
-        if block[block.argmax()]:
-            return first, lo + int(np.flatnonzero(mask[lo:hi].any(1))[-1])
-        hi = lo
-
-
 class Silhouette:
     """The hand silhouette of one frame with its distance transform (on the bounding box of the mask
     plus a margin; computed once, when first used: the paper's method fits without it)."""
@@ -246,16 +224,15 @@ class Silhouette:
         self.mask = np.asarray(mask, bool)
         self.depth = depth
         self.camera = camera
-        rows = mask_rows(self.mask)
-        self.empty = rows is None
+        flat = self.mask.reshape(-1)
+        self.empty = not flat[flat.argmax()]  # argmax stops at the first set pixel
         if self.empty:
             return
-        # the columns over the mask's rows only (a hand is a small part of the frame)
-        cols = np.flatnonzero(self.mask[rows[0]:rows[-1] + 1].any(0))
-        self.v0 = max(rows[0] - margin, 0)
-        self.u0 = max(cols[0] - margin, 0)
-        v1 = min(rows[-1] + margin + 1, self.mask.shape[0])
-        u1 = min(cols[-1] + margin + 1, self.mask.shape[1])
+        (r0, r1), (c0, c1) = bounds(self.mask)
+        self.v0 = max(r0 - margin, 0)
+        self.u0 = max(c0 - margin, 0)
+        v1 = min(r1 + margin + 1, self.mask.shape[0])
+        u1 = min(c1 + margin + 1, self.mask.shape[1])
         # the window as it is now: the transform is made later, of what this frame's mask was
         self._sub = self.mask[self.v0:v1, self.u0:u1].copy()
 

@@ -551,6 +551,29 @@ def test_mask_bounds_are_numpys(h, w, share, seed, strided):
     assert got == (rows[0], rows[-1], cols[0], cols[-1])
 
 
+@settings(max_examples=150, deadline=None)
+@given(st.integers(150, 500), st.integers(270, 700), st.integers(0, 6), st.integers(0, 2**32 - 1), st.booleans())
+def test_whole_frame_bounds_are_numpys(h, w, n_set, seed, strided):
+    """The bounds of a mask past the compiled scan's size (rows found by argmax, the last one from the
+    bottom up in blocks; columns over those rows) are numpy's ends of the rows and columns holding a set
+    pixel, for a few pixels anywhere (a first or last row inside a block, at a block's edge, at the
+    frame's edge) and strided views; an empty mask raises."""
+    from tracker.segment.ops import BOUNDS_SCAN_MAX_PIXELS, bounds
+
+    rng = np.random.default_rng(seed)
+    m = np.zeros((h, 2 * w if strided else w), bool)
+    m[rng.integers(0, h, n_set), rng.integers(0, m.shape[1], n_set)] = True
+    if strided:
+        m = m[:, ::2]
+    assert m.size > BOUNDS_SCAN_MAX_PIXELS
+    if not m.any():
+        with pytest.raises(ValueError):
+            bounds(m)
+        return
+    rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+    assert bounds(m) == ((rows[0], rows[-1]), (cols[0], cols[-1]))
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.lists(st.one_of(st.floats(0.1, 5.0), st.just(float("nan")), st.just(float("inf"))), max_size=40),
        st.booleans())
