@@ -3,16 +3,18 @@
 :func:`track_recording` (or :func:`track_realtime`) tracks every frame of a recording into a table;
 :class:`TrackJob` and :func:`run_job` are the one path of ``tracker track`` and ``tracker live``
 (open, track, write the tracking output of :mod:`tracker.io.tracking_file`, keypoints, overlays, Rerun);
-:func:`calibrate_job` is ``tracker calibrate``'s. Many recordings: :mod:`tracker.batch`.
+:func:`calibrate_job` is ``tracker calibrate``'s. Many recordings: :mod:`tracker.batch`. :func:`run_job` keeps
+its table as a :class:`tracker.io.tracking_file.FrameTable` and writes it without pandas (pandas is loaded
+when its DataFrame is asked for: :attr:`TrackRun.df`).
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from handmodel.model import HandModel
 
@@ -20,7 +22,7 @@ from . import TRACKING_HAND
 from .errors import TrackerError
 from .observe import observe
 from .io.recording import Recording
-from .io.tracking_file import FRAME_COLUMNS, tracking_metadata, write_keypoints, write_tracking
+from .io.tracking_file import FRAME_COLUMNS, FrameTable, tracking_metadata, write_keypoints, write_tracking
 from .scale import calibrated_hand
 from .track import FrameTracker, TrackerSettings
 
@@ -37,7 +39,7 @@ def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
                    window=tracker.segment_window(camera) if window else None)
 
 
-def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.DataFrame:
+def track_recording(recording, tracker, on_frame=None, *, segmenter=None, frame_table: bool = False):
     """Track every frame of ``recording`` (anything with ``camera`` that iterates frames with
     ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`FrameTracker`).
 
@@ -45,7 +47,8 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
     cannot be read: :meth:`tracker.io.recording.Recording.frames_or_problems`, the frame's ``problem``) is
     tracked as empty, so it is lost. ``on_frame(frame, result, observation)`` is called after each frame
     (``observation`` None for an unusable one): progress, overlays, keypoints. Returns one row per frame
-    (:data:`FRAME_COLUMNS` and the hand's DoF names)."""
+    (:data:`FRAME_COLUMNS` and the hand's DoF names): a pandas DataFrame, or with ``frame_table`` a
+    :class:`tracker.io.tracking_file.FrameTable` (pandas not loaded)."""
     cam = recording.camera
     rows = []
     frames = recording.frames_or_problems() if hasattr(recording, "frames_or_problems") else recording
@@ -56,11 +59,17 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None) -> pd.
                      0 if ob is None else len(ob.points), r.ms, *r.theta))
         if on_frame is not None:
             on_frame(frame, r, ob)
-    return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *tracker.hand.dof_names])
+    return _table(rows, tracker, frame_table)
+
+
+def _table(rows, tracker, frame_table):
+    """The tracked ``rows`` as :func:`track_recording` returns them: a DataFrame, or a FrameTable."""
+    table = FrameTable([*FRAME_COLUMNS, *tracker.hand.dof_names], rows)
+    return table if frame_table else table.to_frame()
 
 
 def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=None, pace: bool = False,
-                   dropped=None) -> pd.DataFrame:
+                   dropped=None, frame_table: bool = False):
     """:func:`track_recording` in real time: each frame is observed and fitted on a worker thread
     (:class:`tracker.realtime.FrameBudget`, or the one given as ``budget_ms``) and waited for at most
     ``budget_ms``; a frame whose fit
@@ -68,7 +77,8 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
     (:func:`tracker.realtime.predicted_theta`, status ``"predicted"``, no points, ``observation`` None
     for ``on_frame``). With ``pace`` the frames come at the recording's own rate
     (:func:`tracker.realtime.paced`; the late ones dropped and listed in ``dropped``), as from a sensor.
-    The rows are what was published, frame by frame, as a live user saw them."""
+    The rows are what was published, frame by frame, as a live user saw them (a DataFrame, or with
+    ``frame_table`` a :class:`tracker.io.tracking_file.FrameTable`)."""
     from .realtime import FrameBudget, paced, predicted_theta
     from .track import FrameResult
 
@@ -108,7 +118,7 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
         budget.wait()  # the last fit ends before the tracker's state is read (size, hand check)
     finally:
         budget.close()
-    return pd.DataFrame(rows, columns=[*FRAME_COLUMNS, *tracker.hand.dof_names])
+    return _table(rows, tracker, frame_table)
 
 
 @dataclass(frozen=True)
@@ -181,12 +191,12 @@ def open_job_recording(job: TrackJob):
 
 @dataclass
 class TrackRun:
-    """What :func:`run_job` did: the table and header written, the tracker (its hand size and
-    handedness check), the recording, the wall time, the overlay frames written, the Rerun file and
-    warnings (a spawned viewer that went away); ``unreadable``: why frames could not be read (each
-    tracked as lost, the outputs written all the same)."""
+    """What :func:`run_job` did: the table (a :class:`tracker.io.tracking_file.FrameTable`; :attr:`df` as a
+    DataFrame) and header written, the tracker (its hand size and handedness check), the recording, the
+    wall time, the overlay frames written, the Rerun file and warnings (a spawned viewer that went away);
+    ``unreadable``: why frames could not be read (each tracked as lost, the outputs written all the same)."""
 
-    df: pd.DataFrame
+    table: FrameTable
     meta: dict
     tracker: FrameTracker
     recording: object
@@ -196,6 +206,11 @@ class TrackRun:
     warnings: list = field(default_factory=list)
     unreadable: list = field(default_factory=list)  # the problems of frames whose files could not be read
     dropped: list = field(default_factory=list)  # real time, paced: the frames the loop was too late for
+
+    @cached_property
+    def df(self):
+        """The table as a pandas DataFrame (pandas is loaded at the first call)."""
+        return self.table.to_frame()
 
 
 def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
@@ -251,10 +266,10 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     t_start = time.perf_counter()
     try:
         if job.budget_ms is None:
-            df = track_recording(rec, tracker, each, segmenter=job.segmenter)
+            table = track_recording(rec, tracker, each, segmenter=job.segmenter, frame_table=True)
         else:
-            df = track_realtime(rec, tracker, job.budget_ms, each, segmenter=job.segmenter, pace=job.pace,
-                                dropped=dropped)
+            table = track_realtime(rec, tracker, job.budget_ms, each, segmenter=job.segmenter, pace=job.pace,
+                                   dropped=dropped, frame_table=True)
     except BaseException:
         if viewer is not None:
             viewer.abort()
@@ -263,12 +278,12 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
     meta = tracking_metadata(job.recording, tracker, bundle.spec if bundle else "", bundle.path if bundle else "")
     try:
         # without overwrite a file that appeared while tracking is not replaced either
-        write_tracking(job.output, df, meta, overwrite=job.overwrite)
+        write_tracking(job.output, table, meta, overwrite=job.overwrite)
         if job.save_hand is not None:
             calibrated_hand(tracker, recording=job.recording, frames=calibration_frames).save(
                 job.save_hand, overwrite=job.overwrite)
         if job.keypoints is not None:
-            write_keypoints(job.keypoints, tracker.hand, df, meta, overwrite=job.overwrite)
+            write_keypoints(job.keypoints, tracker.hand, table, meta, overwrite=job.overwrite)
         if overlay is not None and job.overwrite:
             # an earlier run's overlays of other frames would pass for this run's (its settings, its fits)
             stale_overlays(overlay, written)
@@ -278,7 +293,7 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
         raise
     rrd = viewer.close() if viewer is not None else None
     warnings = [viewer.warning_] if viewer is not None and viewer.warning_ else []
-    return TrackRun(df, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable, dropped)
+    return TrackRun(table, meta, tracker, rec, wall_s, written, rrd, warnings, unreadable, dropped)
 
 
 def overlay_name(index: int) -> str:

@@ -15,8 +15,9 @@ from typing import List, Optional
 import typer
 
 from .cli_common import (BOX, COLOR_TOPIC, DEPTH_RANGE, FOREARM, HAND, PLANE, START, TOPIC, check_not_inputs,
-                         check_outputs, check_overlay_every, chosen_hand_model, hand_side, input_file,
-                         progress_bar, say_if_compiling, segmenter_from_options, settings_from_options, StartUp)
+                         check_outputs, check_overlay_every, check_recording, chosen_hand_model, hand_side,
+                         input_file, progress_bar, say_if_compiling, segmenter_from_options, settings_from_options,
+                         StartUp)
 
 
 def track(
@@ -97,6 +98,10 @@ def track(
     else:
         check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     check_overlay_every(overlay_every)
+    if len(recordings) == 1 and dask is None:
+        # a mistyped path fails now, before the modules below load (with several, each failing one is a
+        # row of the summary and the others are tracked)
+        check_recording(recordings[0], topic, color_topic, hand_side(hand))
     # the collector is off until the first frame's result is in (cli_common.StartUp)
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)
@@ -148,21 +153,22 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
             start_up.done()
 
         run = run_job(job, each, source=rec)
-    df, tracker, rec, wall_s = run.df, run.tracker, run.recording, run.wall_s
+    # the table without pandas (run.table: its import is ~0.2 s of a one-still run)
+    rows, tracker, rec, wall_s = run.table, run.tracker, run.recording, run.wall_s
     n_pcs = f", {tracker.n_pcs} PCs" if tracker.n_pcs and mode != "full" else ""
     table = Table(title=f"tracked {recording} ({mode}{n_pcs}{', paper' if paper else ''})")
     for c in ("frames", "tracked", "lost", "reinit", "median fit mm", "median ms", "fps median", "fps run"):
         table.add_column(c, justify="right")
-    st = df["status"]
-    found = st != "lost"
+    st = rows.column("status")
+    found = [s != "lost" for s in st]
     # the median frame's rate counts frames with a hand only (a lost frame costs nothing and would show a
     # rate no tracking reached); the run's rate is the wall time of everything (reading, segmenting, the
     # start search, overlays); one decimal so a slow run never shows as 0
-    ms = float(df["ms"][found].median()) if found.any() else float("nan")
-    table.add_row(str(len(df)), str(int((st == "tracked").sum())), str(int((~found).sum())),
-                  str(int((st == "reinit").sum())), f"{df['fit_mm'].median():.2f}" if found.any() else "-",
-                  f"{ms:.1f}" if found.any() else "-", f"{1000 / ms:.1f}" if ms > 0 else "-",
-                  f"{len(df) / wall_s:.1f}" if wall_s > 0 else "-")
+    ms = _median([m for m, f in zip(rows.column("ms"), found) if f]) if any(found) else float("nan")
+    table.add_row(str(len(rows)), str(st.count("tracked")), str(st.count("lost")),
+                  str(st.count("reinit")), f"{_median(rows.column('fit_mm')):.2f}" if any(found) else "-",
+                  f"{ms:.1f}" if any(found) else "-", f"{1000 / ms:.1f}" if ms > 0 else "-",
+                  f"{len(rows) / wall_s:.1f}" if wall_s > 0 else "-")
     console = Console(markup=False)  # paths are printed as typed, never read as markup
     console.print(table)
     if tracker.stats.no_hand:
@@ -177,14 +183,14 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
         console.print(f"no hand: on {tracker.stats.no_hand} frame{'s' * (tracker.stats.no_hand != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
-    if len(df) and not found.any():
+    if len(rows) and not any(found):
         why = ("nothing segmented looks like a hand" if tracker.stats.no_hand
                else "nothing segmented where a hand can be")
         console.print(f"warning: no hand found in any frame of {recording}: {why} ({_no_hand_hints(job, tracker)})")
     if tracker.base_hand.calibration and tracker.settings.scale.hand_scale != "auto":
         console.print(f"hand: the calibrated hand of {tracker.base_hand.path} (size {tracker.base_hand.calibration['hand_scale']}"
                       " in the file), not estimated again")
-    elif tracker.scale_ is not None and tracker.settings.scale.hand_scale == "auto" and found.any():
+    elif tracker.scale_ is not None and tracker.settings.scale.hand_scale == "auto" and any(found):
         # the size a later run takes back with --hand-scale (it is in the output header too); on a
         # calibrated hand file a number is refused (it would scale that hand twice): the file it saves
         if job.save_hand:
@@ -197,16 +203,16 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
         else:
             reuse = f"--hand-scale {tracker.scale_:.4f} or --save-hand FILE"
         console.print(f"hand size: {run.meta['hand_scale']}; reuse it with {reuse}")
-    elif tracker.scale_ is not None and found.any():
+    elif tracker.scale_ is not None and any(found):
         console.print(f"hand size: {run.meta['hand_scale']}")
     if tracker.stats.size_starts:
         console.print(f"start: the fit replaced on {tracker.stats.size_starts} of the size-refining frames by their own "
                       "search's, which scored better")
-    if tracker.settings.net.enabled and tracker.settings.mode != "reduced" and len(df):
+    if tracker.settings.net.enabled and tracker.settings.mode != "reduced" and len(rows):
         runs = tracker.stats.net_runs
         cost = f", {tracker.stats.net_ms / runs:.0f} ms per run" if runs else ""
         wrong = f" (on {tracker.stats.net_wrong_way} the hand pointed against the arm)" if tracker.stats.net_wrong_way else ""
-        console.print(f"safety net: ran on {runs}/{len(df)} frames ({runs / len(df):.0%}){wrong}, replaced "
+        console.print(f"safety net: ran on {runs}/{len(rows)} frames ({runs / len(rows):.0%}){wrong}, replaced "
                       f"{tracker.stats.net_replaced}{cost}; re-centred {tracker.stats.recentred}")
     if tracker.settings.start.search_budget_ms and tracker.stats.searches:
         st = tracker.stats
@@ -238,7 +244,17 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
         from .batch import unreadable_text
 
         # the outputs are written; the damaged input still ends the command with the error code
-        raise TrackerError(recording, unreadable_text(run.unreadable, len(df)))
+        raise TrackerError(recording, unreadable_text(run.unreadable, len(rows)))
+
+
+def _median(values) -> float:
+    """The median of ``values`` without the NaN ones, NaN when none is left: pandas' ``Series.median``
+    (numpy's median of the values kept), without pandas."""
+    import numpy as np
+
+    x = np.asarray(values, dtype=float)
+    x = x[~np.isnan(x)]
+    return float(np.median(x)) if x.size else float("nan")
 
 
 def _length(source):

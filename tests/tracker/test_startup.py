@@ -88,3 +88,70 @@ def test_a_failed_track_or_calibrate_in_a_process_that_goes_on_leaves_the_collec
                 f"r = CliRunner().invoke(app, {args!r})\n"
                 "print(r.exit_code, 'no such recording' in r.output, gc.isenabled(), gc.get_freeze_count())")
         assert _python(code) == "2 True True 0", args
+
+
+def test_tracking_one_recording_loads_no_pandas_and_writes_what_pandas_would(tmp_path):
+    # tracker track of one recording writes its outputs from the run's FrameTable without pandas (~0.2 s
+    # of its start-up): the files are the ones pandas writes of the same table, a lost frame included
+    import numpy as np
+
+    from tracker.io.images import png_bytes
+    from tracker.io.tracking_file import read_tracking
+    from tracker.sim.synthesize import synthesize
+
+    rec = tmp_path / "rec"
+    synthesize("open-close", "kinect1", None, rec, frames=3)
+    (rec / "depth" / "000001.png").write_bytes(png_bytes(np.zeros((480, 640), np.uint16)))  # no hand: lost
+    out, kp = tmp_path / "t.csv", tmp_path / "k.csv"
+    code = ("import sys\n"
+            "import tracker.run\n"
+            "runs, real = [], tracker.run.run_job\n"
+            "tracker.run.run_job = lambda *a, **k: runs.append(real(*a, **k)) or runs[-1]\n"
+            "from tracker.cli import main\n"
+            f"sys.argv = ['tracker', 'track', {str(rec)!r}, '-o', {str(out)!r}, '--keypoints', {str(kp)!r},\n"
+            "            '--hand-scale', '1', '--no-check-hand']\n"
+            "try:\n"
+            "    main()\n"
+            "except SystemExit as e:\n"
+            "    assert not e.code, e.code\n"
+            "loaded = [m for m in ('pandas', 'pyarrow') if m in sys.modules]\n"
+            "from tracker.io.tracking_file import keypoints_table, tracking_csv\n"
+            "run = runs[0]\n"
+            "kp_text = ''.join(f'# {k}: {run.meta[k]}\\n' for k in ('recording', 'handedness'))\n"
+            "kp_text += keypoints_table(run.tracker.hand, run.df).to_csv(index=False, float_format='%.4f')\n"
+            f"same = (open({str(out)!r}).read() == tracking_csv(run.df, run.meta), open({str(kp)!r}).read() == kp_text)\n"
+            "print(loaded, same)")
+    assert _python(code) == "[] (True, True)"
+    df, _ = read_tracking(out)
+    assert df["status"].tolist()[1] == "lost" and df["status"].tolist()[0] != "lost"
+
+
+def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
+    # the one-line error of a mistyped recording path comes before the tracker's modules (numba, the
+    # kernels: ~1 s) load; the same error as opening it gives
+    pngs = tmp_path / "pngs"
+    pngs.mkdir()
+    (pngs / "0001.png").write_bytes(b"")
+    cases = [(tmp_path / "none.bag", f"error: {tmp_path / 'none.bag'}: no such recording file"),
+             (tmp_path / "none", f"error: {tmp_path / 'none'}: no such recording folder"),
+             (pngs, f"error: {pngs / 'recording.yaml'}: missing: {pngs} holds 1 PNG files, not a recording; import "
+                    f"them first: tracker import {pngs} --camera PRESET --hand left|right -o RECORDING")]
+    for path, line in cases:
+        code = ("import sys\n"
+                "from typer.testing import CliRunner\n"
+                "from tracker.cli import app\n"
+                f"r = CliRunner().invoke(app, ['track', {str(path)!r}, '-o', {str(tmp_path / 'o.csv')!r}])\n"
+                "heavy = [m for m in ('numba', 'scipy', 'numpy', 'tracker.segment', 'tracker.run') if m in sys.modules]\n"
+                "print(repr((r.exit_code, r.stderr, heavy)))")
+        assert _python(code) == repr((2, line + "\n", [])), path
+        # the recording's own reader says the same
+        from tracker.errors import RecordingError
+        from tracker.io.recording import Recording
+
+        try:
+            Recording.open(path)
+        except RecordingError as exc:
+            assert f"error: {exc}" == line
+        else:
+            raise AssertionError(f"{path} opened")
+    assert not (tmp_path / "o.csv").exists()

@@ -1,17 +1,20 @@
 """What every recording reader and writer shares: frame-size and frame-rate bounds, the
 :class:`Frame` a reader gives, natural name order, and the first bytes that tell recording files
-apart (:func:`looks_like`, :func:`is_recording_file`). Imports nothing else of :mod:`tracker.io`
-but the cameras and images, so every reader and writer can import it.
+apart (:func:`looks_like`, :func:`is_recording_file`), and what makes a path no recording before anything
+is read (:func:`check_recording_path`). Imports nothing else of :mod:`tracker.io`, so every reader and
+writer can import it, and no numpy: a command checks its recording's path with it before its heavy imports.
 """
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from ..errors import RecordingError
+
+if TYPE_CHECKING:  # the annotations only: a path is checked without loading numpy
+    import numpy as np
 
 SCHEMA_VERSION = 1
 HANDEDNESS = ("left", "right")
@@ -131,3 +134,56 @@ def list_pngs(folder) -> list[Path]:
         raise RecordingError(folder, "no such folder")
     return natural_sorted(p for p in folder.iterdir()
                           if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file())
+
+
+def check_recording_file(path, topic=None, color_topic=None) -> None:
+    """Refuse a recording file (:func:`is_recording_file`) that is not there, or topics for a ``.mkv``:
+    what :func:`tracker.io.files.open_recording_file` refuses before it loads a reader."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(path, "no such recording file")
+    if path.suffix.lower() == ".mkv" and (topic is not None or color_topic is not None):
+        raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to .mkv files")
+
+
+def check_recording_path(path, *, topic=None, color_topic=None, handedness=None) -> None:
+    """Refuse what :meth:`tracker.io.recording.Recording.open` refuses before it reads anything: a
+    handedness other than left or right, a recording file that is not there (:func:`check_recording_file`),
+    topics for a folder, a file that is no recording, no such folder, a folder without ``recording.yaml``
+    (the PNG files of a camera, or a folder of recordings: what to do instead). Only the file system's
+    entries are looked at, so a command says a mistyped path at once, before its heavy imports
+    (``tracker track``: ~1 s); the recording's contents are checked when it is opened.
+
+    Raises
+    ------
+    RecordingError
+        Naming the path (or its missing ``recording.yaml``) and the problem.
+    """
+    path = Path(path)
+    if handedness is not None and handedness not in HANDEDNESS:
+        raise RecordingError(path, f"handedness must be left or right, got {handedness!r}")
+    if is_recording_file(path):
+        check_recording_file(path, topic, color_topic)
+        return
+    if topic is not None or color_topic is not None:
+        raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to recording folders")
+    y = path / "recording.yaml"
+    if path.is_file():
+        hint = (": a Rerun recording of a tracking, drawn by tracker show" if path.suffix.lower() == ".rrd"
+                else f" (a recording folder, or a {', '.join(RECORDING_FILE_SUFFIXES)} file)")
+        raise RecordingError(path, f"is not a recording{hint}")
+    if not path.is_dir():
+        raise RecordingError(path, "no such recording folder")
+    if not y.is_file():
+        pngs = [] if (path / "depth").is_dir() else list_pngs(path)
+        if pngs:  # the commonest first step: tracking the camera's own folder of frames
+            raise RecordingError(y, f"missing: {path} holds {len(pngs)} PNG files, not a recording; import "
+                                    f"them first: tracker import {path} --camera PRESET --hand left|right "
+                                    f"-o RECORDING")
+        inner = [d for d in path.iterdir() if (d / "recording.yaml").is_file()]
+        if inner:  # a folder of recordings (tracker import --each): a command takes them one by one
+            raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give one of them, "
+                                    f"or all of them to tracker track ({path / '*'} -s fingerfist -o RESULTS/); tracker "
+                                    "calibrate --each takes stills imported as one recording (tracker import "
+                                    "without --each)")
+        raise RecordingError(y, "missing (not a recording folder)")

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import RecordingError
-from .base import RECORDINGS_EXTRA
+from .base import RECORDINGS_EXTRA, check_recording_file
 
 if TYPE_CHECKING:  # the readers' base imports the folder reader, which imports this module
     from .file_base import FileRecording
@@ -22,11 +22,8 @@ def open_recording_file(path, *, topic=None, color_topic=None, handedness: str =
     RecordingError naming the ``pip install`` to run.
     """
     path = Path(path)
-    if not path.exists():
-        raise RecordingError(path, "no such recording file")
+    check_recording_file(path, topic, color_topic)
     mkv = path.suffix.lower() == ".mkv"
-    if mkv and (topic is not None or color_topic is not None):
-        raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to .mkv files")
     # the readers import their optional libraries at the top, so a missing extra shows up here;
     # importing them here (not at the top) also keeps this module free of an import cycle
     try:

@@ -27,8 +27,8 @@ from handmodel.dofs import DOF_NAMES
 from handmodel.fileio import load_yaml, schema_errors
 
 from ..errors import RecordingError, TrackerError
-from .base import (_FRAME_RE, HANDEDNESS, RECORDING_FILE_SUFFIXES, Frame, _shortened, check_frame_size,
-                   is_recording_file, list_pngs, natural_sorted)
+from .base import (_FRAME_RE, Frame, _shortened, check_frame_size, check_recording_path, is_recording_file,
+                   natural_sorted)
 from .cameras import Camera
 from .files import open_recording_file
 from .images import read_color, read_depth_units, units_to_metres
@@ -62,10 +62,10 @@ def _frame_files(folder: Path, n: int, what: str) -> list[Path]:
     return [folder / f"{i:06d}.png" for i in range(n)]
 
 
-def _read_truth(path: Path, n: int, fps: float):
+def _read_truth(path: Path, n: int, fps: float) -> np.ndarray:
+    """θ of every frame ``(n, 26)`` from ``truth.csv``, checked (columns, rows, frames in order, numbers);
+    its table is :func:`_truth_table`, built when asked for (tracking never asks: pandas stays unloaded)."""
     import csv
-
-    import pandas as pd
 
     names = list(DOF_NAMES)
     try:
@@ -96,10 +96,19 @@ def _read_truth(path: Path, n: int, fps: float):
     if not np.array_equal(frame, np.arange(n)):
         k = int(np.argmax(frame != np.arange(n)))
         raise RecordingError(path, f"row {k + 1}: frame {frame[k]}, expected {k} (frames 0…{n - 1} in order)")
-    df = pd.DataFrame(theta, columns=names)
+    return theta
+
+
+def _truth_table(theta, fps: float):
+    """The truth as a DataFrame: ``frame`` (0…n-1, as :func:`_read_truth` checked), ``time_s`` (index /
+    ``fps``) and the 26 DoF columns of ``theta``."""
+    import pandas as pd
+
+    n = len(theta)
+    df = pd.DataFrame(theta, columns=list(DOF_NAMES))
     df.insert(0, "time_s", np.arange(n) / fps)
-    df.insert(0, "frame", frame)
-    return df, theta
+    df.insert(0, "frame", np.arange(n))
+    return df
 
 
 class Recording:
@@ -119,7 +128,7 @@ class Recording:
         self.handedness = meta["handedness"]
         self._depth = depth_files
         self._color = color_files
-        self.truth = truth
+        self._truth = truth
         self._theta = truth_theta
 
     @classmethod
@@ -146,32 +155,10 @@ class Recording:
             a recording file, any damage found in it.
         """
         path = Path(path)
-        if handedness is not None and handedness not in HANDEDNESS:
-            raise RecordingError(path, f"handedness must be left or right, got {handedness!r}")
+        check_recording_path(path, topic=topic, color_topic=color_topic, handedness=handedness)
         if is_recording_file(path):
             return open_recording_file(path, topic=topic, color_topic=color_topic, handedness=handedness or "left")
-        if topic is not None or color_topic is not None:
-            raise RecordingError(path, "--topic and --color-topic apply to ROS bags, not to recording folders")
         y = path / "recording.yaml"
-        if path.is_file():
-            hint = (": a Rerun recording of a tracking, drawn by tracker show" if path.suffix.lower() == ".rrd"
-                    else f" (a recording folder, or a {', '.join(RECORDING_FILE_SUFFIXES)} file)")
-            raise RecordingError(path, f"is not a recording{hint}")
-        if not path.is_dir():
-            raise RecordingError(path, "no such recording folder")
-        if not y.is_file():
-            pngs = [] if (path / "depth").is_dir() else list_pngs(path)
-            if pngs:  # the commonest first step: tracking the camera's own folder of frames
-                raise RecordingError(y, f"missing: {path} holds {len(pngs)} PNG files, not a recording; import "
-                                        f"them first: tracker import {path} --camera PRESET --hand left|right "
-                                        f"-o RECORDING")
-            inner = [d for d in path.iterdir() if (d / "recording.yaml").is_file()]
-            if inner:  # a folder of recordings (tracker import --each): a command takes them one by one
-                raise RecordingError(y, f"missing: {path} holds {len(inner)} recordings, not one; give one of them, "
-                                        f"or all of them to tracker track ({path / '*'} -s fingerfist -o RESULTS/); tracker "
-                                        "calibrate --each takes stills imported as one recording (tracker import "
-                                        "without --each)")
-            raise RecordingError(y, "missing (not a recording folder)")
         meta = load_yaml(y, RecordingError)
         problem = schema_errors(meta if meta is not None else {}, "recording")
         if problem:
@@ -186,10 +173,10 @@ class Recording:
         n = int(meta["frames"])
         depth = _frame_files(path / "depth", n, "depth")
         color = _frame_files(path / "color", n, "colour") if meta.get("color") else None
-        truth = theta = None
+        theta = None
         if meta.get("truth"):
-            truth, theta = _read_truth(path / "truth.csv", n, float(meta["fps"]))
-        rec = cls(path, meta, cam, depth, color, truth, theta)
+            theta = _read_truth(path / "truth.csv", n, float(meta["fps"]))
+        rec = cls(path, meta, cam, depth, color, None, theta)
         if handedness is not None:
             rec.handedness = handedness
         return rec
@@ -208,6 +195,18 @@ class Recording:
     @property
     def has_truth(self) -> bool:
         return self._theta is not None
+
+    @property
+    def truth(self):
+        """The truth as a DataFrame (``frame``, ``time_s`` and the 26 DoF columns), or None; made at the
+        first ask from the θ read at :meth:`open` (pandas loads then, never for tracking)."""
+        if self._truth is None and self._theta is not None:
+            self._truth = _truth_table(self._theta, self.fps)
+        return self._truth
+
+    @truth.setter
+    def truth(self, value):
+        self._truth = value
 
     def depth_units(self, i: int) -> np.ndarray:
         """Stored depth units of frame ``i`` (uint16), as in the file."""

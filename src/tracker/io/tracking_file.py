@@ -18,12 +18,14 @@ points_used, points, ms`` and the 26 DoF columns (metres, radians). :func:`write
 """
 from __future__ import annotations
 
+import csv
 import io
 import json
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from handmodel.cliutil import error_line
 from handmodel.dofs import DOF_NAMES
@@ -32,6 +34,9 @@ from handmodel.fileio import atomic_write_text
 from handmodel.model import HandModel
 
 from ..errors import TrackerError
+
+if TYPE_CHECKING:  # the annotations only: writing never loads pandas, reading does (in the readers)
+    import pandas as pd
 
 #: The columns of a tracking output before the DoF names, one row per frame.
 FRAME_COLUMNS = ("frame", "time_s", "status", "fit_mm", "points_used", "points", "ms")
@@ -127,14 +132,98 @@ def tracked_hand(meta, where="tracking output") -> HandModel:
         raise TrackerError(where, f"hand_shape in its header is not readable ({exc})") from None
 
 
+class FrameTable:
+    """A table as rows of values, without pandas: what :func:`tracker.run.track_recording` makes for
+    :func:`tracker.run.run_job` (``tracker track`` of one recording never loads pandas).
+
+    Parameters
+    ----------
+    columns : the column names
+    rows : one tuple of values a row, in ``columns``' order
+
+    :meth:`csv` is the text of ``pandas.DataFrame(rows, columns=columns).to_csv(index=False,
+    float_format=...)`` (:meth:`to_frame`), byte for byte: each column typed as pandas infers it from
+    its values (:func:`_column_text`), the rows written by the same :mod:`csv` writer.
+
+    >>> t = FrameTable(("frame", "status", "fit_mm"), [(0, "reinit", 1.25), (1, "lost", float("nan"))])
+    >>> len(t), t.column("status"), t.csv("%.9g")
+    (2, ['reinit', 'lost'], 'frame,status,fit_mm\\n0,reinit,1.25\\n1,lost,\\n')
+    """
+
+    def __init__(self, columns, rows):
+        self.columns = tuple(columns)
+        self.rows = list(rows)
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def column(self, name) -> list:
+        """The values of column ``name``, one a row."""
+        k = self.columns.index(name)
+        return [row[k] for row in self.rows]
+
+    def to_frame(self):
+        """The table as a pandas DataFrame (pandas is loaded here)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.rows, columns=list(self.columns))
+
+    def csv(self, float_format: str) -> str:
+        """The table as pandas' ``to_csv(index=False, float_format=float_format)`` writes :meth:`to_frame`."""
+        out = io.StringIO()
+        # pandas' writer: csv's minimal quoting and the platform's line ends
+        writer = csv.writer(out, lineterminator=os.linesep)
+        writer.writerow(self.columns)
+        writer.writerows(zip(*(_column_text(values, float_format) for values in zip(*self.rows))))
+        return out.getvalue()
+
+
+def _value_kind(v) -> str:
+    """How pandas' type inference of an object column sees one value: ``"na"`` (None, NaN), ``"bool"``,
+    ``"int"``, ``"float"`` or ``"other"``."""
+    if v is None:
+        return "na"
+    if isinstance(v, (bool, np.bool_)):
+        return "bool"
+    if isinstance(v, (int, np.integer)):
+        return "int"
+    if isinstance(v, (float, np.floating)):
+        return "na" if v != v else "float"
+    return "other"
+
+
+def _column_text(values, float_format) -> list[str]:
+    """One column's values as ``DataFrame.to_csv`` writes them, the column typed as ``pandas.DataFrame``
+    types a column of rows: integers alone an integer column (``str``); integers and floats, with or
+    without missing values, a float column (``float_format``, missing empty); booleans alone a boolean
+    column; anything else an object column (``str``, missing empty)."""
+    kinds = {_value_kind(v) for v in values}
+    if kinds == {"int"}:
+        return [str(int(v)) for v in values]
+    if kinds == {"bool"}:
+        return [str(bool(v)) for v in values]
+    if kinds <= {"int", "float", "na"} and kinds != {"na"}:
+        return ["" if k == "na" else float_format % float(v) for v, k in zip(values, map(_value_kind, values))]
+    return ["" if _value_kind(v) == "na" else str(v) for v in values]
+
+
+def _csv_text(table, float_format) -> str:
+    """``table``'s CSV text: a :class:`FrameTable` by its own writer, a DataFrame by pandas'."""
+    if isinstance(table, FrameTable):
+        return table.csv(float_format)
+    return table.to_csv(index=False, float_format=float_format)
+
+
 def tracking_csv(df, meta) -> str:
-    """The tracking output's text: ``# key: value`` lines, then the table."""
+    """The tracking output's text: ``# key: value`` lines, then the table (a DataFrame or a
+    :class:`FrameTable`)."""
     head = "".join(f"# {k}: {v}\n" for k, v in meta.items())
-    return head + df.to_csv(index=False, float_format="%.9g")
+    return head + _csv_text(df, "%.9g")
 
 
 def write_tracking(path, df, meta, *, overwrite=False) -> Path:
-    """Write a tracking output atomically (never over an existing file unless ``overwrite``)."""
+    """Write a tracking output atomically (never over an existing file unless ``overwrite``); ``df``: a
+    DataFrame or a :class:`FrameTable`."""
     _check_table(df, path)
     return atomic_write_text(path, tracking_csv(df, meta), overwrite=overwrite)
 
@@ -155,6 +244,8 @@ def _split_header(stream):
 
 def parse_tracking(stream, where):
     """``(table, metadata)`` of a tracking output read from a text stream; ``where`` names it in errors."""
+    import pandas as pd
+
     meta, lines = _split_header(stream)
     try:
         df = pd.read_csv(io.StringIO("".join(lines)))
@@ -177,21 +268,40 @@ def _check_table(df, where):
     missing = [c for c in (*FRAME_COLUMNS, *DOF_NAMES) if c not in df.columns]
     if missing:
         raise TrackerError(where, f"not a tracking output: missing columns {', '.join(missing)}")
-    bad = sorted(set(df["status"].astype(str)) - set(STATUSES))
+    status = df.column("status") if isinstance(df, FrameTable) else df["status"].astype(str)
+    bad = sorted(set(map(str, status)) - set(STATUSES))
     if bad:
         raise TrackerError(where, f"unknown status {', '.join(bad)} (expected {', '.join(STATUSES)})")
 
 
 def keypoints_table(hand, df) -> pd.DataFrame:
     """The 21 keypoints of every tracked frame in mm (NaN where θ is not finite), one row per frame."""
-    th = df[list(hand.dof_names)].to_numpy(float)
+    import pandas as pd
+
+    kd = pd.DataFrame(_keypoints_mm(hand, df[list(hand.dof_names)].to_numpy(float)), columns=_keypoint_columns(hand))
+    kd.insert(0, "frame", df["frame"].to_numpy())
+    return kd
+
+
+def _keypoints_mm(hand, th) -> np.ndarray:
+    """``(frames, 63)``: the keypoints of each row of ``th`` in mm, NaN where θ is not finite."""
     kps = np.full((len(th), hand.n_nodes * 3), np.nan)
     ok = np.isfinite(th).all(1)
     if ok.any():
         kps[ok] = hand.keypoints(th[ok]).reshape(int(ok.sum()), -1) * 1000.0
-    kd = pd.DataFrame(kps, columns=[f"{n}_{a}_mm" for n in hand.keypoint_names for a in "xyz"])
-    kd.insert(0, "frame", df["frame"].to_numpy())
-    return kd
+    return kps
+
+
+def _keypoint_columns(hand) -> list[str]:
+    return [f"{n}_{a}_mm" for n in hand.keypoint_names for a in "xyz"]
+
+
+def _keypoints_frame_table(hand, table: FrameTable) -> FrameTable:
+    """:func:`keypoints_table` of a :class:`FrameTable`, as a FrameTable (the same CSV, without pandas)."""
+    dofs = [table.columns.index(n) for n in hand.dof_names]
+    th = np.array([[row[k] for k in dofs] for row in table.rows], float).reshape(len(table), len(dofs))
+    return FrameTable(["frame", *_keypoint_columns(hand)],
+                      [(f, *k) for f, k in zip(table.column("frame"), _keypoints_mm(hand, th).tolist())])
 
 
 #: Header keys of a keypoints CSV: the tracking output's, so ``tracker show`` can tell keypoints of
@@ -202,10 +312,11 @@ KEYPOINTS_HEADER = ("recording", "handedness")
 def write_keypoints(path, hand, df, meta, *, overwrite=False) -> Path:
     """Write the keypoints CSV of a tracking (:func:`keypoints_table` of ``df`` on ``hand``) atomically,
     after ``# recording:`` and ``# handedness:`` lines taken from its header ``meta``; it is never written
-    over an existing file unless ``overwrite``. :func:`read_keypoints` reads it."""
+    over an existing file unless ``overwrite`` (``df``: a DataFrame or a :class:`FrameTable`).
+    :func:`read_keypoints` reads it."""
     head = "".join(f"# {k}: {meta[k]}\n" for k in KEYPOINTS_HEADER if k in meta)
-    return atomic_write_text(path, head + keypoints_table(hand, df).to_csv(index=False, float_format="%.4f"),
-                             overwrite=overwrite)
+    table = _keypoints_frame_table(hand, df) if isinstance(df, FrameTable) else keypoints_table(hand, df)
+    return atomic_write_text(path, head + _csv_text(table, "%.4f"), overwrite=overwrite)
 
 
 def read_keypoints(path, names):
@@ -217,6 +328,8 @@ def read_keypoints(path, names):
     TrackerError
         Naming ``path``: not readable, or not a keypoints CSV (the first missing columns).
     """
+    import pandas as pd
+
     try:
         with open(path, encoding="utf-8") as f:
             meta, lines = _split_header(f)
