@@ -3,7 +3,6 @@ hand (:func:`_hand_end`, :func:`_fingered_end`, :func:`_far_end`)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from .._segment_kernels import (
     closed_filled,
@@ -171,6 +170,9 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
         return True
     if fine is None:
         return False
+    # scipy.ndimage (~0.06 s to import) only for this full-resolution look, which few frames need
+    from scipy import ndimage
+
     full, c = fine
     fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
     h, w = fz.shape

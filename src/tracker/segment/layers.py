@@ -3,7 +3,6 @@ its depth (:func:`_joins`)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from .._segment_kernels import (
     closed_filled,
@@ -117,6 +116,8 @@ def _goes_on(layer, contact, d, focal):
     lab, n = _label(out, eight=True)
     if n == 0:
         return out
+    from scipy import ndimage  # here: a body behind the hand is rare, and scipy.ndimage ~0.06 s to import
+
     span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
     return (span >= K.TUNING.finger_max_m * px_m)[lab] & out
 
