@@ -16,7 +16,7 @@ from handmodel.rigid import euler_to_matrix
 from ._wrist_kernels import arm_entry
 from .correspond import data_to_model_mm
 from .init import InitSettings, SearchBudget, fit_single_frame, score
-from .parts import TrackerStats, WristCue
+from .parts import KeypointSeed, TrackerStats, WristCue
 from .wrist import arm_length_m, wrist_cost_mm
 
 
@@ -28,10 +28,13 @@ class SafetyNet:
     settings : :class:`tracker.settings.SafetyNetSettings`
     cue : the :class:`tracker.parts.WristCue` of the tracker's frames
     stats : the tracker's :class:`tracker.parts.TrackerStats`
+    keypoints : the depth keypoint detector's :class:`tracker.parts.KeypointSeed` (``start.detector``):
+        the search beyond the tracked pose starts from the detected hand first
     """
 
-    def __init__(self, settings, cue: WristCue, stats: TrackerStats | None = None, budget_ms: float = 0.0):
-        self.settings, self.cue, self.stats = settings, cue, stats or TrackerStats()
+    def __init__(self, settings, cue: WristCue, stats: TrackerStats | None = None, budget_ms: float = 0.0,
+                 keypoints: KeypointSeed | None = None):
+        self.settings, self.cue, self.stats, self.keypoints = settings, cue, stats or TrackerStats(), keypoints
         self.budget_ms = budget_ms  # a frame's searches together (start.search_budget_ms; 0 = none)
         self._scores = deque(maxlen=30)  # the undoubted frames' (and replacements') scores: the scene's level
         self.search_level = 0.0  # the last start's score: what a good fit scores in this scene
@@ -175,7 +178,19 @@ class SafetyNet:
                                        silhouette=sil, normals=nrm, extra=starts, budget=budget)
             self.stats.net_anchored += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
-        if not self.settings.anchored or (best[0] > self.threshold() and not budget.spent("placements")):
+        found = ()
+        if self.keypoints is not None and (not self.settings.anchored or best[0] > self.threshold()):
+            found = self.keypoints.start(ctx.hand, sil)
+        if found and not budget.spent("detected"):
+            # the detected hand's pose is a measurement of where the hand turned to: searched from first
+            # (the placements' search costs ~3× as much), the placements only if that still scores poorly
+            th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), theta0=found[0], silhouette=sil, normals=nrm,
+                                       extra=starts + found, search=False, budget=budget)
+            best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
+            placements = best[0] > self.threshold() and not budget.spent("placements")
+        else:
+            placements = not self.settings.anchored or (best[0] > self.threshold() and not budget.spent("placements"))
+        if placements:
             th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), silhouette=sil, normals=nrm, extra=starts,
                                        budget=budget)
             self.stats.net_placed += 1

@@ -20,7 +20,7 @@ from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
 from .coupling import restart_uncoupled
 from .icp import centre_shift, posed_samples
-from .init import SearchBudget, fit_single_frame
+from .init import SearchBudget, fit_single_frame, seeded_search
 from .observe import past_wrist, predicted_near
 from .rgb import RgbSeed
 from .wrist import arm_behind, wrist_cue
@@ -42,6 +42,8 @@ class TrackerStats:
     size_starts : size-refining searches whose fit replaced the tracked one
     rgb_seeds, rgb_kept : start searches seeded by colour keypoints; how often the seed alone won
     detector_seeds : start searches seeded by the depth keypoint detector's hand (``start.detector``)
+    detector_starts : of them, starts whose detector-first fit scored well enough that the full
+        search did not run (``start.detector_accept_mm``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
     """
@@ -63,6 +65,7 @@ class TrackerStats:
     rgb_seeds: int = 0
     rgb_kept: int = 0
     detector_seeds: int = 0
+    detector_starts: int = 0
     searches: int = 0
     searches_cut: int = 0
     search_ms: float = 0.0
@@ -469,12 +472,14 @@ class StartSearch:
     (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ, the colour seed
     (``colour``) and the depth keypoint detector's (``keypoints``, :class:`KeypointSeed`), its last fits
     holding the hand's wrist crease on the arm's line (the frame's ``cue``;
-    :class:`tracker.icp.IcpSettings` ``wrist_line_weight``)."""
+    :class:`tracker.icp.IcpSettings` ``wrist_line_weight``). With a detected hand the search goes
+    :func:`tracker.init.seeded_search`'s way: the detected hand first, the full search only when that
+    scores above ``accept_mm``."""
 
     def __init__(self, init, cue: WristCue, colour: ColourSeed | None = None, stats: TrackerStats | None = None,
-                 budget_ms: float = 0.0, keypoints: KeypointSeed | None = None):
+                 budget_ms: float = 0.0, keypoints: KeypointSeed | None = None, accept_mm: float = 0.0):
         self.init, self.cue, self.colour, self.stats = init, cue, colour, stats or TrackerStats()
-        self.budget_ms, self.keypoints = budget_ms, keypoints
+        self.budget_ms, self.keypoints, self.accept_mm = budget_ms, keypoints, float(accept_mm)
 
     def reset(self):
         pass
@@ -485,13 +490,19 @@ class StartSearch:
         extra = () if last_good is None else (last_good,)
         seed = () if self.colour is None else self.colour.start(ctx.hand, color, depth, camera)
         self.cue.add(sil)
-        if self.keypoints is not None:
-            extra += self.keypoints.start(ctx.hand, sil)
+        found = () if self.keypoints is None else self.keypoints.start(ctx.hand, sil)
         # a size calibration's fits do not hold the crease (it moved a real recording's calibrated size,
         # 1.276 → 1.256, and tips by up to 40 px), nor the net's, whose result is compared with the tracked fit's
-        theta, corr = fit_single_frame(ctx, pts, self.init, silhouette=sil, normals=nrm, extra=extra + seed,
-                                       wrist=self.cue.of(sil), budget=budget)
-        self.stats.searches += 1
+        if found:
+            theta, corr, searched = seeded_search(ctx, pts, self.init, found[0], accept_mm=self.accept_mm,
+                                                  silhouette=sil, normals=nrm, extra=extra + seed,
+                                                  wrist=self.cue.of(sil), budget=budget)
+            self.stats.detector_starts += not searched
+        else:
+            theta, corr = fit_single_frame(ctx, pts, self.init, silhouette=sil, normals=nrm, extra=extra + seed,
+                                           wrist=self.cue.of(sil), budget=budget)
+            searched = True
+        self.stats.searches += searched
         self.stats.searches_cut += bool(budget.cut_)
         self.stats.search_ms += budget.elapsed_ms
         if seed:

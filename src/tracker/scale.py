@@ -32,6 +32,7 @@ from .init import (
     finger_overlap_mm,
     fit_single_frame,
     score,
+    seeded_search,
     thin,
 )
 from .resize import FINGERS, shaped_context, shaped_hand
@@ -231,7 +232,8 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
-                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, cut=True, seeds=None, size_guess=None):
+                    scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, cut=True, seeds=None, size_guess=None,
+                    accept_mm=0.0):
     """The user's hand size from one frame, with one single-frame search. The cloud's extent against
     the open model's gives a first guess ``g`` (right for an open hand, too small for a curled one,
     which the cloud cannot tell apart); the search runs at ``guess`` × ``g`` and :func:`fit_scale`
@@ -247,7 +249,8 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     points on the fingers' side of the first fit's wrist (:func:`hand_side`; ``cut=False``: all).
     ``context_for(s)``: the
     :class:`tracker.init.FitContext` of the hand scaled by ``s`` (cheap with :func:`tracker.resize.resized_context`).
-    ``seeds(hand)``: more starts of the first search on that hand, and ``size_guess`` another guess of
+    ``seeds(hand)``: a detected hand on that hand model, the first search's start
+    (:func:`tracker.init.seeded_search` with ``accept_mm``), and ``size_guess`` another guess of
     the size, taken where it is larger than the extent's (a keypoint detector's:
     :func:`tracker.keypoint_fit.keypoint_scale`).
     Returns ``(scale, θ, corr)``; :func:`calibrate_scale_searched` is the earlier, ~10× slower
@@ -259,8 +262,12 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
     # SR305 stills): the larger is the nearer
     s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
-    extra = () if seeds is None else tuple(seeds(context_for(s0).hand))
-    th0, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals, extra=extra)
+    found = () if seeds is None else tuple(seeds(context_for(s0).hand))
+    if found:
+        th0, _, _ = seeded_search(context_for(s0), points, st, found[0], accept_mm=accept_mm, silhouette=silhouette,
+                                  normals=normals)
+    else:
+        th0, _ = fit_single_frame(context_for(s0), points, st, silhouette=silhouette, normals=normals)
     all_points, all_normals = points, normals
     if cut:
         # the size is searched on the points on the fingers' side of this fit's wrist (hand_side)

@@ -132,6 +132,11 @@ class StartSettings(SettingsGroup):
     detector : a depth keypoint detector (a name or file under ``models/detectors/``,
         :func:`tracker.parts.depth_detector`) whose fitted hand seeds the start searches ("" = none, the
         default: neither shipped detector is yet good enough, docs/experiments/detector.md)
+    detector_accept_mm : with a ``detector``, a start fits the synergy postures at the detected hand's
+        global pose first (:func:`tracker.init.seeded_search`, ~15× cheaper than the full search); when
+        that scores at most this (mm, :func:`tracker.init.score`) the full search does not run (1.5,
+        chosen on rendered scenes of other motions and clutter than those it is measured on:
+        docs/experiments/detector.md, "The detected hand first"; 0 = the full search always runs)
     search_budget_ms : a start search's budget (ms): once spent, its optional stages are skipped and
         its best start so far converged (:class:`tracker.init.SearchBudget`; 0 = none, the default:
         with a budget the result depends on the machine's speed)
@@ -141,6 +146,7 @@ class StartSettings(SettingsGroup):
     rgb_seed: bool = False
     check_hand: bool = False
     detector: str = ""
+    detector_accept_mm: float = 1.5
     search_budget_ms: float = 0.0
 
     @classmethod
@@ -153,6 +159,9 @@ class StartSettings(SettingsGroup):
               "start.search_budget_ms", f"must be a number of ms ≥ 0 (0 = no budget), got {b!r}")
         _need(isinstance(self.detector, str), "start.detector",
               f"must be a detector's name or file (\"\" = none), got {self.detector!r}")
+        a = self.detector_accept_mm
+        _need(isinstance(a, (int, float)) and not isinstance(a, bool) and 0 <= a < math.inf,
+              "start.detector_accept_mm", f"must be a score in mm ≥ 0 (0 = the full search always runs), got {a!r}")
 
 
 @dataclass(frozen=True)

@@ -163,7 +163,7 @@ class SizeCalibration:
 
     def _detected(self, tr, sil) -> dict:
         """The keypoint detector's part in a calibration (``start.detector``): the size from its
-        keypoints and the hand fitted to them as a start of the search at that size."""
+        keypoints and the hand fitted to them, searched first at that size (``start.detector_accept_mm``)."""
         seed = tr.search.keypoints
         if seed is None:
             return {}
@@ -173,7 +173,7 @@ class SizeCalibration:
         det = detect_in(seed.detect, sil, tr.base_hand.handedness)
         if det is None:
             return {}
-        return {"seeds": lambda hand: seed.fit(det, hand),
+        return {"seeds": lambda hand: seed.fit(det, hand), "accept_mm": tr.search.accept_mm,
                 "size_guess": keypoint_scale(det, tr.context_for(1.0).hand)}
 
     def refine(self, tr, pts, nrm, sil):
@@ -185,7 +185,7 @@ class SizeCalibration:
         if st.refine == "search":
             tr.cue.add(sil)
             est, th_est, _ = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
-                                             scale_range=st.range)
+                                             scale_range=st.range, **self._detected(tr, sil))
             if abs(math.log(est / s)) > SIZE_RESTART_LOG:
                 # a size far from the tracked fit's: its search may hold a better start (its hand taken
                 # before the probed sizes' contexts are dropped)

@@ -172,7 +172,6 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
     if st.mode != "full" and synergies is None:
         raise TrackerError("synergies", f"mode {st.mode!r} needs a synergy bundle (--synergies)")
     cue = WristCue(st.start.wrist_cue, stats)
-    net = SafetyNet(st.net, cue, stats, st.start.search_budget_ms)
     gate = Gate(st.observe, st.loss.min_points, st.net.enabled and st.mode != "reduced", stats)
     recentring = Recentring(st.correspond.reject_mm, stats)
     prediction = Prediction(st.predict, gate, recentring, stats)
@@ -184,7 +183,9 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
     if depth_detector is None and st.start.detector:
         depth_detector = load_depth_detector(st.start.detector)
     keypoints = None if depth_detector is None else KeypointSeed(depth_detector, synergies, stats)
-    search = StartSearch(st.init, cue, colour, stats, st.start.search_budget_ms, keypoints)
+    net = SafetyNet(st.net, cue, stats, st.start.search_budget_ms, keypoints)
+    search = StartSearch(st.init, cue, colour, stats, st.start.search_budget_ms, keypoints,
+                         st.start.detector_accept_mm)
     return TrackerParts(cue, net, gate, recentring, prediction, prior, restart, loss, sizing, colour, search,
                         HandSizes(hand, st, synergies))
 

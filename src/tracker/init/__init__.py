@@ -38,9 +38,11 @@ from .search import (
     COUPLED_RESTART_DEG,
     PAIR_SCORE_MM,
     SearchBudget,
+    converge,
     finger_search,
     finger_search_batched,
     fit_single_frame,
+    seeded_search,
 )
 from .settings import STRATEGIES, HalvingSettings, InitSettings, available_cores, search_threads
 
@@ -60,5 +62,5 @@ __all__ = [
     # overlap
     "finger_capsules", "finger_overlap_mm", "segment_distances", "FINGER_OVERLAP_WEIGHT", "FINGER_OVERLAP_SHARE",
     # search
-    "fit_single_frame", "SearchBudget", "finger_search", "finger_search_batched", "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
+    "fit_single_frame", "seeded_search", "converge", "SearchBudget", "finger_search", "finger_search_batched", "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
 ]

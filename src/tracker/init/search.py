@@ -97,6 +97,28 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
                            normals=normals, extra=extra, search=search, wrist=wrist, budget=budget)
 
 
+def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, *, accept_mm: float = 0.0,
+                  silhouette=None, normals=None, extra=(), wrist=None, budget=None):
+    """The single-frame search with a detected hand first (a keypoint detector's, as the hybrid trackers'
+    re-initialisers: Sharp et al. 2015): the synergy postures fitted at ``seed``'s global pose, with
+    ``seed`` itself and the ``extra`` θ (:func:`fit_single_frame` from ``theta0``, no synergy grid,
+    no finger restarts: ~15× cheaper than the search). When that fit scores at most ``accept_mm``
+    (:func:`score`) it is the answer; otherwise the full search runs with it as one more start and the
+    better of the two by score is kept (successive halving can drop a good start on its coarse cloud).
+    Returns ``(θ, corr, searched)``."""
+    st = settings or InitSettings()
+    theta, corr = fit_single_frame(ctx, points, st, theta0=seed, silhouette=silhouette, normals=normals,
+                                   extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
+    first = score(ctx, theta, corr, silhouette)
+    if first <= accept_mm:
+        return theta, corr, False
+    th2, c2 = fit_single_frame(ctx, points, st, silhouette=silhouette, normals=normals, extra=tuple(extra) + (theta,),
+                               wrist=wrist, budget=budget)
+    if first < score(ctx, th2, c2, silhouette):
+        return theta, corr, True
+    return th2, c2, True
+
+
 def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta0, postures, extra, search):
     """The starts of the search, grouped by the mode of their first fit: ``{mode: [θ, ...]}`` (the
     synergy postures of :func:`posture_candidates` on every pose, ``extra`` as they are and re-placed
@@ -185,15 +207,24 @@ def _search_halving(ctx: FitContext, points, st: InitSettings, *, theta0, mode, 
         p_, n_ = cloud(n_pts)
         T, S = ctx.fit_many(T[best], p_, mode, 0, n_icp, normals=n_, through=True, **kw)
     i = int(np.argmin(S))
-    theta = T[i]
-    if search and st.finger_search and not budget.spent("fingers"):
+    return converge(ctx, T[i], points, st, silhouette=silhouette, normals=normals, wrist=wrist,
+                    fingers=search and st.finger_search and not budget.spent("fingers"))
+
+
+def converge(ctx: FitContext, theta, points, settings: InitSettings, *, silhouette=None, normals=None, wrist=None,
+             fingers=True):
+    """A search's end from its best start ``theta``: with ``fingers`` the finger-wise restarts
+    (:func:`finger_search_batched`), then all DoF converged on ``refine_points`` of the cloud and polished
+    on all of it (``wrist``: the frame's wrist line, :func:`tracker.icp.fit`). Returns ``(θ, corr)``."""
+    st = settings
+    if fingers:
         theta = finger_search_batched(ctx, theta, points, st, silhouette=silhouette, normals=normals)
-    # all DoF at the end (the short hierarchical fits above spend most iterations in the subspaces):
+    # all DoF at the end (the short hierarchical fits of a search spend most iterations in the subspaces):
     # converged on the refinement cloud, then a few iterations on the full cloud
-    p_, n_ = cloud(st.refine_points)
-    theta, _ = ctx.fit(theta, p_, "full", 0, st.icp_iterations, normals=n_, wrist=wrist, **kw)
-    theta, corr = ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, wrist=wrist, **kw)
-    return theta, corr
+    sub = thin(points, st.refine_points)
+    theta, _ = ctx.fit(theta, points[sub], "full", 0, st.icp_iterations, normals=None if normals is None else normals[sub],
+                       wrist=wrist, silhouette=silhouette)
+    return ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, wrist=wrist, silhouette=silhouette)
 
 
 def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings, *, silhouette=None, normals=None):
