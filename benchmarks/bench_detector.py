@@ -1,8 +1,11 @@
 """The hand detectors on one core: ms per frame for the detection alone — the hand-part forest
 (``tracker.detector.detect``) and the keypoint CNN (``tracker.keypoint_cnn.detect``, onnxruntime on one
 thread) — for the detection plus the start fitted to its keypoints (``tracker.keypoint_fit.fit_start``),
-and today's start search (``FrameTracker.track`` on a first frame at size 1, the tracker's defaults)
-as the peer, on the same frames in the same run; and the shipped models' install weight.
+the tracker's start with the CNN's hand first (``start.detector``: :func:`tracker.init.seeded_search`, the
+full search only when the detected hand's fit scores above ``start.detector_accept_mm``), and today's
+start search (``FrameTracker.track`` on a first frame, the tracker's defaults) as the peer, both at the
+rendered hand's size, on the same frames in the same run, with their mean keypoint errors; and the
+shipped models' install weight.
 
 Frames: SR305 640×480 renders drawn by the detector's own data recipe with held-out seeds (hand,
 clutter, noise), the hand's segmentation by the tracker (``observe``) as the mask.
@@ -58,6 +61,7 @@ def main():
     keypoint_cnn.detect(data[0].depth, cam, obs[0].mask)  # the session
     rows = {}
     t_det, t_start, t_cnn, t_cnn_start, t_peer = [], [], [], [], []
+    t_first, e_first, e_peer, n_first = [], [], [], []
     clock = (time.perf_counter, time.process_time)  # wall and this process's CPU: the machine may be shared
     for c, ob in zip(data, obs):
         t0 = [f() for f in clock]
@@ -74,22 +78,43 @@ def main():
         t2 = [f() for f in clock]
         t_cnn.append([1000 * (b - a) for a, b in zip(t0, t1)])
         t_cnn_start.append([1000 * (b - a) for a, b in zip(t0, t2)])
-        if not a.no_peer:
-            tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0)), synergies=bundle)
+        # the rendered hand's keypoints in the camera frame, and its size (its fingers ±10 % are not the model's)
+        fx, fy, cx, cy = c.camera
+        truth = np.stack([(c.keypoints_uv[:, 0] - cx) * c.keypoints_z / fx,
+                          (c.keypoints_uv[:, 1] - cy) * c.keypoints_z / fy, c.keypoints_z], axis=1)
+        size = dict(hand_scale=float(c.meta["scale"]))
+        for start, times, errs, firsts in ((dict(detector=keypoint_cnn.CNN_NAME), t_first, e_first, n_first),
+                                           (None, t_peer, e_peer, None)):
+            if start is None and a.no_peer:
+                continue
+            st = TrackerSettings().replace(scale=size, **({} if start is None else {"start": start}))
+            tr = FrameTracker(hand, st, synergies=bundle)
             t3 = [f() for f in clock]
-            tr.track(ob, cam)
-            t_peer.append([1000 * (f() - t) for f, t in zip(clock, t3)])
+            r = tr.track(ob, cam)
+            times.append([1000 * (f() - t) for f, t in zip(clock, t3)])
+            ok = np.all(np.isfinite(r.theta))
+            errs.append(1000 * np.linalg.norm(tr.hand.keypoints(r.theta) - truth, axis=1).mean() if ok else np.nan)
+            if firsts is not None:
+                firsts.append(tr.stats.detector_starts)
     rows["detect (mask from observe)"] = t_det
     rows["detect + fit_start (synergies)"] = t_start
     rows["keypoint CNN detect (mask from observe; onnxruntime, 1 thread)"] = t_cnn
     rows["keypoint CNN detect + fit_start (synergies)"] = t_cnn_start
+    rows["the start, the CNN's hand first (FrameTracker.track, start.detector)"] = t_first
     if t_peer:
-        rows["peer: today's start search (FrameTracker.track, first frame, size 1)"] = t_peer
+        rows["peer: today's start search (FrameTracker.track, first frame)"] = t_peer
     print(f"{len(data)} SR305 frames, one core")
     print(f"{'variant':70s} {'median ms':>10s} {'max ms':>8s} {'CPU median ms':>14s}")
     for k, v in rows.items():
         v = np.array(v)
         print(f"{k:70s} {np.median(v[:, 0]):10.1f} {np.max(v[:, 0]):8.1f} {np.median(v[:, 1]):14.1f}")
+    def errors(e):
+        e = np.array(e)
+        return (f"mean keypoint error median {np.nanmedian(e):.1f} mm on the {np.isfinite(e).sum()} frames found "
+                f"(of {len(e)}), {np.sum(e <= 20)} within 20 mm")
+    print(f"the CNN's hand first: the full search skipped on {sum(n_first)} of {len(n_first)} frames; {errors(e_first)}")
+    if e_peer:
+        print(f"peer: {errors(e_peer)}")
     p = detector_path()
     print(f"model {p.name}: {p.stat().st_size / 1e6:.2f} MB on disk, {load_detector().arrays['thresholds'].size} nodes")
     q = keypoint_cnn.cnn_path()

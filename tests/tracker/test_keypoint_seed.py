@@ -78,7 +78,9 @@ def test_track_command_takes_a_detector(tmp_path):
 
     assert run("synth", "--frames", "2", "--noise", "none", "-o", tmp_path / "rec").exit_code == 0
     r = run("track", tmp_path / "rec", "-o", tmp_path / "t.csv", "--hand-scale", "1", "--detector", "hand-parts")
-    assert r.exit_code == 0 and "start searches seeded by hand-parts's keypoints" in r.output, r.output
+    assert r.exit_code == 0 and "detector: hand-parts found a hand" in r.output, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "v.csv", "--detector", "hand-parts", "--detector-accept-mm", "-1")
+    assert r.exit_code == 2 and "--detector-accept-mm" in r.output and "Traceback" not in r.output, r.output
     r = run("track", tmp_path / "rec", "-o", tmp_path / "u.csv", "--detector", "no-such-detector")
     assert r.exit_code == 2 and "no-such-detector" in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "u.csv").exists()
