@@ -10,7 +10,8 @@ of the child — since on a shared machine wall time also measures the other job
 - process start → first frame's result: ``tracker.run.run_job`` on one still (one SR305 frame of
   ``../shared/data/realsense_sr305_lada``, or a rendered frame without it), defaults (size
   calibration, start search), the time of the first result as seen from the parent;
-- ``tracker track`` of that still: the whole command, outputs written.
+- ``tracker track`` of that still: the whole command, outputs written;
+- ``tracker track`` of a recording that is not there: the time to its one-line error (exit status 2).
 
 One untimed run first warms numba's cache (``tracker compile`` does it at install). The kernels are
 this tree's (``src`` first on the path). ``--peer DIR``: the same rows with another checkout's ``src``
@@ -52,15 +53,15 @@ def env(src=ROOT / "src"):
     return e
 
 
-def timed(cmd, src=ROOT / "src"):
+def timed(cmd, src=ROOT / "src", status=0):
     """``(wall s, cpu s, stdout, start time)`` of one child process (cpu: the child's user + sys) with
-    the package of ``src``."""
+    the package of ``src``; it must end with exit ``status``."""
     before = os.times()
     t0 = time.time()
     p = subprocess.run(cmd, env=env(src), capture_output=True, text=True)
     wall = time.time() - t0
     after = os.times()
-    if p.returncode != 0:
+    if p.returncode != status:
         raise SystemExit(f"{' '.join(map(str, cmd))} failed:\n{p.stderr[-2000:]}")
     cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
     return wall, cpu, p.stdout, t0
@@ -104,7 +105,10 @@ def main():
             "process start -> first frame's result (one still)": [py, "-c", DRIVER, str(rec), str(out)],
             "tracker track of one still (whole command)": [py, "-m", "tracker.cli", "track", str(rec), "-o",
                                                            str(out), "--overwrite"],
+            "tracker track of a missing recording (its error)": [py, "-m", "tracker.cli", "track", str(tmp / "none"),
+                                                                 "-o", str(out), "--overwrite"],
         }
+        failing = {"tracker track of a missing recording (its error)"}
         for src in trees.values():
             timed(rows["tracker track of one still (whole command)"], src)  # warms the cache
         walls = {(t, k): [] for t in trees for k in rows}
@@ -113,7 +117,7 @@ def main():
         for _ in range(args.repeats):
             for label, cmd in rows.items():
                 for tree, src in trees.items():
-                    wall, cpu, stdout, t0 = timed(cmd, src)
+                    wall, cpu, stdout, t0 = timed(cmd, src, status=2 if label in failing else 0)
                     if label.startswith("process start"):
                         res = json.loads(stdout.strip().splitlines()[-1])
                         first[tree].append((res["import"] - t0, res["stamps"][0] - t0))

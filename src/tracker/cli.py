@@ -291,6 +291,9 @@ def info(
     color_topic: Optional[str] = typer.Option(None, "--color-topic", help="ROS bag: colour image topic."),
 ):
     """Summary of a recording (reads and checks every frame unless --quick)."""
+    from .io.base import check_recording_path
+
+    check_recording_path(recording, topic=topic, color_topic=color_topic)  # a mistyped path: said before the readers load
     from .io.recording import Recording
 
     rec = Recording.open(recording, topic=topic, color_topic=color_topic)
@@ -360,13 +363,16 @@ def show(
         _print(f"wrote {output}")
         return
 
+    if every < 0 or max_frames < 1:
+        raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
+    from .io.base import check_recording_path
+
+    check_recording_path(recording, topic=topic)  # a mistyped path: said before matplotlib and the readers load
+
     import numpy as np
 
     from .plots import contact_sheet
     from .io.recording import Recording
-
-    if every < 0 or max_frames < 1:
-        raise TrackerError("show", "--every must be ≥ 0 and --max-frames ≥ 1")
 
     segmenter = segmenter_from_options(depth_range, box, forearm, plane) if mask else None
     rec = Recording.open(recording, topic=topic)

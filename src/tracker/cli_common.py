@@ -132,15 +132,6 @@ def check_same_recording(path, meta, recording, rec):
                                  "(--no-check-recording uses it anyway)")
 
 
-def check_recording(path, topic=None, color_topic=None, hand=None):
-    """Refuse a recording path that is none, as opening it would (a typo, no such file or folder, a
-    folder of PNG files not imported: :func:`tracker.io.base.check_recording_path`), before a tracking
-    command loads the tracker's modules: the one-line error comes at once, not after ~1 s of imports."""
-    from .io.base import check_recording_path
-
-    check_recording_path(path, topic=topic, color_topic=color_topic, handedness=hand)
-
-
 def segmenter_from_options(depth_range, box, forearm, plane):
     """The :class:`tracker.segment.Segmenter` of ``--depth-range``, ``--box``, ``--forearm`` and ``--plane``."""
     from .errors import TrackerError

@@ -15,9 +15,8 @@ from typing import List, Optional
 import typer
 
 from .cli_common import (BOX, COLOR_TOPIC, DEPTH_RANGE, FOREARM, HAND, PLANE, START, TOPIC, check_not_inputs,
-                         check_outputs, check_overlay_every, check_recording, chosen_hand_model, hand_side,
-                         input_file, progress_bar, say_if_compiling, segmenter_from_options, settings_from_options,
-                         StartUp)
+                         check_outputs, check_overlay_every, chosen_hand_model, hand_side, input_file,
+                         progress_bar, say_if_compiling, segmenter_from_options, settings_from_options, StartUp)
 
 
 def track(
@@ -100,9 +99,11 @@ def track(
         check_outputs(output, keypoints, overlay, rerun, overwrite, save_hand=save_hand)
     check_overlay_every(overlay_every)
     if len(recordings) == 1 and dask is None:
-        # a mistyped path fails now, before the modules below load (with several, each failing one is a
-        # row of the summary and the others are tracked)
-        check_recording(recordings[0], topic, color_topic, hand_side(hand))
+        from .io.base import check_recording_path
+
+        # a mistyped path fails now, not after ~1 s of the imports below (io.base loads no numpy); with
+        # several, each failing one is a row of the summary and the others are tracked
+        check_recording_path(recordings[0], topic=topic, color_topic=color_topic, handedness=hand_side(hand))
     # the collector is off until the first frame's result is in (cli_common.StartUp)
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)

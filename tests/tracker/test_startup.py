@@ -128,7 +128,7 @@ def test_tracking_one_recording_loads_no_pandas_and_writes_what_pandas_would(tmp
 
 def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
     # the one-line error of a mistyped recording path comes before the tracker's modules (numba, the
-    # kernels: ~1 s) load; the same error as opening it gives
+    # kernels: ~1 s) load, in tracker track, info and show; the same error as opening it gives
     pngs = tmp_path / "pngs"
     pngs.mkdir()
     (pngs / "0001.png").write_bytes(b"")
@@ -136,14 +136,16 @@ def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
              (tmp_path / "none", f"error: {tmp_path / 'none'}: no such recording folder"),
              (pngs, f"error: {pngs / 'recording.yaml'}: missing: {pngs} holds 1 PNG files, not a recording; import "
                     f"them first: tracker import {pngs} --camera PRESET --hand left|right -o RECORDING")]
-    for path, line in cases:
+    commands = (["track", "-o", str(tmp_path / "o.csv")], ["info"], ["show", "-o", str(tmp_path / "o.png")])
+    for (path, line), (name, *options) in zip(cases * 3, [c for c in commands for _ in cases]):
         code = ("import sys\n"
                 "from typer.testing import CliRunner\n"
                 "from tracker.cli import app\n"
-                f"r = CliRunner().invoke(app, ['track', {str(path)!r}, '-o', {str(tmp_path / 'o.csv')!r}])\n"
-                "heavy = [m for m in ('numba', 'scipy', 'numpy', 'tracker.segment', 'tracker.run') if m in sys.modules]\n"
+                f"r = CliRunner().invoke(app, [{name!r}, {str(path)!r}, *{options!r}])\n"
+                "heavy = [m for m in ('numba', 'scipy', 'numpy', 'matplotlib', 'tracker.segment', 'tracker.run')\n"
+                "         if m in sys.modules]\n"
                 "print(repr((r.exit_code, r.stderr, heavy)))")
-        assert _python(code) == repr((2, line + "\n", [])), path
+        assert _python(code) == repr((2, line + "\n", [])), (name, path)
         # the recording's own reader says the same
         from tracker.errors import RecordingError
         from tracker.io.recording import Recording
@@ -154,4 +156,4 @@ def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
             assert f"error: {exc}" == line
         else:
             raise AssertionError(f"{path} opened")
-    assert not (tmp_path / "o.csv").exists()
+    assert not (tmp_path / "o.csv").exists() and not (tmp_path / "o.png").exists()
