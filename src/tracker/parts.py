@@ -41,9 +41,10 @@ class TrackerStats:
         and sizes at an end of ``scale.range``
     size_starts : size-refining searches whose fit replaced the tracked one
     rgb_seeds, rgb_kept : start searches seeded by colour keypoints; how often the seed alone won
-    detector_seeds : start searches seeded by the depth keypoint detector's hand (``start.detector``)
-    detector_starts : of them, starts whose detector-first fit scored well enough that the full
-        search did not run (``start.detector_accept_mm``)
+    detector_seeds : hands fitted to the depth keypoint detector's keypoints (``start.detector``: starts,
+        size calibrations, the safety net's searches beyond the tracked pose)
+    detector_starts : starts whose detected hand's first fit scored well enough that the full search did
+        not run (``start.detector_accept_mm``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
     """
@@ -380,11 +381,12 @@ def depth_detector(name: str):
 
 
 class KeypointSeed:
-    """Start searches seeded by the hand fitted to a depth keypoint detector's keypoints
-    (``start.detector``): ``detect(depth_m, camera, mask, hand) -> tracker.detector.Detection`` on the
-    frame and the start's segmentation, :func:`tracker.keypoint_fit.fit_start` (with the synergy bundle, the
-    subspace fills the fingers it did not find). The seed is one more start of the search, ranked by the
-    same score as the others (Sharp et al. 2015 seed their model fit the same way)."""
+    """The hand fitted to a depth keypoint detector's keypoints (``start.detector``):
+    ``detect(depth_m, camera, mask, hand) -> tracker.detector.Detection`` on the frame and its
+    segmentation, :func:`tracker.keypoint_fit.fit_start` (with the synergy bundle, the subspace fills the
+    fingers it did not find). The searches start from it first (:func:`tracker.init.seeded_search`: the
+    start, the size calibration, the safety net's search beyond the tracked pose), as Sharp et al. 2015
+    start their model fit from a learned re-initialiser's proposals."""
 
     def __init__(self, detect, synergies=None, stats: TrackerStats | None = None):
         self.detect, self.synergies, self.stats = detect, synergies, stats or TrackerStats()

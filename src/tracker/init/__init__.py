@@ -62,5 +62,6 @@ __all__ = [
     # overlap
     "finger_capsules", "finger_overlap_mm", "segment_distances", "FINGER_OVERLAP_WEIGHT", "FINGER_OVERLAP_SHARE",
     # search
-    "fit_single_frame", "seeded_search", "converge", "SearchBudget", "finger_search", "finger_search_batched", "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
+    "fit_single_frame", "seeded_search", "converge", "SearchBudget", "finger_search", "finger_search_batched",
+    "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
 ]

@@ -222,8 +222,8 @@ def converge(ctx: FitContext, theta, points, settings: InitSettings, *, silhouet
     # all DoF at the end (the short hierarchical fits of a search spend most iterations in the subspaces):
     # converged on the refinement cloud, then a few iterations on the full cloud
     sub = thin(points, st.refine_points)
-    theta, _ = ctx.fit(theta, points[sub], "full", 0, st.icp_iterations, normals=None if normals is None else normals[sub],
-                       wrist=wrist, silhouette=silhouette)
+    theta, _ = ctx.fit(theta, points[sub], "full", 0, st.icp_iterations,
+                       normals=None if normals is None else normals[sub], wrist=wrist, silhouette=silhouette)
     return ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, wrist=wrist, silhouette=silhouette)
 
 
