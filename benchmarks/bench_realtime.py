@@ -14,10 +14,11 @@ Sequences (rendered by :func:`tracker.sim.synthesize.synthesize`, seed 0, forear
 (a fist every 2 s), grasp-back (a power grasp seen from the back), rotate (palm → back), fast (1.1 m/s
 sweeps), under Kinect v1 and RealSense SR305 noise, hands 0.8× and 1.5× the model.
 
-``--search-budget-ms B`` adds this tree with the start searches' budget (``start.search_budget_ms``).
+``--search-budget-ms B`` adds this tree with the start searches' budget (``start.search_budget_ms``);
+``--detector NAME`` this tree with the searches starting at a keypoint detector's hand (``start.detector``).
 
 Run: .venv/bin/python benchmarks/bench_realtime.py [--frames 60] [--peer REV] [--no-peer] [--no-stills]
-[--search-budget-ms B]
+[--search-budget-ms B] [--detector hand-keypoints-cnn]
 """
 from __future__ import annotations
 
@@ -43,9 +44,9 @@ t_import = time.time()
 from tracker.run import TrackJob, run_job
 rec, out, synergies = sys.argv[1:4]
 kw = {}
-if len(sys.argv) > 4:  # a start-search budget (this tree only: the peer has none)
+if len(sys.argv) > 4:  # settings changes as JSON (this tree only: the peer runs its defaults)
     from tracker.settings import TrackerSettings
-    kw["settings"] = TrackerSettings().replace(start=dict(search_budget_ms=float(sys.argv[4])))
+    kw["settings"] = TrackerSettings().replace(**json.loads(sys.argv[4]))
 stamps = []
 run_job(TrackJob(rec, out, synergies=synergies, overwrite=True, **kw),
         on_frame=lambda frame, r, ob: stamps.append((time.time(), r.status)))
@@ -61,11 +62,11 @@ def child_env(src: Path) -> dict:
     return env
 
 
-def track_timed(src: Path, rec: Path, out: Path, budget_ms: float = 0.0) -> dict:
-    """Spawn a process that tracks ``rec`` with the tree at ``src`` (``budget_ms``: the start searches'
-    budget); the times as seen from here."""
+def track_timed(src: Path, rec: Path, out: Path, changes: dict | None = None) -> dict:
+    """Spawn a process that tracks ``rec`` with the tree at ``src`` (``changes``: its
+    :class:`tracker.settings.TrackerSettings` changes); the times as seen from here."""
     t0 = time.time()
-    extra = [str(budget_ms)] if budget_ms else []
+    extra = [json.dumps(changes)] if changes else []
     p = subprocess.run([sys.executable, "-c", DRIVER, str(rec), str(out), "fingerfist", *extra], env=child_env(src),
                        capture_output=True, text=True)
     if p.returncode != 0:
@@ -126,22 +127,26 @@ def main():
     ap.add_argument("--no-stills", action="store_true")
     ap.add_argument("--search-budget-ms", type=float, default=0.0,
                     help="also this tree with this start-search budget (start.search_budget_ms)")
+    ap.add_argument("--detector", default="", help="also this tree with this detector (start.detector)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
         tmp = Path(tmp)
         recs = make_recordings(tmp / "recs", a.frames, not a.no_stills)
-        trees = [("this tree", ROOT / "src", 0.0)]
+        trees = [("this tree", ROOT / "src", None)]
         if a.search_budget_ms:
-            trees.append((f"budget {a.search_budget_ms:g} ms", ROOT / "src", a.search_budget_ms))
+            trees.append((f"budget {a.search_budget_ms:g} ms", ROOT / "src",
+                          {"start": {"search_budget_ms": a.search_budget_ms}}))
+        if a.detector:
+            trees.append((f"+ {a.detector}"[:14], ROOT / "src", {"start": {"detector": a.detector}}))
         if not a.no_peer:
-            trees.append((f"peer {a.peer}", peer_tree(a.peer, tmp / "peer") / "src", 0.0))
+            trees.append((f"peer {a.peer}", peer_tree(a.peer, tmp / "peer") / "src", None))
         for _, src, _ in trees:  # warm each tree's numba cache, untimed
             track_timed(src, recs[0][1], tmp / "warm.csv")
         print(f"{'recording':36s} {'tree':14s} {'first s':>8s} {'p50 ms':>7s} {'p95 ms':>7s} {'max ms':>7s} "
               f"{'>33 ms':>7s} {'lost':>5s}")
         for name, rec in recs:
-            for tree, src, budget in trees:
-                r = track_timed(src, rec, tmp / "t.csv", budget)
+            for tree, src, changes in trees:
+                r = track_timed(src, rec, tmp / "t.csv", changes)
                 f = r["frames_ms"]
                 print(f"{name:36s} {tree:14s} {r['first_s']:8.2f} {percentile(f, 50):7.1f} {percentile(f, 95):7.1f} "
                       f"{max(f) if f else float('nan'):7.1f} {sum(x > 33.0 for x in f):4d}/{len(f):<3d}"
