@@ -77,6 +77,9 @@ def live(
         if save.exists() and any(save.iterdir()) and not overwrite:
             raise TrackerError(save, "exists and is not empty (never overwritten; use --overwrite)")
     check_overlay_every(overlay_every)
+    if playback is not None and not playback.is_file():
+        # said now, not after the modules below and pyrealsense2 load (RealSenseSource says the same)
+        raise TrackerError(playback, "no such file to play back")
     # the collector is off until the first frame's result is in (cli_common.StartUp)
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)
@@ -191,6 +194,10 @@ def calibrate(
     if output.exists() and not overwrite and not output.is_dir():
         raise TrackerError(output, "exists and is never overwritten (use --overwrite)")
     check_output(output, overwrite=overwrite)
+    from .io.base import check_recording_path
+
+    # a mistyped path: said now, before the modules below load
+    check_recording_path(recording, topic=topic, color_topic=color_topic, handedness=hand_side(hand))
     # the collector is off until the first frame is in (cli_common.StartUp)
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)

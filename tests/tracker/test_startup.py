@@ -136,8 +136,9 @@ def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
              (tmp_path / "none", f"error: {tmp_path / 'none'}: no such recording folder"),
              (pngs, f"error: {pngs / 'recording.yaml'}: missing: {pngs} holds 1 PNG files, not a recording; import "
                     f"them first: tracker import {pngs} --camera PRESET --hand left|right -o RECORDING")]
-    commands = (["track", "-o", str(tmp_path / "o.csv")], ["info"], ["show", "-o", str(tmp_path / "o.png")])
-    for (path, line), (name, *options) in zip(cases * 3, [c for c in commands for _ in cases]):
+    commands = (["track", "-o", str(tmp_path / "o.csv")], ["info"], ["show", "-o", str(tmp_path / "o.png")],
+                ["calibrate", "-o", str(tmp_path / "hand.yaml")])
+    for (path, line), (name, *options) in zip(cases * len(commands), [c for c in commands for _ in cases]):
         code = ("import sys\n"
                 "from typer.testing import CliRunner\n"
                 "from tracker.cli import app\n"
@@ -157,3 +158,18 @@ def test_a_missing_recording_fails_before_the_tracker_loads(tmp_path):
         else:
             raise AssertionError(f"{path} opened")
     assert not (tmp_path / "o.csv").exists() and not (tmp_path / "o.png").exists()
+    assert not (tmp_path / "hand.yaml").exists()
+
+
+def test_a_missing_playback_fails_before_the_tracker_loads(tmp_path):
+    # tracker live --playback: the same line RealSenseSource gives, before numba, the kernels and pyrealsense2
+    bag = tmp_path / "none.bag"
+    code = ("import sys\n"
+            "from typer.testing import CliRunner\n"
+            "from tracker.cli import app\n"
+            f"r = CliRunner().invoke(app, ['live', '--playback', {str(bag)!r}, '-o', {str(tmp_path / 'o.csv')!r}])\n"
+            "heavy = [m for m in ('numba', 'numpy', 'pyrealsense2', 'tracker.segment', 'tracker.run')\n"
+            "         if m in sys.modules]\n"
+            "print(repr((r.exit_code, r.stderr, heavy)))")
+    assert _python(code) == repr((2, f"error: {bag}: no such file to play back\n", []))
+    assert not (tmp_path / "o.csv").exists()
