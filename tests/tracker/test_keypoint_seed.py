@@ -89,9 +89,10 @@ def test_track_command_takes_a_detector(tmp_path):
 
 def test_the_shipped_cnn_seeds_a_rendered_fist():
     """The shipped keypoint CNN (extra [detector]) by name starts a fist seen from the back, and what scores
-    best is kept: the fit explains the depth at least as well as without it. (It is off by default: on
-    these rendered fists the hidden fingers stay ambiguous — frames 30/45/59 of grasp-back: 4.6/22.2/19.5°
-    without, 5.7/29.8/22.4° with the detected hand first, in 90-140 ms instead of 670-1,010.)"""
+    best is kept: the fit explains the depth at least as well as without it. (It is off by default. On these
+    rendered fists the hidden fingers stay ambiguous — frames 30/45/59 of grasp-back: 4.6/22.2/19.5° without,
+    5.7/29.8/22.4° with network 1.0.0's detected hand first, 2.7/16.0/14.7° with 1.1.0's, in 21-30 ms instead
+    of 257-303 ms at load ~2.5; earlier 90-140 ms instead of 670-1,010 under more load.)"""
     pytest.importorskip("onnxruntime", reason="the keypoint CNN runs with onnxruntime (pip install '.[detector]')")
     truth = make_motion("grasp-back", hand=HAND).theta[45]
     ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM)
