@@ -1,0 +1,102 @@
+"""Starts, the detected hand first against today's search: each frame of the harder scenes (fists seen from
+the palm and the thumb side, a pinch, a grasp from the back; forearm + torso; Kinect v1 and SR305 noise;
+hands 0.8/1.0/1.5× with fingers ±10 %) tracked alone by a fresh tracker at the rendered hand's size —
+the tracker's defaults (the start search) and the same with ``start.detector`` (the keypoint CNN's hand
+fitted first, the full search only when that scores above ``start.detector_accept_mm``), one core, the
+same frames in the same run. Per variant: frames found (not "no hand"), the mean keypoint error's
+mean / median over them, frames within 10 mm, the frames whose full search was skipped, wall ms per start.
+
+Run: .venv/bin/python benchmarks/bench_start.py [--frames 0,10,20,30,40] [--detector hand-keypoints-cnn]
+[--accept 1.5] [--motions fist-palm,fist-side,pinch,grasp-back]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+from handmodel import HandModel  # noqa: E402
+from handmodel.rigid import euler_to_matrix  # noqa: E402
+from synergy.bundle import load_bundle  # noqa: E402
+from tracker import TRACKING_HAND  # noqa: E402
+from tracker.io.cameras import preset  # noqa: E402
+from tracker.observe import observe  # noqa: E402
+from tracker.sim import experiments as E  # noqa: E402
+from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm  # noqa: E402
+from tracker.sim.motions import make_motion  # noqa: E402
+from tracker.sim.noise import NoiseModel  # noqa: E402
+from tracker.sim.render import Clutter, DepthRenderer  # noqa: E402
+from tracker.track import FrameTracker, TrackerSettings  # noqa: E402
+
+SCENE = "+forearm+torso"  # the harder scenes' clutter (tools/harder_scenes.py), noise seeded by its place
+MOTION_FRAMES = 45
+
+
+def scene_frames(hand, motion, sensor, scale, frames):
+    """``(camera, [(observation, colour, true keypoints)])``: frames of ``motion`` as
+    :func:`tracker.sim.experiments.experiment_realistic` renders its ``SCENE`` (seed 0)."""
+    cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
+    cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
+    shown = HandShape(scale, E.realistic_fingers(scale, 0)).apply(hand)
+    truth = make_motion(motion, hand=shown, frames=MOTION_FRAMES, seed=0).theta
+    R = euler_to_matrix(truth[:, 3:6])
+    clutter = Clutter.parse(E.REALISTIC_SCENES[SCENE]).sized(
+        wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
+        (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
+    ren, j = DepthRenderer(shown, cam), list(E.REALISTIC_SCENES).index(SCENE)
+    out = []
+    for f in frames:
+        r = ren.render(truth[f], labels=False, color=True, clutter=clutter, incidence=nm.needs_incidence,
+                       reflectance=nm.needs_reflectance)
+        depth = nm.apply(r.depth, cam, np.random.default_rng([j, f]), r.cos_incidence, r.reflectance)
+        out.append((observe(depth, cam, color=r.color), r.color, shown.keypoints(truth[f])))
+    return cam, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", default="0,10,20,30,40", help="frame indices of each 45-frame motion")
+    ap.add_argument("--motions", default="fist-palm,fist-side,pinch,grasp-back")
+    ap.add_argument("--detector", default="hand-keypoints-cnn")
+    ap.add_argument("--accept", type=float, default=TrackerSettings().start.detector_accept_mm)
+    a = ap.parse_args()
+    frames = [int(f) for f in a.frames.split(",")]
+    hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
+    variants = {"today's search": {},
+                f"{a.detector}'s hand first": {"detector": a.detector, "detector_accept_mm": a.accept}}
+    res = {v: {"mm": [], "ms": [], "skipped": 0} for v in variants}
+    for motion in a.motions.split(","):
+        for sensor in E.REALISTIC_SENSORS:
+            for scale in E.REALISTIC_SCALES:
+                cam, obs = scene_frames(hand, motion, sensor, scale, frames)
+                for ob, color, true_kp in obs:
+                    for v, start in variants.items():
+                        st = TrackerSettings().replace(scale=dict(hand_scale=scale), start=start)
+                        tr = FrameTracker(hand, st, synergies=bundle)
+                        t0 = time.perf_counter()
+                        r = tr.track(ob, cam, color=color)
+                        res[v]["ms"].append((time.perf_counter() - t0) * 1e3)
+                        found = bool(np.all(np.isfinite(r.theta)))
+                        res[v]["mm"].append(np.linalg.norm(tr.hand.keypoints(r.theta) - true_kp, axis=1).mean() * 1e3
+                                            if found else np.nan)
+                        res[v]["skipped"] += tr.stats.detector_starts
+                print(f"{motion} {sensor} {scale:g}x: " + "; ".join(
+                    f"{v} {np.nanmean(res[v]['mm'][-len(obs):]):.1f} mm" for v in variants), flush=True)
+    n = len(res["today's search"]["mm"])
+    print(f"\n{n} frames, each started alone at the rendered size, one core (wall ms)")
+    print(f"{'variant':36s} {'found':>6s} {'mean mm':>8s} {'median':>7s} {'<=10 mm':>8s} {'skipped':>8s} "
+          f"{'ms median':>10s} {'ms mean':>8s} {'ms max':>7s}")
+    for v, d in res.items():
+        e, ms = np.array(d["mm"]), np.array(d["ms"])
+        f = np.isfinite(e)
+        print(f"{v:36s} {f.sum():6d} {np.mean(e[f]):8.1f} {np.median(e[f]):7.1f} {np.sum(e[f] <= 10):8d} "
+              f"{d['skipped']:8d} {np.median(ms):10.0f} {np.mean(ms):8.0f} {np.max(ms):7.0f}")
+
+
+if __name__ == "__main__":
+    main()
