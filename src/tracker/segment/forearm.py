@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy import ndimage
 
 from .._segment_kernels import (
     closed_filled,
@@ -13,7 +12,7 @@ from .._segment_kernels import (
     label_max,
 )
 from . import constants as K
-from .ops import _dilate, _disk_closing, _edt, _label, _nanmedian, bounds
+from .ops import _dilate, _disk_closing, _edt, _label, _nanmedian, _uniform1d, bounds
 
 
 def _widest_piece(owner, piece_size, j, r):
@@ -361,7 +360,7 @@ def _wrist_distance(t, strip, r, wrist_range):
     if not keep.any():
         return None
     prof = np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float)
-    prof = ndimage.uniform_filter1d(prof, 5, mode="nearest")
+    prof = _uniform1d(prof, 5)
     # the wrist is where the narrowing from the palm stops: the first distance beyond which the
     # width shrinks by less than 10 % over the next 0.3 r (a forearm further out may still taper,
     # recede or be cropped, so the global minimum would cut too late)
@@ -399,8 +398,7 @@ def _heel_end(t, strip, r):
     keep = (ti >= lo) & (ti <= hi)
     if hi <= lo or not keep.any():
         return None
-    prof = ndimage.uniform_filter1d(np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float), 5,
-                                    mode="nearest")
+    prof = _uniform1d(np.bincount(ti[keep] - lo, minlength=hi - lo + 1).astype(float), 5)
     i = int(np.argmin(prof))
     wider = np.flatnonzero(prof[i:] > (1.0 + K.TUNING.heel_width_tol) * prof[i])
     return lo + i + (int(wider[0]) - 1 if wider.size else prof.size - 1 - i)
