@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -261,16 +263,22 @@ def build_mesh(hand) -> SkinnedMesh:
                        np.concatenate(Ss))
 
 
-def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
-    """Area-uniform points on the posed capsule surface, about one per ``spacing``², with their
-    segment and outward normal. Samples are drawn on each segment's mesh and snapped onto the exact
-    primitive, so they lie on the surface that :func:`closest_points` uses."""
-    theta = np.zeros(hand.n_dofs) if theta is None else theta
-    G = hand.node_frames(theta)
+def _segments_key(hand) -> tuple:
+    """The hand's segments as a hashable shape: what :func:`_local_samples` depends on."""
+    return tuple((seg.shape, float(seg.length), float(seg.radius[0]), float(seg.radius[1]),
+                  float(seg.half_thickness), int(seg.joint)) for seg in hand.segments)
+
+
+@lru_cache(maxsize=32)
+def _local_samples(segments: tuple, spacing: float, seed: int) -> tuple:
+    """Per segment ``(joint, points, normals)`` in its joint's frame (read-only arrays): area-uniform
+    samples of its fine mesh snapped onto the exact primitive, drawn in segment order from one
+    generator seeded by ``seed``."""
     rng = np.random.default_rng(seed)
-    P, S, N = [], [], []
     fine = {"ring_vertices": 48, "cap_rings": 12, "axial_rings_per_cm": 10}
-    for s_i, seg in enumerate(hand.segments):
+    out = []
+    for shape_name, length, r0, r1, half_thickness, joint in segments:
+        seg = _SegmentShape(shape_name, length, (r0, r1), half_thickness)
         V, F = segment_surface_mesh(seg, fine)
         tri = V[F]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -280,12 +288,36 @@ def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
         flip = u + v > 1
         u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
         pts = tri[f, 0] + u[:, None] * (tri[f, 1] - tri[f, 0]) + v[:, None] * (tri[f, 2] - tri[f, 0])
-        shape = 0 if seg.shape == "capsule" else 1
         nrm = np.empty_like(pts)
-        closest_local_many(shape, seg.length, seg.radius[0], seg.radius[1], seg.half_thickness,
+        closest_local_many(0 if shape_name == "capsule" else 1, length, r0, r1, half_thickness,
                            np.ascontiguousarray(pts), pts, nrm)
-        Gj = G[seg.joint]
+        pts.flags.writeable = nrm.flags.writeable = False
+        out.append((joint, pts, nrm))
+    return tuple(out)
+
+
+class _SegmentShape(NamedTuple):
+    """What :func:`segment_surface_mesh` reads of a segment."""
+
+    shape: str
+    length: float
+    radius: tuple
+    half_thickness: float
+
+
+def surface_samples(hand, theta=None, spacing: float = 0.002, seed: int = 0):
+    """Area-uniform points on the posed capsule surface, about one per ``spacing``², with their
+    segment and outward normal. Samples are drawn on each segment's mesh and snapped onto the exact
+    primitive, so they lie on the surface that :func:`closest_points` uses. The samples in each
+    segment's frame are drawn once per hand shape, spacing and seed (:func:`_local_samples`) and posed
+    at ``theta`` here: the same numbers as drawing them anew (a start search asks for them at several
+    postures of one hand, each draw ~20 ms)."""
+    theta = np.zeros(hand.n_dofs) if theta is None else theta
+    G = hand.node_frames(theta)
+    P, S, N = [], [], []
+    for s_i, (joint, pts, nrm) in enumerate(_local_samples(_segments_key(hand), float(spacing), int(seed))):
+        Gj = G[joint]
         P.append(pts @ Gj[:3, :3].T + Gj[:3, 3])
         N.append(nrm @ Gj[:3, :3].T)
-        S.append(np.full(count, s_i))
+        S.append(np.full(len(pts), s_i))
     return np.concatenate(P), np.concatenate(S), np.concatenate(N)

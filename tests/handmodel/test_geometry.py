@@ -206,3 +206,31 @@ def test_wrist_crease_is_the_palms_end_towards_the_forearm(right, scale):
     assert c[1] <= local[:, 1].min() + 1e-9 and c[1] >= local[:, 1].min() - 3e-4  # 0.3 mm: the samples' spacing
     assert abs(c[0]) < 1e-12 and abs(c[2]) < 1e-12
     assert np.isclose(-c[1], hand.segments[0].half_thickness)
+
+
+def test_surface_samples_drawn_once_per_hand_shape_are_the_draw_itself():
+    """The samples in each segment's frame are kept per hand shape, spacing and seed and posed per call:
+    a second call, calls for other hands in between, and a fresh draw (the cache bypassed) give the same
+    arrays to the bit, each hand its own; posing leaves the kept samples untouched."""
+    from handmodel.geometry import _local_samples, _segments_key
+    from tracker.sim.hands import HandShape
+
+    base = HandModel.load()
+    small, large = HandShape(0.8).apply(base), HandShape(1.3).apply(base)
+    rng = np.random.default_rng(4)
+    th = np.zeros(base.n_dofs)
+    th[~base.pose_mask] = rng.uniform(-0.3, 1.0, int((~base.pose_mask).sum()))
+    th[3:6] = rng.uniform(-1.0, 1.0, 3)
+    first = surface_samples(small, th, spacing=0.004)
+    other = surface_samples(large, th, spacing=0.004)
+    again = surface_samples(small, th, spacing=0.004)
+    fresh = _local_samples.__wrapped__(_segments_key(small), 0.004, 0)
+    G = small.node_frames(th)
+    P = np.concatenate([pts @ G[j][:3, :3].T + G[j][:3, 3] for j, pts, _ in fresh])
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(first[0], P)
+    assert len(other[0]) != len(first[0])  # a larger hand has more samples at one spacing, not the small one's
+    first[0][:] = 0.0  # the caller's arrays are its own
+    np.testing.assert_array_equal(surface_samples(small, th, spacing=0.004)[0], P)
+    assert not _local_samples(_segments_key(small), 0.004, 0)[0][1].flags.writeable
