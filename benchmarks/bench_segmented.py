@@ -31,16 +31,15 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import numpy as np
 
 from handmodel import HandModel
-from handmodel.rigid import euler_to_matrix
 from synergy.bundle import load_bundle
 from tracker import TRACKING_HAND
 from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.sim import experiments as E
-from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
-from tracker.sim.motions import hand_centre, make_motion
+from tracker.sim.hands import HandShape
+from tracker.sim.motions import make_motion
 from tracker.sim.noise import NoiseModel
-from tracker.sim.render import Clutter, DepthRenderer
+from tracker.sim.render import DepthRenderer
 from tracker.track import FrameTracker, TrackerSettings
 
 SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
@@ -53,9 +52,7 @@ def frames_of(hand, sensor, spec, n, color=True):
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(1.0, E.realistic_fingers(1.0)).apply(hand)
     truth = make_motion("open-close", hand=shown, frames=n, seed=0).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    clutter = Clutter.parse(spec).sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
-        (truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+    clutter = E.placed_clutter(spec, hand, shown, truth)
     ren = DepthRenderer(shown, cam)
     out = []
     for f in range(n):

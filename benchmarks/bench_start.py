@@ -21,16 +21,15 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import numpy as np  # noqa: E402
 
 from handmodel import HandModel  # noqa: E402
-from handmodel.rigid import euler_to_matrix  # noqa: E402
 from synergy.bundle import load_bundle  # noqa: E402
 from tracker import TRACKING_HAND  # noqa: E402
 from tracker.io.cameras import preset  # noqa: E402
 from tracker.observe import observe  # noqa: E402
 from tracker.sim import experiments as E  # noqa: E402
-from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm  # noqa: E402
+from tracker.sim.hands import HandShape  # noqa: E402
 from tracker.sim.motions import make_motion  # noqa: E402
 from tracker.sim.noise import NoiseModel  # noqa: E402
-from tracker.sim.render import Clutter, DepthRenderer  # noqa: E402
+from tracker.sim.render import DepthRenderer  # noqa: E402
 from tracker.track import FrameTracker, TrackerSettings  # noqa: E402
 
 SCENE = "+forearm+torso"  # the harder scenes' clutter (tools/harder_scenes.py), noise seeded by its place
@@ -44,10 +43,7 @@ def scene_frames(hand, motion, sensor, scale, frames):
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale, E.realistic_fingers(scale, 0)).apply(hand)
     truth = make_motion(motion, hand=shown, frames=MOTION_FRAMES, seed=0).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    clutter = Clutter.parse(E.REALISTIC_SCENES[SCENE]).sized(
-        wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
-        (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
+    clutter = E.placed_clutter(E.REALISTIC_SCENES[SCENE], hand, shown, truth)
     ren, j = DepthRenderer(shown, cam), list(E.REALISTIC_SCENES).index(SCENE)
     out = []
     for f in frames:

@@ -172,21 +172,18 @@ def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0, moti
     ``spec``'s clutter sized with it and placed from the motion's mean hand centre, ``sensor``'s camera
     and noise (seeded ``[noise_seed, frame]``; ``experiment_realistic(seed=s)``'s scene ``j`` is
     ``seed=s, noise_seed=s + j``)."""
-    from handmodel.rigid import euler_to_matrix
     from tracker.io.cameras import preset
     from tracker.sim import experiments as E
-    from tracker.sim.hands import HandShape, wrist_to_middle_tip_mm
+    from tracker.sim.hands import HandShape
     from tracker.sim.motions import make_motion
     from tracker.sim.noise import NoiseModel
-    from tracker.sim.render import Clutter, DepthRenderer
+    from tracker.sim.render import DepthRenderer
 
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(scale, E.realistic_fingers(scale, seed)).apply(hand)
     truth = make_motion(motion, hand=shown, frames=frames, seed=seed).theta
-    R = euler_to_matrix(truth[:, 3:6])
-    clutter = Clutter.parse(spec).sized(wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)).fixed(
-        (truth[:, :3] + R @ E.hand_centre(shown)).mean(axis=0))
+    clutter = E.placed_clutter(spec, hand, shown, truth)
     r = DepthRenderer(shown, cam).render(truth[frame], labels=True, color=True, clutter=clutter,
                                          incidence=nm.needs_incidence, reflectance=nm.needs_reflectance)
     depth = nm.apply(r.depth, cam, np.random.default_rng([noise_seed, frame]), r.cos_incidence, r.reflectance)

@@ -328,6 +328,18 @@ REALISTIC_SETTINGS = {"scale": {"hand_scale": "auto"}}
 FIRST_FRAME_MM = 20.0  # a first frame counts as found when its mean keypoint error is at most this
 
 
+def placed_clutter(clutter, hand, shown, truth):
+    """``clutter`` (a :class:`~tracker.sim.render.Clutter` or its spec) as a scene of the hand ``shown``
+    (the model ``hand`` resized, :class:`~tracker.sim.hands.HandShape`) moving through ``truth`` renders it:
+    sized with the rendered hand (a resized hand comes with a resized forearm; the wrist-to-middle-tip
+    length's ratio) and fixed at the hand's mean centre over the motion."""
+    if isinstance(clutter, str):
+        clutter = Clutter.parse(clutter)
+    R = euler_to_matrix(truth[:, 3:6])
+    size = wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)
+    return clutter.sized(size).fixed((truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+
+
 def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, seed=0, color=True, segmenter=None):
     """Render the hand ``shown`` (possibly resized, :class:`~tracker.sim.hands.HandShape`) at each θ of
     ``truth`` with ``clutter`` and ``noise``, observe it with the default segmentation (colour frame
@@ -339,13 +351,8 @@ def run_scene(hand, shown, truth, camera, tracker, *, clutter=None, noise=None, 
     ``ms`` (tracker only) and ``scale`` (the tracker's hand size; NaN before it has one)."""
     cam = as_camera(camera)
     ren = DepthRenderer(shown, cam)
-    if isinstance(clutter, str):
-        clutter = Clutter.parse(clutter)
     if clutter is not None:
-        R = euler_to_matrix(truth[:, 3:6])
-        # the arm belongs to the rendered hand: a resized hand comes with a resized forearm
-        size = wrist_to_middle_tip_mm(shown) / wrist_to_middle_tip_mm(hand)
-        clutter = clutter.sized(size).fixed((truth[:, :3] + R @ hand_centre(shown)).mean(axis=0))
+        clutter = placed_clutter(clutter, hand, shown, truth)
     F = len(truth)
     out = {"keypoint_mm": np.full(F, np.nan), "posture_deg": np.full(F, np.nan), "status": np.empty(F, object),
            "ms": np.zeros(F), "scale": np.full(F, np.nan)}
