@@ -179,9 +179,11 @@ class SafetyNet:
             self.stats.net_anchored += 1
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
         found = ()
-        if self.keypoints is not None and (not self.settings.anchored or best[0] > self.threshold()):
+        if (self.keypoints is not None and (not self.settings.anchored or best[0] > self.threshold())
+                and not budget.spent("detected")):
+            # detected only when there is time to search from it
             found = self.keypoints.start(ctx.hand, sil)
-        if found and not budget.spent("detected"):
+        if found:
             # the detected hand's pose is a measurement of where the hand turned to: searched from first
             # (the placements' search costs ~3× as much), the placements only if that still scores poorly
             th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), theta0=found[0], silhouette=sil, normals=nrm,
