@@ -1,53 +1,147 @@
 """Tracking with segmentation on realistic scenes: each frame's ``observe`` (the hand segmented from
 the depth and colour frame in the predicted hand's window, :meth:`FrameTracker.segment_window`, points
 and normals) plus the tracker's step, CPU time of one core, next to the tracker's step alone on the
-same frames (the peer: what the per-frame loop costs without finding the hand) and to the same loop
-with the whole-frame segmenter (``observe`` without a window, timed on the same frames). Scenes as the realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0×
-with fingers 0.9–1.1×, forearm + torso / table, Kinect v1 and SR305 noise), today's default tracker
-with the size calibrated; the first frames (the start search and the size) are left out, as the rate
-is the tracking rate.
+same frames (what the per-frame loop costs without finding the hand) and to the same loop with the
+whole-frame segmenter (``observe`` without a window, timed on the same frames). Scenes as the
+realistic-scenes experiment renders them (open/close, 30 frames, hands 1.0× with fingers 0.9–1.1×,
+forearm + torso / table, Kinect v1 and SR305 noise), today's default tracker with the size calibrated;
+the first frames (the start search and the size) are left out, as the rate is the tracking rate. Each
+frame is observed through one :class:`tracker.segment.Segmenter` per pass, as ``tracker track`` and
+the streaming API hold one (its work buffers serve every frame).
 
 Each scene is tracked ``--repeat`` times from the start by a fresh tracker (the same work each pass:
 the tracker is deterministic) and each frame's stages are timed at the fastest pass, as ``timeit``
 advises on a shared machine: the other passes only add what other processes took. The mean over the
 passes is printed beside it.
 
-``--depth-only``: the same frames observed without their colour frames, as from a depth-only
-recording (no skin test: the segmenter leaves out the table's plane and prefers the surface with
-fingers, :mod:`tracker.segment`).
+The windowed ``observe`` is also timed per stage (exclusive CPU time of the functions named in
+:data:`STAGES`, each wrapped while the bench runs; "observe, rest" is what its total leaves: the
+frame's conversion and the full-frame arrays): the median over the frames of each frame's fastest
+pass (and the mean). A stage a tree does not have shows "-".
 
-Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30] [--repeat 3] [--depth-only]
+``--peer DIR``: the same bench run on another checkout's ``src`` (e.g. ``git worktree add /tmp/peer
+HEAD`` made before a change), scene by scene in turn with this tree's, each in a fresh process with
+the same harness (this file): the two trees' rows side by side from one run.
+
+``--depth-only``: the same frames observed without their colour frames alone, as from a depth-only
+recording (no skin test: the segmenter leaves out the table's plane and prefers the surface with
+fingers, :mod:`tracker.segment`); ``--colour-only``: with them alone; by default both.
+
+Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30] [--repeat 3] [--depth-only | --colour-only]
+[--peer DIR]
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 # one core: numba, OpenMP and BLAS threads (before numpy and numba are imported)
 for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import importlib
+
 import numpy as np
 
-from handmodel import HandModel
-from synergy.bundle import load_bundle
-from tracker import TRACKING_HAND
-from tracker.io.cameras import preset
-from tracker.observe import observe
-from tracker.sim import experiments as E
-from tracker.sim.hands import HandShape
-from tracker.sim.motions import make_motion
-from tracker.sim.noise import NoiseModel
-from tracker.sim.render import DepthRenderer
-from tracker.track import FrameTracker, TrackerSettings
-
+ROOT = Path(__file__).resolve().parents[1]
 SCENES = (("kinect1", "forearm,torso"), ("kinect1", "forearm,table"), ("realsense", "forearm,torso"),
           ("realsense", "forearm,box"))
-SKIP = TrackerSettings().scale.frames + 1  # the start and the size's refinement are not the tracking rate
+MODES = ("colour", "depth only")
+
+#: the stages of the windowed ``observe`` timed: (label, module, attribute) — a function, or a method as
+#: ``Class.method``, wrapped where its callers look it up; nested stages count apart (exclusive times)
+STAGES = (
+    ("frame's plane (depth only)", "tracker.segment.segmenter", "Segmenter.frame_plane"),
+    ("volume, skin, plane pixels", "tracker.segment.segmenter", "Segmenter._valid"),
+    ("surfaces (labels, fronts)", "tracker.segment.region", "surfaces"),
+    ("surfaces (labels, fronts)", "tracker.segment.region", "surface_fronts"),
+    ("surfaces (labels, fronts)", "tracker.segment.layers", "surfaces"),
+    ("region (seed, reach, blobs)", "tracker.segment.segmenter", "hand_region"),
+    ("fingers, arm ends", "tracker.segment.region", "_has_fingers"),
+    ("fingers, arm ends", "tracker.segment.region", "_fingered_end"),
+    ("fingers, arm ends", "tracker.segment.region", "_hand_end"),
+    ("fingers, arm ends", "tracker.segment.region", "_far_end"),
+    ("layer in front", "tracker.segment.region", "_in_front"),
+    ("joins (table, body)", "tracker.segment.segmenter", "_joins"),
+    ("wrist cut", "tracker.segment.segmenter", "cut_forearm"),
+    ("refine (full resolution)", "tracker.segment.segmenter", "refine"),
+    ("whole frame (window refused)", "tracker.segment.segmenter", "Segmenter.__call__"),
+    ("points, normals", "tracker.observe", "observe_window"),
+    ("dropout band", "tracker.observe", "dropout_band"),
+)
+#: stages whose nested calls count as theirs (the whole frame's segmentation after a refused window)
+ABSORBING = {"whole frame (window refused)"}
+REST = "observe, rest"
+
+
+class StageTimer:
+    """Exclusive CPU time per stage label while ``active`` (the wrapped calls nest: a call's time less
+    its wrapped callees' goes to its label)."""
+
+    def __init__(self):
+        self.active = False
+        self.times = {}
+        self._stack = []  # per open call: [label, start, time spent in wrapped callees]
+        self._absorbed = 0
+
+    def wrap(self, label, fn):
+        timer = self
+
+        def timed(*args, **kwargs):
+            if not timer.active or timer._absorbed:
+                return fn(*args, **kwargs)
+            entry = [label, time.process_time(), 0.0]
+            timer._stack.append(entry)
+            timer._absorbed += label in ABSORBING
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                timer._absorbed -= label in ABSORBING
+                timer._stack.pop()
+                spent = time.process_time() - entry[1]
+                timer.times[label] = timer.times.get(label, 0.0) + spent - entry[2]
+                if timer._stack:
+                    timer._stack[-1][2] += spent
+
+        timed.__wrapped__ = fn
+        return timed
+
+    def install(self):
+        """Wrap every stage this tree has; returns the labels found."""
+        found = []
+        for label, module, attr in STAGES:
+            try:
+                mod = importlib.import_module(module)
+            except ImportError:
+                continue
+            owner, name = mod, attr
+            if "." in attr:
+                cls, name = attr.split(".")
+                owner = getattr(mod, cls, None)
+            if owner is None or not hasattr(owner, name):
+                continue
+            setattr(owner, name, self.wrap(label, getattr(owner, name)))
+            found.append(label)
+        return found
+
+    def take(self):
+        out, self.times = self.times, {}
+        return out
 
 
 def frames_of(hand, sensor, spec, n, color=True):
+    from tracker.io.cameras import preset
+    from tracker.sim import experiments as E
+    from tracker.sim.hands import HandShape
+    from tracker.sim.motions import make_motion
+    from tracker.sim.noise import NoiseModel
+    from tracker.sim.render import DepthRenderer
+
     cam_name, noise_name = E.REALISTIC_SENSORS[sensor]
     cam, nm = preset(cam_name), NoiseModel.preset(noise_name)
     shown = HandShape(1.0, E.realistic_fingers(1.0)).apply(hand)
@@ -63,54 +157,154 @@ def frames_of(hand, sensor, spec, n, color=True):
     return cam, out
 
 
-def track_pass(hand, bundle, cam, frames):
-    """One pass over a scene's frames with a fresh tracker: per frame the CPU ms of ``observe``, of the
-    step, of the whole-frame ``observe``, and whether the window was used."""
+def skip_frames():
+    """The frames left out: the start and the size's refinement are not the tracking rate."""
+    from tracker.track import TrackerSettings
+
+    return TrackerSettings().scale.frames + 1
+
+
+def track_pass(hand, bundle, cam, frames, timer):
+    """One pass over a scene's frames with a fresh tracker and segmenter: per frame the CPU ms of
+    ``observe``, of the step, of the whole-frame ``observe``, whether the window was used, and the
+    windowed ``observe``'s stages (ms by label)."""
+    from tracker.observe import observe
+    from tracker.segment import Segmenter
+    from tracker.track import FrameTracker, TrackerSettings
+
     # one core: a start search's fits one after the other too (InitSettings.threads)
     tr = FrameTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
-    out = []
+    seg, seg_whole = Segmenter(), Segmenter()
+    out, stages = [], []
     for depth, color in frames:
+        window = tr.segment_window(cam)
+        timer.active = True
         t0 = time.process_time()
-        ob = observe(depth, cam, tr.settings.observe, color=color, window=tr.segment_window(cam))
+        ob = observe(depth, cam, tr.settings.observe, segmenter=seg, color=color, window=window)
         t1 = time.process_time()
+        timer.active = False
+        st = timer.take()
+        st[REST] = (t1 - t0) - sum(st.values())
+        stages.append({k: v * 1e3 for k, v in st.items()})
         tr.track(ob, cam, color=color)
         t2 = time.process_time()
         # the whole-frame segmenter on the same frame (not tracked: the loop above is the one measured)
-        observe(depth, cam, tr.settings.observe, color=color)
+        observe(depth, cam, tr.settings.observe, segmenter=seg_whole, color=color)
         t3 = time.process_time()
         out.append(((t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, ob.window is not None))
-    return np.array(out, float)[SKIP:]
+    skip = skip_frames()
+    return np.array(out, float)[skip:], stages[skip:]
+
+
+def run_scene(scene, n, repeat, colour):
+    """This process's tree on one scene: ``{"best", "mean", "stages", "labels"}`` (JSON-ready)."""
+    from handmodel import HandModel
+    from synergy.bundle import load_bundle
+    from tracker import TRACKING_HAND
+
+    timer = StageTimer()
+    labels = timer.install()
+    # the realistic scenes on the tracker's hand (tracker.TRACKING_HAND), as the report renders and tracks them
+    hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
+    sensor, spec = SCENES[scene]
+    cam, frames = frames_of(hand, sensor, spec, n, color=colour)
+    passes = [track_pass(hand, bundle, cam, frames, timer) for _ in range(max(repeat, 1))]
+    times = np.stack([p[0] for p in passes])
+    names = sorted({k for _, st in passes for s in st for k in s})
+    # each frame's stages at its fastest pass (of the whole observe), as the totals
+    fastest = times[:, :, 0].argmin(axis=0)
+    stages = {k: [passes[p][1][f].get(k, 0.0) for f, p in enumerate(fastest)] for k in names}
+    return {"best": times.min(axis=0).tolist(), "mean": times.mean(axis=0).tolist(), "stages": stages,
+            "labels": sorted(set(labels)) + [REST]}
+
+
+def child(src, scene, n, repeat, colour):
+    """:func:`run_scene` in a fresh process on the tree at ``src`` (its ``src`` folder), this harness."""
+    env = dict(os.environ, PYTHONPATH=str(src))
+    p = subprocess.run([sys.executable, __file__, "--worker", str(scene), "--frames", str(n), "--repeat",
+                        str(repeat)] + ([] if colour else ["--depth-only"]), env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"the bench on {src} failed:\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def fps_rows(tree, results):
+    """The per-scene rows and the pooled row of one tree."""
+    def row(label, best, mean):
+        o, t, w, win = best.mean(axis=0)
+        mo, mt = mean[:, 0].mean(), mean[:, 1].mean()
+        print(f"{label:36s} {o:10.2f} {win:8.0%} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / (mo + mt):16.0f} {w:22.2f} "
+              f"{1e3 / (w + t):15.0f} {1e3 / t:20.0f}")
+
+    bests, means = [], []
+    for (sensor, spec), r in zip(SCENES, results):
+        best, mean = np.array(r["best"]), np.array(r["mean"])
+        bests.append(best)
+        means.append(mean)
+        row(f"{tree[:10]:10s} {sensor:9s} {spec:15s}", best, mean)
+    row(f"{tree[:10]:10s} all", np.concatenate(bests), np.concatenate(means))
+
+
+def stage_table(trees):
+    """Median (and mean) ms per stage of the windowed observe, every scene's frames pooled, per tree."""
+    labels = []
+    for _, results in trees:
+        for r in results:
+            labels += [k for k in r["labels"] if k not in labels]
+    order = [lab for lab, _, _ in STAGES] + [REST]
+    labels = sorted(set(labels), key=order.index)
+    print(f"{'stage of the windowed observe (ms)':36s}" + "".join(f" {t[:10] + ' median':>17s} {'mean':>6s}"
+                                                                  for t, _ in trees))
+    totals = []
+    for t, results in trees:
+        totals.append(np.concatenate([np.array(r["best"])[:, 0] for r in results]))
+    for lab in labels:
+        cells = ""
+        for _, results in trees:
+            if not all(lab in r["labels"] for r in results):
+                cells += f" {'-':>17s} {'-':>6s}"
+                continue
+            v = np.concatenate([np.asarray(r["stages"].get(lab, [0.0] * len(r["best"]))) for r in results])
+            cells += f" {np.median(v):17.3f} {v.mean():6.3f}"
+        print(f"{lab:36s}{cells}")
+    print(f"{'observe, total':36s}" + "".join(f" {np.median(v):17.3f} {v.mean():6.3f}" for v in totals))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--repeat", type=int, default=3, help="passes per scene; each frame timed at the fastest")
-    ap.add_argument("--depth-only", action="store_true", help="observe without the colour frames")
+    ap.add_argument("--depth-only", action="store_true", help="observe without the colour frames only")
+    ap.add_argument("--colour-only", action="store_true", help="observe with the colour frames only")
+    ap.add_argument("--peer", type=Path, default=None, help="another checkout whose src is timed in the same run")
+    ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
-    # the realistic scenes on the tracker's hand (tracker.TRACKING_HAND), as the report renders and tracks them
-    hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
-    print(f"{'sensor':9s} {'scene':15s} {'observe ms':>10s} {'windowed':>8s} {'track ms':>9s} "
-          f"{'fps with segmentation':>22s} {'(mean of passes)':>16s} {'whole-frame observe ms':>22s} "
-          f"{'fps whole-frame':>15s} {'fps tracking alone (peer)':>26s}")
-    best_all, mean_all = [], []
-
-    def row(label, best, mean):
-        o, t, w, win = best.mean(axis=0)
-        mo, mt = mean[:, 0].mean(), mean[:, 1].mean()
-        print(f"{label:25s} {o:10.2f} {win:8.0%} {t:9.2f} {1e3 / (o + t):22.0f} {1e3 / (mo + mt):16.0f} {w:22.2f} "
-              f"{1e3 / (w + t):15.0f} {1e3 / t:26.0f}")
-
-    for sensor, spec in SCENES:
-        cam, frames = frames_of(hand, sensor, spec, a.frames, color=not a.depth_only)
-        passes = np.stack([track_pass(hand, bundle, cam, frames) for _ in range(max(a.repeat, 1))])
-        best, mean = passes.min(axis=0), passes.mean(axis=0)
-        best_all.append(best)
-        mean_all.append(mean)
-        row(f"{sensor:9s} {spec:15s}", best, mean)
-    row("all", np.concatenate(best_all), np.concatenate(mean_all))
+    if a.worker is not None:
+        print(json.dumps(run_scene(a.worker, a.frames, a.repeat, not a.depth_only)))
+        return
+    modes = [m for m in MODES if not (m == "colour" and a.depth_only) and not (m == "depth only" and a.colour_only)]
+    trees = [("this tree", ROOT / "src")]
+    if a.peer is not None:
+        if not (a.peer / "src" / "tracker").is_dir():
+            raise SystemExit(f"--peer {a.peer}: no src/tracker in it")
+        trees.append(("peer", a.peer.resolve() / "src"))
+    print(f"bench_segmented: {a.frames} frames a scene, {a.repeat} passes, {os.cpu_count()} cores, "
+          f"load {os.getloadavg()[0]:.1f}" + (f"; peer: {a.peer}" if a.peer is not None else ""))
+    for mode in modes:
+        colour = mode == "colour"
+        results = {t: [] for t, _ in trees}
+        for scene in range(len(SCENES)):
+            for t, src in trees:  # scene by scene in turn: both trees see the same load
+                results[t].append(child(src, scene, a.frames, a.repeat, colour))
+        print(f"\n{mode}:")
+        print(f"{'tree       sensor    scene':36s} {'observe ms':>10s} {'windowed':>8s} {'track ms':>9s} "
+              f"{'fps with segmentation':>22s} {'(mean of passes)':>16s} {'whole-frame observe ms':>22s} "
+              f"{'fps whole-frame':>15s} {'fps tracking alone':>20s}")
+        for t, _ in trees:
+            fps_rows(t, results[t])
+        stage_table([(t, results[t]) for t, _ in trees])
     print("(CPU ms per frame, one core, each frame at its fastest of the passes; windowed: share of frames "
-          "segmented in the predicted hand's window)")
+          "segmented in the predicted hand's window; stages: median over the frames, every scene pooled)")
 
 
 if __name__ == "__main__":

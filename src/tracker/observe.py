@@ -232,8 +232,11 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     wrong (the hand runs out of the window, or is not where it was predicted);
     ``Observation.window`` says which was used."""
     st = dataclasses.replace(settings or ObserveSettings(), **changes)
-    d = np.asarray(depth, np.float64)
     seg = segmenter or Segmenter()
+    # the frame, the mask, the depth and the silhouette are written to the segmenter's buffers
+    # (reused when the caller holds no earlier observation's: Segmenter.buffers)
+    bufs = seg.buffers
+    d = _float64(depth, bufs)
     H, W = d.shape
     # the segmenter needs the points only for a box; otherwise the back-projection, smoothing and
     # normals are computed in the hand's window alone (a tenth of the frame or less)
@@ -270,16 +273,25 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     k = observe_window(dw, mw, float(camera.fx), float(camera.fy), float(camera.cx - x0), float(camera.cy - y0),
                        int(st.smooth), SMOOTH_MAX_DIFF_M, float(st.normal_max_jump), stride, (-y0) % stride, (-x0) % stride,
                        dsm, pts, nrm)
-    out_d = np.full((H, W), np.nan)
+    out_d = bufs.full("depth", (H, W), np.nan)
     out_d[y0:y1, x0:x1] = np.where(mw, dsm, np.nan)
     sil = mask
     if edge:
         band, fill = dropout_band(mw, dsm, edge)
         if band.any():
-            sil = mask.copy()
+            sil = bufs.copy_of("silhouette", mask)
             sil[y0:y1, x0:x1] |= band
             out_d[y0:y1, x0:x1] = np.where(band, fill, out_d[y0:y1, x0:x1])
     return Observation(pts[:k], nrm[:k], mask, out_d, float(k) / max(n_mask, 1), stride, d, sil, used)
+
+
+def _float64(depth, buffers):
+    """``np.asarray(depth, np.float64)``: the array itself when it is float64 already, else its values
+    converted into one of ``buffers`` (:class:`tracker.segment.buffers.FrameBuffers`)."""
+    a = np.asarray(depth)
+    if a.dtype == np.float64:
+        return a
+    return buffers.copy_of("frame", a, np.float64)
 
 
 def gate(points, predicted, radius=0.03, *, normals=None, min_share=0.5, min_points=30) -> np.ndarray:

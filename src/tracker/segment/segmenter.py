@@ -2,11 +2,12 @@
 refinement, in the whole frame or in the predicted hand's window (:meth:`Segmenter.in_window`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import constants as K
+from .buffers import FrameBuffers
 from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES
 from .forearm import cut_forearm
 from .layers import _joins
@@ -41,6 +42,12 @@ class Segmenter:
     coarse : search on every ``coarse``-th pixel in x and y, then refine the edges at full
         resolution (1: search at full resolution; used only for images of at least 40·coarse
         pixels each way)
+
+    Attributes
+    ----------
+    buffers : the full-frame arrays its results are written to, reused from frame to frame when free
+        (:class:`tracker.segment.buffers.FrameBuffers`; hold one segmenter for a sequence, as
+        :func:`tracker.observe.observe`'s ``segmenter``)
     """
 
     z_min: float = 0.2
@@ -58,6 +65,7 @@ class Segmenter:
     use_color: bool = True
     coarse: int = 2
     plane: str = "auto"
+    buffers: FrameBuffers = field(default_factory=FrameBuffers, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         _check(self)
@@ -122,7 +130,7 @@ class Segmenter:
                         prefer=expected, in_window=True)
         if not sub.any() or layered or not _trusted(sub, (y0, y1, x0, x1), (H, W), expected):
             return None
-        out = np.zeros((H, W), bool)
+        out = self.buffers.zeros("mask", (H, W))
         out[win] = sub
         return out
 
