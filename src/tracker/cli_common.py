@@ -274,7 +274,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
                           prediction, robust, finger_search, projected_steps, hand_scale, check_hand, *,
                           rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
                           threads=None, search_budget_ms=None, detector=None,
-                          detector_accept_mm=None):
+                          detector_accept_mm=None, no_detector=False):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`checked_settings`)."""
     from .errors import TrackerError
@@ -282,6 +282,10 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
 
     if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
         raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
+    if no_detector:
+        if detector:
+            raise TrackerError("--no-detector", f"give --detector or --no-detector, not both (got --detector {detector})")
+        detector = ""
     groups = {
         "observe": dict(stride=stride, smooth=smooth, target_points=points or None),
         "icp": dict(icp_iterations=icp, gn_iterations=gn, damping=damping, silhouette_weight=silhouette,

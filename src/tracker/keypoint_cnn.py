@@ -61,7 +61,7 @@ def _require_onnxruntime():
     try:
         import onnxruntime
     except ImportError:
-        raise TrackerError("onnxruntime", "not installed: the keypoint CNN needs it (pip install '.[detector]')") from None
+        raise TrackerError("onnxruntime", "not installed: the keypoint CNN needs it (pip install onnxruntime; or track with --no-detector)") from None
     return onnxruntime
 
 
@@ -147,6 +147,11 @@ class KeypointCNN:
             opts.inter_op_num_threads = 1
             self._session = ort.InferenceSession(self.onnx_bytes, opts, providers=["CPUExecutionProvider"])
         return self._session
+
+    def __deepcopy__(self, memo):
+        # read-only once verified, and an onnxruntime session cannot be copied: a copied tracker
+        # (copy.deepcopy) shares its network, as every tracker of a process shares load_cnn's
+        return self
 
     def run(self, images) -> tuple[np.ndarray, np.ndarray]:
         """``(keypoints (B, 21, 3), spread (B, 21))`` of inputs ``(B, side, side)``."""

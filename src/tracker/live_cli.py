@@ -47,6 +47,7 @@ def live(
     hand_model: Optional[str] = typer.Option(None, "--hand-model", help="Hand model name or YAML path [human; default, the paper's, with --paper]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
+    no_detector: bool = typer.Option(False, "--no-detector", help="No keypoint detector: every start is the full search (as tracker track --no-detector)."),
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
@@ -84,7 +85,7 @@ def live(
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)
         settings = settings_from_options(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
-                             None, None, hand_scale, check_hand)
+                             None, None, hand_scale, check_hand, no_detector=no_detector)
 
         # heavy modules (and the optional pyrealsense2) load here, so `tracker --help` answers at once
         import signal

@@ -15,7 +15,7 @@ from handmodel.rigid import euler_to_matrix
 
 from ._wrist_kernels import arm_entry
 from .correspond import data_to_model_mm
-from .init import InitSettings, SearchBudget, fit_single_frame, score
+from .init import InitSettings, SearchBudget, fit_single_frame, restart_fingers, score
 from .parts import KeypointSeed, TrackerStats, WristCue
 from .wrist import arm_length_m, wrist_cost_mm
 
@@ -186,8 +186,11 @@ class SafetyNet:
         if found:
             # the detected hand's pose is a measurement of where the hand turned to: searched from first
             # (the placements' search costs ~3× as much), the placements only if that still scores poorly
-            th2, c2 = fit_single_frame(ctx, pts, InitSettings.cheap(), theta0=found[0], silhouette=sil, normals=nrm,
+            cheap = InitSettings.cheap()
+            th2, c2 = fit_single_frame(ctx, pts, cheap, theta0=found[0], silhouette=sil, normals=nrm,
                                        extra=starts + found, search=False, budget=budget)
+            if not budget.spent("fingers"):
+                th2, c2 = restart_fingers(ctx, th2, c2, pts, cheap, silhouette=sil, normals=nrm)
             best = min(best, (score(ctx, th2, c2, sil), th2, c2), key=lambda b: b[0])
             placements = best[0] > self.threshold() and not budget.spent("placements")
         else:

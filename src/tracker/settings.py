@@ -145,13 +145,13 @@ class StartSettings(SettingsGroup):
     wrist_cue: bool = True
     rgb_seed: bool = False
     check_hand: bool = False
-    detector: str = ""
+    detector: str = "hand-keypoints-cnn"
     detector_accept_mm: float = 1.5
     search_budget_ms: float = 0.0
 
     @classmethod
     def paper(cls):
-        return cls(wrist_cue=False)
+        return cls(wrist_cue=False, detector="")
 
     def check(self):
         b = self.search_budget_ms

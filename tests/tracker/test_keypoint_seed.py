@@ -48,7 +48,7 @@ def test_a_right_detector_seed_wins_the_search_it_joins():
 def test_a_detector_that_finds_nothing_changes_nothing():
     truth = make_motion("grasp-back", hand=HAND).theta[10]
     ob = observe(DepthRenderer(HAND, CAM).render(truth, labels=False).depth, CAM)
-    st = TrackerSettings().replace(scale=dict(hand_scale=1.0))
+    st = TrackerSettings().replace(scale=dict(hand_scale=1.0), start=dict(detector=""))
 
     def blind(depth, camera, mask, hand):
         return Detection(np.full((21, 2), np.nan), np.full(21, np.nan), np.full((21, 3), np.nan), np.zeros(21),
@@ -66,7 +66,8 @@ def test_the_shipped_forest_loads_by_name_and_a_bad_name_is_one_error():
     assert tr.search.keypoints is not None
     with pytest.raises(TrackerError):
         FrameTracker(HAND, TrackerSettings().replace(start=dict(detector="no-such-detector")))
-    assert FrameTracker(HAND, TrackerSettings()).search.keypoints is None  # off by default
+    assert FrameTracker(HAND, TrackerSettings()).search.keypoints is not None  # on by default
+    assert FrameTracker(HAND, TrackerSettings.paper()).search.keypoints is None  # not the paper's
 
 
 def test_track_command_takes_a_detector(tmp_path):

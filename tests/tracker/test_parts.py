@@ -145,7 +145,7 @@ def test_the_parts_share_one_count_the_cue_and_the_gate():
     assert parts.net.cue is parts.cue and parts.search.cue is parts.cue and parts.search.colour is parts.colour
     assert parts.prediction.gate is parts.gate and parts.prediction.recentring is parts.recentring
     assert parts.search.keypoints is not None and parts.search.keypoints.stats is stats
-    plain = build_parts(HAND, TrackerSettings(), None, TrackerStats())
+    plain = build_parts(HAND, TrackerSettings().replace(start=dict(detector="")), None, TrackerStats())
     assert plain.colour is None and plain.search.keypoints is None
     with pytest.raises(TrackerError, match="needs a synergy bundle"):
         build_parts(HAND, TrackerSettings(mode="reduced"), None, stats)

@@ -42,6 +42,7 @@ from .search import (
     finger_search,
     finger_search_batched,
     fit_single_frame,
+    restart_fingers,
     seeded_search,
 )
 from .settings import STRATEGIES, HalvingSettings, InitSettings, available_cores, search_threads
@@ -62,6 +63,6 @@ __all__ = [
     # overlap
     "finger_capsules", "finger_overlap_mm", "segment_distances", "FINGER_OVERLAP_WEIGHT", "FINGER_OVERLAP_SHARE",
     # search
-    "fit_single_frame", "seeded_search", "converge", "SearchBudget", "finger_search", "finger_search_batched",
+    "fit_single_frame", "seeded_search", "converge", "restart_fingers", "SearchBudget", "finger_search", "finger_search_batched",
     "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
 ]

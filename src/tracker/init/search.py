@@ -111,6 +111,12 @@ def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, 
                                    extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
     first = score(ctx, theta, corr, silhouette)
     if first <= accept_mm:
+        # a fit that scores this well can still hold one finger in a wrong local minimum the tracking
+        # never leaves (a curled thumb after blank frames: 3.2 against 0.4° on the frames after); the
+        # detector's fingertips agree with that fit (it started there), so the finger-wise restarts decide
+        if st.finger_search:
+            theta, corr = restart_fingers(ctx, theta, corr, points, st, silhouette=silhouette, normals=normals,
+                                          wrist=wrist)
         return theta, corr, False
     th2, c2 = fit_single_frame(ctx, points, st, silhouette=silhouette, normals=normals, extra=tuple(extra) + (theta,),
                                wrist=wrist, budget=budget)
@@ -225,6 +231,16 @@ def converge(ctx: FitContext, theta, points, settings: InitSettings, *, silhouet
     theta, _ = ctx.fit(theta, points[sub], "full", 0, st.icp_iterations,
                        normals=None if normals is None else normals[sub], wrist=wrist, silhouette=silhouette)
     return ctx.fit(theta, points, "full", 0, st.polish_icp, normals=normals, wrist=wrist, silhouette=silhouette)
+
+
+def restart_fingers(ctx: FitContext, theta, corr, points, settings: InitSettings, *, silhouette=None, normals=None,
+                    wrist=None):
+    """A converged fit ``(θ, corr)`` after the finger-wise restarts (:func:`finger_search_batched`):
+    converged again (:func:`converge`) only when a restart replaced a finger, else returned as it is."""
+    th = finger_search_batched(ctx, theta, points, settings, silhouette=silhouette, normals=normals)
+    if th is theta:
+        return theta, corr
+    return converge(ctx, th, points, settings, silhouette=silhouette, normals=normals, wrist=wrist, fingers=False)
 
 
 def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings, *, silhouette=None, normals=None):
