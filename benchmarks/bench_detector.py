@@ -84,10 +84,10 @@ def main():
                           (c.keypoints_uv[:, 1] - cy) * c.keypoints_z / fy, c.keypoints_z], axis=1)
         size = dict(hand_scale=float(c.meta["scale"]))
         for start, times, errs, firsts in ((dict(detector=keypoint_cnn.CNN_NAME), t_first, e_first, n_first),
-                                           (None, t_peer, e_peer, None)):
-            if start is None and a.no_peer:
+                                           (dict(detector=""), t_peer, e_peer, None)):
+            if firsts is None and a.no_peer:
                 continue
-            st = TrackerSettings().replace(scale=size, **({} if start is None else {"start": start}))
+            st = TrackerSettings().replace(scale=size, start=start)
             tr = FrameTracker(hand, st, synergies=bundle)
             t3 = [f() for f in clock]
             r = tr.track(ob, cam)
@@ -102,7 +102,7 @@ def main():
     rows["keypoint CNN detect + fit_start (synergies)"] = t_cnn_start
     rows["the start, the CNN's hand first (FrameTracker.track, start.detector)"] = t_first
     if t_peer:
-        rows["peer: today's start search (FrameTracker.track, first frame)"] = t_peer
+        rows["peer: the full start search (FrameTracker.track, first frame, --no-detector)"] = t_peer
     print(f"{len(data)} SR305 frames, one core")
     print(f"{'variant':70s} {'median ms':>10s} {'max ms':>8s} {'CPU median ms':>14s}")
     for k, v in rows.items():

@@ -15,10 +15,11 @@ Sequences (rendered by :func:`tracker.sim.synthesize.synthesize`, seed 0, forear
 sweeps), under Kinect v1 and RealSense SR305 noise, hands 0.8× and 1.5× the model.
 
 ``--search-budget-ms B`` adds this tree with the start searches' budget (``start.search_budget_ms``);
-``--detector NAME`` this tree with the searches starting at a keypoint detector's hand (``start.detector``).
+``--no-detector`` this tree without the keypoint detector (on by default: ``start.detector``), every
+start the full search.
 
 Run: .venv/bin/python benchmarks/bench_realtime.py [--frames 60] [--peer REV] [--no-peer] [--no-stills]
-[--search-budget-ms B] [--detector hand-keypoints-cnn]
+[--search-budget-ms B] [--no-detector]
 """
 from __future__ import annotations
 
@@ -127,7 +128,8 @@ def main():
     ap.add_argument("--no-stills", action="store_true")
     ap.add_argument("--search-budget-ms", type=float, default=0.0,
                     help="also this tree with this start-search budget (start.search_budget_ms)")
-    ap.add_argument("--detector", default="", help="also this tree with this detector (start.detector)")
+    ap.add_argument("--no-detector", action="store_true",
+                    help="also this tree without the keypoint detector (start.detector \"\", every start the full search)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
         tmp = Path(tmp)
@@ -136,8 +138,8 @@ def main():
         if a.search_budget_ms:
             trees.append((f"budget {a.search_budget_ms:g} ms", ROOT / "src",
                           {"start": {"search_budget_ms": a.search_budget_ms}}))
-        if a.detector:
-            trees.append((f"+ {a.detector}"[:14], ROOT / "src", {"start": {"detector": a.detector}}))
+        if a.no_detector:
+            trees.append(("no detector", ROOT / "src", {"start": {"detector": ""}}))
         if not a.no_peer:
             trees.append((f"peer {a.peer}", peer_tree(a.peer, tmp / "peer") / "src", None))
         for _, src, _ in trees:  # warm each tree's numba cache, untimed

@@ -1,8 +1,9 @@
-"""Starts, the detected hand first against today's search: each frame of the harder scenes (fists seen from
+"""Starts, the detected hand first against the full search: each frame of the harder scenes (fists seen from
 the palm and the thumb side, a pinch, a grasp from the back; forearm + torso; Kinect v1 and SR305 noise;
 hands 0.8/1.0/1.5× with fingers ±10 %) tracked alone by a fresh tracker at the rendered hand's size —
-the tracker's defaults (the start search) and the same with ``start.detector`` (the keypoint CNN's hand
-fitted first, the full search only when that scores above ``start.detector_accept_mm``), one core, the
+the tracker without a detector (``--no-detector``: every start the full search) and with ``start.detector``
+(the default: the keypoint CNN's hand fitted first, the full search only when that scores above
+``start.detector_accept_mm``), one core, the
 same frames in the same run. Per variant: frames found (not "no hand"), the mean keypoint error's
 mean / median over them, frames within 10 mm, the frames whose full search was skipped, wall ms per start.
 
@@ -63,7 +64,7 @@ def main():
     a = ap.parse_args()
     frames = [int(f) for f in a.frames.split(",")]
     hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
-    variants = {"today's search": {},
+    variants = {"the full search (--no-detector)": {"detector": ""},
                 f"{a.detector}'s hand first": {"detector": a.detector, "detector_accept_mm": a.accept}}
     res = {v: {"mm": [], "ms": [], "skipped": []} for v in variants}
     for motion in a.motions.split(","):

@@ -130,8 +130,9 @@ class StartSettings(SettingsGroup):
         (:mod:`tracker.rgb`, extra ``[rgb]``; False)
     check_hand : on the first frame also fit the mirror-image hand (``hand_check_``; False)
     detector : a depth keypoint detector (a name or file under ``models/detectors/``,
-        :func:`tracker.parts.depth_detector`) whose fitted hand the searches start from first ("" = none,
-        the default: neither shipped detector is yet good enough, docs/experiments/detector.md)
+        :func:`tracker.parts.depth_detector`) whose fitted hand the searches start from first
+        ("hand-keypoints-cnn", the shipped keypoint CNN's newest version; "" = none, the paper's:
+        every start the full search; docs/experiments/detector.md)
     detector_accept_mm : with a ``detector``, a start fits the synergy postures at the detected hand's
         global pose first (:func:`tracker.init.seeded_search`, ~15× cheaper than the full search); when
         that scores at most this (mm, :func:`tracker.init.score`) the full search does not run (1.5,
