@@ -141,7 +141,10 @@ def diagnose(df, residuals, labels, rep, *, rate, poor_residual_mm=None, prior_d
                             "between two solutions: marker places or calibration?)")
     poor_share = float((q == "poor").mean())
     if poor_share > POOR_TRIAL_SHARE:
-        warnings.append(f"{100 * poor_share:.0f} % of frames poor (residual > {thr:.1f} mm)")
+        why = ("" if poor_residual_mm is not None else
+               f": the larger of {POOR_FACTOR:g}× and {POOR_MARGIN_MM:g} mm over the trial's median marker residual "
+               f"{floor:.2f} mm")
+        warnings.append(f"{100 * poor_share:.0f} % of frames poor (a frame's RMS marker residual > {thr:.1f} mm{why})")
     if per_marker:
         worst = max(per_marker.items(), key=lambda x: x[1][0])
         med = np.median([v[0] for v in per_marker.values()])
@@ -228,8 +231,8 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         hand_check = check_handedness(data, ms0, hand, model=base.path if not isinstance(model, str) else model,
                                       where=where)
         if hand_check["verdict"] != "ok":
-            msg = (f"the {'left' if right else 'right'} hand fits these markers better "
-                   f"({hand_check['other_residual_mm']:.1f} mm vs {hand_check['residual_mm']:.1f} mm as {hand})")
+            msg = (f"the {'left' if right else 'right'} hand fits these markers better (median marker residual, hand "
+                   f"scale only: {hand_check['other_residual_mm']:.1f} mm vs {hand_check['residual_mm']:.1f} mm as {hand})")
             if hand_check["verdict"] == "wrong hand" and check_hand == "stop":
                 raise SynergyError(where or "trial", msg + "; use --hand, or --no-hand-check to convert anyway")
             warnings.append(msg)

@@ -181,7 +181,7 @@ def _print_conversions(console, trials, accept_poor: bool) -> None:
     per-trial conversion quality (a table that fits 80 columns), warnings and poor trials fitted."""
     from rich.text import Text
 
-    from synergy.cli_mocap import fit_table
+    from synergy.cli_mocap import RESIDUAL_COLUMNS, fit_table
 
     conv = [(Path(t.path).name, t.conversion) for t in trials if t.conversion]
     if not conv:
@@ -201,7 +201,7 @@ def _print_conversions(console, trials, accept_poor: bool) -> None:
     mm = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
     rows = [(f, f"{c['markerset']} {c['hand'][0].upper()}", mm(c["residual_median_mm"]), mm(c["residual_p95_mm"]),
              f"{100 * c['ok_share']:.1f}", c["verdict"]) for f, c in conv]
-    console.print(fit_table("C3D conversion (marker residuals)", ("trial", "set, hand", "med mm", "95th mm", "ok %",
+    console.print(fit_table(f"C3D conversion ({RESIDUAL_COLUMNS})", ("trial", "set, hand", "med mm", "95th mm", "ok %",
                                                                   "verdict"), rows))
     for f, c in conv:
         for w in c["warnings"] if c["verdict"] != "good" else ():

@@ -93,28 +93,33 @@ def fit_table(title, columns, rows, *, names_first=True):
     return table
 
 
+#: What the tables' "med mm" and "95th mm" are: the one residual every message gives (the calibration's
+#: held-out check, :func:`synergy.calibrate.held_out_line`, is the same median on its frames).
+RESIDUAL_COLUMNS = "med/95th mm: median marker residual over frames and its 95th percentile"
+
+
 def describe_trial(name, df) -> list:
     """Lines a user reads under the summary table: calibration as estimated, the worst markers,
     joints on limits, the handedness check, warnings."""
     import numpy as np
     from rich.markup import escape
 
+    from synergy.calibrate import held_out_line
+
     d = df.attrs.get("diagnostics", {})
     cal = df.attrs.get("calibration", {})
-    out = [f"[bold]{escape(name)}[/bold] ({d.get('verdict', '?')}): noise floor {d.get('noise_floor_mm', float('nan')):.2f} mm, "
-           f"poor above {d.get('poor_threshold_mm', float('nan')):.2f} mm"]
+    out = [f"[bold]{escape(name)}[/bold] ({d.get('verdict', '?')}): noise floor (median marker residual) "
+           f"{d.get('noise_floor_mm', float('nan')):.2f} mm, a frame poor above {d.get('poor_threshold_mm', float('nan')):.2f} mm"]
     line = f"  calibration: {cal.get('method', 'none')}, hand scale {cal.get('scale', 1.0):.3f}"
     if cal.get("bone_scales"):
         f = np.array([v * cal.get("scale", 1.0) for v in cal["bone_scales"].values()])
         line += f", bones {f.min():.2f}–{f.max():.2f}× the model"
     h = cal.get("held_out") or {}
     if h.get("frames"):
-        # one residual everywhere: the median over frames of a frame's RMS marker distance (the
-        # table's "med mm"), here on the calibration's held-out frames, for both hands it compared
-        used = "scale only" if cal.get("method", "").startswith("hand scale") and "not used" in cal.get("method", "") \
-            else "calibrated"
-        line += (f"; held-out residual ({h['frames']} frames) {h['residual_mm']:.2f} mm calibrated, "
-                 f"{h['scale_only_residual_mm']:.2f} mm hand scale only (this table: the {used} hand)")
+        # one residual everywhere: the median marker residual (the table's "med mm"), here on the
+        # calibration's held-out frames, for both hands it compared
+        used = "hand scale only" if "not used" in cal.get("method", "") else "calibrated"
+        line += f"; {held_out_line(h)}; the table's hand: {used}"
     out.append(line)
     pp = df.attrs.get("posture_prior")
     sd = d.get("posterior_sd_deg") or {}
@@ -133,7 +138,8 @@ def describe_trial(name, df) -> list:
         out.append("  worst markers (median/95th mm): " + ", ".join(f"{k} {v[0]:.1f}/{v[1]:.1f}" for k, v in worst))
     hc = d.get("handedness")
     if hc:
-        out.append(f"  hand check (hand scale only): {hc['chosen']} {hc['residual_mm']:.2f} mm, other hand {hc['other_residual_mm']:.2f} mm"
+        out.append(f"  hand check (median marker residual, hand scale only): {hc['chosen']} {hc['residual_mm']:.2f} mm, "
+                   f"other hand {hc['other_residual_mm']:.2f} mm"
                    f" ({hc['verdict']})")
     for w in d.get("warnings", []):
         out.append(f"  [yellow]warning:[/yellow] {escape(w)}")
@@ -208,7 +214,7 @@ def calibrate(
 
     from handmodel import HandModel
     from synergy.c3d import read_c3d
-    from synergy.calibrate import calibrate as run, save_calibration
+    from synergy.calibrate import calibrate as run, held_out_line, save_calibration
     from synergy.markers import load_markerset
 
     ms = load_markerset(markers)
@@ -234,11 +240,8 @@ def calibrate(
         sd = unc.get("offsets_mm", {}).get(k)
         rows.append((f"marker {k} moved (mm)", f"{v:.1f}", f"{max(sd):.1f}" if sd else ""))
     con.print(fit_table("estimated (× the model; SD)", ("what", "estimate", "SD"), rows))
-    h = cal.held_out
-    if h.get("frames"):
-        con.print(f"fit on {h['train_frames']} frames: residual {h['train_residual_mm']:.2f} mm; held out "
-                  f"{h['frames']} frames: {h['residual_mm']:.2f} mm (hand scale only: "
-                  f"{h['scale_only_residual_mm']:.2f} mm)")
+    if cal.held_out.get("frames"):
+        con.print(held_out_line(cal.held_out))
     for w in cal.warnings:
         _console(stderr=True).print(f"warning: {escape(w)}")
     if cal.overfit and not force:
@@ -339,7 +342,7 @@ def angles(
     if rows:  # every trial failed: only their errors, no empty table headed by a guess
         sets = "/".join(sorted({m for m, _ in chosen}))
         hands = "/".join(sorted({h for _, h in chosen}))
-        con.print(fit_table(f"marker IK ({sets}, {hands} hand; marker residuals) → {out}",
+        con.print(fit_table(f"marker IK ({sets}, {hands} hand; {RESIDUAL_COLUMNS}) → {out}",
                             ("trial", "frames", "gap %", "med mm", "95th mm", "ok %", "verdict", "frames/s"), rows))
     for line in notes:
         con.print(line)
