@@ -6,9 +6,10 @@ import numpy as np
 
 from .._segment_kernels import (
     closed_filled,
+    fill_holes,
 )
 from . import constants as K
-from .ops import _dilate, _disk_opening, _edt, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist, bounds
+from .ops import _dilate, _disk_opening, _edt, _in_labels, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist, bounds
 from .surfaces import _touches_border, pixel_area
 
 
@@ -70,7 +71,7 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     lab_o, _ = _label(obj[win])
     hit = np.unique(lab_o[seed[win]])
     obj = np.zeros_like(obj)
-    obj[win] = np.isin(lab_o, hit[hit > 0])
+    obj[win] = _in_labels(lab_o, hit[hit > 0])
     if not obj.any() or _touches_border(obj, border_px):
         return seed, front
     (ya, yb), (xa, xb) = bounds(obj)
@@ -162,7 +163,7 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     r = int(np.ceil((reach or 0.22) * px_m))
     H, W = surface.shape
     y0, y1, x0, x1 = max(int(cy) - r, 0), min(int(cy) + r + 1, H), max(int(cx) - r, 0), min(int(cx) + r + 1, W)
-    yy, xx = np.mgrid[y0:y1, x0:x1]
+    yy, xx = np.ogrid[y0:y1, x0:x1]  # open grids: the same values, broadcast
     part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
     if not part.any():
         return False
@@ -170,9 +171,6 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
         return True
     if fine is None:
         return False
-    # scipy.ndimage (~0.06 s to import) only for this full-resolution look, which few frames need
-    from scipy import ndimage
-
     full, c = fine
     fz = np.asarray(full, float)[y0 * c:y1 * c, x0 * c:x1 * c]
     h, w = fz.shape
@@ -188,6 +186,6 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
         with np.errstate(invalid="ignore"):
             fpart = up & (np.abs(fz - zc) <= K.TUNING.fine_finger_m)
         # holes filled but gaps not closed: closing would join the fingers again
-        if _enough_fingers(ndimage.binary_fill_holes(fpart), px_m * c):
+        if _enough_fingers(fill_holes(np.ascontiguousarray(fpart)), px_m * c):
             return True
     return False

@@ -12,7 +12,7 @@ from .._segment_kernels import (
     label_max,
 )
 from . import constants as K
-from .ops import _dilate, _disk_closing, _edt, _label, _nanmedian, _uniform1d, bounds
+from .ops import _dilate, _disk_closing, _edt, _in_labels, _label, _nanmedian, _uniform1d, bounds
 
 
 def _widest_piece(owner, piece_size, j, r):
@@ -197,7 +197,7 @@ def _palm_centre(sub, dt, solid, go_on, touch, crop, shape, seed, prefer):
             # over 5, against the widest place's radius: the band is 2-3 px deep, so this passes a
             # contact about a palm wide (an arm's) and not a finger wide one (a fingertip's)
             wide = np.flatnonzero(np.bincount(tl[tl > 0], minlength=tn + 1)[1:] / 5.0 >= float(dt.max())) + 1
-            away = np.isin(tl, wide)
+            away = _in_labels(tl, wide)
     if away.any():
         far = _edt(away)
         cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
@@ -425,7 +425,7 @@ def _filled_places(cand, raw, rad, slack=None, least=None):
     if ys.size < 2:
         return cand
     k = int(np.ceil(rad))
-    disk = np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) <= rad
+    disk = np.hypot(*np.ogrid[-k:k + 1, -k:k + 1]) <= rad  # open grids: the same values, broadcast
     # each disk row's columns (a disk's rows are runs; an empty row's lo > hi); the share of the disk the
     # mask fills, as its mean was
     cols = np.arange(-k, k + 1)

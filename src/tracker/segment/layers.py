@@ -6,6 +6,7 @@ import numpy as np
 
 from .._segment_kernels import (
     closed_filled,
+    label_extents,
 )
 from . import constants as K
 from .fingers import _hand_end
@@ -116,9 +117,9 @@ def _goes_on(layer, contact, d, focal):
     lab, n = _label(out, eight=True)
     if n == 0:
         return out
-    from scipy import ndimage  # here: a body behind the hand is rare, and scipy.ndimage ~0.06 s to import
-
-    span = np.array([0.0] + [np.hypot(a.stop - a.start, b.stop - b.start) for a, b in ndimage.find_objects(lab)])
+    # each piece's bounding box diagonal (scipy.ndimage.find_objects' slices, compiled)
+    rows, cols = label_extents(lab, n)
+    span = np.concatenate([[0.0], np.hypot(rows, cols)])
     return (span >= K.TUNING.finger_max_m * px_m)[lab] & out
 
 

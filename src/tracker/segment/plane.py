@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -30,6 +31,16 @@ class SupportPlane:
         nx, ny, nz = self.normal
         return plane_pixels(np.ascontiguousarray(depth, dtype=np.float64), float(nx), float(ny), float(nz),
                             float(self.offset), float(focal), float(cy), float(cx), float(self.band))
+
+
+@lru_cache(maxsize=16)
+def _tries(seed, n, tries):
+    """The RANSAC triplets ``(tries, 3)`` (indices below ``n``) drawn with ``seed``: the same for the same
+    sample count, so kept (read-only) rather than drawn again every frame (a generator's set-up and draw:
+    ~0.1 ms a depth-only frame)."""
+    out = np.random.default_rng(seed).integers(0, n, size=(tries, 3))
+    out.flags.writeable = False
+    return out
 
 
 def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=None, min_tilt_deg=None, seed=0):
@@ -63,7 +74,10 @@ def support_plane(depth, focal, *, z_min=0.2, z_max=1.5, min_area=None, min_tilt
     P, w = plane_samples(d, step, float(focal), (H - 1) / 2, (W - 1) / 2, float(z_min), float(z_max))
     if len(P) < 3 or w.sum() < min_area:
         return None
-    tries = np.random.default_rng(seed).integers(0, len(P), size=(K.TUNING.plane_tries, 3))
+    if isinstance(seed, (int, np.integer)):
+        tries = _tries(int(seed), len(P), K.TUNING.plane_tries)
+    else:
+        tries = np.random.default_rng(seed).integers(0, len(P), size=(K.TUNING.plane_tries, 3))
     max_cos = float(np.cos(np.radians(min_tilt_deg)))
     n, dn, got = plane_ransac(P, w, tries, K.TUNING.plane_tol_m, K.TUNING.plane_preempt, K.TUNING.plane_keep, max_cos)
     if got < min_area:

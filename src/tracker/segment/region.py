@@ -8,11 +8,12 @@ import numpy as np
 
 from .._segment_kernels import (
     components_holding,
+    near_front,
 )
 from . import constants as K
 from .fingers import _far_end, _fingered_end, _hand_end, _has_fingers
 from .layers import _in_front
-from .ops import _largest_in_window, _points, _sq_dist, _window_max, _window_min, bounds
+from .ops import _in_labels, _largest_in_window, _points, _sq_dist, _window_max, _window_min, bounds
 from .surfaces import _reaches, _touches_border, pixel_area, surface_fronts, surfaces
 
 
@@ -113,13 +114,20 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         # farthest from where it enters the image
         X = _points(d, focal, centre) if points is None else np.asarray(points, float)
         seed, front = _far_end(lab == k, d, X, focal, border_px, reach)
-    with np.errstate(invalid="ignore"):
-        near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
+    if points is None:
+        # compiled in one pass, the points back-projected on the fly (the seed's alone for its centre)
+        c3 = np.zeros(3)
+        cy, cx = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2) if centre is None else centre
         if reach is not None:
-            if X is None:
-                X = _points(d, focal, centre) if points is None else np.asarray(points, float)
-            centre = X[seed].mean(axis=0)
-            near &= _sq_dist(X, centre) <= reach ** 2
+            c3 = (X[seed] if X is not None else _seed_points(d, seed, focal, cy, cx)).mean(axis=0)
+        near = near_front(d, front - band, front + band, reach is not None, float(focal), float(cy), float(cx),
+                          float(c3[0]), float(c3[1]), float(c3[2]), float(reach or 0.0) ** 2)
+    else:
+        with np.errstate(invalid="ignore"):
+            near = np.isfinite(d) & (d <= front + band) & (d >= front - band)
+            if reach is not None:
+                X = np.asarray(points, float)
+                near &= _sq_dist(X, X[seed].mean(axis=0)) <= reach ** 2
     near |= seed
     core = (lab == k) & near
     core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
@@ -140,11 +148,23 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
         small = small[area[small] < blob_area]
         others = ids[ids != k]
         if small.size and others.size:
-            small = small[~np.isin(small, _edge_pieces(lab[win], d[win], small, others, jump))]
+            small = small[~_in_labels(small, _edge_pieces(lab[win], d[win], small, others, jump))]
         if small.size:
-            out[win] |= np.isin(lab[win], small) & near[win]
+            out[win] |= _in_labels(lab[win], small) & near[win]
     # beyond: where the hand's surface goes on past the band or the reach (the arm, not a fingertip)
     return Region(out, (lab == k) & ~out & ~behind, seed, behind, layered)
+
+
+def _seed_points(d, seed, focal, cy, cx):
+    """The back-projected points ``(n, 3)`` of the ``seed`` pixels of ``d`` (raster order): the rows
+    ``ops._points(d, focal, (cy, cx))[seed]`` has, with its arithmetic."""
+    v, u = np.nonzero(seed)
+    z = d[v, u]
+    out = np.empty((v.size, 3))
+    out[:, 0] = (u - cx) * z / focal
+    out[:, 1] = (v - cy) * z / focal
+    out[:, 2] = z
+    return out
 
 
 def _edge_pieces(lab, d, small, others, jump, gap_px=None):
@@ -162,10 +182,10 @@ def _edge_pieces(lab, d, small, others, jump, gap_px=None):
     [2]
     """
     gap_px = K.TUNING.edge_gap_px if gap_px is None else gap_px
-    big = np.isin(lab, others)
+    big = _in_labels(lab, others)
     size = 2 * int(gap_px) + 1
     with np.errstate(invalid="ignore"):
         lo = _window_min(np.where(big, d, np.inf), size)
         hi = _window_max(np.where(big, d, -np.inf), size)
-        touch = np.isin(lab, small) & (d >= lo - jump) & (d <= hi + jump)
+        touch = _in_labels(lab, small) & (d >= lo - jump) & (d <= hi + jump)
     return np.unique(lab[touch])

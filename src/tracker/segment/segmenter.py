@@ -8,6 +8,7 @@ import numpy as np
 
 from . import constants as K
 from .buffers import FrameBuffers
+from .._segment_kernels import valid_pixels
 from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES
 from .forearm import cut_forearm
 from .layers import _joins
@@ -167,6 +168,17 @@ class Segmenter:
     def _valid(self, d, color, points, skin_only=True, plane=None, at=None):
         """The working volume's pixels of ``d``, skin-coloured ones only with a colour frame, those off
         ``plane`` (a :class:`SupportPlane`) when given; ``at``: ``(focal, cy, cx)`` of ``d``'s pixels."""
+        (h0, s0, v0), (h1, s1, v1) = K.TUNING.skin_hsv
+        if self.box_min is None and self.box_max is None and h0 <= 0 and h1 >= 179:
+            # compiled in one pass (three a tracked frame, on strided views: no copies)
+            use_c = self._skin(color)
+            c = np.asarray(color) if use_c else _NO_COLOUR
+            c = c if c.dtype == np.uint8 else c.astype(np.uint8)
+            nx, ny, nz, dn, band = (0.0,) * 5 if plane is None else (*plane.normal, plane.offset, plane.band)
+            f, cy, cx = (1.0, 0.0, 0.0) if plane is None else at
+            return valid_pixels(np.asarray(d, np.float64), c, use_c, float(self.z_min), float(self.z_max), v0, v1,
+                                s0, s1, self.min_pixels if skin_only else 1, plane is not None, float(nx), float(ny),
+                                float(nz), float(dn), float(f), float(cy), float(cx), float(band))
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
         if self.box_min is not None or self.box_max is not None:
@@ -211,6 +223,9 @@ class Segmenter:
             joins = _joins(mask, dv, mask | reg.beyond | reg.behind, d_all, f, jump=self.jump)
             mask = cut_forearm(mask, dv, f, reg.beyond, seed=reg.seed, joins=joins, prefer=prefer)
         return mask, reg.layered
+
+
+_NO_COLOUR = np.zeros((1, 1, 3), np.uint8)
 
 
 def _check(seg):
