@@ -13,7 +13,7 @@ forest's.
 The network is trained by :mod:`tracker.sim.train_cnn` (PyTorch, the ``[train]`` extra) and shipped
 as ONNX under ``models/detectors/`` beside a JSON manifest (training command, data recipe, seed,
 metrics, the ONNX file's SHA-256, sealed by its own ``manifest_sha256``). Inference needs only
-onnxruntime (the ``[detector]`` extra), on one thread. This module never imports :mod:`tracker.sim`
+onnxruntime (a core dependency), on one thread. This module never imports :mod:`tracker.sim`
 nor torch.
 
 Examples

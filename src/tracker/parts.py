@@ -366,7 +366,7 @@ class ColourSeed:
 def depth_detector(name: str):
     """The depth keypoint detector called ``name`` as ``detect(depth_m, camera, mask, hand) -> Detection``:
     a model file or name under ``models/detectors/`` — the ONNX keypoint CNN (:mod:`tracker.keypoint_cnn`,
-    extra ``[detector]``) for ``.onnx`` files and names starting with ``hand-keypoints``, else the hand-part
+    onnxruntime) for ``.onnx`` files and names starting with ``hand-keypoints``, else the hand-part
     forest (:mod:`tracker.detector`). Loaded here, once: a missing or damaged file is a
     :class:`tracker.errors.TrackerError` when the tracker is built, not on its first start."""
     from functools import partial

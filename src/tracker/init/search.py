@@ -37,6 +37,11 @@ PAIR_SCORE_MM = 1.5
 # start among the search's, and 50° gave worse real frames (the SR305 stills' calibrated protocol: median tip
 # 3.8 -> 4.2 px, worst 19 -> 44 px; the one-frame protocol 5.0 -> 5.3 px)
 COUPLED_RESTART_DEG = 30.0
+# an accepted detected start (seeded_search) gets this many sweeps of finger-wise restarts: one sweep fixed
+# the fits that hold a finger wrong (a curled thumb after blank frames, a closing fist's little finger);
+# on the harder scenes' 48 accepted-or-not starts at 1.0/1.5× three sweeps cost 144 against 78 ms CPU per
+# accepted start (34 without restarts) for the same error (docs/experiments/detector.md, "On by default")
+ACCEPTED_FINGER_SWEEPS = 1
 
 
 class SearchBudget:
@@ -115,8 +120,9 @@ def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, 
         # never leaves (a curled thumb after blank frames: 3.2 against 0.4° on the frames after); the
         # detector's fingertips agree with that fit (it started there), so the finger-wise restarts decide
         if st.finger_search:
-            theta, corr = restart_fingers(ctx, theta, corr, points, st, silhouette=silhouette, normals=normals,
-                                          wrist=wrist)
+            theta, corr = restart_fingers(ctx, theta, corr, points,
+                                          st.replace(halving=dict(finger_sweeps=ACCEPTED_FINGER_SWEEPS)),
+                                          silhouette=silhouette, normals=normals, wrist=wrist)
         return theta, corr, False
     th2, c2 = fit_single_frame(ctx, points, st, silhouette=silhouette, normals=normals, extra=tuple(extra) + (theta,),
                                wrist=wrist, budget=budget)
