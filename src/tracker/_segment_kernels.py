@@ -322,7 +322,30 @@ def _flood(mask, mark, value, stack, top, eight):
     """Spread ``value`` into ``mark`` from the pixels on ``stack[:top]`` (flat indices, marked already)
     over the 4-connected (or, with ``eight``, 8-connected) pixels of ``mask`` not marked yet."""
     H, W = mask.shape
-    nk = 8 if eight else 4
+    if not eight:
+        # the four neighbours unrolled (the same pixels are marked: which ones does not depend on the order)
+        while top:
+            top -= 1
+            p = stack[top]
+            pv, pu = p // W, p % W
+            if pv + 1 < H and mask[pv + 1, pu] and not mark[pv + 1, pu]:
+                mark[pv + 1, pu] = value
+                stack[top] = p + W
+                top += 1
+            if pv > 0 and mask[pv - 1, pu] and not mark[pv - 1, pu]:
+                mark[pv - 1, pu] = value
+                stack[top] = p - W
+                top += 1
+            if pu + 1 < W and mask[pv, pu + 1] and not mark[pv, pu + 1]:
+                mark[pv, pu + 1] = value
+                stack[top] = p + 1
+                top += 1
+            if pu > 0 and mask[pv, pu - 1] and not mark[pv, pu - 1]:
+                mark[pv, pu - 1] = value
+                stack[top] = p - 1
+                top += 1
+        return
+    nk = 8
     while top:
         top -= 1
         p = stack[top]
@@ -633,17 +656,60 @@ def _plane_weight(P, w, n, dn, tol, every):
 
 
 @njit(cache=True)
+def _plane_weights4(P, w, N, D, ks, tol, every, out):
+    """:func:`_plane_weight` of the planes ``N[ks[j]]``, ``D[ks[j]]`` (four) into ``out[j]``, in one pass over
+    the points: four independent sums, each added in the points' order as :func:`_plane_weight` adds it
+    (the same floats), whose additions the processor overlaps (one sum waits on each addition)."""
+    a0, a1, a2, da = N[ks[0], 0], N[ks[0], 1], N[ks[0], 2], D[ks[0]]
+    b0, b1, b2, db = N[ks[1], 0], N[ks[1], 1], N[ks[1], 2], D[ks[1]]
+    c0, c1, c2, dc = N[ks[2], 0], N[ks[2], 1], N[ks[2], 2], D[ks[2]]
+    e0, e1, e2, de = N[ks[3], 0], N[ks[3], 1], N[ks[3], 2], D[ks[3]]
+    ta = tb = tc = te = 0.0
+    for i in range(0, P.shape[0], every):
+        x, y, z, wi = P[i, 0], P[i, 1], P[i, 2], w[i]
+        r = a0 * x + a1 * y + a2 * z - da
+        if -tol <= r <= tol:
+            ta += wi
+        r = b0 * x + b1 * y + b2 * z - db
+        if -tol <= r <= tol:
+            tb += wi
+        r = c0 * x + c1 * y + c2 * z - dc
+        if -tol <= r <= tol:
+            tc += wi
+        r = e0 * x + e1 * y + e2 * z - de
+        if -tol <= r <= tol:
+            te += wi
+    out[0], out[1], out[2], out[3] = ta * every, tb * every, tc * every, te * every
+
+
+@njit(cache=True)
+def _weigh_planes(P, w, N, D, idx, m, tol, every, S):
+    """``S[idx[j]]`` = :func:`_plane_weight` of plane ``idx[j]`` for ``j < m``, four planes a pass."""
+    ks = np.empty(4, np.int64)
+    got = np.empty(4)
+    for j in range(0, m, 4):
+        for q in range(4):
+            ks[q] = idx[min(j + q, m - 1)]  # a short last block repeats its last plane
+        _plane_weights4(P, w, N, D, ks, tol, every, got)
+        for q in range(min(4, m - j)):
+            S[ks[q]] = got[q]
+
+
+@njit(cache=True)
 def plane_ransac(P, w, tries, tol, every, keep, max_cos):
     """The plane ``n·x = dn`` (``n`` a unit normal) through three of the points ``P (N, 3)`` that
     collects the largest weight ``w`` of points within ``tol`` of it, among the triplets ``tries
     (K, 3)`` (indices into ``P``) whose plane is seen obliquely (``|n · the direction to the three
     points' centroid| ≤ max_cos``): each triplet's plane is weighed on every ``every``-th point, the
     best ``keep`` on all of them (preemptive RANSAC). Returns ``(n, dn, weight)``; weight 0 when
-    no triplet qualifies (collinear within 1e-9 m², or facing the camera)."""
+    no triplet qualifies (collinear within 1e-9 m², or facing the camera). The planes are weighed four
+    at a time (:func:`_weigh_planes`): each weight is the sum one plane at a time gave."""
     K = tries.shape[0]
     N = np.zeros((K, 3))
     D = np.zeros(K)
     S = np.full(K, -1.0)
+    ok = np.empty(K, np.int64)
+    m = 0
     for k in range(K):
         a, b, c = P[tries[k, 0]], P[tries[k, 1]], P[tries[k, 2]]
         e1, e2 = b - a, c - a
@@ -652,21 +718,30 @@ def plane_ransac(P, w, tries, tol, every, keep, max_cos):
         if s < 1e-9:
             continue
         n /= s
-        m = a + b + c
-        if abs(n[0] * m[0] + n[1] * m[1] + n[2] * m[2]) > max_cos * np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]):
+        mm = a + b + c
+        if abs(n[0] * mm[0] + n[1] * mm[1] + n[2] * mm[2]) > max_cos * np.sqrt(
+                mm[0] * mm[0] + mm[1] * mm[1] + mm[2] * mm[2]):
             continue
         N[k] = n
         D[k] = n[0] * a[0] + n[1] * a[1] + n[2] * a[2]
-        S[k] = _plane_weight(P, w, n, D[k], tol, every)
+        ok[m] = k
+        m += 1
+    _weigh_planes(P, w, N, D, ok, m, tol, every, S)
     order = np.argsort(-S, kind="mergesort")
     best_n, best_d, best_w = np.zeros(3), 0.0, 0.0
+    top = np.empty(min(keep, K), np.int64)
+    t = 0
     for j in range(min(keep, K)):
-        k = order[j]
-        if S[k] < 0.0:
+        if S[order[j]] < 0.0:
             break
-        total = _plane_weight(P, w, N[k], D[k], tol, 1)
-        if total > best_w:
-            best_n, best_d, best_w = N[k].copy(), D[k], total
+        top[t] = order[j]
+        t += 1
+    full = np.full(K, -1.0)
+    _weigh_planes(P, w, N, D, top, t, tol, 1, full)
+    for j in range(t):
+        k = top[j]
+        if full[k] > best_w:
+            best_n, best_d, best_w = N[k].copy(), D[k], full[k]
     return best_n, best_d, best_w
 
 
@@ -885,3 +960,33 @@ def label_extents(lab, n):
             rows[k] = r1[k] - r0[k] + 1
             cols[k] = c1[k] - c0[k] + 1
     return rows, cols
+
+
+@njit(cache=True)
+def mask_sums(mask):
+    """``(count, row sum, column sum)`` of a 2-D boolean mask's set pixels (integers: their means are
+    ``np.nonzero(mask)[i].mean()`` exactly, the sums being exact in float64 too)."""
+    H, W = mask.shape
+    n = 0
+    sr = 0
+    sc = 0
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                n += 1
+                sr += v
+                sc += u
+    return n, sr, sc
+
+
+@njit(cache=True)
+def touch_close(dist, iy, ix, da, dw, px, dz):
+    """:func:`tracker.segment.layers._joins`' test: the pixels within ``px`` (``dist``) of the region whose
+    depth ``da`` lies within ``dz`` of their nearest region pixel's (``dw[iy, ix]``; NaN: not)."""
+    H, W = dist.shape
+    out = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if dist[v, u] <= px:
+                out[v, u] = abs(da[v, u] - dw[iy[v, u], ix[v, u]]) <= dz
+    return out

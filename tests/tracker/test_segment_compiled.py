@@ -88,3 +88,84 @@ def test_valid_pixels_is_the_volume_skin_and_plane_in_numpy(h, w, seed, colour, 
     if plane:
         want &= ~pl.pixels(d, *at)
     np.testing.assert_array_equal(seg._valid(d, c if colour else None, None, plane=pl, at=at), want)
+
+
+def _ransac_one_at_a_time(P, w, tries, tol, every, keep, max_cos):
+    """plane_ransac as it was written before the planes were weighed four at a time (each plane's weight
+    by _plane_weight), the reference."""
+    from tracker._segment_kernels import _plane_weight
+
+    K = len(tries)
+    N, D, S = np.zeros((K, 3)), np.zeros(K), np.full(K, -1.0)
+    for k in range(K):
+        a, b, c = P[tries[k, 0]], P[tries[k, 1]], P[tries[k, 2]]
+        e1, e2 = b - a, c - a
+        n = np.array([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]])
+        s = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if s < 1e-9:
+            continue
+        n /= s
+        m = a + b + c
+        if abs(n[0] * m[0] + n[1] * m[1] + n[2] * m[2]) > max_cos * np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]):
+            continue
+        N[k], D[k] = n, n[0] * a[0] + n[1] * a[1] + n[2] * a[2]
+        S[k] = _plane_weight(P, w, n, D[k], tol, every)
+    order = np.argsort(-S, kind="mergesort")
+    best = (np.zeros(3), 0.0, 0.0)
+    for j in range(min(keep, K)):
+        k = order[j]
+        if S[k] < 0.0:
+            break
+        total = _plane_weight(P, w, N[k], D[k], tol, 1)
+        if total > best[2]:
+            best = (N[k].copy(), D[k], total)
+    return best
+
+
+@given(seeds, st.integers(3, 400), st.integers(1, 40), st.integers(1, 9), st.integers(1, 8))
+@settings(max_examples=60, deadline=None)
+def test_plane_ransac_weighs_four_planes_as_one_at_a_time(seed, n, tries, every, keep):
+    """The four-at-a-time weights are each plane's own sum: the same plane, offset and weight to the bit
+    (points on a tilted plane with outliers, duplicate triplets, collinear ones)."""
+    from tracker._segment_kernels import plane_ransac
+
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n)
+    P = np.stack([x, y, 1.0 + 0.6 * y + 0.01 * rng.standard_normal(n)], 1)
+    P[rng.random(n) < 0.3, 2] += rng.uniform(-0.3, 0.3)
+    P[:3] = P[0]  # a degenerate triplet
+    w = rng.uniform(0.0, 1e-3, n)
+    T = rng.integers(0, n, (tries, 3))
+    T[0] = (0, 1, 2)
+    got = plane_ransac(P, w, T, 0.012, every, keep, 0.87)
+    want = _ransac_one_at_a_time(P, w, T, 0.012, every, keep, 0.87)
+    np.testing.assert_array_equal(got[0], want[0])
+    assert (got[1], got[2]) == (want[1], want[2])
+
+
+@given(st.integers(1, 30), st.integers(1, 30), seeds)
+@settings(max_examples=40, deadline=None)
+def test_mask_sums_give_nonzeros_means(h, w, seed):
+    from tracker._segment_kernels import mask_sums
+
+    m = np.random.default_rng(seed).random((h, w)) < 0.3
+    m[h // 2, w // 2] = True
+    n, sr, sc = mask_sums(m)
+    v, u = np.nonzero(m)
+    assert (n, sr / n + 3, sc / n + 5) == (v.size, float(v.mean()) + 3, float(u.mean()) + 5)
+
+
+@given(st.integers(2, 30), st.integers(2, 30), seeds)
+@settings(max_examples=40, deadline=None)
+def test_touch_close_is_the_numpy_test(h, w, seed):
+    from tracker._segment_kernels import touch_close
+    from tracker.segment.ops import _nearest
+
+    rng = np.random.default_rng(seed)
+    region = rng.random((h, w)) < 0.2
+    region[0, 0] = True
+    d, da = _depth(rng, h, w), _depth(rng, h, w)
+    dist, iy, ix = _nearest(region)
+    with np.errstate(invalid="ignore"):
+        want = (dist <= 3) & (np.abs(da - d[iy, ix]) <= 0.2)
+    np.testing.assert_array_equal(touch_close(dist, iy, ix, da, d, 3.0, 0.2), want)

@@ -7,6 +7,7 @@ import numpy as np
 from .._segment_kernels import (
     closed_filled,
     label_extents,
+    touch_close,
 )
 from . import constants as K
 from .fingers import _hand_end
@@ -144,8 +145,8 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     r = region[win]
     dist, iy, ix = _nearest(r)
     da = np.asarray(depth_all, float)[win]
-    with np.errstate(invalid="ignore"):
-        close = (dist <= px) & (np.abs(da - d[win][iy, ix]) <= dz)
+    # compiled: np.abs(da - d[win][iy, ix]) <= dz within px, without the gather over the whole window
+    close = touch_close(dist, iy, ix, da, np.asarray(d, float)[win], float(px), float(dz))
     if not close.any():
         return out
     other = np.where(np.isfinite(da) & ~surface[win], da, np.nan)

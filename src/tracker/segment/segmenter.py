@@ -8,7 +8,7 @@ import numpy as np
 
 from . import constants as K
 from .buffers import FrameBuffers
-from .._segment_kernels import valid_pixels
+from .._segment_kernels import mask_sums, valid_pixels
 from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES
 from .forearm import cut_forearm
 from .layers import _joins
@@ -264,7 +264,9 @@ def _trusted(sub, edges, shape, expected):
             or (x0 > 0 and xa < K.TUNING.border_px) or (x1 < W and xb >= w - K.TUNING.border_px)):
         return False
     if expected is not None:
-        cy, cx = (float(v.mean()) + o for v, o in zip(np.nonzero(sub), (y0, x0)))
+        # the mask's centre (np.nonzero's means, compiled: integer sums, exact)
+        n, sr, sc = mask_sums(np.ascontiguousarray(sub, dtype=np.bool_))
+        cy, cx = sr / n + y0, sc / n + x0
         (ey, ex) = expected
         if not ((ey.start or 0) <= cy < (H if ey.stop is None else ey.stop)
                 and (ex.start or 0) <= cx < (W if ex.stop is None else ex.stop)):
