@@ -14,14 +14,22 @@ Protocols (all with 0.5 mm noise, a subject unlike the model):
   unknown): the best a calibration without a known posture can know of the last joints' zeros.
 - ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
   ROM + static to calibrate, power grasp to convert, 6 Hz).
+- ``overfit``: the held-out rule of the automatic calibration (:func:`synergy.subject.overfits`)
+  against the rule before it (any held-out residual over 1.25× the training one was overfit, however
+  far below the scale-only hand's), each trial converted as ``synergy angles`` does (default prior):
+  short weakly observed trials (``--overfit-durations``, ``--weak-seeds``, ``--motions``) and the
+  subjects' power grasps calibrated on themselves (``--seeds``), markers low-passed at 6 Hz and raw.
+  Per trial: the held-out check (median marker residual: fitted frames, held-out frames, scale-only
+  hand on them), which hand each rule converts with and its angles RMS and table residual.
 
-Run: .venv/bin/python benchmarks/bench_marker_prior.py [--protocols weak subjects] [--seeds 0-15]
+Run: .venv/bin/python benchmarks/bench_marker_prior.py [--protocols weak subjects overfit] [--seeds 0-15]
      (≈ 10 s CPU per weak trial, ≈ 4 s per subject and prior setting, one core)
 """
 from __future__ import annotations
 
 import argparse
 import os
+from contextlib import contextmanager
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -69,6 +77,43 @@ def oracle(ms, hand, trial, nominal=False):
                        hand="left", markerset=ms.name, median_residual_mm=0.5)
 
 
+def rule_before(held_mm, train_mm, scale_only_mm):
+    """The overfit rule before issue 40's change (for the side-by-side only): a held-out residual over
+    1.25× the training one (+0.02 mm) was overfit whatever the scale-only hand's."""
+    return bool(held_mm > 1.25 * train_mm + 0.02 or held_mm > scale_only_mm + 0.3)
+
+
+@contextmanager
+def overfit_rule(rule):
+    """Run the calibration with ``rule`` in place of :func:`synergy.subject.overfits` (None: as is)."""
+    import synergy.subject as subject
+
+    kept = subject.overfits
+    subject.overfits = rule or kept
+    try:
+        yield
+    finally:
+        subject.overfits = kept
+
+
+def overfit_row(tag, trial, theta, ms, smooth_hz):
+    """One trial converted automatically under the rule before and the rule now."""
+    out = []
+    for rule in (rule_before, None):
+        with overfit_rule(rule):
+            df = markers_to_angles(trial, ms, smooth_hz=smooth_hz, check_hand=None)
+        cal = df.attrs["calibration"]
+        used = ("scale" if "not used" in cal["method"] or not cal["bone_scales"] else
+                "cal+N" if "neutral frames" in cal.get("static_source", "") else "cal")
+        out.append((used, rms_deg(df, theta), float(np.nanmedian(df["residual_mm"])), cal["held_out"]))
+    h = out[1][3]
+    held = " ".join(f"{h.get(k, float('nan')):5.2f}" for k in ("train_residual_mm", "residual_mm",
+                                                                 "scale_only_residual_mm"))
+    mark = "  *" if out[0][:2] != out[1][:2] else ""
+    print(f"{tag:34} {held} | " + " | ".join(f"{u:5} {e:6.2f}° {r:5.2f} mm" for u, e, r, _ in out) + mark, flush=True)
+    return out
+
+
 def seeds_arg(text):
     out = []
     for part in text.split(","):
@@ -83,6 +128,7 @@ def main():
     ap.add_argument("--seeds", type=seeds_arg, default=list(range(16)))
     ap.add_argument("--weak-seeds", type=seeds_arg, default=list(range(4)))
     ap.add_argument("--motions", nargs="+", default=["fretting", "power_grasp"])
+    ap.add_argument("--overfit-durations", nargs="+", type=float, default=[0.5, 1.0, 2.0])
     args = ap.parse_args()
     hand = HandModel.load()
     kw = {"smooth_hz": SMOOTH_HZ, "check_hand": None}
@@ -129,6 +175,34 @@ def main():
             a = np.array(rows)
             print(f"# {markers}: max " + " ".join(f"{x:6.2f}" for x in a.max(0)) + ", seeds over 2°: "
                   + " ".join(str(int((a[:, k] > 2.0).sum())) for k in range(a.shape[1])), flush=True)
+
+
+    if "overfit" in args.protocols:
+        print("overfit rule, automatic calibration: held-out check (median marker residual, mm: fitted frames, "
+              "held-out frames, scale-only hand on them) | before: hand, angles RMS, table residual | now: "
+              "the same (* where they differ; cal+N: with the trial's neutral frames)")
+        rows = []
+        for motion in args.motions:
+            for dur in args.overfit_durations:
+                for seed in args.weak_seeds:
+                    tr, th = weak_protocol(seed, motion, duration_s=dur)
+                    for hz in (SMOOTH_HZ, None):
+                        rows.append(overfit_row(f"weak {motion} {dur:g} s {seed} {hz or 'raw'}", tr, th,
+                                                load_markerset("hand19"), hz))
+        for markers in ("hand16", "hand19"):
+            for seed in args.seeds:
+                _, _, trial, th, _, _ = subject_protocol(markers, seed, noise_mm=0.5)
+                for hz in (SMOOTH_HZ, None):
+                    rows.append(overfit_row(f"{markers} grasp {seed} {hz or 'raw'}", trial, th,
+                                            load_markerset(markers), hz))
+        changed = [(b[1], n[1]) for b, n in rows if b[:2] != n[:2]]
+        if changed:
+            a = np.array(changed)
+            print(f"# {len(changed)} of {len(rows)} trials converted differently: angles RMS before "
+                  f"{a[:, 0].mean():.2f}° mean ({a[:, 0].max():.2f} worst), now {a[:, 1].mean():.2f}° "
+                  f"({a[:, 1].max():.2f}); better on {int((a[:, 1] < a[:, 0]).sum())}", flush=True)
+        else:
+            print(f"# {len(rows)} trials, every one converted as before", flush=True)
 
 
 if __name__ == "__main__":
