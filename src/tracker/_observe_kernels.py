@@ -26,7 +26,9 @@ def observe_window(dw, mw, fx, fy, cx, cy, smooth, max_diff, max_jump, stride, o
     normal of :func:`tracker.observe.image_normals` (central differences, NaN at the window's border
     or across a depth jump above ``max_jump``), written to ``pts``/``nrm`` in row-major order. The
     numpy path computed smoothing, points and normals for every pixel of the window and then kept
-    one in stride². Returns the number of kept pixels."""
+    one in stride². ``dsm`` is smoothed at the mask's pixels and their 4-neighbours (what the points, the
+    normals and the silhouette's depth read), the raw depth elsewhere (finite where the smoothed one is).
+    Returns the number of kept pixels."""
     h, w = dw.shape
     for v in range(h):
         for u in range(w):
@@ -36,6 +38,12 @@ def observe_window(dw, mw, fx, fy, cx, cy, smooth, max_diff, max_jump, stride, o
                 continue
             if not np.isfinite(d):
                 dsm[v, u] = np.nan
+                continue
+            if not (mw[v, u] or (v > 0 and mw[v - 1, u]) or (v < h - 1 and mw[v + 1, u])
+                    or (u > 0 and mw[v, u - 1]) or (u < w - 1 and mw[v, u + 1])):
+                # neither in the mask nor next to it: no point, normal or silhouette depth reads its
+                # smoothed value (the dropout band reads only whether it has depth, which smoothing keeps)
+                dsm[v, u] = d
                 continue
             # the numpy version's order of summation (rows, then columns), so the mean is bit-identical
             acc = 0.0

@@ -562,11 +562,9 @@ def nan_median(values):
             n += 1
     if n == 0:
         return np.nan
-    s = np.sort(buf[:n])
-    h = n // 2
-    if n % 2:
-        return s[h]
-    return (s[h - 1] + s[h]) / 2.0
+    # numba's median selects the middle one(s) (quickselect) instead of sorting: the same values, and the
+    # mean of two as (a + b) / 2
+    return np.median(buf[:n])
 
 
 @njit(cache=True)
@@ -990,3 +988,33 @@ def touch_close(dist, iy, ix, da, dw, px, dz):
             if dist[v, u] <= px:
                 out[v, u] = abs(da[v, u] - dw[iy[v, u], ix[v, u]]) <= dz
     return out
+
+
+@njit(cache=True)
+def touches_border(mask, px):
+    """Whether ``mask`` has a pixel within ``px`` (> 0) rows or columns of its edge:
+    ``mask[:px].any() or mask[-px:].any() or mask[:, :px].any() or mask[:, -px:].any()``."""
+    H, W = mask.shape
+    for v in range(H):
+        edge_row = v < px or v >= H - px
+        for u in range(W):
+            if mask[v, u] and (edge_row or u < px or u >= W - px):
+                return True
+    return False
+
+
+@njit(cache=True)
+def arm_strip(solid, cy, cx, ay, ax, half):
+    """:func:`tracker.segment.cut_forearm`'s coordinates along the arm ``(ay, ax)`` from the palm's centre
+    ``(cy, cx)``, ``t = vy·ay + vx·ax`` (``vy``, ``vx``: each pixel's integer offsets), and its strip: the
+    ``solid`` pixels with ``|−vy·ax + vx·ay| <= half`` — numpy's operations on the offsets, in its order."""
+    H, W = solid.shape
+    t = np.empty((H, W))
+    strip = np.empty((H, W), np.bool_)
+    for v in range(H):
+        vy = v - cy
+        for u in range(W):
+            vx = u - cx
+            t[v, u] = vy * ay + vx * ax
+            strip[v, u] = solid[v, u] and abs(-vy * ax + vx * ay) <= half
+    return t, strip

@@ -169,3 +169,15 @@ def test_touch_close_is_the_numpy_test(h, w, seed):
     with np.errstate(invalid="ignore"):
         want = (dist <= 3) & (np.abs(da - d[iy, ix]) <= 0.2)
     np.testing.assert_array_equal(touch_close(dist, iy, ix, da, d, 3.0, 0.2), want)
+
+
+@given(st.integers(1, 25), st.integers(1, 25), seeds, st.integers(1, 14))
+@settings(max_examples=80, deadline=None)
+def test_touches_border_is_the_four_slices(h, w, seed, px):
+    from tracker.segment.surfaces import _touches_border
+
+    m = np.random.default_rng(seed).random((h, w)) < 0.03
+    want = bool(m[:px].any() or m[-px:].any() or m[:, :px].any() or m[:, -px:].any())
+    assert _touches_border(m, px) == want
+    assert _touches_border(m[::2, 1:], px) == bool(m[::2, 1:][:px].any() or m[::2, 1:][-px:].any()
+                                                   or m[::2, 1:][:, :px].any() or m[::2, 1:][:, -px:].any())

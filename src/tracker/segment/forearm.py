@@ -7,6 +7,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._segment_kernels import (
+    arm_strip,
     closed_filled,
     disk_counts,
     label_max,
@@ -132,9 +133,8 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     if axis is None:
         return m
     ay, ax = axis
-    t = vy * ay + vx * ax
-    s = -vy * ax + vx * ay
-    strip = solid & (np.abs(s) <= 2.5 * r)
+    # compiled: t = vy · ay + vx · ax along the arm, the strip |−vy · ax + vx · ay| <= 2.5 r across it
+    t, strip = arm_strip(solid, cy, cx, float(ay), float(ax), 2.5 * r)
     t_w = _heel_end(t, strip, r) if at_end else _wrist_distance(t, strip, r, wrist_range)
     if t_w is None:
         return m
