@@ -20,7 +20,7 @@ from handmodel.solver import SolverSettings, fit_points
 from handmodel.subspace import Subspace
 
 from .c3d import read_c3d
-from .calibrate import Calibration, calibrate, golden_section, sample_frames
+from .calibrate import Calibration, calibrate, golden_section, held_out_line, sample_frames
 from .errors import SynergyError
 from .markers import MarkerSet, load_markerset
 from .ik_priors import (
@@ -345,6 +345,9 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     if hand_check:
         diag["handedness"] = {k: (_r(v) if isinstance(v, float) else v) for k, v in hand_check.items()}
     diag["calibration_overfit"] = bool(cal.held_out.get("overfit", False))
+    if diag["calibration_overfit"]:
+        # the refusal says the figures it was decided on, in the table's one residual definition
+        diag["calibration_held_out"] = held_out_line(cal.held_out)
     diag["verdict"] = verdict(diag)
     df.attrs.update({
         "source": str(where) if where else "", "rate_hz": rate, "units": {"angles": "rad", "translation": "m"},

@@ -254,7 +254,8 @@ def poor_reasons(diag: dict) -> list:
         out.append("on a joint limit in > 25 % of frames: " + ", ".join(f"{k} {100 * v:.0f} %" for v, k in pinned[:3])
                    + (f" (+{len(pinned) - 3} more)" if len(pinned) > 3 else ""))
     if diag.get("calibration_overfit"):
-        out.append("the calibration failed its held-out check")
+        line = diag.get("calibration_held_out")
+        out.append("the calibration failed its held-out check" + (f" ({line})" if line else ""))
     return out
 
 

@@ -134,6 +134,11 @@ def test_overfitting_is_caught_by_held_out_frames():
     assert not loose.bone_scales and not loose.offsets  # the scale-only hand
     df = markers_to_angles(short, ms, calibration=loose, check_hand=None)
     assert df.attrs["diagnostics"]["calibration_overfit"] and df.attrs["diagnostics"]["verdict"] == "poor"
+    # the refusal names the figures it was decided on, in the one residual definition
+    from synergy.fit import poor_reasons
+
+    why = [r for r in poor_reasons(df.attrs["diagnostics"]) if "held-out check" in r]
+    assert why and f"{h['residual_mm']:.2f} mm calibrated, {h['scale_only_residual_mm']:.2f} mm hand scale only" in why[0]
 
 
 @pytest.fixture(scope="module")
