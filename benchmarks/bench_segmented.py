@@ -58,6 +58,7 @@ MODES = ("colour", "depth only")
 STAGES = (
     ("frame's plane (depth only)", "tracker.segment.segmenter", "Segmenter.frame_plane"),
     ("volume, skin, plane pixels", "tracker.segment.segmenter", "Segmenter._valid"),
+    ("volume, skin, plane pixels", "tracker.segment.segmenter", "valid_depths"),
     ("surfaces (labels, fronts)", "tracker.segment.region", "surfaces"),
     ("surfaces (labels, fronts)", "tracker.segment.region", "surface_fronts"),
     ("surfaces (labels, fronts)", "tracker.segment.layers", "surfaces"),

@@ -1018,3 +1018,21 @@ def arm_strip(solid, cy, cx, ay, ax, half):
             t[v, u] = vy * ay + vx * ax
             strip[v, u] = solid[v, u] and abs(-vy * ax + vx * ay) <= half
     return t, strip
+
+
+@njit(cache=True)
+def valid_depths(d, c, use_c, z_min, z_max, v0, v1, s0, s1, least, use_plane, nx, ny, nz, dn, focal, cy, cx, band):
+    """``(valid, dv, d_all)``: :func:`valid_pixels`, the depths there (NaN elsewhere: ``np.where(valid, d,
+    nan)``) and the depths within ``(z_min, z_max)`` (the working volume's, before the skin test and the
+    plane)."""
+    valid = valid_pixels(d, c, use_c, z_min, z_max, v0, v1, s0, s1, least, use_plane, nx, ny, nz, dn, focal, cy,
+                         cx, band)
+    H, W = d.shape
+    dv = np.empty((H, W))
+    d_all = np.empty((H, W))
+    for v in range(H):
+        for u in range(W):
+            z = d[v, u]
+            dv[v, u] = z if valid[v, u] else np.nan
+            d_all[v, u] = z if (z > z_min and z < z_max) else np.nan
+    return valid, dv, d_all

@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 from scipy import ndimage
 
-from tracker._segment_kernels import fill_holes, label_extents, near_front, valid_pixels
+from tracker._segment_kernels import fill_holes, label_extents, near_front, valid_depths
 from tracker.segment import Segmenter, SupportPlane, skin_mask
 from tracker.segment.ops import _in_labels, _points, _sq_dist
 from tracker.segment.region import _seed_points
@@ -88,6 +88,12 @@ def test_valid_pixels_is_the_volume_skin_and_plane_in_numpy(h, w, seed, colour, 
     if plane:
         want &= ~pl.pixels(d, *at)
     np.testing.assert_array_equal(seg._valid(d, c if colour else None, None, plane=pl, at=at), want)
+    # with the depths there and the working volume's, as Segmenter._segment used np.where for them
+    args = seg._compiled_valid(c if colour else None, pl, at, True)
+    valid, dv, d_all = valid_depths(np.asarray(d, np.float64), *args)
+    np.testing.assert_array_equal(valid, want)
+    np.testing.assert_array_equal(dv, np.where(want, d, np.nan))
+    np.testing.assert_array_equal(d_all, np.where(seg._valid(d, None, None), d, np.nan))
 
 
 def _ransac_one_at_a_time(P, w, tries, tol, every, keep, max_cos):

@@ -9,7 +9,8 @@ from .._segment_kernels import (
     fill_holes,
 )
 from . import constants as K
-from .ops import _dilate, _disk_opening, _edt, _in_labels, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist, bounds
+from .ops import (_dilate, _disk_opening, _edt, _in_labels, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist,
+                  bounds)
 from .surfaces import _touches_border, pixel_area
 
 

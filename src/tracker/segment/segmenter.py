@@ -8,7 +8,7 @@ import numpy as np
 
 from . import constants as K
 from .buffers import FrameBuffers
-from .._segment_kernels import mask_sums, valid_pixels
+from .._segment_kernels import mask_sums, valid_depths, valid_pixels
 from .constants import FIND, FOREARM_CHOICES, PLANE_CHOICES
 from .forearm import cut_forearm
 from .layers import _joins
@@ -168,17 +168,10 @@ class Segmenter:
     def _valid(self, d, color, points, skin_only=True, plane=None, at=None):
         """The working volume's pixels of ``d``, skin-coloured ones only with a colour frame, those off
         ``plane`` (a :class:`SupportPlane`) when given; ``at``: ``(focal, cy, cx)`` of ``d``'s pixels."""
-        (h0, s0, v0), (h1, s1, v1) = K.TUNING.skin_hsv
-        if self.box_min is None and self.box_max is None and h0 <= 0 and h1 >= 179:
+        args = self._compiled_valid(color, plane, at, skin_only)
+        if args is not None:
             # compiled in one pass (three a tracked frame, on strided views: no copies)
-            use_c = self._skin(color)
-            c = np.asarray(color) if use_c else _NO_COLOUR
-            c = c if c.dtype == np.uint8 else c.astype(np.uint8)
-            nx, ny, nz, dn, band = (0.0,) * 5 if plane is None else (*plane.normal, plane.offset, plane.band)
-            f, cy, cx = (1.0, 0.0, 0.0) if plane is None else at
-            return valid_pixels(np.asarray(d, np.float64), c, use_c, float(self.z_min), float(self.z_max), v0, v1,
-                                s0, s1, self.min_pixels if skin_only else 1, plane is not None, float(nx), float(ny),
-                                float(nz), float(dn), float(f), float(cy), float(cx), float(band))
+            return valid_pixels(np.asarray(d, np.float64), *args)
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(d) & (d > self.z_min) & (d < self.z_max)
         if self.box_min is not None or self.box_max is not None:
@@ -191,6 +184,21 @@ class Segmenter:
             valid &= ~plane.pixels(d, *at)
         return valid
 
+    def _compiled_valid(self, color, plane, at, skin_only):
+        """The arguments after the depth of :func:`tracker._segment_kernels.valid_pixels` for :meth:`_valid`, or
+        None when it does not apply (a box, which needs the points; a hue range narrower than the circle)."""
+        (h0, s0, v0), (h1, s1, v1) = K.TUNING.skin_hsv
+        if self.box_min is not None or self.box_max is not None or h0 > 0 or h1 < 179:
+            return None
+        use_c = self._skin(color)
+        c = np.asarray(color) if use_c else _NO_COLOUR
+        c = c if c.dtype == np.uint8 else c.astype(np.uint8)
+        nx, ny, nz, dn, band = (0.0,) * 5 if plane is None else (*plane.normal, plane.offset, plane.band)
+        f, cy, cx = (1.0, 0.0, 0.0) if plane is None else at
+        return (c, use_c, float(self.z_min), float(self.z_max), v0, v1, s0, s1, self.min_pixels if skin_only else 1,
+                plane is not None, float(nx), float(ny), float(nz), float(dn), float(f), float(cy), float(cx),
+                float(band))
+
     def _segment(self, d, color, points, f, step=1, centre=None, plane=None, full=None, prefer=None,
                  in_window=False):
         """``(mask, layered)``: the search on an image subsampled by ``step`` (pixel counts and distances scale);
@@ -202,14 +210,22 @@ class Segmenter:
         ``prefer`` the hand predicted in it (:func:`hand_region`'s ``expected``)."""
         if centre is None:
             centre = ((d.shape[0] - 1) / 2, (d.shape[1] - 1) / 2)
-        valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
-        if not valid.any():
-            return valid, False
-        dv = np.where(valid, d, np.nan)
-        # the frame before the skin filter (and the plane): where a table or the body meets the hand,
+        # the frame before the skin filter (and the plane), d_all: where a table or the body meets the hand,
         # the arm goes on
         filtered = self._skin(color) or plane is not None
-        d_all = np.where(self._valid(d, None, points), d, np.nan) if filtered else dv
+        args = self._compiled_valid(color, plane, (f, *centre), True)
+        if args is not None:
+            # the valid pixels, their depths and the working volume's depths in one compiled call
+            valid, dv, d_all = valid_depths(np.asarray(d, np.float64), *args)
+            if not valid.any():
+                return valid, False
+            d_all = d_all if filtered else dv
+        else:
+            valid = self._valid(d, color, points, plane=plane, at=(f, *centre))
+            if not valid.any():
+                return valid, False
+            dv = np.where(valid, d, np.nan)
+            d_all = np.where(self._valid(d, None, points), d, np.nan) if filtered else dv
         reg = hand_region(dv, f, band=self.band, jump=self.jump,
                            min_pixels=max(self.min_pixels // step ** 2, 1), min_area=self.min_area,
                            margin_px=int(np.ceil(self.margin_px / step)), blob_area=self.blob_area,
