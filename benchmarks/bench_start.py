@@ -87,7 +87,7 @@ def main():
                     return f"{np.nanmean(e):.1f} mm" if np.isfinite(e).any() else "no hand"
                 print(f"{motion} {sensor} {scale:g}x: " + "; ".join(
                     f"{v} {mean_of(res[v]['mm'][-len(obs):])}" for v in variants), flush=True)
-    n = len(res["today's search"]["mm"])
+    n = len(next(iter(res.values()))["mm"])
     print(f"\n{n} frames, each started alone at the rendered size, one core (wall ms)")
     print(f"{'variant':36s} {'found':>6s} {'mean mm':>8s} {'median':>7s} {'<=10 mm':>8s} {'skipped':>8s} "
           f"{'ms median':>10s} {'ms mean':>8s} {'ms max':>7s}")
@@ -98,7 +98,7 @@ def main():
               f"{skip.sum():8d} {np.median(ms):10.0f} {np.mean(ms):8.0f} {np.max(ms):7.0f}")
         if skip.any():
             print(f"{'':36s} the starts without the full search: {np.median(ms[skip]):.0f} ms median, "
-                  f"{np.nanmedian(e[skip]):.1f} mm median (today's search on those frames: "
+                  f"{np.nanmedian(e[skip]):.1f} mm median (the full search on those frames: "
                   f"{np.nanmedian(np.array(res[next(iter(res))]['mm'])[skip]):.1f} mm, "
                   f"{np.median(np.array(res[next(iter(res))]['ms'])[skip]):.0f} ms)")
 
