@@ -12,9 +12,11 @@ class FrameBuffers:
     observation's mask, depth and silhouette, the frame converted to float64): one allocation per name,
     size and type while the previous ones are free, instead of one per frame.
 
-    A fresh full-frame array is not free in a tracking loop: freed between frames, its pages go back to
-    the system (glibc returns big blocks) and the next one faults them in again — a tracked frame's
-    ``observe`` spent about half its time so (one frame alone: 8.0 ms, 4.2 with its arrays reused).
+    A fresh full-frame array is not always free: freed between frames, its pages can go back to the
+    system (glibc returns big blocks) and the next one faults them in again — ``observe`` called frame
+    after frame on the realistic scenes' frames (bench_segmented's, replayed) took 5.1–5.5 ms a colour
+    frame so, 2.6–2.9 with its arrays reused (docs/experiments/depth-only-scenes.md); inside the
+    tracking loop the tracker's own allocations kept the heap in place and it made no difference.
 
     A buffer is handed out again only when nothing else refers to it: no observation, array or view of
     it (a view refers to it as its base) is alive — an observation kept by the caller keeps its arrays,
