@@ -235,7 +235,11 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     seg = segmenter or Segmenter()
     # the frame, the mask, the depth and the silhouette are written to the segmenter's buffers
     # (reused when the caller holds no earlier observation's: Segmenter.buffers)
-    bufs = seg.buffers
+    bufs = getattr(seg, "buffers", None)
+    if bufs is None:  # a segmenter of the caller's own (any callable with box_min/box_max): fresh arrays
+        from .segment.buffers import FrameBuffers
+
+        bufs = FrameBuffers()
     d = _float64(depth, bufs)
     H, W = d.shape
     # the segmenter needs the points only for a box; otherwise the back-projection, smoothing and
