@@ -93,22 +93,7 @@ def closed_filled(m):
                 out[v, u] = True
             elif 0 < v < H - 1 and 0 < u < W - 1:
                 out[v, u] = dil[v, u] and dil[v - 1, u] and dil[v + 1, u] and dil[v, u - 1] and dil[v, u + 1]
-    # the background reachable from the edge stays; the rest are holes
-    reach = np.zeros((H, W), np.bool_)
-    stack = np.empty(H * W, np.int64)
-    top = 0
-    for v in range(H):
-        for u in range(W):
-            if (v == 0 or u == 0 or v == H - 1 or u == W - 1) and not out[v, u] and not reach[v, u]:
-                reach[v, u] = True
-                stack[top] = v * W + u
-                top += 1
-    _flood(~out, reach, True, stack, top, False)
-    for v in range(H):
-        for u in range(W):
-            if not reach[v, u]:
-                out[v, u] = True
-    return out
+    return fill_holes(out)
 
 
 @njit(cache=True)
