@@ -39,6 +39,16 @@ def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
                    window=tracker.segment_window(camera) if window else None)
 
 
+def _held(segmenter):
+    """The segmenter a recording is observed with, one for all its frames (its frame buffers are reused
+    frame after frame: :attr:`tracker.segment.Segmenter.buffers`); None: the defaults'."""
+    if segmenter is not None:
+        return segmenter
+    from .segment import Segmenter
+
+    return Segmenter()
+
+
 def track_recording(recording, tracker, on_frame=None, *, segmenter=None, frame_table: bool = False):
     """Track every frame of ``recording`` (anything with ``camera`` that iterates frames with
     ``index``, ``time_s``, ``depth`` in metres and ``color``) with ``tracker`` (:class:`FrameTracker`).
@@ -51,6 +61,7 @@ def track_recording(recording, tracker, on_frame=None, *, segmenter=None, frame_
     :class:`tracker.io.tracking_file.FrameTable` (pandas not loaded)."""
     cam = recording.camera
     rows = []
+    segmenter = _held(segmenter)
     frames = recording.frames_or_problems() if hasattr(recording, "frames_or_problems") else recording
     for frame in frames:
         ob = observe_frame(tracker, frame, cam, segmenter)
@@ -83,6 +94,7 @@ def track_realtime(recording, tracker, budget_ms, on_frame=None, *, segmenter=No
     from .track import FrameResult
 
     cam = recording.camera
+    segmenter = _held(segmenter)
     frames = recording.frames_or_problems() if hasattr(recording, "frames_or_problems") else recording
     if pace:
         frames = paced(frames, recording.fps, dropped=dropped)

@@ -27,6 +27,7 @@ from .io.cameras import as_camera
 from .errors import TrackerError
 from .observe import observe
 from .realtime import FrameBudget, predicted_theta
+from .segment import Segmenter
 from .run import settings_for_hand
 from .track import FrameTracker
 from .track import TrackerSettings
@@ -104,7 +105,8 @@ class HandTracker:
             bundle = load_bundle(synergies, registries=list(registries) if registries else None)
         model = HandModel.load(hand_model, right=hand == "right")
         self.core = FrameTracker(model, settings_for_hand(model, settings or TrackerSettings()), synergies=bundle)
-        self.segmenter = segmenter
+        # one segmenter for the stream: its frame buffers are reused frame after frame (Segmenter.buffers)
+        self.segmenter = segmenter if segmenter is not None else Segmenter()
         self._budget = None if budget_ms is None else FrameBudget(budget_ms)  # checks the number
         self._last = []        # the last two fitted results (oldest first): what a predicted frame extrapolates
         self._last_hand = None  # the hand model of the last fitted result
