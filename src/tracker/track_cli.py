@@ -225,8 +225,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
                       + (f"; the net's cut short on {st.net_cut} frames" if st.net_cut else ""))
     if tracker.settings.start.detector:
         st = tracker.stats
-        console.print(f"detector: {tracker.settings.start.detector} found a hand {st.detector_seeds} times; "
-                      f"{st.detector_starts} starts from it without the full search, {st.searches} full start searches")
+        # the size calibration's frames detect too but are not starts: counted in the hands found only
+        console.print(f"detector: {tracker.settings.start.detector} found a hand {st.detector_seeds} times (starts, "
+                      f"size calibration, safety net); starts from its hand alone: {st.detector_starts}, with the "
+                      f"full search: {st.searches}")
     if tracker.settings.start.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
         console.print(f"colour seed: {tracker.stats.rgb_seeds} start searches seeded by colour keypoints"

@@ -86,6 +86,14 @@ def test_track_command_takes_a_detector(tmp_path):
     r = run("track", tmp_path / "rec", "-o", tmp_path / "u.csv", "--detector", "no-such-detector")
     assert r.exit_code == 2 and "no-such-detector" in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "u.csv").exists()
+    # on by default (the keypoint CNN), off with --no-detector; both at once is one error
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "d.csv", "--hand-scale", "1")
+    assert r.exit_code == 0 and "detector: hand-keypoints-cnn found a hand" in r.output, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "n.csv", "--hand-scale", "1", "--no-detector")
+    assert r.exit_code == 0 and "detector:" not in r.output, r.output
+    r = run("track", tmp_path / "rec", "-o", tmp_path / "b.csv", "--detector", "hand-parts", "--no-detector")
+    assert r.exit_code == 2 and "--no-detector" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "b.csv").exists()
 
 
 def test_the_shipped_cnn_seeds_a_rendered_fist():
