@@ -227,7 +227,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
         st = tracker.stats
         # the size calibration's frames detect too but are not starts: counted in the hands found only
         console.print(f"detector: {tracker.settings.start.detector} found a hand {st.detector_seeds} times (starts, "
-                      f"size calibration, safety net); starts from its hand alone: {st.detector_starts}, with the "
+                      f"size calibration, the net's searches); starts from its hand alone: {st.detector_starts}, with the "
                       f"full search: {st.searches}")
     if tracker.settings.start.rgb_seed:
         # a recording without colour (or a hand MediaPipe never found) leaves the depth-only start
