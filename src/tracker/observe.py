@@ -26,6 +26,7 @@ from ._observe_kernels import SMOOTH_MAX_DIFF_M, gate_kernel, observe_window
 from ._segment_kernels import dropout_band_kernel
 from .errors import TrackerError
 from .segment import Segmenter, bounds
+from .segment.buffers import FrameBuffers
 from .settings_base import SettingsGroup
 
 
@@ -237,8 +238,6 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     # (reused when the caller holds no earlier observation's: Segmenter.buffers)
     bufs = getattr(seg, "buffers", None)
     if bufs is None:  # a segmenter of the caller's own (any callable with box_min/box_max): fresh arrays
-        from .segment.buffers import FrameBuffers
-
         bufs = FrameBuffers()
     d = _float64(depth, bufs)
     H, W = d.shape

@@ -21,6 +21,7 @@ from handmodel.model import HandModel
 from . import TRACKING_HAND
 from .errors import TrackerError
 from .observe import observe
+from .segment import Segmenter
 from .io.recording import Recording
 from .io.tracking_file import FRAME_COLUMNS, FrameTable, tracking_metadata, write_keypoints, write_tracking
 from .scale import calibrated_hand
@@ -42,11 +43,7 @@ def observe_frame(tracker, frame, camera, segmenter=None, *, window=True):
 def _held(segmenter):
     """The segmenter a recording is observed with, one for all its frames (its frame buffers are reused
     frame after frame: :attr:`tracker.segment.Segmenter.buffers`); None: the defaults'."""
-    if segmenter is not None:
-        return segmenter
-    from .segment import Segmenter
-
-    return Segmenter()
+    return segmenter if segmenter is not None else Segmenter()
 
 
 def track_recording(recording, tracker, on_frame=None, *, segmenter=None, frame_table: bool = False):
