@@ -4,6 +4,8 @@ call overhead there. It computes exactly what the numpy / scipy expression in it
 (tests/tracker/test_segment.py compares them)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -1021,3 +1023,355 @@ def valid_depths(d, c, use_c, z_min, z_max, v0, v1, s0, s1, least, use_plane, nx
             dv[v, u] = z if valid[v, u] else np.nan
             d_all[v, u] = z if (z > z_min and z < z_max) else np.nan
     return valid, dv, d_all
+
+
+@njit(cache=True)
+def np_sum(a):
+    """``np.sum(a)`` of a 1-D float64 array, to the bit: the reduction's identity 0.0 plus numpy's pairwise
+    sum of the values (:func:`_pairwise`; the identity turns a sum of −0.0 into 0.0)."""
+    return 0.0 + _pairwise(a)
+
+
+@njit(cache=True)
+def _pairwise(a):
+    """numpy's pairwise summation of a 1-D float64 array: fewer than 8 values one after the other from
+    −0.0; up to 128 in eight running sums, combined pairwise, the rest added in order; more split in two
+    halves of a multiple of 8."""
+    n = a.shape[0]
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+        r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+        i = 8
+        while i < n - (n % 8):
+            r0 += a[i]
+            r1 += a[i + 1]
+            r2 += a[i + 2]
+            r3 += a[i + 3]
+            r4 += a[i + 4]
+            r5 += a[i + 5]
+            r6 += a[i + 6]
+            r7 += a[i + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise(a[:n2]) + _pairwise(a[n2:])
+
+
+@njit(cache=True)
+def uniform1d(x, size):
+    """``tracker.segment.ops._uniform1d(x, size)`` (``scipy.ndimage.uniform_filter1d(x, size,
+    mode="nearest")``): the first window summed in order, then each step adding its entering minus its
+    leaving value, each running sum divided by ``size``."""
+    n = x.shape[0]
+    before = size // 2
+    ext = np.empty(n + size - 1)
+    for i in range(before):
+        ext[i] = x[0]
+    for i in range(n):
+        ext[before + i] = x[i]
+    for i in range(before + n, n + size - 1):
+        ext[i] = x[n - 1]
+    out = np.empty(n)
+    s = ext[0]
+    for i in range(1, size):
+        s += ext[i]
+    out[0] = s / size
+    for i in range(1, n):
+        s += ext[i + size - 1] - ext[i - 1]
+        out[i] = s / size
+    return out
+
+
+@njit(cache=True)
+def _opposite(py, px, width, cy_p, cx_p, fingers, r):
+    """``tracker.segment.forearm._opposite_fingers``: whether ``(py, px)`` lies opposite the parts
+    ``fingers`` weighted by their width (numpy's sums, :func:`np_sum`)."""
+    k = 0
+    for j in range(fingers.shape[0]):
+        if fingers[j]:
+            k += 1
+    w, wy, wx = np.empty(k), np.empty(k), np.empty(k)
+    k = 0
+    for j in range(fingers.shape[0]):
+        if fingers[j]:
+            w[k] = width[j]
+            wy[k] = width[j] * cy_p[j]
+            wx[k] = width[j] * cx_p[j]
+            k += 1
+    if np_sum(w) < 0.3 * r:
+        return False
+    fy, fx = np_sum(wy), np_sum(wx)
+    return (py * fy + px * fx) / (math.hypot(py, px) * math.hypot(fy, fx) + 1e-12) < -0.5
+
+
+@njit(cache=True)
+def _widest(owner, piece_size, j, r):
+    """``tracker.segment.forearm._widest_piece``: part ``j``'s widest ring piece of at least 0.05 r², or −1
+    when it has fewer than two."""
+    best, count = -1, 0
+    for k in range(piece_size.shape[0]):
+        if owner[k] == j + 1 and piece_size[k] >= 0.05 * r * r:
+            count += 1
+            if best < 0 or piece_size[k] > piece_size[best]:
+                best = k
+    return best if count >= 2 else -1
+
+
+@njit(cache=True)
+def _end_narrowing(p, window, drop):
+    """``tracker.segment.forearm._end_of_narrowing``."""
+    for i in range(p.shape[0] - window):
+        if p[i] - p[i + window] < drop * p[i]:
+            return i
+    return p.shape[0] - 1
+
+
+@njit(cache=True)
+def _end_taper(p, window, drop):
+    """``tracker.segment.forearm._end_of_taper``."""
+    n = p.shape[0]
+    for i in range(n - 1):
+        lo = p[i]
+        for k in range(i, min(i + window + 1, n)):
+            if p[k] < lo:
+                lo = p[k]
+        if p[i] - lo < drop * p[i]:
+            return i
+    return n - 1
+
+
+@njit(cache=True)
+def _profile(t, strip, lo, hi):
+    """The strip's pixels per rounded distance ``lo``..``hi`` along the arm (``np.bincount`` of
+    ``np.round(t[strip])`` within them) and whether any lies there."""
+    prof = np.zeros(hi - lo + 1)
+    anyk = False
+    H, W = t.shape
+    for v in range(H):
+        for u in range(W):
+            if strip[v, u]:
+                ti = int(np.rint(t[v, u]))
+                if lo <= ti <= hi:
+                    prof[ti - lo] += 1.0
+                    anyk = True
+    return prof, anyk
+
+
+@njit(cache=True)
+def wrist_cut(solid, cy, cx, r, go_on, touch, use_touch, m_px, at_end, w0, w1, arm_reach, opp_reach, sure_reach,
+              finger_max, cos_bend, taper_r, taper_min, no_narrow, heel_reach, heel_tol):
+    """``(cut, strip)`` of :func:`tracker.segment.forearm.cut_forearm` from its palm on (its ``_parts``,
+    ``_going_on_parts``, ``_arm_axis``, the arm's coordinates and ``_wrist_distance`` or ``_heel_end``, in
+    their arithmetic): whether a cut is made, and the crop's pixels it removes. ``solid``: the crop's
+    closed, filled mask; ``(cy, cx)``, ``r``: the palm circle; ``go_on``, ``touch`` (``use_touch``): where
+    the region goes on and where another object meets it; ``m_px``: metres per pixel at the palm;
+    ``at_end``: the palm is at the region's far end (the heel's end is the wrist); ``w0``, ``w1``: the
+    wrist's range (r); the rest: :class:`tracker.segment.constants.SegmentConstants`' (``cos_bend``: the
+    cosine of its ``arm_bend_deg``)."""
+    H, W = solid.shape
+    none = np.zeros((H, W), np.bool_)
+    rho = np.empty((H, W))
+    outside = np.empty((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            rho[v, u] = math.hypot(float(v - cy), float(u - cx))
+            outside[v, u] = solid[v, u] and rho[v, u] > 1.6 * r
+    # _parts: the parts outside 1.6 r (8-connected), their width where they leave the palm, reach,
+    # mean offsets there; the pieces on the ring 2.0-2.4 r
+    lab = np.zeros((H, W), np.int32)
+    stack = np.empty(H * W, np.int64)
+    n = _components(outside, lab, stack, True)
+    if n == 0:
+        return False, none
+    ring_in = np.zeros((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            ring_in[v, u] = outside[v, u] and rho[v, u] >= 2.0 * r and rho[v, u] <= 2.4 * r
+    ring_lab = np.zeros((H, W), np.int32)
+    nr = _components(ring_in, ring_lab, stack, True)
+    cnt = np.zeros(n, np.int64)
+    sy, sx = np.zeros(n), np.zeros(n)
+    reach_r = np.full(n, -np.inf)
+    piece_size = np.zeros(nr + 1 if nr > 0 else 0, np.int64)
+    owner = np.zeros(piece_size.shape[0], np.int64)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k == 0:
+                continue
+            if rho[v, u] > reach_r[k - 1]:
+                reach_r[k - 1] = rho[v, u]
+            if rho[v, u] <= 1.9 * r:
+                cnt[k - 1] += 1
+                sy[k - 1] += v - cy
+                sx[k - 1] += u - cx
+            q = ring_lab[v, u]
+            if q > 0:
+                piece_size[q] += 1
+                owner[q] = k
+    width, cy_p, cx_p = np.empty(n), np.empty(n), np.empty(n)
+    for j in range(n):
+        width[j] = cnt[j] / (0.3 * r) / 2.0
+        nb = max(cnt[j], 1)
+        cy_p[j] = sy[j] / nb
+        cx_p[j] = sx[j] / nb
+    pieces = np.zeros(n, np.int64)
+    for q in range(1, piece_size.shape[0]):
+        if piece_size[q] >= 0.05 * r * r:
+            pieces[owner[q] - 1] += 1
+    # _going_on_parts
+    cont = np.zeros(n, np.bool_)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0 and (go_on[v, u] or (use_touch and touch[v, u])):
+                cont[k - 1] = True
+    for j in range(n):
+        cont[j] |= reach_r[j] > arm_reach * r
+    several = pieces >= 2
+    first = several & cont
+    for j in range(n):
+        if not first[j]:
+            continue
+        touched = False
+        k = _widest(owner, piece_size, j, r)
+        # the ring is 0.4 r thick: a piece's area over that is its chord across the ring
+        if k >= 0 and not piece_size[k] / (0.4 * r) * m_px <= finger_max:
+            s_y, s_x, c = 0, 0, 0
+            for v in range(H):
+                for u in range(W):
+                    if ring_lab[v, u] == k:
+                        s_y += v - cy
+                        s_x += u - cx
+                        c += 1
+            touched = _opposite(float(s_y) / c, float(s_x) / c, width, cy_p, cx_p, ~cont & ~several, r)
+        several[j] = not touched
+    cont &= ~several
+    ends = ~cont
+    wide = width >= 0.45 * r
+    for j in range(n):
+        if not (ends[j] and wide[j] and reach_r[j] >= opp_reach * r):
+            continue
+        others = ends.copy()
+        others[j] = False
+        others &= ~(wide & (reach_r < opp_reach * r))
+        cont[j] |= _opposite(cy_p[j], cx_p[j], width, cy_p, cx_p, others, r)
+    for j in range(n):
+        cont[j] &= not several[j] or reach_r[j] > sure_reach * r
+    # the arm: the widest part that goes on
+    j = 0
+    best = -1.0
+    for i in range(n):
+        w = width[i] if cont[i] else 0.0
+        if w > best:
+            best, j = w, i
+    if best < 0.45 * r:
+        return False, none
+    # _arm_axis
+    piece = _widest(owner, piece_size, j, r) if pieces[j] >= 2 else -1
+    near_piece = none
+    if piece >= 0:
+        near_piece = np.zeros((H, W), np.bool_)
+        for v in range(H):
+            for u in range(W):
+                if ring_lab[v, u] == piece:
+                    for dv in range(-2, 3):
+                        for du in range(abs(dv) - 2, 3 - abs(dv)):
+                            if 0 <= v + dv < H and 0 <= u + du < W:
+                                near_piece[v + dv, u + du] = True
+    ry, rx, rc = 0, 0, 0
+    ay_, ax_, ac = 0, 0, 0
+    top = -np.inf
+    for v in range(H):
+        for u in range(W):
+            if lab[v, u] != j + 1:
+                continue
+            ay_ += v - cy
+            ax_ += u - cx
+            ac += 1
+            if rho[v, u] > top:
+                top = rho[v, u]
+            if rho[v, u] < 2.6 * r and (piece < 0 or near_piece[v, u]):
+                ry += v - cy
+                rx += u - cx
+                rc += 1
+    whole = rc == 0  # no pixel of the arm near the palm: the whole arm stands for its ring
+    if whole:
+        ry, rx, rc = ay_, ax_, ac
+    ay, ax = float(ry) / rc, float(rx) / rc
+    norm = math.hypot(ay, ax)
+    if norm == 0:
+        return False, none
+    ay, ax = ay / norm, ax / norm
+    ly, lx, lc, fy, fx, fc = 0, 0, 0, 0, 0, 0
+    for v in range(H):
+        for u in range(W):
+            if lab[v, u] != j + 1:
+                continue
+            if pieces[j] >= 2:
+                leave = (whole or (rho[v, u] < 2.6 * r and near_piece[v, u])) and rho[v, u] <= 2.4 * r
+            else:
+                leave = rho[v, u] <= 1.9 * r
+            if leave:
+                ly += v - cy
+                lx += u - cx
+                lc += 1
+            if rho[v, u] >= top - 0.5 * r:
+                fy += v - cy
+                fx += u - cx
+                fc += 1
+    if lc > 0 and fc > 0:
+        dy, dx = float(fy) / fc - float(ly) / lc, float(fx) / fc - float(lx) / lc
+        n_arm = math.hypot(dy, dx)
+        cos = (dy * ay + dx * ax) / max(n_arm, 1e-12)
+        if n_arm >= 0.5 * r and 0.5 <= cos < cos_bend:
+            ay, ax = dy / n_arm, dx / n_arm
+    t, strip = arm_strip(solid, cy, cx, ay, ax, 2.5 * r)
+    if at_end:
+        # _heel_end
+        t0 = np.inf
+        for v in range(H):
+            for u in range(W):
+                if strip[v, u] and t[v, u] < t0:
+                    t0 = t[v, u]
+        lo, hi = int(np.floor(0.9 * r)), int(np.ceil(t0 + heel_reach * r))
+        if hi <= lo:
+            return False, none
+        prof, anyk = _profile(t, strip, lo, hi)
+        if not anyk:
+            return False, none
+        prof = uniform1d(prof, 5)
+        i = int(np.argmin(prof))
+        t_w = lo + prof.shape[0] - 1
+        for k in range(i, prof.shape[0]):
+            if prof[k] > (1.0 + heel_tol) * prof[i]:
+                t_w = lo + k - 1
+                break
+    else:
+        # _wrist_distance
+        lo, hi = int(np.floor(w0 * r)), int(np.ceil(w1 * r))
+        prof, anyk = _profile(t, strip, lo, hi)
+        if not anyk:
+            return False, none
+        prof = uniform1d(prof, 5)
+        i = _end_narrowing(prof, max(int(np.rint(0.3 * r)), 2), 0.10)
+        if i > 0:
+            t_w = lo + i
+        else:
+            taper = _end_taper(prof, max(int(np.rint(taper_r * r)), taper_min), 0.10)
+            t_w = max(lo + taper, int(np.rint(no_narrow * r)))
+    cut = np.empty((H, W), np.bool_)
+    for v in range(H):
+        for u in range(W):
+            cut[v, u] = strip[v, u] and t[v, u] > t_w
+    return True, cut

@@ -304,6 +304,14 @@ def test_an_arm_the_thumb_touches_is_still_the_arm(hand, monkeypatch):
     cam, depth, _, labels = realistic_frame(hand, "realsense", 0.8, E.REALISTIC_SCENES[scene], 4, seed + j, seed=seed)
     recall, precision = mask_scores(Segmenter()(depth, None, focal=cam.fx), depth, labels)
     assert recall >= 0.9 and precision >= 0.9, (recall, precision)
+
+    def numpy_cut(solid, cy, cx, r, go_on, touch, use_touch, m_px, at_end, w0, w1, *tuning):
+        # the wrist cut's numpy rules in place of the compiled kernel, so that one rule can be turned off
+        cut = S._cut_reference(solid, cy, cx, r, go_on, touch if use_touch else None, m_px, at_end, (w0, w1))
+        return cut is not None, cut
+
+    monkeypatch.setattr(S, "wrist_cut", numpy_cut)
+    assert mask_scores(Segmenter()(depth, None, focal=cam.fx), depth, labels) == (recall, precision)
     monkeypatch.setattr(S, "_arm_a_finger_touches", lambda *a, **k: False)
     _, precision = mask_scores(Segmenter()(depth, None, focal=cam.fx), depth, labels)
     assert precision < 0.6, precision

@@ -7,10 +7,10 @@ from typing import NamedTuple
 import numpy as np
 
 from .._segment_kernels import (
-    arm_strip,
     closed_filled,
     disk_counts,
     label_max,
+    wrist_cut,
 )
 from . import constants as K
 from .ops import _dilate, _disk_closing, _edt, _in_labels, _label, _nanmedian, _uniform1d, bounds
@@ -117,31 +117,53 @@ def cut_forearm(mask, depth, focal, beyond=None, palm_radius_m=(0.02, 0.07), wri
     least = min(palm_radius_m[0], K.TUNING.side_fist_radius_m) if at_end else palm_radius_m[0]
     if not (least <= r_m <= palm_radius_m[1]):
         return m
+    # compiled from here on: the parts leaving the palm, which go on, the arm's axis, the wrist along it
+    # (the rules of _parts, _going_on_parts, _arm_axis, _wrist_distance and _heel_end, to the bit:
+    # _cut_reference is them in numpy, tests/tracker/test_segment_wrist.py compares the two)
+    T = K.TUNING
+    made, cut = wrist_cut(solid, int(cy), int(cx), r, go_on, _NO_TOUCH if touch is None else touch, touch is not None,
+                          float(zc / focal), bool(at_end), float(wrist_range[0]), float(wrist_range[1]),
+                          float(T.arm_reach_r), float(T.opposite_arm_reach_r), float(T.sure_arm_reach_r),
+                          float(T.finger_max_m), float(np.cos(np.radians(T.arm_bend_deg))), float(T.taper_window_r),
+                          int(T.taper_min_samples), float(T.no_narrowing_wrist), float(T.heel_reach_r),
+                          float(T.heel_width_tol))
+    if not made:
+        return m
+    out = m.copy()
+    out[y0:y1, x0:x1] &= ~cut
+    return out
+
+
+_NO_TOUCH = np.zeros((1, 1), bool)
+
+
+def _cut_reference(solid, cy, cx, r, go_on, touch, m_px, at_end, wrist_range=(0.9, 2.6)):
+    """The pixels of the crop :func:`cut_forearm` removes beyond the wrist, or None when it cuts nothing:
+    its rules from the palm on in numpy (:func:`_parts`, :func:`_going_on_parts`, :func:`_arm_axis`,
+    :func:`_wrist_distance`, :func:`_heel_end`), the definition
+    :func:`tracker._segment_kernels.wrist_cut` computes compiled (tests compare them)."""
     # offsets from the palm's centre as broadcast views (np.mgrid's full grids cost more than the math)
-    vy, vx = np.broadcast_arrays(np.arange(sub.shape[0])[:, None] - cy, np.arange(sub.shape[1])[None, :] - cx)
+    vy, vx = np.broadcast_arrays(np.arange(solid.shape[0])[:, None] - cy, np.arange(solid.shape[1])[None, :] - cx)
     rho = np.hypot(vy, vx)
     parts = _parts(solid, rho, vy, vx, r)
     if parts is None:
-        return m
-    continues, several = _going_on_parts(parts, go_on, touch, vy, vx, r, zc / focal)
+        return None
+    continues, several = _going_on_parts(parts, go_on, touch, vy, vx, r, m_px)
     width = parts.width.copy()
     width[~continues[1:]] = 0.0
     j = int(np.argmax(width))
     if width[j] < 0.45 * r:
-        return m
+        return None
     axis = _arm_axis(parts, j, vy, vx, rho, r)
     if axis is None:
-        return m
+        return None
     ay, ax = axis
-    # compiled: t = vy · ay + vx · ax along the arm, the strip |−vy · ax + vx · ay| <= 2.5 r across it
-    t, strip = arm_strip(solid, cy, cx, float(ay), float(ax), 2.5 * r)
+    t = vy * ay + vx * ax
+    strip = solid & (np.abs(-vy * ax + vx * ay) <= 2.5 * r)
     t_w = _heel_end(t, strip, r) if at_end else _wrist_distance(t, strip, r, wrist_range)
     if t_w is None:
-        return m
-    cut = strip & (t > t_w)
-    out = m.copy()
-    out[y0:y1, x0:x1] &= ~cut
-    return out
+        return None
+    return strip & (t > t_w)
 
 
 def _crop(m):

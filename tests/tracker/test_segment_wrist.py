@@ -1,0 +1,94 @@
+"""The wrist cut and the finger test compiled whole (issue 39's segmentation speed) against the numpy rules
+they replace (:func:`tracker.segment.forearm._cut_reference` and the functions it calls): the same pixels
+to the bit on drawn hands — a palm, fingers spread or together, an arm going on past the crop's edge or
+into another object, a fist at the arm's end — or the segmentation changes."""
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from tracker._segment_kernels import np_sum, uniform1d, wrist_cut
+from tracker.segment import constants as K
+from tracker.segment.forearm import _cut_reference
+from tracker.segment.ops import _uniform1d
+
+seeds = st.integers(0, 2**32 - 1)
+
+
+def _limb(m, y0, x0, angle, length, width):
+    """Draw a straight limb of ``width`` px from ``(y0, x0)`` along ``angle`` for ``length`` px into ``m``."""
+    yy, xx = np.mgrid[:m.shape[0], :m.shape[1]]
+    dy, dx = np.sin(angle), np.cos(angle)
+    t = (yy - y0) * dy + (xx - x0) * dx
+    s = np.abs(-(yy - y0) * dx + (xx - x0) * dy)
+    m |= (t >= 0) & (t <= length) & (s <= width / 2)
+
+
+def _hand(seed):
+    """A drawn hand in a crop: ``(solid, cy, cx, r, go_on, touch)`` with the palm's centre at its widest place."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(30, 90, 2)
+    cy, cx = int(rng.integers(h // 4, 3 * h // 4)), int(rng.integers(w // 4, 3 * w // 4))
+    r = float(rng.uniform(4.0, 12.0))
+    yy, xx = np.mgrid[:h, :w]
+    solid = np.hypot(yy - cy, xx - cx) <= r * rng.uniform(1.0, 1.5)
+    arm = rng.uniform(0, 2 * np.pi)
+    if rng.random() < 0.85:
+        _limb(solid, cy, cx, arm, rng.uniform(2, 12) * r, rng.uniform(0.8, 2.2) * r)
+    spread = rng.uniform(0.15, 0.5)
+    for k in range(rng.integers(0, 6)):
+        a = arm + np.pi + (k - 2) * spread + rng.normal(0, 0.1)
+        _limb(solid, cy, cx, a, rng.uniform(1.5, 4.5) * r, rng.uniform(0.3, 0.8) * r)
+    if rng.random() < 0.3:  # a thumb touching the arm outside the palm circle
+        _limb(solid, cy + int(2.2 * r * np.sin(arm + 0.6)), cx + int(2.2 * r * np.cos(arm + 0.6)), arm,
+              rng.uniform(1, 3) * r, 0.5 * r)
+    solid ^= rng.random((h, w)) < rng.choice([0.0, 0.01, 0.03])  # outline noise and holes
+    solid[cy, cx] = True
+    go_on = np.zeros_like(solid)
+    edges = rng.random(4) < 0.5
+    go_on[:1] |= edges[0]
+    go_on[-1:] |= edges[1]
+    go_on[:, :1] |= edges[2]
+    go_on[:, -1:] |= edges[3]
+    go_on &= solid
+    touch = (rng.random((h, w)) < 0.05) & solid if rng.random() < 0.3 else None
+    return solid, cy, cx, r, go_on, touch
+
+
+def _both(seed, at_end, m_px):
+    solid, cy, cx, r, go_on, touch = _hand(seed)
+    T = K.TUNING
+    made, cut = wrist_cut(solid, cy, cx, r, go_on, np.zeros((1, 1), bool) if touch is None else touch,
+                          touch is not None, m_px, at_end, 0.9, 2.6, T.arm_reach_r, T.opposite_arm_reach_r,
+                          T.sure_arm_reach_r, T.finger_max_m, float(np.cos(np.radians(T.arm_bend_deg))),
+                          T.taper_window_r, T.taper_min_samples, T.no_narrowing_wrist, T.heel_reach_r,
+                          T.heel_width_tol)
+    want = _cut_reference(solid, cy, cx, r, go_on, touch, m_px, at_end)
+    return made, cut, want
+
+
+@given(seeds, st.booleans(), st.floats(0.0005, 0.006))
+@settings(max_examples=150, deadline=None)
+def test_wrist_cut_is_the_numpy_rules(seed, at_end, m_px):
+    made, cut, want = _both(seed, at_end, m_px)
+    assert made == (want is not None)
+    if made:
+        np.testing.assert_array_equal(cut, want)
+
+
+def test_drawn_hands_are_cut_in_most_crops():
+    """The comparison above is not vacuous: most drawn hands with an arm are cut, by both, and some not."""
+    made = [_both(seed, at_end, 0.002)[0] for seed in range(60) for at_end in (False, True)]
+    assert 0.3 * len(made) < sum(made) < len(made)
+
+
+@given(st.lists(st.floats(-1e3, 1e3) | st.sampled_from([0.0, -0.0]), max_size=400))
+@settings(max_examples=150, deadline=None)
+def test_np_sum_is_numpys_pairwise_sum(values):
+    a = np.array(values, dtype=np.float64)
+    assert np.float64(np_sum(a)).tobytes() == np.sum(a).tobytes()
+
+
+@given(st.lists(st.floats(0, 500, allow_nan=False), min_size=1, max_size=80), st.integers(1, 9))
+@settings(max_examples=100, deadline=None)
+def test_uniform1d_is_the_running_sum(values, size):
+    x = np.array(values)
+    np.testing.assert_array_equal(uniform1d(x, size), _uniform1d(x, size))
