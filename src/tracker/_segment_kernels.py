@@ -1375,3 +1375,46 @@ def wrist_cut(solid, cy, cx, r, go_on, touch, use_touch, m_px, at_end, w0, w1, a
         for u in range(W):
             cut[v, u] = strip[v, u] and t[v, u] > t_w
     return True, cut
+
+
+@njit(cache=True)
+def filled_places(cand, raw, rad, slack, least):
+    """``tracker.segment.forearm._filled_places(cand, raw, rad, slack, least)``: the places of ``cand`` whose
+    disk of radius ``rad`` (offsets ``hypot ≤ rad``) ``raw`` fills within ``slack`` of the best-filled one or
+    at least ``least`` (a share of the disk's pixels: :func:`disk_counts` over their count) — ``cand`` itself
+    when it holds fewer than two places."""
+    H, W = cand.shape
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if cand[v, u]:
+                n += 1
+    if n < 2:
+        return cand.copy()
+    ys, xs = np.empty(n, np.int64), np.empty(n, np.int64)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if cand[v, u]:
+                ys[n], xs[n] = v, u
+                n += 1
+    k = int(np.ceil(rad))
+    lo, hi = np.empty(2 * k + 1, np.int64), np.empty(2 * k + 1, np.int64)
+    size = 0
+    for i in range(2 * k + 1):
+        lo[i], hi[i] = k + 1, -k - 1
+        for j in range(2 * k + 1):
+            if math.hypot(float(i - k), float(j - k)) <= rad:
+                size += 1
+                lo[i] = min(lo[i], j - k)
+                hi[i] = max(hi[i], j - k)
+    counts = disk_counts(raw, ys, xs, lo, hi)
+    fill = np.empty(n)
+    for i in range(n):
+        fill[i] = counts[i] / size
+    bar = min(fill.max() - slack, least)
+    out = np.zeros((H, W), np.bool_)
+    for i in range(n):
+        if fill[i] >= bar:
+            out[ys[i], xs[i]] = True
+    return out

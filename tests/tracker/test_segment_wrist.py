@@ -5,9 +5,9 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import np_sum, uniform1d, wrist_cut
+from tracker._segment_kernels import filled_places, np_sum, uniform1d, wrist_cut
 from tracker.segment import constants as K
-from tracker.segment.forearm import _cut_reference
+from tracker.segment.forearm import _cut_reference, _filled_reference
 from tracker.segment.ops import _uniform1d
 
 seeds = st.integers(0, 2**32 - 1)
@@ -92,3 +92,14 @@ def test_np_sum_is_numpys_pairwise_sum(values):
 def test_uniform1d_is_the_running_sum(values, size):
     x = np.array(values)
     np.testing.assert_array_equal(uniform1d(x, size), _uniform1d(x, size))
+
+
+@given(st.integers(1, 40), st.integers(1, 40), seeds, st.floats(0.5, 9.0), st.floats(0.0, 0.3), st.floats(0.5, 1.0))
+@settings(max_examples=100, deadline=None)
+def test_filled_places_is_the_numpy_expression(h, w, seed, rad, slack, least):
+    """The palm's candidate places kept by how well the mask before closing fills their disk."""
+    rng = np.random.default_rng(seed)
+    raw = rng.random((h, w)) < rng.uniform(0.3, 1.0)
+    cand = rng.random((h, w)) < rng.uniform(0.0, 0.3)
+    np.testing.assert_array_equal(filled_places(cand, raw, rad, slack, least),
+                                  _filled_reference(cand, raw, rad, slack, least))

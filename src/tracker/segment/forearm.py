@@ -9,6 +9,7 @@ import numpy as np
 from .._segment_kernels import (
     closed_filled,
     disk_counts,
+    filled_places,
     label_max,
     wrist_cut,
 )
@@ -443,6 +444,13 @@ def _filled_places(cand, raw, rad, slack=None, least=None):
     """
     slack = K.TUNING.palm_fill_slack if slack is None else slack
     least = K.TUNING.palm_fill_min if least is None else least
+    # compiled (tests/tracker/test_segment_wrist.py: against _filled_reference, the numpy expression)
+    return filled_places(np.ascontiguousarray(cand, dtype=np.bool_), np.ascontiguousarray(raw, dtype=np.bool_),
+                         float(rad), float(slack), float(least))
+
+
+def _filled_reference(cand, raw, rad, slack, least):
+    """:func:`_filled_places` in numpy (the disk's rows by :func:`tracker._segment_kernels.disk_counts`)."""
     ys, xs = np.nonzero(cand)
     if ys.size < 2:
         return cand
