@@ -1418,3 +1418,46 @@ def filled_places(cand, raw, rad, slack, least):
         if fill[i] >= bar:
             out[ys[i], xs[i]] = True
     return out
+
+
+@njit(cache=True)
+def finger_pieces(thin, min_size, elong2, min_len):
+    """``(labels, sizes, big)`` of :func:`tracker.segment.fingers._finger_pieces` from its ``thin`` pixels
+    (4-connected pieces as ``scipy.ndimage.label`` numbers them, each one's pixels, and which are
+    finger-like: at least ``min_size`` pixels, the second moments' major axis at least ``elong2`` times
+    the minor, ``4·sqrt(major)`` at least ``min_len``), in numpy's arithmetic (the moments summed over
+    the pixels in raster order, as ``np.bincount`` sums its weights)."""
+    H, W = thin.shape
+    lab = np.zeros((H, W), np.int32)
+    n = _components(thin, lab, np.empty(H * W, np.int64), False)
+    size = np.zeros(n + 1, np.int64)
+    sy, sx = np.zeros(n + 1), np.zeros(n + 1)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            size[k] += 1
+            if k > 0:
+                sy[k] += v
+                sx[k] += u
+    cnt = np.empty(n + 1)
+    for k in range(n + 1):
+        cnt[k] = max(size[k], 1)
+    my, mx = sy / cnt, sx / cnt
+    syy, sxx, sxy = np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0:
+                ey, ex = v - my[k], u - mx[k]
+                syy[k] += ey * ey
+                sxx[k] += ex * ex
+                sxy[k] += ey * ex
+    big = np.zeros(n + 1, np.bool_)
+    for k in range(1, n + 1):
+        yy, xx, xy = syy[k] / cnt[k], sxx[k] / cnt[k], sxy[k] / cnt[k]
+        q = (yy - xx) / 2
+        half_gap = math.sqrt(q * q + xy * xy)
+        major = (yy + xx) / 2 + half_gap
+        minor = max((yy + xx) / 2 - half_gap, 1e-9)
+        big[k] = size[k] >= min_size and major >= elong2 * minor and 4.0 * math.sqrt(major) >= min_len
+    return lab, size, big

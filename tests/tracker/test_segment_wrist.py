@@ -5,8 +5,9 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import filled_places, np_sum, uniform1d, wrist_cut
+from tracker._segment_kernels import filled_places, finger_pieces, np_sum, uniform1d, wrist_cut
 from tracker.segment import constants as K
+from tracker.segment.fingers import _pieces_reference
 from tracker.segment.forearm import _cut_reference, _filled_reference
 from tracker.segment.ops import _uniform1d
 
@@ -103,3 +104,21 @@ def test_filled_places_is_the_numpy_expression(h, w, seed, rad, slack, least):
     cand = rng.random((h, w)) < rng.uniform(0.0, 0.3)
     np.testing.assert_array_equal(filled_places(cand, raw, rad, slack, least),
                                   _filled_reference(cand, raw, rad, slack, least))
+
+
+@given(st.integers(1, 50), st.integers(1, 50), seeds, st.floats(200.0, 3000.0))
+@settings(max_examples=100, deadline=None)
+def test_finger_pieces_are_the_numpy_moments(h, w, seed, px_m):
+    """The finger test's pieces: labels, sizes and which are finger-like, on random masks and on drawn
+    fingers (thin limbs, which pass the test)."""
+    rng = np.random.default_rng(seed)
+    thin = rng.random((h, w)) < rng.uniform(0.05, 0.6)
+    for _ in range(rng.integers(0, 4)):
+        _limb(thin, rng.integers(0, h), rng.integers(0, w), rng.uniform(0, 2 * np.pi), rng.uniform(3, 40),
+              rng.uniform(1, 6))
+    T = K.TUNING
+    got = finger_pieces(thin, T.finger_min_area_m2 * px_m ** 2, T.finger_elongation ** 2, T.finger_min_length_m * px_m)
+    want = _pieces_reference(thin, px_m)
+    for g, wnt in zip(got, want):
+        np.testing.assert_array_equal(g, wnt)
+        assert g.dtype == wnt.dtype

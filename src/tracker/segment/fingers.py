@@ -7,6 +7,7 @@ import numpy as np
 from .._segment_kernels import (
     closed_filled,
     fill_holes,
+    finger_pieces,
 )
 from . import constants as K
 from .ops import (_dilate, _disk_opening, _edt, _in_labels, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist,
@@ -121,6 +122,15 @@ def _finger_pieces(o, px_m):
     thin = o & ~opened
     if rim > 0 and opened.any():
         thin &= _edt(opened) > rim
+    # compiled: the pieces and their moments (tests/tracker/test_segment_wrist.py: against _pieces_reference)
+    T = K.TUNING
+    return finger_pieces(np.ascontiguousarray(thin, dtype=np.bool_), T.finger_min_area_m2 * px_m ** 2,
+                         T.finger_elongation ** 2, T.finger_min_length_m * px_m)
+
+
+def _pieces_reference(thin, px_m):
+    """:func:`_finger_pieces`'s pieces of its ``thin`` pixels in numpy: ``(labels, sizes, big)``, the
+    definition :func:`tracker._segment_kernels.finger_pieces` computes compiled."""
     lab_t, n = _label(thin)
     size = np.bincount(lab_t.ravel(), minlength=n + 1)
     # a finger is long and thin; clothing that the skin filter leaves in patches is not
