@@ -1461,3 +1461,60 @@ def finger_pieces(thin, min_size, elong2, min_len):
         minor = max((yy + xx) / 2 - half_gap, 1e-9)
         big[k] = size[k] >= min_size and major >= elong2 * minor and 4.0 * math.sqrt(major) >= min_len
     return lab, size, big
+
+
+@njit(cache=True)
+def blob_labels(lab, d, zone, near, core, k, n, focal, blob_area):
+    """:func:`tracker.segment.hand_region`'s fingertip blobs in its window (labels ``lab`` up to ``n``):
+    the labels (ascending) of the pixels in ``zone`` and ``near`` off ``core`` and off surface ``k`` whose
+    ``near`` pixels cover less than ``blob_area`` m² — each pixel's area ``(d / focal)²`` summed in raster
+    order, as ``np.bincount`` with :func:`tracker.segment.surfaces.pixel_area`'s weights."""
+    H, W = lab.shape
+    area = np.zeros(n + 1)
+    cand = np.zeros(n + 1, np.bool_)
+    for v in range(H):
+        for u in range(W):
+            if near[v, u]:
+                q = d[v, u] / focal
+                area[lab[v, u]] += q * q
+                if zone[v, u] and not core[v, u] and lab[v, u] > 0 and lab[v, u] != k:
+                    cand[lab[v, u]] = True
+    m = 0
+    for j in range(1, n + 1):
+        if cand[j] and area[j] < blob_area:
+            m += 1
+    out = np.empty(m, np.int64)
+    m = 0
+    for j in range(1, n + 1):
+        if cand[j] and area[j] < blob_area:
+            out[m] = j
+            m += 1
+    return out
+
+
+@njit(cache=True)
+def edge_hits(lab, d, small, others, jump, gap):
+    """Which labels (a table up to ``lab``'s largest) :func:`tracker.segment.region._edge_pieces` finds: those
+    of ``small`` (a table of labels) with a pixel within the depths of ``others``' pixels (a table) in the
+    ``2·gap + 1`` square around it, widened by ``jump`` — its nearest such depth minus ``jump`` to its
+    farthest plus ``jump``, as the minimum and maximum filters gave them."""
+    H, W = lab.shape
+    hit = np.zeros(small.shape[0], np.bool_)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if not small[k] or hit[k]:
+                continue
+            lo, hi = np.inf, -np.inf
+            for vv in range(max(v - gap, 0), min(v + gap + 1, H)):
+                for uu in range(max(u - gap, 0), min(u + gap + 1, W)):
+                    kk = lab[vv, uu]
+                    if kk < others.shape[0] and others[kk]:
+                        x = d[vv, uu]
+                        if x < lo:
+                            lo = x
+                        if x > hi:
+                            hi = x
+            if d[v, u] >= lo - jump and d[v, u] <= hi + jump:
+                hit[k] = True
+    return hit

@@ -5,10 +5,11 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import filled_places, finger_pieces, np_sum, uniform1d, wrist_cut
+from tracker._segment_kernels import blob_labels, filled_places, finger_pieces, np_sum, uniform1d, wrist_cut
 from tracker.segment import constants as K
 from tracker.segment.fingers import _pieces_reference
 from tracker.segment.forearm import _cut_reference, _filled_reference
+from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
 from tracker.segment.ops import _uniform1d
 
 seeds = st.integers(0, 2**32 - 1)
@@ -122,3 +123,36 @@ def test_finger_pieces_are_the_numpy_moments(h, w, seed, px_m):
     for g, wnt in zip(got, want):
         np.testing.assert_array_equal(g, wnt)
         assert g.dtype == wnt.dtype
+
+
+def _labelled(rng, h, w):
+    """Random labels 0-9 in patches and depths (finite where labelled, some NaN elsewhere)."""
+    lab = np.repeat(np.repeat(rng.integers(0, 10, (h // 2 + 1, w // 2 + 1)), 2, 0), 2, 1)[:h, :w].astype(np.int32)
+    d = rng.uniform(0.4, 0.6, (h, w))
+    d[(lab == 0) & (rng.random((h, w)) < 0.5)] = np.nan
+    return lab, d
+
+
+@given(st.integers(1, 40), st.integers(1, 40), seeds, st.floats(1e-6, 1e-3))
+@settings(max_examples=100, deadline=None)
+def test_blob_labels_are_the_numpy_selection(h, w, seed, blob_area):
+    """hand_region's fingertip blobs: the candidates' labels whose band pixels cover less than blob_area."""
+    rng = np.random.default_rng(seed)
+    lab, d = _labelled(rng, h, w)
+    near = np.isfinite(d) & (rng.random((h, w)) < 0.8)
+    zone, core = rng.random((h, w)) < 0.7, rng.random((h, w)) < 0.2
+    k = int(rng.integers(0, 10))
+    got = blob_labels(lab, d, zone, near, core, k, 9, 300.0, blob_area)
+    np.testing.assert_array_equal(got, _blobs_reference(lab, d, zone, near, core, k, 300.0, blob_area))
+
+
+@given(st.integers(1, 40), st.integers(1, 40), seeds, st.integers(0, 3), st.floats(0.0, 0.1))
+@settings(max_examples=100, deadline=None)
+def test_edge_pieces_are_the_filters_in_numpy(h, w, seed, gap, jump):
+    """The small pieces lying at another big surface's depths next to it."""
+    rng = np.random.default_rng(seed)
+    lab, d = _labelled(rng, h, w)
+    small = rng.choice(np.arange(1, 10), rng.integers(1, 5), replace=False)
+    others = rng.choice(np.arange(1, 12), rng.integers(1, 5), replace=False)  # some not in the image
+    np.testing.assert_array_equal(_edge_pieces(lab, d, small, others, jump, gap),
+                                  _edge_reference(lab, d, small, others, jump, gap))

@@ -7,7 +7,9 @@ from typing import NamedTuple
 import numpy as np
 
 from .._segment_kernels import (
+    blob_labels,
     components_holding,
+    edge_hits,
     near_front,
 )
 from . import constants as K
@@ -139,18 +141,17 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     x0, x1 = max(xa - margin_px, 0), min(xb + margin_px + 1, d.shape[1])
     win = (slice(y0, y1), slice(x0, x1))
     zone = _window_max(core[win], 2 * int(margin_px) + 1) if margin_px > 0 else core[win]
-    cand = zone & near[win] & ~core[win] & (lab[win] > 0) & (lab[win] != k)
     out = core.copy()
-    if cand.any():
-        area = np.bincount(lab[win][near[win]], weights=pixel_area(d[win][near[win]], focal),
-                           minlength=lab.max() + 1)
-        small = np.unique(lab[win][cand])
-        small = small[area[small] < blob_area]
-        others = ids[ids != k]
-        if small.size and others.size:
-            small = small[~_in_labels(small, _edge_pieces(lab[win], d[win], small, others, jump))]
-        if small.size:
-            out[win] |= _in_labels(lab[win], small) & near[win]
+    # compiled: the candidates (in the zone and the band, off the core and the hand's surface) that cover
+    # less than blob_area (tests/tracker/test_segment_wrist.py: against _blobs_reference)
+    small = blob_labels(np.ascontiguousarray(lab[win]), np.ascontiguousarray(d[win]), np.ascontiguousarray(zone),
+                        np.ascontiguousarray(near[win]), np.ascontiguousarray(core[win]), int(k), int(n), float(focal),
+                        float(blob_area))
+    others = ids[ids != k]
+    if small.size and others.size:
+        small = small[~_in_labels(small, _edge_pieces(lab[win], d[win], small, others, jump))]
+    if small.size:
+        out[win] |= _in_labels(lab[win], small) & near[win]
     # beyond: where the hand's surface goes on past the band or the reach (the arm, not a fingertip)
     return Region(out, (lab == k) & ~out & ~behind, seed, behind, layered)
 
@@ -182,6 +183,34 @@ def _edge_pieces(lab, d, small, others, jump, gap_px=None):
     [2]
     """
     gap_px = K.TUNING.edge_gap_px if gap_px is None else gap_px
+    lab = np.ascontiguousarray(lab)
+    top = int(lab.max()) + 1 if lab.size else 1
+    # compiled (tests/tracker/test_segment_wrist.py: against _edge_reference, the numpy expression)
+    hit = edge_hits(lab, np.ascontiguousarray(d, dtype=np.float64), _label_table(small, top),
+                    _label_table(others, top), float(jump), int(gap_px))
+    return np.flatnonzero(hit)
+
+
+def _label_table(ids, top):
+    """A boolean table over the labels below ``top``: True at ``ids`` (those below ``top``)."""
+    ids = np.asarray(ids).ravel()
+    table = np.zeros(top, bool)
+    table[ids[(ids >= 0) & (ids < top)]] = True
+    return table
+
+
+def _blobs_reference(lab, d, zone, near, core, k, focal, blob_area):
+    """:func:`tracker._segment_kernels.blob_labels` in numpy (``hand_region``'s window's arrays)."""
+    cand = zone & near & ~core & (lab > 0) & (lab != k)
+    if not cand.any():
+        return np.zeros(0, np.int64)
+    area = np.bincount(lab[near], weights=pixel_area(d[near], focal), minlength=lab.max() + 1)
+    small = np.unique(lab[cand])
+    return small[area[small] < blob_area]
+
+
+def _edge_reference(lab, d, small, others, jump, gap_px):
+    """:func:`_edge_pieces` in numpy (minimum and maximum filters)."""
     big = _in_labels(lab, others)
     size = 2 * int(gap_px) + 1
     with np.errstate(invalid="ignore"):
