@@ -1518,3 +1518,86 @@ def edge_hits(lab, d, small, others, jump, gap):
             if d[v, u] >= lo - jump and d[v, u] <= hi + jump:
                 hit[k] = True
     return hit
+
+
+@njit(cache=True)
+def percentile_linear(values, q):
+    """``np.percentile(values, 100 · q)`` of a 1-D float64 array (its default, linear method): the values
+    at ``floor((n − 1)·q)`` and the next in sorted order, interpolated by numpy's ``_lerp`` (from the lower
+    one below a weight of 0.5, from the upper one from 0.5 on); the largest value at or past the end; NaN
+    when a value is NaN."""
+    n = values.shape[0]
+    if n == 0:
+        raise IndexError("the percentile of no values")
+    for i in range(n):
+        if np.isnan(values[i]):
+            return np.nan
+    s = np.sort(values)
+    virtual = (n - 1) * q
+    if virtual >= n - 1:
+        lo, hi = -1, -1
+    elif virtual < 0:
+        lo, hi = 0, 0
+    else:
+        lo = int(math.floor(virtual))
+        hi = lo + 1
+    t = virtual - lo
+    a, b = s[lo], s[hi]
+    diff = b - a
+    if t >= 0.5:
+        return b - diff * (1 - t)
+    return a + diff * t
+
+
+@njit(cache=True)
+def far_end_seed(surface, dist, y0, x0, d, X, focal, reach2):
+    """``(seed, front)`` of :func:`tracker.segment.fingers._far_end` from its distances ``dist`` of the
+    surface's bounding box (first pixel ``(y0, x0)``) to its pixels at the image border: the largest
+    4-connected piece of the surface within 2 cm (at its median depth) of its farthest pixel, and the 1st
+    percentile (:func:`percentile_linear`) of the depths of the surface within ``sqrt(reach2)`` of that
+    piece's mean point (``X``: the back-projected points), in numpy's arithmetic."""
+    H, W = surface.shape
+    h, w = dist.shape
+    top = -1.0
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if surface[y0 + v, x0 + u]:
+                n += 1
+                if dist[v, u] > top:
+                    top = dist[v, u]
+    z = np.empty(n)
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if surface[v, u]:
+                z[n] = d[v, u]
+                n += 1
+    bar = top - 0.02 * focal / nan_median(z)
+    cand = np.zeros((h, w), np.bool_)
+    for v in range(h):
+        for u in range(w):
+            cand[v, u] = surface[y0 + v, x0 + u] and dist[v, u] >= bar
+    piece = largest_component(cand)
+    seed = np.zeros((H, W), np.bool_)
+    c0, c1, c2 = 0.0, 0.0, 0.0
+    m = 0
+    for v in range(h):
+        for u in range(w):
+            if piece[v, u]:
+                seed[y0 + v, x0 + u] = True
+                c0 += X[y0 + v, x0 + u, 0]
+                c1 += X[y0 + v, x0 + u, 1]
+                c2 += X[y0 + v, x0 + u, 2]
+                m += 1
+    c0, c1, c2 = c0 / m, c1 / m, c2 / m
+    near = np.empty(n)
+    k = 0
+    for v in range(H):
+        for u in range(W):
+            if surface[v, u]:
+                e0, e1, e2 = X[v, u, 0] - c0, X[v, u, 1] - c1, X[v, u, 2] - c2
+                if e0 * e0 + e1 * e1 + e2 * e2 <= reach2:
+                    near[k] = d[v, u]
+                    k += 1
+    return seed, percentile_linear(near[:k], 0.01)

@@ -5,9 +5,11 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import blob_labels, filled_places, finger_pieces, np_sum, uniform1d, wrist_cut
+from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, np_sum, percentile_linear, uniform1d,
+                                      wrist_cut)
 from tracker.segment import constants as K
-from tracker.segment.fingers import _pieces_reference
+from tracker.segment.fingers import _far_end, _far_end_reference, _pieces_reference
+from tracker.segment.ops import _points
 from tracker.segment.forearm import _cut_reference, _filled_reference
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
 from tracker.segment.ops import _uniform1d
@@ -156,3 +158,34 @@ def test_edge_pieces_are_the_filters_in_numpy(h, w, seed, gap, jump):
     others = rng.choice(np.arange(1, 12), rng.integers(1, 5), replace=False)  # some not in the image
     np.testing.assert_array_equal(_edge_pieces(lab, d, small, others, jump, gap),
                                   _edge_reference(lab, d, small, others, jump, gap))
+
+
+@given(st.lists(st.floats(0.2, 2.0) | st.sampled_from([0.5, 0.5000000000000001, np.nan]), min_size=1, max_size=300),
+       st.floats(0.0, 100.0))
+@settings(max_examples=150, deadline=None)
+def test_percentile_linear_is_numpys(values, p):
+    """numpy's percentile (its quantile p / 100), to the bit; NaN with a NaN among the values."""
+    a = np.array(values)
+    for pct in (p, 1):
+        got, want = percentile_linear(a, np.true_divide(pct, 100)), np.percentile(a, pct)
+        assert np.float64(got).tobytes() == np.float64(want).tobytes() or (np.isnan(got) and np.isnan(want))
+
+
+@given(seeds, st.integers(0, 6))
+@settings(max_examples=100, deadline=None)
+def test_far_end_is_the_numpy_expressions(seed, px):
+    """An arm entering the image: the end farthest from where the surface touches the border."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(20, 70, 2)
+    surface = np.zeros((h, w), bool)
+    _limb(surface, rng.choice([0, h - 1]), rng.integers(0, w), rng.uniform(0, 2 * np.pi), rng.uniform(10, 80),
+          rng.uniform(3, 14))
+    surface[rng.integers(0, h), rng.integers(0, w)] = True
+    surface ^= rng.random((h, w)) < 0.02
+    d = np.where(surface, rng.uniform(0.4, 0.7, (h, w)), np.nan)
+    X = _points(d, 300.0, (rng.uniform(0, h), rng.uniform(0, w)))
+    reach = rng.choice([0.22, 0.05, None])
+    seed_px, front = _far_end(surface, d, X, 300.0, px, reach)
+    want_seed, want_front = _far_end_reference(surface, d, X, 300.0, px, reach)
+    np.testing.assert_array_equal(seed_px, want_seed)
+    assert np.float64(front).tobytes() == np.float64(want_front).tobytes()

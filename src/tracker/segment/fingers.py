@@ -6,6 +6,7 @@ import numpy as np
 
 from .._segment_kernels import (
     closed_filled,
+    far_end_seed,
     fill_holes,
     finger_pieces,
 )
@@ -36,6 +37,25 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     image border: the pixels within 2 cm of that end, and the nearest depth (1st percentile) of
     the surface within ``reach`` of them."""
     px = K.TUNING.border_px if border_px is None else border_px
+    H, W = surface.shape
+    # the distances within the surface's bounds only: the border pixels it is measured from lie there
+    (ya, yb), (xa, xb) = bounds(surface)
+    rows, cols = np.arange(ya, yb + 1), np.arange(xa, xb + 1)
+    edge = ((rows < px) | (rows >= H - px))[:, None] | ((cols < px) | (cols >= W - px))[None, :]
+    if px <= 0:
+        edge = np.ones_like(edge)  # as the slices [-0:] had it
+    dist = _edt(edge & surface[ya:yb + 1, xa:xb + 1])
+    # compiled: the far end's piece, its centre, the depths within reach of it and their 1st percentile
+    # (tests/tracker/test_segment_wrist.py: against _far_end_reference, the numpy expressions)
+    seed, front = far_end_seed(np.ascontiguousarray(surface, dtype=np.bool_), dist, ya, xa,
+                               np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(X, dtype=np.float64),
+                               float(focal), (reach or 0.22) ** 2)
+    return seed, float(front)
+
+
+def _far_end_reference(surface, d, X, focal, border_px=None, reach=0.22):
+    """:func:`_far_end` in numpy."""
+    px = K.TUNING.border_px if border_px is None else border_px
     edge = np.zeros_like(surface)
     edge[:px], edge[-px:], edge[:, :px], edge[:, -px:] = True, True, True, True
     dist = np.full(surface.shape, -1.0)
@@ -50,6 +70,7 @@ def _far_end(surface, d, X, focal, border_px=None, reach=0.22):
     with np.errstate(invalid="ignore"):
         around = surface & (_sq_dist(X, centre) <= (reach or 0.22) ** 2)
     return seed, float(np.percentile(d[around], 1))
+
 
 
 def _hand_end(surface, d, front, band, seed, focal, border_px=None):
