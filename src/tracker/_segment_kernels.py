@@ -1421,12 +1421,14 @@ def filled_places(cand, raw, rad, slack, least):
 
 
 @njit(cache=True)
-def finger_pieces(thin, min_size, elong2, min_len):
+def finger_pieces(thin, min_size, elong2, min_len, oy, ox):
     """``(labels, sizes, big)`` of :func:`tracker.segment.fingers._finger_pieces` from its ``thin`` pixels
     (4-connected pieces as ``scipy.ndimage.label`` numbers them, each one's pixels, and which are
     finger-like: at least ``min_size`` pixels, the second moments' major axis at least ``elong2`` times
     the minor, ``4·sqrt(major)`` at least ``min_len``), in numpy's arithmetic (the moments summed over
-    the pixels in raster order, as ``np.bincount`` sums its weights)."""
+    the pixels in raster order, as ``np.bincount`` sums its weights); ``(oy, ox)``: the coordinates of
+    ``thin``'s first pixel in the image the moments are taken in (a crop's moments are then its image's,
+    to the bit: the means are rounded where they lie)."""
     H, W = thin.shape
     lab = np.zeros((H, W), np.int32)
     n = _components(thin, lab, np.empty(H * W, np.int64), False)
@@ -1437,8 +1439,8 @@ def finger_pieces(thin, min_size, elong2, min_len):
             k = lab[v, u]
             size[k] += 1
             if k > 0:
-                sy[k] += v
-                sx[k] += u
+                sy[k] += v + oy
+                sx[k] += u + ox
     cnt = np.empty(n + 1)
     for k in range(n + 1):
         cnt[k] = max(size[k], 1)
@@ -1448,7 +1450,7 @@ def finger_pieces(thin, min_size, elong2, min_len):
         for u in range(W):
             k = lab[v, u]
             if k > 0:
-                ey, ex = v - my[k], u - mx[k]
+                ey, ex = (v + oy) - my[k], (u + ox) - mx[k]
                 syy[k] += ey * ey
                 sxx[k] += ex * ex
                 sxy[k] += ey * ex

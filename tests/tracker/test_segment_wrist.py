@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, np_sum, percentile_linear, uniform1d,
                                       wrist_cut)
 from tracker.segment import constants as K
-from tracker.segment.fingers import _far_end, _far_end_reference, _pieces_reference
+from tracker.segment.fingers import _far_end, _far_end_reference, _finger_pieces, _finger_reference, _pieces_reference
 from tracker.segment.ops import _points
 from tracker.segment.forearm import _cut_reference, _filled_reference
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
@@ -120,7 +120,8 @@ def test_finger_pieces_are_the_numpy_moments(h, w, seed, px_m):
         _limb(thin, rng.integers(0, h), rng.integers(0, w), rng.uniform(0, 2 * np.pi), rng.uniform(3, 40),
               rng.uniform(1, 6))
     T = K.TUNING
-    got = finger_pieces(thin, T.finger_min_area_m2 * px_m ** 2, T.finger_elongation ** 2, T.finger_min_length_m * px_m)
+    got = finger_pieces(thin, T.finger_min_area_m2 * px_m ** 2, T.finger_elongation ** 2, T.finger_min_length_m * px_m,
+                        0, 0)
     want = _pieces_reference(thin, px_m)
     for g, wnt in zip(got, want):
         np.testing.assert_array_equal(g, wnt)
@@ -189,3 +190,18 @@ def test_far_end_is_the_numpy_expressions(seed, px):
     want_seed, want_front = _far_end_reference(surface, d, X, 300.0, px, reach)
     np.testing.assert_array_equal(seed_px, want_seed)
     assert np.float64(front).tobytes() == np.float64(want_front).tobytes()
+
+
+@given(seeds, st.floats(300.0, 1500.0), st.integers(0, 30), st.integers(0, 30))
+@settings(max_examples=100, deadline=None)
+def test_finger_pieces_on_the_masks_box_are_the_whole_windows(seed, px_m, top, left):
+    """_finger_pieces works on the mask's bounding box: labels, sizes and the finger-like pieces are the
+    whole window's (the opening, the rim's distances and the moments there, numpy), on drawn hands placed
+    anywhere in a larger window."""
+    rng = np.random.default_rng(seed)
+    solid, *_ = _hand(seed)
+    h, w = solid.shape
+    o = np.zeros((h + top + int(rng.integers(0, 30)), w + left + int(rng.integers(0, 30))), bool)
+    o[top:top + h, left:left + w] = solid
+    for g, want in zip(_finger_pieces(o, px_m), _finger_reference(o, px_m)):
+        np.testing.assert_array_equal(g, want)

@@ -135,18 +135,41 @@ def _finger_pieces(o, px_m):
     keeps (measured: a 0.8× open hand beside a box, depth only, whose fingers the opening's rim joined
     into one U-shaped piece), their sizes (pixels, index 0 = none) and which are
     finger-sized (:attr:`SegmentConstants.finger_min_area_m2`; noise at the outline leaves slivers a few pixels big)."""
-    rad = max(int(round(0.5 * K.TUNING.finger_max_m * px_m)), 1)
-    rim = int(round(K.TUNING.finger_rim_m * px_m))
+    T = K.TUNING
+    rad = max(int(round(0.5 * T.finger_max_m * px_m)), 1)
+    rim = int(round(T.finger_rim_m * px_m))
+    o = np.asarray(o, bool)
+    if not o.any():
+        return np.zeros(o.shape, np.int32), np.array([o.size]), np.zeros(1, bool)
+    # on the mask's bounding box alone (the part's circle's window is several times larger): the opening
+    # and the distances are the same there (the box's outside is background, and nothing nearer lies
+    # past it), the pieces numbered alike and their moments taken in the window's coordinates
+    (ya, yb), (xa, xb) = bounds(o)
+    crop = o[ya:yb + 1, xa:xb + 1]
     # the pixels farther than the rim from the opened shape: the opening rounds off the palm's corners
     # and leaves a sliver along its edge that joins every finger into one U-shaped piece, no finger
+    opened = _disk_opening(crop, rad)
+    thin = crop & ~opened
+    if rim > 0 and opened.any():
+        thin &= _edt(opened) > rim
+    # compiled: the pieces and their moments (tests/tracker/test_segment_wrist.py: against _pieces_reference)
+    lab_c, size, big = finger_pieces(np.ascontiguousarray(thin), T.finger_min_area_m2 * px_m ** 2,
+                                     T.finger_elongation ** 2, T.finger_min_length_m * px_m, ya, xa)
+    lab_t = np.zeros(o.shape, np.int32)
+    lab_t[ya:yb + 1, xa:xb + 1] = lab_c
+    size[0] = o.size - size[1:].sum()  # the window's pixels in no piece
+    return lab_t, size, big
+
+
+def _finger_reference(o, px_m):
+    """:func:`_finger_pieces` on the whole window ``o``, its pieces by :func:`_pieces_reference` (numpy)."""
+    rad = max(int(round(0.5 * K.TUNING.finger_max_m * px_m)), 1)
+    rim = int(round(K.TUNING.finger_rim_m * px_m))
     opened = _disk_opening(o, rad)
     thin = o & ~opened
     if rim > 0 and opened.any():
         thin &= _edt(opened) > rim
-    # compiled: the pieces and their moments (tests/tracker/test_segment_wrist.py: against _pieces_reference)
-    T = K.TUNING
-    return finger_pieces(np.ascontiguousarray(thin, dtype=np.bool_), T.finger_min_area_m2 * px_m ** 2,
-                         T.finger_elongation ** 2, T.finger_min_length_m * px_m)
+    return _pieces_reference(thin, px_m)
 
 
 def _pieces_reference(thin, px_m):
