@@ -475,15 +475,16 @@ live_cli.register(app, _errors_exit_2)
 eval_cli.register(app, _errors_exit_2)
 
 
-def main() -> None:
-    """The ``tracker`` program: runs the command, then leaves the objects it made to the process's end.
+def run_command() -> None:
+    """The command of ``sys.argv`` as the ``tracker`` program runs it, ending as typer ends every command
+    (``SystemExit``): for code that goes on after it (a test); the program itself is :func:`main`.
 
     ``gc.freeze()`` on the way out: the interpreter's shutdown would otherwise walk the ~200,000 objects
     of numpy, pandas, numba and the loaded kernels with the cyclic collector, ~0.4 s of a 2.7 s ``tracker
     track`` of one still (``benchmarks/bench_startup.py``), to free memory the process is about to give
     back anyway; a tracking command freezes its start-up's objects as soon as it has started
-    (:class:`tracker.cli_common.StartUp`). Only in the program's entry: ``app`` called in a process that
-    goes on (a test's ``CliRunner``) collects as usual."""
+    (:class:`tracker.cli_common.StartUp`). Only in the program: ``app`` called in a process that goes on
+    (a test's ``CliRunner``) collects as usual."""
     import gc
 
     from .cli_common import StartUp
@@ -493,6 +494,51 @@ def main() -> None:
         app()
     finally:
         gc.freeze()
+
+
+def main() -> None:
+    """The ``tracker`` program (its console script, ``python -m tracker.cli``): :func:`run_command`, then
+    the process ends with the command's exit status at once (:func:`_end_now`)."""
+    try:
+        run_command()
+    except SystemExit as exc:
+        _end_now(exc.code)
+        raise
+
+
+def _end_now(code) -> None:
+    """End the process with exit status ``code`` (``SystemExit.code``: None or a number) without the
+    interpreter's teardown, after what of it matters: other threads joined (a worker pool's idle threads
+    let go), every ``atexit`` callback run in its order (temporary folders, process pools, a coverage
+    collector), Python's and the C library's output buffers flushed.
+
+    The teardown frees what the process is about to give back whole: the loaded kernels' LLVM modules,
+    onnxruntime's session, every module's objects, 0.07 s of a one-still ``tracker track`` on an idle
+    machine and 0.1 s or more under load (``benchmarks/bench_startup.py``; perf: LLVM's destructors,
+    ``free``, module clean-up). Returns, leaving the exit to the interpreter, where it cannot end the
+    process as the interpreter would: a ``code`` that is not a number (printed, then status 1), an
+    output stream that cannot be flushed (status 120 and a message), a Python without the hooks
+    (``threading._shutdown``, ``atexit._run_exitfuncs``: CPython's own exit calls them)."""
+    import atexit
+    import os
+    import sys
+    import threading
+
+    shutdown, callbacks = getattr(threading, "_shutdown", None), getattr(atexit, "_run_exitfuncs", None)
+    if not (code is None or isinstance(code, int)) or shutdown is None or callbacks is None:
+        return
+    shutdown()
+    callbacks()  # each runs once: the interpreter's exit, if it still comes, finds none left
+    try:
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:
+                stream.flush()
+    except (OSError, ValueError):  # a closed pipe, a closed stream: the interpreter's exit says so
+        return
+    import ctypes
+
+    ctypes.CDLL(None).fflush(None)  # what C libraries wrote with stdio (the process's own libc)
+    os._exit(code or 0)
 
 
 if __name__ == "__main__":

@@ -42,11 +42,11 @@ class StartUp:
 
     A context manager: the collector is paused on entry; :meth:`done` (called once the first frame's
     result is in, again at will) or the exit turns it back on as it was. In the ``tracker`` program
-    (:attr:`program`, set by :func:`tracker.cli.main`: the process ends with its command) the objects
+    (:attr:`program`, set by :func:`tracker.cli.run_command`: the process ends with its command) the objects
     made so far are frozen first (``gc.freeze``), so the collections of the frames that follow skip
     them too; a command run inside a process that goes on (a test) leaves them to the collector."""
 
-    #: the process is the ``tracker`` program's (:func:`tracker.cli.main`)
+    #: the process is the ``tracker`` program's (:func:`tracker.cli.main`, :func:`tracker.cli.run_command`)
     program = False
 
     def __enter__(self):

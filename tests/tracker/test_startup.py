@@ -2,6 +2,7 @@
 
 Each check runs in a fresh interpreter: what one test imported would hide another's import.
 """
+import os
 import subprocess
 import sys
 
@@ -26,21 +27,72 @@ def test_tracking_modules_load_no_detector_or_plots():
 
 
 def test_the_program_freezes_its_objects_for_the_exit_but_the_app_does_not():
-    # tracker's entry (main) skips the exit's collection of every object (~0.4 s); the typer app run
-    # inside a process that goes on (a test, a notebook) must keep collecting its garbage
+    # tracker's entry (main, through run_command) skips the exit's collection of every object (~0.4 s);
+    # the typer app run inside a process that goes on (a test, a notebook) must keep collecting its garbage
     code = ("import gc, sys\n"
             "from typer.testing import CliRunner\n"
-            "from tracker.cli import app, main\n"
+            "from tracker.cli import app, run_command\n"
             "r = CliRunner().invoke(app, ['--help'])\n"
             "assert r.exit_code == 0, r.output\n"
             "after_app = gc.get_freeze_count()\n"
             "sys.argv = ['tracker', '--help']\n"
             "try:\n"
-            "    main()\n"
+            "    run_command()\n"
             "except SystemExit as e:\n"
             "    assert not e.code, e.code\n"
             "print(after_app, gc.get_freeze_count() > 0)")
     assert _python(code) == "0 True"
+
+
+def test_the_program_ends_with_its_command_status_after_the_exit_work_that_matters(tmp_path):
+    # main ends the process without the interpreter's teardown (~0.07 s of a one-still track), but first
+    # joins the other threads, runs every atexit callback (those registered before it too: a coverage
+    # collector, temporary folders) and flushes Python's and the C library's buffered output
+    done = tmp_path / "thread.txt"
+    code = ("import atexit, ctypes, sys, threading, time\n"
+            "print('before', end=' ')\n"  # buffered: stdout is a pipe
+            "ctypes.CDLL(None).printf(b'c-stdio ')\n"  # the C library's buffer, not Python's
+            "atexit.register(lambda: print('atexit-first-registered'))\n"
+            f"threading.Thread(target=lambda: (time.sleep(0.3), open({str(done)!r}, 'w').write('done'))).start()\n"
+            # the C library's exit handlers run at the interpreter's exit only, which main skips: this one
+            # would end the process with SIGABRT
+            "libc = ctypes.CDLL(None)\n"
+            "libc.__cxa_atexit(ctypes.cast(libc.abort, ctypes.c_void_p), None, None)\n"
+            "from tracker.cli import main\n"
+            "sys.argv = ['tracker'] + sys.argv[1:]\n"
+            "main()\n"
+            "print('not reached')\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # output buffered, as a user's is
+
+    def no_core_file():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+
+    for args, status in ((["--help"], 0), (["track", str(tmp_path / "none"), "-o", str(tmp_path / "o.csv")], 2)):
+        done.unlink(missing_ok=True)
+        r = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300, env=env,
+                           cwd=tmp_path, preexec_fn=no_core_file)
+        assert r.returncode == status, r.stderr[-2000:]
+        assert r.stdout.startswith("before "), r.stdout[:200]
+        # the C library's buffer comes out apart from Python's (after it, when both are flushed at the end)
+        assert "c-stdio" in r.stdout, r.stdout[-300:]
+        assert r.stdout.replace("c-stdio ", "").rstrip().endswith("atexit-first-registered"), r.stdout[-300:]
+        assert ("Usage: tracker" in r.stdout) == (status == 0), r.stdout[:300]
+        assert ("no such recording folder" in r.stderr) == (status == 2), r.stderr[-300:]
+        assert done.read_text() == "done"  # the thread finished before the process ended
+        assert "not reached" not in r.stdout, r.stdout[-300:]
+
+
+def test_the_program_leaves_a_status_that_is_no_number_to_the_interpreter():
+    # sys.exit("message") prints the message and exits 1: main leaves it to the interpreter's own exit
+    code = ("import sys, tracker.cli as cli\n"
+            "def app():\n"
+            "    raise SystemExit('a message')\n"
+            "cli.app = app\n"
+            "cli.main()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert (r.returncode, r.stderr) == (1, "a message\n")
 
 
 def test_start_up_pauses_the_collector_and_gives_it_back_as_it_was():
@@ -107,11 +159,11 @@ def test_tracking_one_recording_loads_no_pandas_and_writes_what_pandas_would(tmp
             "import tracker.run\n"
             "runs, real = [], tracker.run.run_job\n"
             "tracker.run.run_job = lambda *a, **k: runs.append(real(*a, **k)) or runs[-1]\n"
-            "from tracker.cli import main\n"
+            "from tracker.cli import run_command\n"
             f"sys.argv = ['tracker', 'track', {str(rec)!r}, '-o', {str(out)!r}, '--keypoints', {str(kp)!r},\n"
             "            '--hand-scale', '1', '--no-check-hand']\n"
             "try:\n"
-            "    main()\n"
+            "    run_command()\n"
             "except SystemExit as e:\n"
             "    assert not e.code, e.code\n"
             "loaded = [m for m in ('pandas', 'pyarrow') if m in sys.modules]\n"
