@@ -174,11 +174,12 @@ def onnx_sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def save_cnn(path, onnx_bytes: bytes, manifest: dict, *, overwrite: bool = False) -> Path:
+def save_cnn(path, onnx_bytes: bytes, manifest: dict, *, overwrite: bool = False, fmt: str = FORMAT) -> Path:
     """Write ``<path>.onnx`` and its sealed ``<path>.json`` manifest (the ONNX's SHA-256 and the
-    manifest's own), each verified by reading it back; returns the manifest's path."""
+    manifest's own), each verified by reading it back; returns the manifest's path. ``fmt``: the
+    network's format (this module's, or :data:`tracker.hand_presence.PRESENCE_FORMAT`)."""
     jpath, opath = _cnn_paths(path)
-    m = dict(manifest, format=FORMAT, onnx_file=opath.name, onnx_sha256=onnx_sha256(onnx_bytes))
+    m = dict(manifest, format=fmt, onnx_file=opath.name, onnx_sha256=onnx_sha256(onnx_bytes))
     m["manifest_sha256"] = manifest_sha256(m)
     for p in (jpath, opath):
         if p.exists() and not overwrite:
@@ -189,22 +190,23 @@ def save_cnn(path, onnx_bytes: bytes, manifest: dict, *, overwrite: bool = False
         atomic_write_bytes(jpath, text.encode("utf-8"), overwrite=overwrite)
     except OSError as exc:
         raise TrackerError(str(exc.filename or jpath), f"cannot write ({exc.strerror or exc})") from None
-    read_cnn(jpath)
+    read_cnn(jpath, fmt=fmt)
     return jpath
 
 
-def read_cnn(path) -> KeypointCNN:
+def read_cnn(path, *, fmt: str = FORMAT, cls=None):
     """Read and verify a keypoint CNN (its ``.json`` manifest or ``.onnx``, the other beside it under
     the same stem): the manifest's seal, then the ONNX bytes against its ``onnx_sha256`` (before
-    onnxruntime sees them; the pair may be renamed, not mixed)."""
+    onnxruntime sees them; the pair may be renamed, not mixed). ``fmt`` and ``cls``: another network
+    of the same file scheme and input (:func:`tracker.hand_presence.read_presence`)."""
     jpath, opath = _cnn_paths(path)
     raw = read_limited(jpath, MAX_MANIFEST_BYTES, TrackerError)
     try:
         manifest = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise TrackerError(str(jpath), f"manifest is not JSON ({getattr(exc, 'msg', exc)})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise TrackerError(str(jpath), f"not a {FORMAT} manifest")
+    if not isinstance(manifest, dict) or manifest.get("format") != fmt:
+        raise TrackerError(str(jpath), f"not a {fmt} manifest")
     if manifest.get("manifest_sha256") != manifest_sha256(manifest):
         raise TrackerError(str(jpath), "manifest does not match its manifest_sha256 (manifest edited?)")
     data = read_limited(opath, MAX_ONNX_BYTES, TrackerError)
@@ -212,15 +214,15 @@ def read_cnn(path) -> KeypointCNN:
         raise TrackerError(str(opath), "does not match the manifest's onnx_sha256 (file modified?)")
     if manifest.get("input_side") != INPUT_SIDE or manifest.get("box_grow") != BOX_GROW:
         raise TrackerError(str(jpath), "made for another input (input_side, box_grow) than this version reads")
-    return KeypointCNN(data, manifest, jpath)
+    return (cls or KeypointCNN)(data, manifest, jpath)
 
 
-def cnn_path(name: str = CNN_NAME) -> Path:
+def cnn_path(name: str = CNN_NAME, what: str = "keypoint CNN") -> Path:
     """The shipped network of that name (newest version under ``models/detectors/``) or a path."""
     p = Path(name)
     if p.suffix in (".json", ".onnx"):
         return _cnn_paths(p)[0]
-    return newest_shipped(name, ".json", "keypoint CNN")
+    return newest_shipped(name, ".json", what)
 
 
 def load_cnn(name_or_path: str = CNN_NAME) -> KeypointCNN:

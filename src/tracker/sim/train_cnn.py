@@ -291,14 +291,14 @@ def fit(samples, st: CnnSettings, seed: int, progress=None):
     return net, losses
 
 
-def export_onnx(net) -> bytes:
-    """The network as ONNX bytes (torch's exporter; input ``depth`` (B, 1, 64, 64), outputs
-    ``keypoints`` and ``spread``; the batch size dynamic)."""
+def export_onnx(net, output_names=("keypoints", "spread"), channels: int = 1) -> bytes:
+    """The network as ONNX bytes (torch's exporter; input ``depth`` (B, ``channels``, 64, 64), outputs
+    ``output_names``: the keypoint CNN's ``keypoints`` and ``spread``; the batch size dynamic)."""
     torch = require_torch()
     net.eval()
-    x = torch.zeros(2, 1, INPUT_SIDE, INPUT_SIDE)
+    x = torch.zeros(2, channels, INPUT_SIDE, INPUT_SIDE)
     try:
-        prog = torch.onnx.export(net, (x,), None, input_names=["depth"], output_names=["keypoints", "spread"],
+        prog = torch.onnx.export(net, (x,), None, input_names=["depth"], output_names=list(output_names),
                                  dynamic_shapes=({0: torch.export.Dim("batch")},), dynamo=True, verbose=False)
     except ImportError as exc:
         raise TrackerError("onnx", f"the exporter needs onnx and onnxscript ({exc}; pip install '.[train]')") from None
