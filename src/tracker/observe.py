@@ -232,7 +232,9 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     (:meth:`tracker.segment.Segmenter.in_window`), and in the whole frame when that result looks
     wrong (the hand runs out of the window, or is not where it was predicted);
     ``Observation.window`` says which was used."""
-    st = dataclasses.replace(settings or ObserveSettings(), **changes)
+    st = settings or ObserveSettings()
+    if changes:
+        st = dataclasses.replace(st, **changes)
     seg = segmenter or Segmenter()
     # the frame, the mask, the depth and the silhouette are written to the segmenter's buffers
     # (reused when the caller holds no earlier observation's: Segmenter.buffers)
@@ -267,7 +269,8 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
     stride = int(st.stride)
     n_mask = int(mw.sum())
     if st.target_points:
-        stride = int(np.clip(np.floor(np.sqrt(n_mask / float(st.target_points))), 1, stride))
+        # np.clip(np.floor(np.sqrt(·)), 1, stride) in plain floats (the same correctly rounded root)
+        stride = int(min(max(math.floor(math.sqrt(n_mask / float(st.target_points))), 1), stride))
     # one compiled pass (smooth_depth, backproject and image_normals, the last two at the kept pixels
     # only); the stride grid is anchored at the image's pixel (0, 0), not at the window's corner
     h, w = dw.shape
@@ -277,14 +280,14 @@ def observe(depth, camera, settings: ObserveSettings | None = None, *, segmenter
                        int(st.smooth), SMOOTH_MAX_DIFF_M, float(st.normal_max_jump), stride, (-y0) % stride, (-x0) % stride,
                        dsm, pts, nrm)
     out_d = bufs.full("depth", (H, W), np.nan)
-    out_d[y0:y1, x0:x1] = np.where(mw, dsm, np.nan)
+    np.copyto(out_d[y0:y1, x0:x1], dsm, where=mw)  # NaN off the mask already
     sil = mask
     if edge:
         band, fill = dropout_band(mw, dsm, edge)
         if band.any():
             sil = bufs.copy_of("silhouette", mask)
             sil[y0:y1, x0:x1] |= band
-            out_d[y0:y1, x0:x1] = np.where(band, fill, out_d[y0:y1, x0:x1])
+            np.copyto(out_d[y0:y1, x0:x1], fill, where=band)
     return Observation(pts[:k], nrm[:k], mask, out_d, float(k) / max(n_mask, 1), stride, d, sil, used)
 
 
