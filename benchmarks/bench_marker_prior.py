@@ -11,7 +11,9 @@ Protocols (all with 0.5 mm noise, a subject unlike the model):
   (the code before issue 40); and the same trial converted with the oracle calibration (the
   subject's true bones and marker places) to tell calibration error from IK ambiguity, and once more
   with the markers on each chain's last bone at their nominal places (the subject's ±2 mm off them
-  unknown): the best a calibration without a known posture can know of the last joints' zeros.
+  unknown), and once with only their places along the arc about their joint nominal (the rest of their
+  place true): what a calibration without a known posture cannot know of the last joints' zeros. The
+  default's RMS is also split into its parts (thumb flexions, MCP, PIP, DIP, abductions).
 - ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
   ROM + static to calibrate, power grasp to convert, 6 Hz).
 - ``overfit``: the held-out rule of the automatic calibration (:func:`synergy.subject.overfits`)
@@ -46,7 +48,31 @@ from synergy.subject import last_bone_markers
 from synergy.simulate import WEAK_PROXIMAL, moved_markers, subject_protocol, weak_protocol
 
 SMOOTH_HZ = 6.0
+FINGERS = ("index", "middle", "ring", "pinky")
 PRIORS = (("off", None), ("auto", "auto"), ("on", "fingerfist"))
+
+
+def arc_directions(hand, node, local):
+    """Orthonormal rows: where a marker at ``local`` (``node``'s frame) moves when ``node``'s own joint turns."""
+    ax = hand.dof_axes[[d for d in hand.dof_idx[hand.dof_ptr[node]:hand.dof_ptr[node + 1]] if hand.dof_types[d] == 0]]
+    t = np.cross(ax, local).reshape(-1, 3)
+    t = t[np.linalg.norm(t, axis=1) > 1e-9]
+    return np.linalg.svd(t, full_matrices=False)[2][:len(t)] if len(t) else np.zeros((0, 3))
+
+
+GROUPS = {"thumb": ("thumb1_flex", "thumb2_flex", "thumb3_flex"), "MCP": tuple(f"{f}1_flex" for f in FINGERS),
+          "PIP": tuple(f"{f}2_flex" for f in FINGERS), "DIP": tuple(f"{f}3_flex" for f in FINGERS),
+          "abd": ("thumb1_abd",) + tuple(f"{f}1_abd" for f in FINGERS)}
+
+
+def shares(df, theta):
+    """Where the angles RMS of :func:`rms_deg` comes from: each group's part (degrees; the parts' squares
+    sum to the RMS's square)."""
+    names = HandModel.load().dof_names
+    err = df[names].to_numpy() - theta
+    ok = np.isfinite(err).all(1)
+    return {g: float(np.degrees(np.sqrt(np.mean(np.sum(err[ok][:, [names.index(n) for n in ix]] ** 2, 1)) / 20)))
+            for g, ix in GROUPS.items()}
 
 
 def rms_deg(df, theta):
@@ -67,12 +93,23 @@ def false_limits(df, theta, hand):
 
 def oracle(ms, hand, trial, nominal=False):
     """The subject's true calibration; ``nominal``: with the markers on each chain's last bone at their
-    nominal places (what a calibration without a known posture can know of those joints' zeros)."""
+    nominal places (what a calibration without a known posture can know of those joints' zeros);
+    ``nominal='arc'``: those markers off their nominal places as the subject's are except along the arc
+    about their joint (the one direction no marker motion shows: that joint's zero)."""
     truth = moved_markers(ms, WEAK_PROXIMAL)
     _, local = truth.attachments(hand.scaled(1.0, trial.bone_scales))
-    kept = last_bone_markers(hand.parents, truth.attachments(hand)[0]) if nominal else np.zeros(len(local), bool)
-    offsets = {m.label: local[i] + (0.0 if kept[i] else np.asarray(trial.marker_shift[m.label]))
-               for i, m in enumerate(truth.markers)}
+    nodes = truth.attachments(hand)[0]
+    kept = last_bone_markers(hand.parents, nodes) if nominal else np.zeros(len(local), bool)
+    offsets = {}
+    for i, m in enumerate(truth.markers):
+        shift = np.asarray(trial.marker_shift[m.label], float)
+        if kept[i]:
+            if nominal == "arc":
+                Q = arc_directions(hand, int(nodes[i]), local[i])
+                shift = shift - Q.T @ (Q @ shift)
+            else:
+                shift = 0.0 * shift
+        offsets[m.label] = local[i] + shift
     return Calibration(scale=1.0, bone_scales=dict(trial.bone_scales), offsets=offsets, method="oracle",
                        hand="left", markerset=ms.name, median_residual_mm=0.5)
 
@@ -137,8 +174,9 @@ def main():
         ms = load_markerset("hand19")
         print("weak protocol (hand19, proximal markers at 0.2, no static): angles RMS (°) before | default "
               "(auto) | prior none | prior fingerfist | oracle calibration: none, fingerfist, none with the "
-              "last-bone markers at their nominal places | neutral frames, "
-              "auto's IK prior | false limits (before/default/none/fingerfist)")
+              "last-bone markers at their nominal places, none with only their places along the arc nominal | "
+              "neutral frames, auto's IK prior | false limits (before/default/none/fingerfist) | the default's "
+              "RMS in parts (degrees, squares sum to its square)")
         for motion in args.motions:
             for seed in args.weak_seeds:
                 tr, th = weak_protocol(seed, motion)
@@ -148,14 +186,16 @@ def main():
                 orc = oracle(ms, hand, tr)
                 orc_got = [rms_deg(markers_to_angles(tr, ms, calibration=orc, prior=pr, **kw), th)
                            for pr in (None, "fingerfist")]
-                orc_got.append(rms_deg(markers_to_angles(tr, ms, calibration=oracle(ms, hand, tr, nominal=True),
-                                                         prior=None, **kw), th))
+                for nominal in (True, "arc"):
+                    orc_got.append(rms_deg(markers_to_angles(tr, ms, calibration=oracle(ms, hand, tr, nominal=nominal),
+                                                             prior=None, **kw), th))
                 src = runs[1].attrs["calibration"].get("static_source", "")
                 neutral = src.split(" ")[0] if src else "0"
                 chose = (runs[1].attrs["posture_prior"] or {}).get("name") or "none"
                 lims = "/".join(",".join(false_limits(df, th, hand)) or "-" for df in runs)
                 print(f"{motion:12} {seed:3d} " + " | ".join(f"{rms_deg(df, th):6.2f}" for df in runs) + " | "
-                      + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {neutral} {chose} | {lims}", flush=True)
+                      + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {neutral} {chose} | {lims} | default's parts: "
+                      + " ".join(f"{g} {x:.2f}" for g, x in shares(runs[1], th).items()), flush=True)
     if "subjects" in args.protocols:
         for markers in ("hand16", "hand19"):
             ms = load_markerset(markers)

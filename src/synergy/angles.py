@@ -54,6 +54,9 @@ AUTO_GAIN = 0.8
 POOR_TRIAL_SHARE = 0.10
 #: The other hand "fits clearly better" when its residual is below this share of the chosen one's.
 HAND_CLEARLY_BETTER = 0.5
+#: A joint whose zero the subject calibration fixes only within this SD (degrees) or worse is named
+#: (:func:`synergy.subject.joint_zero_sd`): its angles may be off by a constant of that order.
+OPEN_ZERO_DEG = 5.0
 #: The posture prior (``'auto'``: :data:`DEFAULT_PRIOR`) weighs in a conversion's automatic calibration
 #: without a static trial or neutral frames as this many postures in all.
 CALIBRATION_PRIOR_FRAMES = 1.0
@@ -209,7 +212,9 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
         ``quality`` (ok / poor / gap), and ``<dof>_sd`` for each posture DoF (radians: the posterior
         SD from the IK's normal equations, with the priors used); ``df.attrs`` holds the metadata (rate, source, units,
         marker set, hand, calibration, extra markers) and ``diagnostics`` (noise floor, per-marker
-        residuals, share of frames on each limit, handedness check, warnings, ``verdict``).
+        residuals, share of frames on each limit, handedness check, warnings, ``verdict``, and
+        ``calibration_zero_sd_deg``: the SD of each joint's zero the subject calibration left, which
+        the per-frame SD does not hold; ``calibration_open_zeros``: those over :data:`OPEN_ZERO_DEG`).
     """
 
 
@@ -344,6 +349,12 @@ def markers_to_angles(data, markerset, *, hand: str = "left", model=None, calibr
     diag["warnings"] = warnings + diag["warnings"]
     if hand_check:
         diag["handedness"] = {k: (_r(v) if isinstance(v, float) else v) for k, v in hand_check.items()}
+    # how well the subject fit fixed each joint's zero (the trial's mean angle): the per-frame SD above
+    # does not hold it (a nail's place along its arc is its joint's zero, left to the priors without a
+    # known posture: fretting, DIPs 10-20°; docs/experiments/marker-prior.md)
+    zero = (cal.uncertainty or {}).get("joint_zero_deg") or {}
+    diag["calibration_zero_sd_deg"] = dict(zero)
+    diag["calibration_open_zeros"] = {k: v for k, v in zero.items() if v is not None and v > OPEN_ZERO_DEG}
     diag["calibration_overfit"] = bool(cal.held_out.get("overfit", False))
     if diag["calibration_overfit"]:
         # the refusal says the figures it was decided on, in the table's one residual definition

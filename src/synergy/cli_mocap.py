@@ -131,7 +131,13 @@ def describe_trial(name, df) -> list:
             f"{escape(k)} SD {v[0]:.1f}° (markers alone {v[1]:.0f}°)" for k, v in d["prior_driven"].items()))
     elif sd:
         worst = max(sd.items(), key=lambda kv: kv[1][0] if kv[1][0] is not None else -1)
-        out.append(f"  every joint observed by the markers (largest posterior SD: {escape(worst[0])} {worst[1][0]:.1f}°)")
+        out.append(f"  every joint observed by the markers on the calibrated hand (largest posterior SD: "
+                   f"{escape(worst[0])} {worst[1][0]:.1f}°)")
+    if d.get("calibration_open_zeros"):
+        # a constant offset of the whole trial, which no per-frame SD shows: the calibration could not fix
+        # where these joints' zeros are (no static trial or open-hand frames), only its priors did
+        out.append("  weakly observed: calibration-driven zeros (SD of the trial's mean angle): " + ", ".join(
+            f"{escape(k)} {v:.0f}°" for k, v in sorted(d["calibration_open_zeros"].items(), key=lambda kv: -kv[1])))
     mr = d.get("marker_residuals_mm", {})
     if mr:
         worst = sorted(mr.items(), key=lambda kv: -(kv[1][0] or 0))[:4]
@@ -214,6 +220,7 @@ def calibrate(
 
     from handmodel import HandModel
     from synergy.c3d import read_c3d
+    from synergy.angles import OPEN_ZERO_DEG
     from synergy.calibrate import calibrate as run, held_out_line, save_calibration
     from synergy.markers import load_markerset
 
@@ -239,6 +246,9 @@ def calibrate(
     for k, v in cal.marker_shift_mm.items():
         sd = unc.get("offsets_mm", {}).get(k)
         rows.append((f"marker {k} moved (mm)", f"{v:.1f}", f"{max(sd):.1f}" if sd else ""))
+    for k, v in sorted(unc.get("joint_zero_deg", {}).items(), key=lambda kv: -kv[1]):
+        if v > OPEN_ZERO_DEG:  # left to the priors: the trials' angles of this joint may be off by a constant
+            rows.append((f"{k} zero (°), open", "–", f"{v:.1f}"))
     con.print(fit_table("estimated (× the model; SD)", ("what", "estimate", "SD"), rows))
     if cal.held_out.get("frames"):
         con.print(held_out_line(cal.held_out))

@@ -261,6 +261,39 @@ def _gauss_newton_run(model0, ms, right, scale, lay, theta, tg_mm, w, lim, *, da
     return s, theta, H_s, cost
 
 
+def joint_zero_sd(model0, ms, right, scale, lay, s, theta, tg_mm, w, *, data_sd_mm, theta_w, frames):
+    """SD (radians, per DoF) of the mean angle over the calibration frames ``frames`` that the subject
+    fit leaves open: the uncertainty of the subject vector (bone lengths, finger bases, marker places,
+    with their priors) carried through the postures, at the fit ``s``, ``theta`` (all fitted frames,
+    ``theta_w`` their posture weights as in the fit). A marker on the last bone of a chain turns about
+    its joint together with that joint's angle unseen, so without a known posture this is about the
+    prior SD of the marker's place over its distance from the joint (~10-20° for a nail); a frame's
+    own noise is not in it (the IK's posterior SD says that).
+
+    From the joint normal equations ``[[A, B], [Bᵀ, C]]`` (A block-diagonal over frames): the mean
+    angle moves by ``−mean_f(A_f⁻¹ B_f) δs`` when the subject moves by ``δs``, whose covariance is the
+    inverse of the subject's Schur complement."""
+    n_s = lay.size
+    model, nodes, local, _, _ = _apply(model0, ms, right, scale, lay, s)
+    _, Jt, Js = _jacobians(model0, model, nodes, local, theta, lay)
+    present = np.isfinite(tg_mm[..., 0])
+    ww = (w[None, :] * present) / data_sd_mm
+    F, M = present.shape
+    n = theta.shape[1]
+    At = (ww[..., None, None] * Jt).reshape(F, 3 * M, n)
+    As = (ww[..., None, None] * Js).reshape(F, 3 * M, n_s)
+    AtT = np.ascontiguousarray(At.transpose(0, 2, 1))
+    A = AtT @ At + (theta_w ** 2)[..., None] * np.eye(n)
+    A += (1e-9 * (np.einsum("fii->fi", A) + 1e-9))[..., None] * np.eye(n)
+    B = AtT @ As
+    AiB = np.linalg.solve(A, B)
+    S = As.reshape(-1, n_s).T @ As.reshape(-1, n_s) + np.diag(1.0 / lay.prior_sd ** 2)
+    S -= B.reshape(-1, n_s).T @ AiB.reshape(-1, n_s)
+    W = AiB[frames].mean(0)  # (n, n_s)
+    V = W @ np.linalg.pinv(0.5 * (S + S.T)) @ W.T
+    return np.sqrt(np.clip(np.diag(V), 0.0, None))
+
+
 def _ik(model, nodes, local, tg, weights, lim, theta0=None):
     """Marker IK over sample frames; returns θ, per-frame RMS (mm) and the share of frames per DoF at a limit."""
     hm = model.with_limits(lim)
@@ -352,6 +385,13 @@ def refine_subject(hand, ms, right, scale, tg_train, tg_held, weights, *, bone_s
            "bone_scales": {model0.node_names[k]: float(sd[nb + j]) for j, k in enumerate(lay.lengths)},
            "offsets_mm": {ms.markers[i].label: sd[nb + nl + 3 * j:nb + nl + 3 * j + 3].tolist()
                           for j, i in enumerate(lay.markers)}}
+    # how well the fit fixes each joint's zero (the trial's mean angle), scaled as the SDs above
+    z = joint_zero_sd(model0, ms, right, scale, lay, s, th_fit, tg_fit, weights, data_sd_mm=data_sd_mm,
+                      theta_w=th_w, frames=np.arange(n_tr))
+    if H is not None:
+        z = z * max(rms / data_sd_mm, 1.0)
+    unc["joint_zero_deg"] = {model0.dof_names[j]: round(float(np.degrees(z[j])), 2)
+                             for j in np.flatnonzero(~model0.pose_mask)}
     cal.bone_scales = factors
     cal.joint_positions = pos
     cal.offsets = {m.label: local[i].copy() for i, m in enumerate(ms.markers)}
