@@ -1603,3 +1603,50 @@ def far_end_seed(surface, dist, y0, x0, d, X, focal, reach2):
                     near[k] = d[v, u]
                     k += 1
     return seed, percentile_linear(near[:k], 0.01)
+
+
+@njit(cache=True)
+def _first_max(mask, values):
+    """``np.unravel_index(np.argmax(np.where(mask, values, -1.0)), shape)``: the first place in raster order
+    of the largest ``values`` in ``mask`` (values ≥ 0), ``(0, 0)`` when the mask is empty."""
+    H, W = mask.shape
+    best, by, bx = -1.0, 0, 0
+    for v in range(H):
+        for u in range(W):
+            x = values[v, u] if mask[v, u] else -1.0
+            if x > best:
+                best, by, bx = x, v, u
+    return by, bx
+
+
+@njit(cache=True)
+def palm_place(cand, far, dt, sub, solid, reach, width_share, palm_share, slack, least):
+    """``(cy, cx, at_end)`` of :func:`tracker.segment.forearm._palm_centre` where the region goes on: the
+    candidate place farthest from there (``far``: the distance), or the palm at the region's far end
+    (:func:`tracker.segment.forearm._hand_end_palm`, in its arithmetic; ``reach``, ``width_share``,
+    ``palm_share``, ``slack``, ``least``: its constants, the last three :func:`filled_places`')."""
+    cy, cx = _first_max(cand, far)
+    ey, ex = _first_max(solid, far)
+    if math.hypot(float(cy - ey), float(cx - ex)) <= reach * dt[cy, cx]:
+        return cy, cx, False
+    H, W = dt.shape
+    near = np.zeros((H, W), np.bool_)
+    top, widest, any_near = -np.inf, -np.inf, False
+    for v in range(H):
+        for u in range(W):
+            if dt[v, u] > widest:
+                widest = dt[v, u]
+            if solid[v, u] and math.hypot(float(v - ey), float(u - ex)) <= reach * dt[v, u]:
+                near[v, u] = True
+                any_near = True
+                if dt[v, u] > top:
+                    top = dt[v, u]
+    if not any_near:
+        top = 0.0
+    if top < width_share * widest:
+        return cy, cx, False
+    for v in range(H):
+        for u in range(W):
+            near[v, u] = near[v, u] and dt[v, u] >= palm_share * top
+    ny, nx = _first_max(filled_places(near, sub, top, slack, least), far)
+    return ny, nx, True

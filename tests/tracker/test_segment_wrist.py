@@ -5,12 +5,12 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, np_sum, percentile_linear, uniform1d,
-                                      wrist_cut)
+from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, np_sum, palm_place, percentile_linear,
+                                      uniform1d, wrist_cut)
 from tracker.segment import constants as K
 from tracker.segment.fingers import _far_end, _far_end_reference, _finger_pieces, _finger_reference, _pieces_reference
-from tracker.segment.ops import _points
-from tracker.segment.forearm import _cut_reference, _filled_reference
+from tracker.segment.ops import _edt, _points
+from tracker.segment.forearm import _cut_reference, _filled_places, _filled_reference, _hand_end_palm
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
 from tracker.segment.ops import _uniform1d
 
@@ -205,3 +205,24 @@ def test_finger_pieces_on_the_masks_box_are_the_whole_windows(seed, px_m, top, l
     o[top:top + h, left:left + w] = solid
     for g, want in zip(_finger_pieces(o, px_m), _finger_reference(o, px_m)):
         np.testing.assert_array_equal(g, want)
+
+
+@given(seeds, st.floats(0.0, 0.1))
+@settings(max_examples=150, deadline=None)
+def test_palm_place_is_the_farthest_candidate_or_the_hand_end(seed, dropped):
+    """Where the region goes on: the widest filled place farthest from there, or the palm at the far end
+    (_hand_end_palm), as numpy chose them; on drawn hands with pixels dropped from the mask before closing."""
+    solid, cy, cx, r, go_on, _ = _hand(seed)
+    if not go_on.any():
+        go_on[np.unravel_index(int(np.argmax(solid)), solid.shape)] = True
+    rng = np.random.default_rng(seed)
+    sub = solid & (rng.random(solid.shape) >= dropped)
+    dt = _edt(~solid)
+    far = _edt(go_on)
+    cand = _filled_places(dt >= K.TUNING.palm_width_share * dt.max(), sub, float(dt.max()))
+    T = K.TUNING
+    got = palm_place(cand, far, dt, sub, solid, T.arm_reach_r, T.hand_end_width_share, T.palm_width_share,
+                     T.palm_fill_slack, T.palm_fill_min)
+    py, px = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
+    want = _hand_end_palm(py, px, dt, sub, solid, far)
+    assert (int(got[0]), int(got[1]), bool(got[2])) == (int(want[0]), int(want[1]), bool(want[2]))

@@ -11,6 +11,7 @@ from .._segment_kernels import (
     disk_counts,
     filled_places,
     label_max,
+    palm_place,
     wrist_cut,
 )
 from . import constants as K
@@ -223,8 +224,12 @@ def _palm_centre(sub, dt, solid, go_on, touch, crop, shape, seed, prefer):
             away = _in_labels(tl, wide)
     if away.any():
         far = _edt(away)
-        cy, cx = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
-        return _hand_end_palm(cy, cx, dt, sub, solid, far)
+        # compiled: the farthest candidate, then _hand_end_palm (tests/tracker/test_segment_wrist.py compares them)
+        T = K.TUNING
+        cy, cx, at_end = palm_place(np.ascontiguousarray(cand), far, dt, np.ascontiguousarray(sub, dtype=np.bool_),
+                                    solid, float(T.arm_reach_r), float(T.hand_end_width_share),
+                                    float(T.palm_width_share), float(T.palm_fill_slack), float(T.palm_fill_min))
+        return cy, cx, bool(at_end)
     if seed is not None and np.asarray(seed, bool)[y0:y1, x0:x1].any():
         # nothing goes on (an arm ending in view): of the places nearly as wide, the one nearest
         # the hand's nearest part (a fist's knuckles face the camera, an arm's far end does not)
