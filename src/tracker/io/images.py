@@ -9,10 +9,10 @@ units ↔ metres for each camera's encoding (``uint16`` units, NYU's ``G·256+B`
 """
 from __future__ import annotations
 
+import io
 import struct
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from .._image_kernels import RVL_OK, RVL_OVERRUN, RVL_SHORT, RVL_VALUE, rvl_decode
@@ -41,7 +41,30 @@ def read_bytes(path: Path) -> bytes:
         raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from None
 
 
+#: Pillow's modes that imageio's Pillow plugin returns as Pillow decodes them (no palette applied, no
+#: mode changed): 8- and 16-bit greyscale, RGB, RGBA — every depth and colour frame a recording holds
+_PLAIN_MODES = ("L", "I;16", "RGB", "RGBA")
+
+
 def _decode_png(data: bytes, where) -> np.ndarray:
+    """The pixels of a PNG file: imageio's ``imread(data, extension=".png", plugin="pillow")``, the same
+    array to the bit, or its error as a RecordingError.
+
+    A one-image PNG in one of :data:`_PLAIN_MODES` is decoded by Pillow here, as imageio's plugin
+    decodes it (``Image.open``, the pixels as they are); imageio's import and plugin search, ~0.03 s
+    of a one-still ``tracker track``, are left out. Anything else — a palette, an animated PNG, a file
+    Pillow refuses — goes through imageio, so its result or its error is imageio's."""
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data), formats=["PNG"]) as im:
+            # imageio reads every frame of an animated PNG (acTL: custom_mimetype image/apng)
+            if im.mode in _PLAIN_MODES and getattr(im, "custom_mimetype", None) is None:
+                return np.array(im)
+    except Exception:  # said below, in imageio's words
+        pass
+    import imageio.v3 as iio
+
     try:
         return np.asarray(iio.imread(data, extension=".png", plugin="pillow"))
     except Exception as exc:  # Pillow raises many types for damaged files
@@ -50,6 +73,8 @@ def _decode_png(data: bytes, where) -> np.ndarray:
 
 def png_bytes(a) -> bytes:
     """The PNG file of an image array."""
+    import imageio.v3 as iio  # here: reading frames does not need imageio (_decode_png)
+
     return iio.imwrite("<bytes>", a, extension=".png", plugin="pillow")
 
 
