@@ -8,17 +8,23 @@ of the child — since on a shared machine wall time also measures the other job
 - ``tracker --help``;
 - ``import tracker.run``: what every tracking command loads;
 - process start → first frame's result: ``tracker.run.run_job`` on one still (one SR305 frame of
-  ``../shared/data/realsense_sr305_lada``, or a rendered frame without it), defaults (size
-  calibration, start search), the time of the first result as seen from the parent;
-- ``tracker track`` of that still: the whole command, outputs written;
+  ``../shared/data/realsense_sr305_lada``, or a rendered frame without it) with ``tracker track``'s
+  settings (the library's defaults and the handedness check, ``--check-hand``: on the first frame the
+  mirror-image hand's start search too), the time of the first result as seen from the parent;
+- ``tracker track`` of that still: the whole command, outputs written, up to the process's end;
 - ``tracker track`` of a recording that is not there: the time to its one-line error (exit status 2).
 
-One untimed run first warms numba's cache (``tracker compile`` does it at install). The kernels are
-this tree's (``src`` first on the path). ``--peer DIR``: the same rows with another checkout's ``src``
-(e.g. a ``git worktree`` of an earlier commit; its numba cache is its own, warmed the same way),
-interleaved with this tree's in the same run, so both see the same load.
+"Warm" is what an installed package has: numba's cache (one untimed run first fills it; ``tracker
+compile`` does it at install) and Python's bytecode cache (``pip install`` compiles the modules; an
+editable install writes them at the first import). The children keep their bytecode in a folder of
+their own (``PYTHONPYCACHEPREFIX``, filled by that first run), also where the environment says
+``PYTHONDONTWRITEBYTECODE`` (without a cache every module of the package is compiled from source at
+each start, ~0.15 s here); ``--no-pyc`` measures that case. The kernels are this tree's (``src`` first
+on the path). ``--peer DIR``: the same rows with another checkout's ``src`` (e.g. a ``git worktree`` of
+an earlier commit; its numba cache is its own, warmed the same way), interleaved with this tree's in
+the same run, so both see the same load.
 
-Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--peer ../wt-old]
+Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--peer ../wt-old] [--no-pyc]
 """
 from __future__ import annotations
 
@@ -40,16 +46,28 @@ STILL = ROOT.parent / "shared" / "data" / "realsense_sr305_lada" / "20210326-230
 DRIVER = r"""
 import json, sys, time
 from tracker.run import TrackJob, run_job
+from tracker.settings import TrackerSettings
 t_import = time.time()
 stamps = []
-run_job(TrackJob(sys.argv[1], sys.argv[2], overwrite=True), on_frame=lambda frame, r, ob: stamps.append(time.time()))
+settings = TrackerSettings().replace(start=dict(check_hand=True))  # tracker track's --check-hand, its default
+run_job(TrackJob(sys.argv[1], sys.argv[2], settings=settings, overwrite=True),
+        on_frame=lambda frame, r, ob: stamps.append(time.time()))
 print(json.dumps({"import": t_import, "stamps": stamps}))
 """
+
+
+#: where the children keep their bytecode (None: as the environment says); set by main()
+PYCACHE: Path | None = None
 
 
 def env(src=ROOT / "src"):
     e = dict(os.environ)
     e["PYTHONPATH"] = str(src) + os.pathsep + e.get("PYTHONPATH", "")
+    if PYCACHE is None:
+        e["PYTHONDONTWRITEBYTECODE"] = "1"  # --no-pyc: every module compiled at each start
+    else:
+        e.pop("PYTHONDONTWRITEBYTECODE", None)
+        e["PYTHONPYCACHEPREFIX"] = str(PYCACHE)
     return e
 
 
@@ -87,7 +105,10 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--peer", type=Path, default=None,
                     help="another checkout (its src/) timed with the same rows, interleaved")
+    ap.add_argument("--no-pyc", action="store_true",
+                    help="no bytecode cache: the children compile every module at each start (PYTHONDONTWRITEBYTECODE)")
     args = ap.parse_args()
+    global PYCACHE
     py = sys.executable
     trees = {"this tree": ROOT / "src"}
     if args.peer is not None:
@@ -96,6 +117,7 @@ def main():
         trees["peer"] = args.peer.resolve() / "src"
     with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp:
         tmp = Path(tmp)
+        PYCACHE = None if args.no_pyc else tmp / "pycache"
         rec = make_still(tmp)
         out = tmp / "out.csv"
         rows = {
@@ -110,7 +132,9 @@ def main():
         }
         failing = {"tracker track of a missing recording (its error)"}
         for src in trees.values():
-            timed(rows["tracker track of one still (whole command)"], src)  # warms the cache
+            # warms numba's cache and the bytecode cache (the driver's imports too)
+            timed(rows["tracker track of one still (whole command)"], src)
+            timed(rows["process start -> first frame's result (one still)"], src)
         walls = {(t, k): [] for t in trees for k in rows}
         cpus = {(t, k): [] for t in trees for k in rows}
         first = {t: [] for t in trees}
@@ -126,6 +150,7 @@ def main():
                     cpus[tree, label].append(cpu)
     print(f"bench_startup: median of {args.repeats} fresh processes each, warm numba cache, "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}"
+          + (", no bytecode cache" if args.no_pyc else "")
           + (f"; peer: {args.peer}" if args.peer is not None else ""))
     for tree in trees:
         print(f"  {tree + ':':58s} {'wall s':>8s} {'CPU s':>8s}")
@@ -134,8 +159,8 @@ def main():
                   f"{statistics.median(cpus[tree, label]):8.2f}")
         imp = statistics.median(a for a, _ in first[tree])
         frame = statistics.median(b - a for a, b in first[tree])
-        print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration and start search "
-              f"included) {frame:.2f} s (wall, medians); CPU of the whole child above")
+        print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration, start search, "
+              f"handedness check) {frame:.2f} s (wall, medians); CPU of the whole child above")
 
 
 if __name__ == "__main__":
