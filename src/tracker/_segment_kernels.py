@@ -1650,3 +1650,88 @@ def palm_place(cand, far, dt, sub, solid, reach, width_share, palm_share, slack,
             near[v, u] = near[v, u] and dt[v, u] >= palm_share * top
     ny, nx = _first_max(filled_places(near, sub, top, slack, least), far)
     return ny, nx, True
+
+
+@njit(cache=True)
+def front_layer(d, back, region, by0, by1, bx0, bx1, wy0, wy1, wx0, wx1, half, step_m, jump, focal, min_area, share,
+                behind_area):
+    """:func:`tracker.segment.layers._in_front`'s test, in its arithmetic: ``(status, layer, ring, step)``.
+    The local background is the grey closing of the depths of ``back`` (the farthest within ``half`` px,
+    then the nearest of those) over the box ``by0:by1, bx0:bx1``; in the region's box ``wy0:wy1,
+    wx0:wx1`` the region's pixels nearer than it by more than ``step_m`` fall into surfaces
+    (:func:`surface_labels`), the largest by area (``(d / focal)²`` summed in raster order) is the layer —
+    and then its outline (``ring``: within 3 px of it, with depth) and where the region there lies behind
+    it by more than ``step_m`` (``step``). ``status``: 0 when no layer covers ``min_area``, 1 when the
+    layer does not stand out over ``share`` of its outline, 2 when it does but less than ``behind_area``
+    of the region lies outside it (both: nothing changes), 3 when the layer is taken. Masks of the
+    region's box; empty unless a layer was found."""
+    bh, bw = by1 - by0, bx1 - bx0
+    a = np.empty((bh, bw))
+    for v in range(bh):
+        for u in range(bw):
+            a[v, u] = d[by0 + v, bx0 + u] if back[v, u] else -np.inf
+    far = window_extreme(a, half, 1.0)
+    for v in range(bh):
+        for u in range(bw):
+            if not np.isfinite(far[v, u]):
+                far[v, u] = np.inf
+    far = window_extreme(far, half, -1.0)
+    h, w = wy1 - wy0, wx1 - wx0
+    fz = np.full((h, w), np.nan)
+    anyf = False
+    for v in range(h):
+        for u in range(w):
+            z = d[wy0 + v, wx0 + u]
+            if region[wy0 + v, wx0 + u] and z < far[wy0 - by0 + v, wx0 - bx0 + u] - step_m:
+                fz[v, u] = z
+                anyf = True
+    layer = np.zeros((h, w), np.bool_)
+    ring = np.zeros((h, w), np.bool_)
+    step = np.zeros((h, w), np.bool_)
+    if not anyf:
+        return 0, layer, ring, step
+    lab, n = surface_labels(fz, jump)
+    if n == 0:
+        return 0, layer, ring, step
+    area = np.zeros(n + 1)
+    for v in range(h):
+        for u in range(w):
+            k = lab[v, u]
+            if k > 0:
+                q = d[wy0 + v, wx0 + u] / focal
+                area[k] += q * q
+    area[0] = 0.0
+    best = 0
+    for k in range(1, n + 1):
+        if area[k] > area[best]:
+            best = k
+    if area[best] < min_area:
+        return 0, layer, ring, step
+    lw = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            layer[v, u] = lab[v, u] == best
+            lw[v, u] = d[wy0 + v, wx0 + u] if layer[v, u] else -np.inf
+    layer_far = window_extreme(lw, 3, 1.0)
+    n_ring, n_step, n_rest = 0, 0, 0
+    for v in range(h):
+        for u in range(w):
+            z = d[wy0 + v, wx0 + u]
+            ring[v, u] = np.isfinite(layer_far[v, u]) and not layer[v, u] and np.isfinite(z)
+            step[v, u] = region[wy0 + v, wx0 + u] and ring[v, u] and z - layer_far[v, u] > step_m
+            n_ring += ring[v, u]
+            n_step += step[v, u]
+            n_rest += region[wy0 + v, wx0 + u] and not layer[v, u]
+    if not n_step >= share * n_ring:
+        return 1, layer, ring, step
+    rest = np.empty(n_rest)
+    k = 0
+    for v in range(h):
+        for u in range(w):
+            if region[wy0 + v, wx0 + u] and not layer[v, u]:
+                q = d[wy0 + v, wx0 + u] / focal
+                rest[k] = q * q
+                k += 1
+    if np_sum(rest) < behind_area:
+        return 2, layer, ring, step
+    return 3, layer, ring, step

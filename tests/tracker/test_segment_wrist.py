@@ -5,11 +5,12 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, np_sum, palm_place, percentile_linear,
-                                      uniform1d, wrist_cut)
+from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, front_layer, np_sum, palm_place,
+                                      percentile_linear, uniform1d, wrist_cut)
 from tracker.segment import constants as K
 from tracker.segment.fingers import _far_end, _far_end_reference, _finger_pieces, _finger_reference, _pieces_reference
 from tracker.segment.ops import _edt, _points
+from tracker.segment.layers import _front_reference
 from tracker.segment.forearm import _cut_reference, _filled_places, _filled_reference, _hand_end_palm
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
 from tracker.segment.ops import _uniform1d
@@ -226,3 +227,35 @@ def test_palm_place_is_the_farthest_candidate_or_the_hand_end(seed, dropped):
     py, px = np.unravel_index(int(np.argmax(np.where(cand, far, -1.0))), dt.shape)
     want = _hand_end_palm(py, px, dt, sub, solid, far)
     assert (int(got[0]), int(got[1]), bool(got[2])) == (int(want[0]), int(want[1]), bool(want[2]))
+
+
+@given(seeds, st.floats(0.0, 0.05), st.integers(3, 12), st.floats(0.0, 0.01), st.booleans(), st.sampled_from([30.0, 300.0]))
+@settings(max_examples=150, deadline=None)
+def test_front_layer_is_the_numpy_expressions(seed, gap, half, min_area, with_surface, focal):
+    """_in_front's test: a drawn hand ``gap`` m in front of a body, its arm sinking into the body, with
+    noise and dropouts; the status and the layer, outline and step masks as numpy found them (a short
+    focal length makes the pixels big enough for every status, the layer taken too)."""
+    rng = np.random.default_rng(seed)
+    region, *_ = _hand(seed)
+    h, w = region.shape
+    d = 0.6 + rng.normal(0, 0.002, (h, w))
+    d[region] -= gap
+    sink = rng.random((h, w)) < rng.uniform(0, 0.4)
+    d[region & sink] += gap * rng.uniform(0, 1)
+    d[rng.random((h, w)) < 0.03] = np.nan
+    region &= np.isfinite(d)
+    if not region.any():
+        return
+    surface = np.isfinite(d) & (rng.random((h, w)) < 0.9) if with_surface else None
+    (ya, xa), (yb, xb) = (int(v) for v in np.argwhere(region).min(0)), (int(v) for v in np.argwhere(region).max(0))
+    big = (slice(max(ya - half, 0), min(yb + half + 1, h)), slice(max(xa - half, 0), min(xb + half + 1, w)))
+    win = (slice(max(ya - 3, 0), min(yb + 4, h)), slice(max(xa - 3, 0), min(xb + 4, w)))
+    back = region[big] if surface is None else (surface | region)[big]
+    T = K.TUNING
+    got = front_layer(d, np.ascontiguousarray(back), region, big[0].start, big[0].stop, big[1].start, big[1].stop,
+                      win[0].start, win[0].stop, win[1].start, win[1].stop, half, T.front_step_m, 0.02, focal,
+                      min_area, T.front_outline_share, T.front_behind_area_m2)
+    want = _front_reference(region, d, back, big, win, half, 0.02, focal, min_area)
+    assert got[0] == want[0]
+    for g, wnt in zip(got[1:], want[1:]):
+        np.testing.assert_array_equal(g, wnt)

@@ -6,6 +6,7 @@ import numpy as np
 
 from .._segment_kernels import (
     closed_filled,
+    front_layer,
     label_extents,
     touch_close,
 )
@@ -42,41 +43,29 @@ def _in_front(region, d, seed, focal, jump=0.02, min_area=0.004, surface=None, b
     (ya, yb), (xa, xb) = bounds(region)
     z = _nanmedian(d[seed])
     half = max(int(round(K.TUNING.front_window_m * focal / z)), 1)
-    size = 2 * half + 1
     H, W = d.shape
     # the background is read from the whole surface around the region (the reach cuts the body off
     # beside a big hand's palm), the layer sought in the region only
     big = (slice(max(ya - half, 0), min(yb + half + 1, H)), slice(max(xa - half, 0), min(xb + half + 1, W)))
     back = region[big] if surface is None else (surface | region)[big]
-    with np.errstate(invalid="ignore"):
-        far = _window_max(np.where(back, d[big], -np.inf), size)
-        far = _window_min(np.where(np.isfinite(far), far, np.inf), size)
     win = (slice(max(ya - 3, 0), min(yb + 4, H)), slice(max(xa - 3, 0), min(xb + 4, W)))
-    far = far[win[0].start - big[0].start:win[0].stop - big[0].start, win[1].start - big[1].start:win[1].stop - big[1].start]
+    T = K.TUNING
+    # compiled (tests/tracker/test_segment_wrist.py: against _front_reference, the numpy expressions); the
+    # kernel reads the background within the box only (half >= 3: 8 cm at any depth of the working range)
+    if all(b.start <= w.start and w.stop <= b.stop for b, w in zip(big, win)):
+        status, layer, ring, step = front_layer(
+            np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(back), np.ascontiguousarray(region),
+            big[0].start, big[0].stop, big[1].start, big[1].stop, win[0].start, win[0].stop, win[1].start,
+            win[1].stop, half, float(T.front_step_m), float(jump), float(focal), float(min_area),
+            float(T.front_outline_share), float(T.front_behind_area_m2))
+    else:
+        status, layer, ring, step = _front_reference(region, d, back, big, win, half, jump, focal, min_area)
+    if status < 3:
+        # no hand-sized layer (a thumb or knuckles nearer than the rest of the hand are no hand), or one
+        # that does not stand out over enough of its outline, or too little of the region behind it
+        return region, none, seed, status == 2
     dw = d[win]
     rw = region[win]
-    with np.errstate(invalid="ignore"):
-        front = rw & (dw < far - K.TUNING.front_step_m)
-    if not front.any():
-        return region, none, seed, False
-    lab, n = surfaces(np.where(front, dw, np.nan), jump)
-    if n == 0:
-        return region, none, seed, False
-    area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
-    area[0] = 0.0
-    best = int(np.argmax(area))
-    if area[best] < min_area:
-        # no hand-sized layer: a thumb or knuckles nearer than the rest of the hand are no hand
-        return region, none, seed, False
-    layer = lab == best
-    # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
-    layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
-    ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
-    with np.errstate(invalid="ignore"):
-        step = rw & ring & (dw - layer_far > K.TUNING.front_step_m)
-    stands_out = step.sum() >= K.TUNING.front_outline_share * ring.sum()
-    if not stands_out or pixel_area(dw[rw & ~layer], focal).sum() < K.TUNING.front_behind_area_m2:
-        return region, none, seed, bool(stands_out)
     out, goes_on = none.copy(), none.copy()
     out[win] = layer
     goes_on[win] = _goes_on(layer, rw & ring & ~step, dw, focal)
@@ -158,3 +147,38 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     big[0] = False
     out[win] = close & big[lab]
     return out
+
+
+def _front_reference(region, d, back, big, win, half, jump, focal, min_area):
+    """:func:`tracker._segment_kernels.front_layer` in numpy: ``(status, layer, ring, step)``."""
+    size = 2 * half + 1
+    with np.errstate(invalid="ignore"):
+        far = _window_max(np.where(back, d[big], -np.inf), size)
+        far = _window_min(np.where(np.isfinite(far), far, np.inf), size)
+    far = far[win[0].start - big[0].start:win[0].stop - big[0].start, win[1].start - big[1].start:win[1].stop - big[1].start]
+    dw = d[win]
+    rw = region[win]
+    none = np.zeros(dw.shape, bool)
+    with np.errstate(invalid="ignore"):
+        front = rw & (dw < far - K.TUNING.front_step_m)
+    if not front.any():
+        return 0, none, none, none
+    lab, n = surfaces(np.where(front, dw, np.nan), jump)
+    if n == 0:
+        return 0, none, none, none
+    area = np.bincount(lab[lab > 0], weights=pixel_area(dw[lab > 0], focal), minlength=n + 1)
+    area[0] = 0.0
+    best = int(np.argmax(area))
+    if area[best] < min_area:
+        return 0, none, none, none
+    layer = lab == best
+    # the outline: pixels within 3 px of the layer, and how far behind its farthest pixel there each lies
+    layer_far = _window_max(np.where(layer, dw, -np.inf), 7)
+    ring = np.isfinite(layer_far) & ~layer & np.isfinite(dw)
+    with np.errstate(invalid="ignore"):
+        step = rw & ring & (dw - layer_far > K.TUNING.front_step_m)
+    if not step.sum() >= K.TUNING.front_outline_share * ring.sum():
+        return 1, layer, ring, step
+    if pixel_area(dw[rw & ~layer], focal).sum() < K.TUNING.front_behind_area_m2:
+        return 2, layer, ring, step
+    return 3, layer, ring, step
