@@ -13,7 +13,8 @@ Protocols (all with 0.5 mm noise, a subject unlike the model):
   with the markers on each chain's last bone at their nominal places (the subject's ±2 mm off them
   unknown), and once with only their places along the arc about their joint nominal (the rest of their
   place true): what a calibration without a known posture cannot know of the last joints' zeros. The
-  default's RMS is also split into its parts (thumb flexions, MCP, PIP, DIP, abductions).
+  default's RMS is also split into its parts (thumb flexions, MCP, PIP, DIP, abductions), and each
+  joint's trial-mean error is set against the SD of its zero that the calibration reports.
 - ``subjects``: :func:`synergy.simulate.subject_protocol` (benchmarks/bench_calibrate.py's protocol:
   ROM + static to calibrate, power grasp to convert, 6 Hz).
 - ``overfit``: the held-out rule of the automatic calibration (:func:`synergy.subject.overfits`)
@@ -73,6 +74,15 @@ def shares(df, theta):
     ok = np.isfinite(err).all(1)
     return {g: float(np.degrees(np.sqrt(np.mean(np.sum(err[ok][:, [names.index(n) for n in ix]] ** 2, 1)) / 20)))
             for g, ix in GROUPS.items()}
+
+
+def zero_z(df, theta):
+    """Each posture joint's trial-mean error over the SD of its zero that the calibration reported
+    (``diagnostics.calibration_zero_sd_deg``; empty when the calibration fitted no subject)."""
+    names = HandModel.load().dof_names
+    zero = df.attrs["diagnostics"].get("calibration_zero_sd_deg") or {}
+    bias = np.degrees(np.nanmean(df[names].to_numpy() - theta, axis=0))
+    return np.array([bias[names.index(k)] / v for k, v in zero.items() if v])
 
 
 def rms_deg(df, theta):
@@ -177,6 +187,7 @@ def main():
               "last-bone markers at their nominal places, none with only their places along the arc nominal | "
               "neutral frames, auto's IK prior | false limits (before/default/none/fingerfist) | the default's "
               "RMS in parts (degrees, squares sum to its square)")
+        zs = []
         for motion in args.motions:
             for seed in args.weak_seeds:
                 tr, th = weak_protocol(seed, motion)
@@ -196,6 +207,16 @@ def main():
                 print(f"{motion:12} {seed:3d} " + " | ".join(f"{rms_deg(df, th):6.2f}" for df in runs) + " | "
                       + " ".join(f"{x:6.2f}" for x in orc_got) + f" | {neutral} {chose} | {lims} | default's parts: "
                       + " ".join(f"{g} {x:.2f}" for g, x in shares(runs[1], th).items()), flush=True)
+                z = zero_z(runs[1], th)
+                if len(z):
+                    zs.append(z)
+                    print(f"{'':16} default's calibration: |trial-mean error| / SD of the zero: RMS "
+                          f"{np.sqrt(np.mean(z ** 2)):.2f}, max {np.abs(z).max():.2f}", flush=True)
+        if zs:
+            z = np.concatenate(zs)
+            print(f"# zeros' SD against the errors, {len(z)} joint-trials: RMS {np.sqrt(np.mean(z ** 2)):.2f}, "
+                  f"within 1 SD {100 * np.mean(np.abs(z) < 1):.0f} %, within 2 SD {100 * np.mean(np.abs(z) < 2):.0f} %",
+                  flush=True)
     if "subjects" in args.protocols:
         for markers in ("hand16", "hand19"):
             ms = load_markerset(markers)
