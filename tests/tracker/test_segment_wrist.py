@@ -9,7 +9,7 @@ from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces,
                                       percentile_linear, uniform1d, wrist_cut)
 from tracker.segment import constants as K
 from tracker.segment.fingers import _far_end, _far_end_reference, _finger_pieces, _finger_reference, _pieces_reference
-from tracker.segment.ops import _edt, _points
+from tracker.segment.ops import _edt, _nearest, _points
 from tracker.segment.layers import _front_reference
 from tracker.segment.forearm import _cut_reference, _filled_places, _filled_reference, _hand_end_palm
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
@@ -259,3 +259,28 @@ def test_front_layer_is_the_numpy_expressions(seed, gap, half, min_area, with_su
     assert got[0] == want[0]
     for g, wnt in zip(got[1:], want[1:]):
         np.testing.assert_array_equal(g, wnt)
+
+
+@given(seeds, st.integers(0, 6), st.integers(0, 12))
+@settings(max_examples=150, deadline=None)
+def test_nearest_targets_within_px_are_the_boxs(seed, px, margin):
+    """_joins transforms the region's box grown by px, not its whole window: every pixel within px of the
+    region gets the same nearest region pixel (ties as scipy's transform sends them) and distance."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(5, 60, 2)
+    region = rng.random((h, w)) < rng.uniform(0.01, 0.5)
+    region[rng.integers(0, h), rng.integers(0, w)] = True
+    (ya, xa), (yb, xb) = (int(v) for v in np.argwhere(region).min(0)), (int(v) for v in np.argwhere(region).max(0))
+    win = (slice(max(ya - px - margin, 0), min(yb + px + margin + 1, h)),
+           slice(max(xa - px - margin, 0), min(xb + px + margin + 1, w)))
+    near = (slice(max(ya - px, 0), min(yb + px + 1, h)), slice(max(xa - px, 0), min(xb + px + 1, w)))
+    dist, iy, ix = _nearest(region[win])
+    sd, sy, sx = _nearest(region[near])
+    oy, ox = near[0].start - win[0].start, near[1].start - win[1].start
+    dist_n = dist[oy:oy + sd.shape[0], ox:ox + sd.shape[1]]
+    within = dist <= px
+    assert within.sum() == (sd <= px).sum()  # no pixel within px lies outside the box
+    keep = sd <= px
+    np.testing.assert_array_equal(sd[keep], dist_n[keep])
+    np.testing.assert_array_equal(sy[keep] + oy, iy[oy:oy + sd.shape[0], ox:ox + sd.shape[1]][keep])
+    np.testing.assert_array_equal(sx[keep] + ox, ix[oy:oy + sd.shape[0], ox:ox + sd.shape[1]][keep])

@@ -131,11 +131,18 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
     z = _nanmedian(d[region])
     m = px + int(np.ceil(K.TUNING.touch_window_m * focal / z))
     win = (slice(max(ya - m, 0), min(yb + m + 1, H)), slice(max(xa - m, 0), min(xb + m + 1, W)))
-    r = region[win]
-    dist, iy, ix = _nearest(r)
     da = np.asarray(depth_all, float)[win]
+    # the pixels within px of the region and their nearest region pixels lie in its box grown by px: the
+    # transform there gives them as over the whole window (the same targets in each column and each row;
+    # tests/tracker/test_segment_wrist.py), at a fraction of the pixels
+    p = int(np.ceil(px))
+    near = (slice(max(ya - p, 0), min(yb + p + 1, H)), slice(max(xa - p, 0), min(xb + p + 1, W)))
+    dist, iy, ix = _nearest(region[near])
     # compiled: np.abs(da - d[win][iy, ix]) <= dz within px, without the gather over the whole window
-    close = touch_close(dist, iy, ix, da, np.asarray(d, float)[win], float(px), float(dz))
+    close = np.zeros(da.shape, bool)
+    close[near[0].start - win[0].start:near[0].stop - win[0].start,
+          near[1].start - win[1].start:near[1].stop - win[1].start] = touch_close(
+        dist, iy, ix, np.asarray(depth_all, float)[near], np.asarray(d, float)[near], float(px), float(dz))
     if not close.any():
         return out
     other = np.where(np.isfinite(da) & ~surface[win], da, np.nan)
