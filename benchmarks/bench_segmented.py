@@ -29,8 +29,15 @@ the same harness (this file): the two trees' rows side by side from one run.
 recording (no skin test: the segmenter leaves out the table's plane and prefers the surface with
 fingers, :mod:`tracker.segment`); ``--colour-only``: with them alone; by default both.
 
+``--observations FILE``: no timing; every field of every observation of the scenes' frames (the windowed
+``observe`` with the windows this tree's tracker chose, and the whole-frame one; colour and depth only) as
+a SHA-1 of its bytes, type and shape, written to FILE with the windows (4 scenes × 30 frames × 2 modes × 2
+× 9 fields: 4,320 arrays and values). With ``--windows FILE`` (an earlier record), those windows are used
+and nothing is tracked. Two trees observe alike, to the bit, when their records are the same file: a
+change to the segmentation made for speed is checked so.
+
 Run: .venv/bin/python benchmarks/bench_segmented.py [--frames 30] [--repeat 3] [--stage-passes 2]
-[--depth-only | --colour-only] [--peer DIR]
+[--depth-only | --colour-only] [--peer DIR] [--observations FILE [--windows FILE]]
 """
 from __future__ import annotations
 
@@ -278,6 +285,55 @@ def stage_table(trees):
                                                              for v in totals))
 
 
+#: the fields of an observation recorded by :func:`record_observations`
+OBSERVATION_FIELDS = ("points", "normals", "mask", "depth", "density", "stride", "frame_depth", "silhouette", "window")
+
+
+def _digest(value):
+    """A SHA-1 of an array's type, shape and bytes; a number, a window or None as its repr."""
+    import hashlib
+
+    if value is None or isinstance(value, (float, int, tuple)):
+        return repr(value)
+    a = np.ascontiguousarray(value)
+    return hashlib.sha1(repr((a.dtype.str, a.shape)).encode() + a.tobytes()).hexdigest()
+
+
+def record_observations(n, windows=None):
+    """``(digests, windows)`` of every observation of the scenes' first ``n`` frames, by ``"mode:scene"``:
+    per frame the windowed observation's and the whole frame's fields (:data:`OBSERVATION_FIELDS`, each
+    :func:`_digest`), and the windows used — the tracker's (this tree tracks the frames), or ``windows``'."""
+    from handmodel import HandModel
+    from synergy.bundle import load_bundle
+    from tracker import TRACKING_HAND
+    from tracker.observe import observe
+    from tracker.segment import Segmenter
+    from tracker.track import FrameTracker, TrackerSettings
+
+    hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
+    digests, used = {}, {}
+    for mode in MODES:
+        for scene, (sensor, spec) in enumerate(SCENES):
+            key = f"{mode}:{scene}"
+            cam, frames = frames_of(hand, sensor, spec, n, color=mode == "colour")
+            tr = FrameTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
+            seg, seg_whole = Segmenter(), Segmenter()
+            digests[key], used[key] = [], []
+            for f, (depth, color) in enumerate(frames):
+                if windows is None:
+                    window = tr.segment_window(cam)
+                else:
+                    w = windows[key][f]
+                    window = None if w is None else tuple(tuple(slice(*p) for p in part) for part in w)
+                used[key].append(None if window is None else [[(s.start, s.stop) for s in part] for part in window])
+                ob = observe(depth, cam, tr.settings.observe, segmenter=seg, color=color, window=window)
+                if windows is None:
+                    tr.track(ob, cam, color=color)
+                whole = observe(depth, cam, tr.settings.observe, segmenter=seg_whole, color=color)
+                digests[key].append([{k: _digest(getattr(o, k)) for k in OBSERVATION_FIELDS} for o in (ob, whole)])
+    return digests, used
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=30)
@@ -286,8 +342,19 @@ def main():
     ap.add_argument("--colour-only", action="store_true", help="observe with the colour frames only")
     ap.add_argument("--stage-passes", type=int, default=2, help="further passes per scene timing the stages")
     ap.add_argument("--peer", type=Path, default=None, help="another checkout whose src is timed in the same run")
+    ap.add_argument("--observations", type=Path, default=None,
+                    help="record every observation's digests (and the windows) to this JSON file instead of timing")
+    ap.add_argument("--windows", type=Path, default=None,
+                    help="with --observations: observe in an earlier record's windows (no tracking)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.observations is not None:
+        given = None if a.windows is None else json.loads(a.windows.read_text())["windows"]
+        digests, used = record_observations(a.frames, given)
+        a.observations.write_text(json.dumps({"observations": digests, "windows": used}))
+        count = sum(len(f) * len(OBSERVATION_FIELDS) * 2 for f in digests.values())
+        print(f"{count} arrays and values recorded to {a.observations}")
+        return
     if a.worker is not None:
         print(json.dumps(run_scene(a.worker, a.frames, a.repeat, not a.depth_only, a.stage_passes)))
         return
