@@ -282,10 +282,12 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
 
     if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
         raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
+    presence = None
     if no_detector:
         if detector:
             raise TrackerError("--no-detector", f"give --detector or --no-detector, not both (got --detector {detector})")
-        detector = ""
+        # no learned part at all: neither the keypoint CNN nor the hand-presence network
+        detector, presence = "", ""
     groups = {
         "observe": dict(stride=stride, smooth=smooth, target_points=points or None),
         "icp": dict(icp_iterations=icp, gn_iterations=gn, damping=damping, silhouette_weight=silhouette,
@@ -294,7 +296,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
         "init": dict(finger_search=finger_search, threads=threads),
         "scale": dict(hand_scale=parse_hand_scale(hand_scale), finger_lengths=finger_lengths),
         "start": dict(check_hand=check_hand, rgb_seed=rgb_seed, search_budget_ms=search_budget_ms, detector=detector,
-                      detector_accept_mm=detector_accept_mm),
+                      detector_accept_mm=detector_accept_mm, presence=presence),
         "net": dict(enabled=safety_net),
         "refine": dict(unseen_prior=unseen_prior), "loss": dict(no_hand_rejected=no_hand),
     }

@@ -47,7 +47,7 @@ def live(
     hand_model: Optional[str] = typer.Option(None, "--hand-model", help="Hand model name or YAML path [human; default, the paper's, with --paper]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
-    no_detector: bool = typer.Option(False, "--no-detector", help="No keypoint detector: every start is the full search (as tracker track --no-detector)."),
+    no_detector: bool = typer.Option(False, "--no-detector", help="No learned detector (the keypoint CNN, the hand-presence network): every start is the full search (as tracker track --no-detector)."),
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,

@@ -47,6 +47,8 @@ class TrackerStats:
         not run (``start.detector_accept_mm``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
+    not_hands : starts whose region the hand-presence network called no hand (``start.presence``): no
+        search ran
     """
 
     net_runs: int = 0
@@ -70,6 +72,7 @@ class TrackerStats:
     searches: int = 0
     searches_cut: int = 0
     search_ms: float = 0.0
+    not_hands: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""
@@ -259,6 +262,36 @@ class LossCheck:
         """Whether a fit is good enough to track from (not lost): ``lost_fit_mm``, ``lost_rejected``."""
         st = self.settings
         return bool(np.isfinite(fit_mm) and fit_mm <= st.lost_fit_mm and rejected <= st.lost_rejected)
+
+
+class HandPresence:
+    """Whether a start's region is a hand at all, asked of the hand-presence network
+    (:mod:`tracker.hand_presence`, ``start.presence``) before any search: a region it calls no hand
+    (probability below ``below``) is "no hand" at once, counted in ``stats.not_hands``; the last
+    answer is ``probability_`` (NaN: the region had no box, or the frame no depth)."""
+
+    def __init__(self, model, below: float, stats: TrackerStats | None = None):
+        self.model, self.below, self.stats = model, float(below), stats or TrackerStats()
+        self.probability_ = float("nan")
+
+    def reset(self):
+        pass
+
+    def absent(self, sil, hand: str) -> bool:
+        """Whether the frame's :class:`tracker.correspond.Silhouette` region is no hand (False where it
+        cannot be asked: no mask, no depth or no camera)."""
+        from .hand_presence import hand_probability
+
+        self.probability_ = float("nan")
+        if sil is None or sil.empty or sil.camera is None:
+            return False
+        depth = sil.frame_depth if getattr(sil, "frame_depth", None) is not None else sil.depth
+        if depth is None:
+            return False
+        self.probability_ = hand_probability(depth, sil.camera, sil.mask, hand, model=self.model)
+        absent = bool(self.probability_ < self.below)  # NaN: no answer, not "no hand"
+        self.stats.not_hands += absent
+        return absent
 
 
 def silhouette_mask(observation):

@@ -141,6 +141,12 @@ class StartSettings(SettingsGroup):
     search_budget_ms : a start search's budget (ms): once spent, its optional stages are skipped and
         its best start so far converged (:class:`tracker.init.SearchBudget`; 0 = none, the default:
         with a budget the result depends on the machine's speed)
+    presence : a hand-presence network (a name or file under ``models/detectors/``,
+        :mod:`tracker.hand_presence`) asked before a start searches whether its region is a hand at all
+        ("hand-presence-cnn", the newest shipped; "" = none, the paper's: every region is searched, and
+        the fit's rejections decide)
+    presence_below : … and the probability below which the region is "no hand" without a search (0.05:
+        99 % of the held-out rendered hands above it; docs/experiments/detector.md, "Is it a hand?")
     """
 
     wrist_cue: bool = True
@@ -149,10 +155,12 @@ class StartSettings(SettingsGroup):
     detector: str = "hand-keypoints-cnn"
     detector_accept_mm: float = 1.5
     search_budget_ms: float = 0.0
+    presence: str = "hand-presence-cnn"
+    presence_below: float = 0.05
 
     @classmethod
     def paper(cls):
-        return cls(wrist_cue=False, detector="")
+        return cls(wrist_cue=False, detector="", presence="")
 
     def check(self):
         b = self.search_budget_ms
@@ -163,6 +171,11 @@ class StartSettings(SettingsGroup):
         a = self.detector_accept_mm
         _need(isinstance(a, (int, float)) and not isinstance(a, bool) and 0 <= a < math.inf,
               "start.detector_accept_mm", f"must be a score in mm ≥ 0 (0 = the full search always runs), got {a!r}")
+        _need(isinstance(self.presence, str), "start.presence",
+              f"must be a hand-presence network's name or file (\"\" = none), got {self.presence!r}")
+        q = self.presence_below
+        _need(isinstance(q, (int, float)) and not isinstance(q, bool) and 0 <= q < 1,
+              "start.presence_below", f"must be a probability in [0, 1), got {q!r}")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from .parts import (
     ColourSeed,
     FingerRestart,
     Gate,
+    HandPresence,
     KeypointSeed,
     LossCheck,
     Prediction,
@@ -160,6 +161,7 @@ class TrackerParts(NamedTuple):
     colour: ColourSeed | None
     search: StartSearch
     sizes: HandSizes
+    presence: HandPresence | None
 
 
 def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats, keypoint_detector=None,
@@ -186,8 +188,13 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
     net = SafetyNet(st.net, cue, stats, st.start.search_budget_ms, keypoints)
     search = StartSearch(st.init, cue, colour, stats, st.start.search_budget_ms, keypoints,
                          st.start.detector_accept_mm)
+    presence = None
+    if st.start.presence:
+        from .hand_presence import load_presence
+
+        presence = HandPresence(load_presence(st.start.presence), st.start.presence_below, stats)
     return TrackerParts(cue, net, gate, recentring, prediction, prior, restart, loss, sizing, colour, search,
-                        HandSizes(hand, st, synergies))
+                        HandSizes(hand, st, synergies), presence)
 
 
 def tracking_stages(settings: TrackerSettings, context) -> list:
@@ -240,7 +247,7 @@ class FrameTracker:
         self.settings = settings or TrackerSettings()
         self.stats = TrackerStats()
         (self.cue, self.net, self.gate, self.recentring, self.prediction, self.prior, self.restart, self.loss,
-         self.sizing, self.colour, self.search, self.sizes) = build_parts(hand, self.settings, synergies, self.stats,
+         self.sizing, self.colour, self.search, self.sizes, self.presence) = build_parts(hand, self.settings, synergies, self.stats,
                                                                           keypoint_detector, depth_detector)
         self.use_scale(1.0 if self.sizing.scale_ is None else self.sizing.scale_)
         self.reset()
@@ -332,7 +339,8 @@ class FrameTracker:
 
     def _start(self, pts, nrm, sil, n_in, t0, color, depth, camera):
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
-        if self.loss.too_small(n_in, sil):
+        if self.loss.too_small(n_in, sil) or (self.presence is not None
+                                              and self.presence.absent(sil, self.base_hand.handedness)):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
         if self.sizing.calibrating():
             self.cue.add(sil)

@@ -202,21 +202,24 @@ def experiments(
 
 def train_detector(
     output: Path = typer.Option(..., "-o", "--output", help="Folder to write the model into (forest: "
-                                "hand-parts-VERSION.npz; cnn: hand-keypoints-cnn-VERSION.onnx and .json)."),
-    family: str = typer.Option("forest", "--family", help="forest (hand-part random forest, scikit-learn) or cnn "
-                               "(keypoint CNN on the hand's box, PyTorch; needs pip install '.[train]')."),
+                                "hand-parts-VERSION.npz; cnn: hand-keypoints-cnn-VERSION.onnx and .json; presence: "
+                                "hand-presence-cnn-VERSION.onnx and .json)."),
+    family: str = typer.Option("forest", "--family", help="forest (hand-part random forest, scikit-learn), cnn "
+                               "(keypoint CNN on the hand's box, PyTorch; needs pip install '.[train]') or presence "
+                               "(is the segmented region a hand: a small CNN on the same box, PyTorch)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the training scenes, pixels, features and trees (the "
                              "held-out scenes use other seeds)."),
     crops: Optional[int] = typer.Option(None, "--crops", min=1, help="Training crops drawn by the renderer "
-                                        "[forest: 600, cnn: 4000]."),
-    epochs: int = typer.Option(16, "--epochs", min=1, help="cnn: passes over the training crops."),
+                                        "[forest: 600, cnn: 4000; presence: whole frames, 2000]."),
+    epochs: int = typer.Option(16, "--epochs", min=1, help="cnn and presence: passes over the training crops."),
     head: str = typer.Option("heatmap", "--head", help="cnn: heatmap (soft-argmax) or regression."),
     segmented: int = typer.Option(100, "--segmented", min=0, help="cnn: held-out whole frames evaluated through the "
                                   "tracker's segmentation."),
     trees: int = typer.Option(3, "--trees", min=1, help="Trees in the forest."),
     depth: int = typer.Option(20, "--depth", min=1, help="Largest tree depth."),
     features: int = typer.Option(400, "--features", min=2, help="Offset pairs the trees choose from."),
-    heldout: int = typer.Option(200, "--heldout", min=1, help="Held-out synthetic crops evaluated."),
+    heldout: int = typer.Option(200, "--heldout", min=1, help="Held-out synthetic crops (presence: whole frames) "
+                                "evaluated."),
     real_data: Optional[Path] = typer.Option(None, "--real-data", help="Folder of labelled real SR305 stills "
                                              "(../shared/data/realsense_sr305_lada): evaluated, never trained on."),
     orientations: str = typer.Option("sphere", "--orientations", help="Hand orientations drawn: sphere (any) or "
@@ -242,11 +245,12 @@ def train_detector(
         raise TrackerError("--orientations", f"must be sphere or user, got {orientations!r}")
     if real_data is not None and not (real_data / "labels" / "labels.json").is_file():
         raise TrackerError(str(real_data / "labels" / "labels.json"), "no frame labels here (--real-data)")
-    if family not in ("forest", "cnn"):
-        raise TrackerError("--family", f"must be forest or cnn, got {family!r}")
+    if family not in ("forest", "cnn", "presence"):
+        raise TrackerError("--family", f"must be forest, cnn or presence, got {family!r}")
     if head not in ("heatmap", "regression"):
         raise TrackerError("--head", f"must be heatmap or regression, got {head!r}")
-    name = f"hand-parts-{version}.npz" if family == "forest" else f"hand-keypoints-cnn-{version}.json"
+    name = {"forest": f"hand-parts-{version}.npz", "cnn": f"hand-keypoints-cnn-{version}.json",
+            "presence": f"hand-presence-cnn-{version}.json"}[family]
     if (output / name).exists() and not overwrite:
         raise TrackerError(str(output / name), "exists (use --overwrite or --version)")
     check_output(output, folder=True)
@@ -254,6 +258,10 @@ def train_detector(
 
     from .dataset import DataRecipe
 
+    if family == "presence":
+        return _train_presence(output, seed=seed, scenes=crops or 2000, epochs=epochs, heldout=heldout,
+                               real_data=real_data, recipe=DataRecipe(orientations=orientations), version=version,
+                               jobs=jobs, overwrite=overwrite)
     if family == "cnn":
         return _train_cnn(output, seed=seed, crops=crops or 4000, epochs=epochs, head=head, heldout=heldout,
                           segmented=segmented, real_data=real_data, recipe=DataRecipe(orientations=orientations),
@@ -307,6 +315,32 @@ def _train_cnn(output, *, seed, crops, epochs, head, heldout, segmented, real_da
         r = m["real_sr305"]
         out.print(f"real SR305 stills ({r['frames']}): tips median {r['tips_px_median']} px, "
                   f"{r['tips_within_15px']}/{r['tips']} tips within 15 px")
+
+
+def _train_presence(output, *, seed, scenes, epochs, heldout, real_data, recipe, version, jobs, overwrite):
+    """``train-detector --family presence``: :func:`tracker.sim.train_presence.build` and its figures."""
+    import sys
+
+    from rich.console import Console
+
+    from .train_cnn import require_torch
+    from .train_presence import PresenceSettings, build
+
+    require_torch()
+    err = Console(stderr=True, markup=False)
+    command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
+    settings = PresenceSettings(n_scenes=scenes, epochs=epochs)
+    path, manifest = build(output, seed=seed, recipe=recipe, settings=settings, heldout=heldout, real_data=real_data,
+                           version=version, command=command, jobs=jobs, progress=err.print, overwrite=overwrite)
+    h = manifest["metrics"]["heldout"]
+    out = Console(markup=False)
+    out.print(f"wrote {path} and {path.with_suffix('.onnx').name} ({manifest['training']['seconds']['total']:.0f} s)")
+    out.print(f"held-out synthetic ({h['crops']} crops, {h['hands']} hands): ROC AUC {h['auc']} (the segmentation's "
+              f"boxes: {h['auc_segmented']})")
+    if "real" in manifest["metrics"]:
+        r = manifest["metrics"]["real"]
+        out.print(f"real: SR305 stills' lowest hand probability {r['stills_min']}; hand-less frames "
+                  f"{', '.join(f'{p:.3f}' for p in r['hand_less_frames'])}")
 
 
 def register(app: typer.Typer, wrap=None) -> None:

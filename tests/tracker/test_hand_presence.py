@@ -1,0 +1,166 @@
+"""The hand-presence CNN (issue 38: "whether a hand is there is decided with the detector's hand score"):
+the shipped network is sealed; on freshly rendered frames it tells hands from the surfaces a
+segmentation takes instead; on the real frames it says hand for every labelled still and no hand for the
+real hand-less recordings; in the tracker, a start whose region it calls no hand runs no search."""
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime", reason="the hand-presence CNN runs on onnxruntime")
+
+from tests.conftest import shared  # noqa: E402
+from tracker.errors import TrackerError  # noqa: E402
+from tracker.hand_presence import PRESENCE_FORMAT, hand_probability, load_presence, read_presence  # noqa: E402
+from tracker.keypoint_cnn import cnn_path  # noqa: E402
+from tracker.settings import TrackerSettings  # noqa: E402
+from tracker.sim.train_detector import HELDOUT_SEED_OFFSET  # noqa: E402
+
+#: The tests' own scenes: neither the training seed (0) nor the manifest's held-out one.
+SEED = 515_151
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_presence()
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    from tracker.sim.dataset import DataRecipe
+    from tracker.sim.train_presence import PresenceSettings, draw_presence
+
+    return draw_presence(DataRecipe(), PresenceSettings(), SEED, 16)
+
+
+def test_shipped_network_is_sealed_and_a_flipped_byte_is_refused(tmp_path, model):
+    m = model.manifest
+    assert m["format"] == PRESENCE_FORMAT and m["family"] == "presence"
+    assert m["command"].startswith("tracker train-detector") and "--family presence" in m["command"]
+    assert m["heldout_seed"] == m["seed"] + HELDOUT_SEED_OFFSET
+    src = cnn_path("hand-presence-cnn")
+    for suffix in (".json", ".onnx"):
+        shutil.copy(src.with_suffix(suffix), tmp_path / f"p{suffix}")
+    assert read_presence(tmp_path / "p.json").manifest == m
+    onnx = tmp_path / "p.onnx"
+    data = bytearray(onnx.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    onnx.write_bytes(bytes(data))
+    with pytest.raises(TrackerError) as e:
+        read_presence(tmp_path / "p.json")
+    assert str(onnx) in str(e.value) and "onnx_sha256" in str(e.value) and "\n" not in str(e.value)
+    # the keypoint CNN's reader refuses it (another format), and this reader the keypoint CNN
+    with pytest.raises(TrackerError, match="manifest"):
+        from tracker.keypoint_cnn import read_cnn
+
+        read_cnn(src)
+    with pytest.raises(TrackerError, match=PRESENCE_FORMAT):
+        read_presence(cnn_path())
+
+
+def test_unseen_rendered_frames_tell_hands_from_what_a_segmentation_takes_instead(model, scenes):
+    """Crops of 16 whole frames the network never saw: hands (true and segmented boxes) against the
+    segmentation's misses and hand-sized boxes on arms, torsos, tables and objects."""
+    from tracker.sim.train_presence import roc_auc
+
+    X, y, kind = scenes
+    assert y.sum() >= 12 and (y == 0).sum() >= 12  # both classes, from every kind of box
+    p = model.run(X)
+    assert roc_auc(p, y) >= 0.95
+    # at the tracker's threshold the hands pass
+    assert np.mean(p[y == 1] >= TrackerSettings().start.presence_below) >= 0.95
+
+
+def test_auc_is_the_mann_whitney_statistic():
+    from tracker.sim.train_presence import roc_auc
+
+    rng = np.random.default_rng(0)
+    p, y = rng.random(200), rng.random(200) < 0.4
+    brute = np.mean([(a > b) + 0.5 * (a == b) for a in p[y] for b in p[~y]])
+    assert roc_auc(p, y) == pytest.approx(brute)
+    assert roc_auc(y.astype(float), y) == 1.0 and roc_auc(1.0 - y, y) == 0.0
+
+
+def test_real_stills_are_hands_and_rank_above_real_hand_less_regions(model):
+    """Evaluation only (never trained on): the 19 labelled SR305 stills through the tracker's segmentation
+    are hands (0.9986-1.0), and every one ranks above the regions segmented in the hand-less D435 and Azure
+    Kinect recordings (a wall's edge 0.08-0.12, a mug on its saucer 0.92). Those are not turned away at
+    the tracker's threshold: a limit of this network (docs/experiments/detector.md, "Is it a hand?")."""
+    root = shared("realsense_sr305_lada")
+    from tracker.sim.train_presence import evaluate_real
+
+    r = evaluate_real(model, root)
+    assert len(r["stills"]) == 19 and min(r["stills"]) >= 0.95
+    if r["hand_less_frames"]:
+        assert max(r["hand_less_frames"]) < min(r["stills"])
+
+
+def test_bad_input_is_one_line_or_no_answer(model):
+    depth = np.full((480, 640), 0.5, np.float32)
+    assert np.isnan(hand_probability(depth, "sr305", np.zeros(depth.shape, bool), "left", model=model))
+    with pytest.raises(TrackerError, match="mask"):
+        hand_probability(depth, "sr305", np.zeros((5, 5), bool), "left", model=model)
+    with pytest.raises(TrackerError):
+        hand_probability(depth, "sr305", np.ones(depth.shape, bool), "both", model=model)
+
+
+def test_settings_check_the_threshold():
+    for bad in (-0.1, 1.0, float("nan"), True):
+        with pytest.raises(TrackerError, match="presence_below"):
+            TrackerSettings().replace(start=dict(presence_below=bad)).check()
+    assert TrackerSettings.paper().start.presence == ""
+
+
+def test_a_start_on_no_hand_runs_no_search_and_a_hand_is_still_found():
+    """A rendered scene with its hand moved out of view (the torso stays and is segmented): the start asks
+    the network, calls it no hand and searches nothing; the same scene with its hand is found as before."""
+    from handmodel import HandModel
+    from synergy.bundle import load_bundle
+    from tests.tracker.test_no_hand import _scene
+    from tracker.observe import observe
+    from tracker.segment import Segmenter
+    from tracker.track import FrameTracker
+
+    right, bundle = HandModel.load(right=True), load_bundle("fingerfist")
+    st = TrackerSettings().replace(init=dict(threads=1), start=dict(presence="hand-presence-cnn"))
+    empty, cam = _scene(right, "kinect1", "torso", False)
+    ob = observe(empty, cam, st.observe, segmenter=Segmenter(plane="keep"))
+    assert len(ob.points) >= st.loss.min_points
+    tr = FrameTracker(right, st, synergies=bundle)
+    r = tr.track(ob, cam)
+    # no fit was made: nothing rejected a share of its points, every point counts as unexplained
+    assert r.status == "lost" and tr.stats.not_hands == 1 and r.rejected_share == 1.0
+    assert tr.presence.probability_ < st.start.presence_below and tr.scale_ is None
+    # without the network the same frame is searched, and its fit's rejections call it no hand
+    off = FrameTracker(right, st.replace(start=dict(presence="")), synergies=bundle)
+    r = off.track(ob, cam)
+    assert r.status == "lost" and off.stats.not_hands == 0 and off.presence is None and r.rejected_share < 1.0
+    with_hand, cam = _scene(right, "kinect1", "forearm,torso", True)
+    tr = FrameTracker(right, st, synergies=bundle)
+    r = tr.track(observe(with_hand, cam, st.observe), cam)
+    assert r.status == "reinit" and tr.stats.not_hands == 0 and tr.presence.probability_ >= 0.5
+
+
+def test_train_detector_presence_bad_input_is_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+
+    (tmp_path / "hand-presence-cnn-1.0.0.json").write_text("{}")
+    r = CliRunner().invoke(app, ["train-detector", "-o", str(tmp_path), "--family", "presence"])
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and "exists" in r.stderr, r.stderr
+
+
+@pytest.mark.slow
+def test_training_is_reproducible_from_its_seed(scenes):
+    torch = pytest.importorskip("torch", reason="training needs pip install '.[train]'")
+    from tracker.sim.train_presence import PresenceSettings, fit
+
+    X, y, _ = scenes
+    st = PresenceSettings(epochs=1, batch=8, threads=1)
+    (a, la), (b, lb) = fit(X[:24], y[:24], st, 3), fit(X[:24], y[:24], st, 3)
+    assert la == lb and all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+    c, _ = fit(X[:24], y[:24], st, 4)
+    assert not all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), c.state_dict().values()))
