@@ -19,12 +19,13 @@ compile`` does it at install) and Python's bytecode cache (``pip install`` compi
 editable install writes them at the first import). The children keep their bytecode in a folder of
 their own (``PYTHONPYCACHEPREFIX``, filled by that first run), also where the environment says
 ``PYTHONDONTWRITEBYTECODE`` (without a cache every module of the package is compiled from source at
-each start, ~0.15 s here); ``--no-pyc`` measures that case. The kernels are this tree's (``src`` first
-on the path). ``--peer DIR``: the same rows with another checkout's ``src`` (e.g. a ``git worktree`` of
-an earlier commit; its numba cache is its own, warmed the same way), interleaved with this tree's in
-the same run, so both see the same load.
+each start: 0.10 s of ``import tracker.run``, 0.13 s of a one-still ``tracker track`` here, 8 pairs at
+load ~3); ``--no-pyc`` measures that case. The kernels are this tree's (``src`` first on the path).
+``--peer DIR``: the same rows with another checkout's ``src`` (e.g. a ``git worktree`` of an earlier
+commit; its numba cache is its own, warmed the same way), interleaved with this tree's in the same
+run, so both see the same load.
 
-Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--peer ../wt-old] [--no-pyc]
+Run: .venv/bin/python benchmarks/bench_startup.py [--repeats 5] [--peer ../wt-old] [--no-pyc] [--only track]
 """
 from __future__ import annotations
 
@@ -55,6 +56,12 @@ run_job(TrackJob(sys.argv[1], sys.argv[2], settings=settings, overwrite=True),
 print(json.dumps({"import": t_import, "stamps": stamps}))
 """
 
+
+#: the rows: short name (``--only``) → label
+ROWS = {"reference": 'python -c "import numpy, scipy" (reference)', "help": "tracker --help",
+        "import": "import tracker.run", "first": "process start -> first frame's result (one still)",
+        "track": "tracker track of one still (whole command)",
+        "missing": "tracker track of a missing recording (its error)"}
 
 #: where the children keep their bytecode (None: as the environment says); set by main()
 PYCACHE: Path | None = None
@@ -107,7 +114,13 @@ def main():
                     help="another checkout (its src/) timed with the same rows, interleaved")
     ap.add_argument("--no-pyc", action="store_true",
                     help="no bytecode cache: the children compile every module at each start (PYTHONDONTWRITEBYTECODE)")
+    ap.add_argument("--only", default=",".join(ROWS),
+                    help=f"the rows to time, comma-separated, of {', '.join(ROWS)} [all]; e.g. --only track "
+                         "--repeats 16 for the whole command alone, more often")
     args = ap.parse_args()
+    only = [k.strip() for k in args.only.split(",") if k.strip()]
+    if not only or set(only) - set(ROWS):
+        raise SystemExit(f"--only: rows are {', '.join(ROWS)}, got {args.only!r}")
     global PYCACHE
     py = sys.executable
     trees = {"this tree": ROOT / "src"}
@@ -120,27 +133,27 @@ def main():
         PYCACHE = None if args.no_pyc else tmp / "pycache"
         rec = make_still(tmp)
         out = tmp / "out.csv"
-        rows = {
-            'python -c "import numpy, scipy" (reference)': [py, "-c", "import numpy, scipy"],
-            "tracker --help": [py, "-m", "tracker.cli", "--help"],
-            "import tracker.run": [py, "-c", "import tracker.run"],
-            "process start -> first frame's result (one still)": [py, "-c", DRIVER, str(rec), str(out)],
-            "tracker track of one still (whole command)": [py, "-m", "tracker.cli", "track", str(rec), "-o",
-                                                           str(out), "--overwrite"],
-            "tracker track of a missing recording (its error)": [py, "-m", "tracker.cli", "track", str(tmp / "none"),
-                                                                 "-o", str(out), "--overwrite"],
+        commands = {
+            "reference": [py, "-c", "import numpy, scipy"],
+            "help": [py, "-m", "tracker.cli", "--help"],
+            "import": [py, "-c", "import tracker.run"],
+            "first": [py, "-c", DRIVER, str(rec), str(out)],
+            "track": [py, "-m", "tracker.cli", "track", str(rec), "-o", str(out), "--overwrite"],
+            "missing": [py, "-m", "tracker.cli", "track", str(tmp / "none"), "-o", str(out), "--overwrite"],
         }
-        failing = {"tracker track of a missing recording (its error)"}
         for src in trees.values():
             # warms numba's cache and the bytecode cache (the driver's imports too)
-            timed(rows["tracker track of one still (whole command)"], src)
-            timed(rows["process start -> first frame's result (one still)"], src)
+            timed(commands["track"], src)
+            timed(commands["first"], src)
+        rows = {ROWS[k]: commands[k] for k in ROWS if k in only}
+        failing = {ROWS["missing"]}
         walls = {(t, k): [] for t in trees for k in rows}
         cpus = {(t, k): [] for t in trees for k in rows}
         first = {t: [] for t in trees}
-        for _ in range(args.repeats):
+        for r in range(args.repeats):
             for label, cmd in rows.items():
-                for tree, src in trees.items():
+                # the trees take turns to go first: neither always meets the other's wake
+                for tree, src in list(trees.items())[:: 1 if r % 2 == 0 else -1]:
                     wall, cpu, stdout, t0 = timed(cmd, src, status=2 if label in failing else 0)
                     if label.startswith("process start"):
                         res = json.loads(stdout.strip().splitlines()[-1])
@@ -157,6 +170,8 @@ def main():
         for label in rows:
             print(f"  {label:58s} {statistics.median(walls[tree, label]):8.2f} "
                   f"{statistics.median(cpus[tree, label]):8.2f}")
+        if not first[tree]:
+            continue
         imp = statistics.median(a for a, _ in first[tree])
         frame = statistics.median(b - a for a, b in first[tree])
         print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration, start search, "
