@@ -1735,3 +1735,27 @@ def front_layer(d, back, region, by0, by1, bx0, bx1, wy0, wy1, wx0, wx1, half, s
     if np_sum(rest) < behind_area:
         return 2, layer, ring, step
     return 3, layer, ring, step
+
+
+@njit(cache=True)
+def reach_part(surface, y0, y1, x0, x1, cy, cx, r):
+    """:func:`tracker.segment.fingers._has_fingers`' part: the pixels of ``surface`` in the window ``y0:y1,
+    x0:x1`` with ``(v − cy)² + (u − cx)² <= r²`` (numpy's arithmetic), as a mask of the window, and its
+    bounding box in the window's pixels ``(ya, yb, xa, xb)``, inclusive (``ya < 0``: empty)."""
+    h, w = y1 - y0, x1 - x0
+    part = np.zeros((h, w), np.bool_)
+    ya, yb, xa, xb = -1, -1, w, -1
+    rr = r * r
+    for v in range(h):
+        dy = (v + y0) - cy
+        for u in range(w):
+            if surface[y0 + v, x0 + u]:
+                dx = (u + x0) - cx
+                if dy * dy + dx * dx <= rr:
+                    part[v, u] = True
+                    if ya < 0:
+                        ya = v
+                    yb = v
+                    xa = min(xa, u)
+                    xb = max(xb, u)
+    return part, ya, yb, xa, xb

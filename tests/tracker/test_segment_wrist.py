@@ -5,10 +5,11 @@ into another object, a fist at the arm's end — or the segmentation changes."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from tracker._segment_kernels import (blob_labels, filled_places, finger_pieces, front_layer, np_sum, palm_place,
-                                      percentile_linear, uniform1d, wrist_cut)
+from tracker._segment_kernels import (blob_labels, closed_filled, filled_places, finger_pieces, front_layer, np_sum,
+                                      palm_place, percentile_linear, reach_part, uniform1d, wrist_cut)
 from tracker.segment import constants as K
-from tracker.segment.fingers import _far_end, _far_end_reference, _finger_pieces, _finger_reference, _pieces_reference
+from tracker.segment.fingers import (_enough_fingers, _far_end, _far_end_reference, _finger_pieces, _finger_reference,
+                                     _pieces_reference)
 from tracker.segment.ops import _edt, _nearest, _points
 from tracker.segment.layers import _front_reference
 from tracker.segment.forearm import _cut_reference, _filled_places, _filled_reference, _hand_end_palm
@@ -284,3 +285,36 @@ def test_nearest_targets_within_px_are_the_boxs(seed, px, margin):
     np.testing.assert_array_equal(sd[keep], dist_n[keep])
     np.testing.assert_array_equal(sy[keep] + oy, iy[oy:oy + sd.shape[0], ox:ox + sd.shape[1]][keep])
     np.testing.assert_array_equal(sx[keep] + ox, ix[oy:oy + sd.shape[0], ox:ox + sd.shape[1]][keep])
+
+
+@given(seeds, st.floats(300.0, 1500.0), st.floats(3.0, 60.0))
+@settings(max_examples=100, deadline=None)
+def test_the_reach_part_closed_in_its_box_is_the_windows(seed, px_m, r):
+    """_has_fingers' part: the surface within r of a point (numpy's grid arithmetic), and its closing and
+    filling done in its box grown by a pixel — the whole window's pixels there, the same finger verdict."""
+    rng = np.random.default_rng(seed)
+    solid, *_ = _hand(seed)
+    surface = np.zeros((solid.shape[0] + 40, solid.shape[1] + 40), bool)
+    surface[20:-20, 20:-20] = solid
+    h, w = surface.shape
+    cy, cx = rng.uniform(0, h), rng.uniform(0, w)
+    ri = int(np.ceil(r))
+    y0, y1, x0, x1 = max(int(cy) - ri, 0), min(int(cy) + ri + 1, h), max(int(cx) - ri, 0), min(int(cx) + ri + 1, w)
+    yy, xx = np.ogrid[y0:y1, x0:x1]
+    want = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= ri * ri)
+    part, ya, yb, xa, xb = reach_part(surface, y0, y1, x0, x1, cy, cx, ri)
+    np.testing.assert_array_equal(part, want)
+    if not want.any():
+        assert ya < 0
+        return
+    rows, cols = np.flatnonzero(want.any(1)), np.flatnonzero(want.any(0))
+    assert (ya, yb, xa, xb) == (rows[0], rows[-1], cols[0], cols[-1])
+    ya, xa = max(ya - 1, 0), max(xa - 1, 0)
+    box = part[ya:yb + 2, xa:xb + 2]
+    whole = closed_filled(want)
+    np.testing.assert_array_equal(closed_filled(np.ascontiguousarray(box)), whole[ya:yb + 2, xa:xb + 2])
+    assert not whole[:ya].any() and not whole[yb + 2:].any() and not whole[:, :xa].any() and not whole[:, xb + 2:].any()
+    assert _enough_fingers(closed_filled(np.ascontiguousarray(box)), px_m, (ya, xa)) == _enough_fingers(whole, px_m)
+    for g, wnt in zip(_finger_pieces(closed_filled(np.ascontiguousarray(box)), px_m, (ya, xa))[1:],
+                      _finger_pieces(whole, px_m)[1:]):
+        np.testing.assert_array_equal(g[1:], wnt[1:])  # sizes and verdicts of the pieces (0: no piece)

@@ -9,6 +9,7 @@ from .._segment_kernels import (
     far_end_seed,
     fill_holes,
     finger_pieces,
+    reach_part,
 )
 from . import constants as K
 from .ops import (_dilate, _disk_opening, _edt, _in_labels, _label, _largest_in_window, _nanmedian, _nearest, _sq_dist,
@@ -128,13 +129,15 @@ def _hand_end(surface, d, front, band, seed, focal, border_px=None):
     return (new, zh) if new.any() else (seed, front)
 
 
-def _finger_pieces(o, px_m):
+def _finger_pieces(o, px_m, origin=(0, 0)):
     """``(labels, sizes, big)``: the pieces of the solid mask ``o`` narrower than
     :attr:`SegmentConstants.finger_max_m` (a morphological opening with a disk that wide removes them; ``px_m``:
     pixels per metre at the mask's depth) and farther than :attr:`SegmentConstants.finger_rim_m` from what the opening
     keeps (measured: a 0.8× open hand beside a box, depth only, whose fingers the opening's rim joined
     into one U-shaped piece), their sizes (pixels, index 0 = none) and which are
-    finger-sized (:attr:`SegmentConstants.finger_min_area_m2`; noise at the outline leaves slivers a few pixels big)."""
+    finger-sized (:attr:`SegmentConstants.finger_min_area_m2`; noise at the outline leaves slivers a few pixels big).
+    ``origin``: where ``o``'s first pixel lies in the window the moments are taken in (a crop of it: the same
+    moments, to the bit)."""
     T = K.TUNING
     rad = max(int(round(0.5 * T.finger_max_m * px_m)), 1)
     rim = int(round(T.finger_rim_m * px_m))
@@ -154,7 +157,8 @@ def _finger_pieces(o, px_m):
         thin &= _edt(opened) > rim
     # compiled: the pieces and their moments (tests/tracker/test_segment_wrist.py: against _pieces_reference)
     lab_c, size, big = finger_pieces(np.ascontiguousarray(thin), T.finger_min_area_m2 * px_m ** 2,
-                                     T.finger_elongation ** 2, T.finger_min_length_m * px_m, ya, xa)
+                                     T.finger_elongation ** 2, T.finger_min_length_m * px_m, ya + int(origin[0]),
+                                     xa + int(origin[1]))
     lab_t = np.zeros(o.shape, np.int32)
     lab_t[ya:yb + 1, xa:xb + 1] = lab_c
     size[0] = o.size - size[1:].sum()  # the window's pixels in no piece
@@ -193,10 +197,11 @@ def _pieces_reference(thin, px_m):
     return lab_t, size, big
 
 
-def _enough_fingers(o, px_m) -> bool:
-    """Whether the solid mask ``o`` (``px_m`` pixels per metre) has finger-like pieces
-    (:func:`_finger_pieces`) of at least twice :attr:`SegmentConstants.finger_min_area_m2` in all."""
-    _, size, big = _finger_pieces(o, px_m)
+def _enough_fingers(o, px_m, origin=(0, 0)) -> bool:
+    """Whether the solid mask ``o`` (``px_m`` pixels per metre; ``origin``: its first pixel in the image its
+    pieces' moments are taken in, :func:`_finger_pieces`) has finger-like pieces of at least twice
+    :attr:`SegmentConstants.finger_min_area_m2` in all."""
+    _, size, big = _finger_pieces(o, px_m, origin)
     return bool(size[big].sum() >= 2 * K.TUNING.finger_min_area_m2 * px_m ** 2)
 
 
@@ -218,11 +223,15 @@ def _has_fingers(surface, d, seed, focal, reach=0.22, fine=None):
     r = int(np.ceil((reach or 0.22) * px_m))
     H, W = surface.shape
     y0, y1, x0, x1 = max(int(cy) - r, 0), min(int(cy) + r + 1, H), max(int(cx) - r, 0), min(int(cx) + r + 1, W)
-    yy, xx = np.ogrid[y0:y1, x0:x1]  # open grids: the same values, broadcast
-    part = surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r)
-    if not part.any():
+    # compiled: surface[y0:y1, x0:x1] & ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r) on np.ogrid's yy, xx, and its box
+    part, ya, yb, xa, xb = reach_part(np.ascontiguousarray(surface, dtype=np.bool_), y0, y1, x0, x1, cy, cx, r)
+    if ya < 0:
         return False
-    if _enough_fingers(closed_filled(np.ascontiguousarray(part, dtype=np.bool_)), px_m):
+    # closed and filled in its box grown by a pixel (clipped to the window): the same pixels as in the whole
+    # window (outside the box nothing closes, and the grown box's rim is background reaching the edge)
+    ya, xa = max(ya - 1, 0), max(xa - 1, 0)
+    box = part[ya:min(yb + 2, part.shape[0]), xa:min(xb + 2, part.shape[1])]
+    if _enough_fingers(closed_filled(np.ascontiguousarray(box)), px_m, (ya, xa)):
         return True
     if fine is None:
         return False
