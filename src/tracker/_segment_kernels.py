@@ -1759,3 +1759,32 @@ def reach_part(surface, y0, y1, x0, x1, cy, cx, r):
                     xa = min(xa, u)
                     xb = max(xb, u)
     return part, ya, yb, xa, xb
+
+
+@njit(cache=True)
+def join_surfaces(da, surface, close, jump, focal, min_area):
+    """:func:`tracker.segment.layers._joins` after its contact test, in its arithmetic: the pixels of ``close``
+    on a surface (:func:`surface_labels` of ``da`` off ``surface``, no data left out) covering at least
+    ``min_area`` (``(depth / focal)²`` summed in raster order, as ``np.bincount`` sums)."""
+    H, W = da.shape
+    other = np.empty((H, W))
+    for v in range(H):
+        for u in range(W):
+            z = da[v, u]
+            other[v, u] = z if np.isfinite(z) and not surface[v, u] else np.nan
+    lab, n = surface_labels(other, jump)
+    out = np.zeros((H, W), np.bool_)
+    if n == 0:
+        return out
+    area = np.zeros(n + 1)
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            if k > 0:
+                q = other[v, u] / focal
+                area[k] += q * q
+    for v in range(H):
+        for u in range(W):
+            k = lab[v, u]
+            out[v, u] = close[v, u] and k > 0 and area[k] >= min_area
+    return out

@@ -6,12 +6,12 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from tracker._segment_kernels import (blob_labels, closed_filled, filled_places, finger_pieces, front_layer, np_sum,
-                                      palm_place, percentile_linear, reach_part, uniform1d, wrist_cut)
+                                      join_surfaces, palm_place, percentile_linear, reach_part, uniform1d, wrist_cut)
 from tracker.segment import constants as K
 from tracker.segment.fingers import (_enough_fingers, _far_end, _far_end_reference, _finger_pieces, _finger_reference,
                                      _pieces_reference)
 from tracker.segment.ops import _edt, _nearest, _points
-from tracker.segment.layers import _front_reference
+from tracker.segment.layers import _front_reference, _join_reference
 from tracker.segment.forearm import _cut_reference, _filled_places, _filled_reference, _hand_end_palm
 from tracker.segment.region import _blobs_reference, _edge_pieces, _edge_reference
 from tracker.segment.ops import _uniform1d
@@ -318,3 +318,16 @@ def test_the_reach_part_closed_in_its_box_is_the_windows(seed, px_m, r):
     for g, wnt in zip(_finger_pieces(closed_filled(np.ascontiguousarray(box)), px_m, (ya, xa))[1:],
                       _finger_pieces(whole, px_m)[1:]):
         np.testing.assert_array_equal(g[1:], wnt[1:])  # sizes and verdicts of the pieces (0: no piece)
+
+
+@given(seeds, st.floats(0.0, 0.05), st.sampled_from([30.0, 300.0]), st.floats(0.0, 0.01))
+@settings(max_examples=100, deadline=None)
+def test_join_surfaces_are_the_numpy_expressions(seed, jump, focal, min_area):
+    """_joins' surfaces met at the contact: the contact's pixels on a big enough surface off the hand's."""
+    rng = np.random.default_rng(seed)
+    lab, d = _labelled(rng, int(rng.integers(1, 40)), int(rng.integers(1, 40)))
+    d += rng.normal(0, 0.01, d.shape)
+    surface = lab == rng.integers(0, 10)
+    close = rng.random(d.shape) < 0.5
+    np.testing.assert_array_equal(join_surfaces(d, surface, close, jump, focal, min_area),
+                                  _join_reference(d, surface, close, jump, focal, min_area))

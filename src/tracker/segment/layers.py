@@ -7,6 +7,7 @@ import numpy as np
 from .._segment_kernels import (
     closed_filled,
     front_layer,
+    join_surfaces,
     label_extents,
     touch_close,
 )
@@ -145,15 +146,22 @@ def _joins(region, d, surface, depth_all, focal, px=None, dz=None, min_area=None
         dist, iy, ix, np.asarray(depth_all, float)[near], np.asarray(d, float)[near], float(px), float(dz))
     if not close.any():
         return out
-    other = np.where(np.isfinite(da) & ~surface[win], da, np.nan)
+    # compiled (tests/tracker/test_segment_wrist.py: against _join_reference, the numpy expressions)
+    out[win] = join_surfaces(np.ascontiguousarray(da), np.ascontiguousarray(surface[win], dtype=np.bool_), close,
+                             float(jump), float(focal), float(min_area))
+    return out
+
+
+def _join_reference(da, surface, close, jump, focal, min_area):
+    """:func:`tracker._segment_kernels.join_surfaces` in numpy (``_joins``' window's arrays)."""
+    other = np.where(np.isfinite(da) & ~surface, da, np.nan)
     lab, n = surfaces(other, jump)
     if n == 0:
-        return out
+        return np.zeros(da.shape, bool)
     on = lab > 0
     big = np.bincount(lab[on], weights=pixel_area(other[on], focal), minlength=n + 1) >= min_area
     big[0] = False
-    out[win] = close & big[lab]
-    return out
+    return close & big[lab]
 
 
 def _front_reference(region, d, back, big, win, half, jump, focal, min_area):
