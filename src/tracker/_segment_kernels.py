@@ -32,7 +32,7 @@ def surface_labels(d, jump):
             core[v, u] = not far
     lab = np.zeros((H, W), np.int32)
     n = _components(core, lab, np.empty(H * W, np.int64), False)
-    out = lab.copy()
+    # the far-side pixels labelled in place: each reads its core neighbours only (labelled, never rewritten)
     for v in range(H):
         for u in range(W):
             z = d[v, u]
@@ -42,12 +42,12 @@ def surface_labels(d, jump):
             for k in range(4):
                 qv = v + (1 if k == 2 else -1 if k == 3 else 0)
                 qu = u + (1 if k == 0 else -1 if k == 1 else 0)
-                if 0 <= qv < H and 0 <= qu < W and lab[qv, qu] > 0:
+                if 0 <= qv < H and 0 <= qu < W and core[qv, qu]:
                     diff = abs(d[qv, qu] - z)
                     if diff <= jump and diff < best:
                         got, best = lab[qv, qu], diff
-            out[v, u] = got
-    return out, n
+            lab[v, u] = got
+    return lab, n
 
 
 @njit(cache=True)
