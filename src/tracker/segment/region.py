@@ -108,14 +108,15 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
             if end is not None and _reaches(end, expected):
                 k, front, seed = int(kk), end_front, end
                 break
+    surface = lab == k  # the hand's surface from here on (read, never written)
     if not _touches_border(seed, border_px):
-        seed, front = _hand_end(lab == k, d, front, band, seed, focal, border_px)
+        seed, front = _hand_end(surface, d, front, band, seed, focal, border_px)
     if _touches_border(seed, border_px):
         # every candidate's nearest part is cut off by the border, typically an arm reaching
         # towards the camera from outside the image: the hand is then the end of the surface
         # farthest from where it enters the image
         X = _points(d, focal, centre) if points is None else np.asarray(points, float)
-        seed, front = _far_end(lab == k, d, X, focal, border_px, reach)
+        seed, front = _far_end(surface, d, X, focal, border_px, reach)
     if points is None:
         # compiled in one pass, the points back-projected on the fly (the seed's alone for its centre)
         c3 = np.zeros(3)
@@ -131,10 +132,10 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
                 X = np.asarray(points, float)
                 near &= _sq_dist(X, X[seed].mean(axis=0)) <= reach ** 2
     near |= seed
-    core = (lab == k) & near
+    core = surface & near
     core = components_holding(np.ascontiguousarray(core), np.ascontiguousarray(seed, dtype=np.bool_))
     # a body a few centimetres behind the hand, joined to it by the arm: the hand is the layer in front
-    core, behind, seed, layered = _in_front(core, d, seed, focal, jump, min_area, lab == k, border_px)
+    core, behind, seed, layered = _in_front(core, d, seed, focal, jump, min_area, surface, border_px)
     # small surfaces close to the hand in the image and in depth: fingertip blobs
     (ya, yb), (xa, xb) = bounds(core)
     y0, y1 = max(ya - margin_px, 0), min(yb + margin_px + 1, d.shape[0])
@@ -153,7 +154,7 @@ def hand_region(depth, focal, band=0.12, jump=0.02, min_pixels=30, min_area=0.00
     if small.size:
         out[win] |= _in_labels(lab[win], small) & near[win]
     # beyond: where the hand's surface goes on past the band or the reach (the arm, not a fingertip)
-    return Region(out, (lab == k) & ~out & ~behind, seed, behind, layered)
+    return Region(out, surface & ~out & ~behind, seed, behind, layered)
 
 
 def _seed_points(d, seed, focal, cy, cx):
