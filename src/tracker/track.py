@@ -138,11 +138,12 @@ def frame_result(stats, n_dofs, theta, status, n_in, t0, fit_mm=float("nan"), us
                        stats.snapshot())
 
 
-def no_hand(stats, n_dofs, corr, n_in, t0) -> FrameResult:
-    """The result of a frame whose start found no hand (``corr``: its fit's pairs, None when its region was
-    too small to fit), counted in ``stats``: lost, no θ."""
+def no_hand(stats, n_dofs, corr, n_in, t0, *, small=None) -> FrameResult:
+    """The result of a frame whose start found no hand (``corr``: its fit's pairs, None when no fit was
+    made), counted in ``stats``: lost, no θ. ``small``: the region was too small to fit (default: no fit
+    was made; a region the hand-presence network turned away was not small)."""
     stats.no_hand += 1
-    stats.too_few += corr is None
+    stats.too_few += corr is None if small is None else small
     return frame_result(stats, n_dofs, None, "lost", n_in, t0, rejected=1.0 if corr is None else corr.rejected_share)
 
 
@@ -339,9 +340,10 @@ class FrameTracker:
 
     def _start(self, pts, nrm, sil, n_in, t0, color, depth, camera):
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
-        if self.loss.too_small(n_in, sil) or (self.presence is not None
-                                              and self.presence.absent(sil, self.base_hand.handedness)):
+        if self.loss.too_small(n_in, sil):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
+        if self.presence is not None and self.presence.absent(sil, self.base_hand.handedness):
+            return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
         if self.sizing.calibrating():
             self.cue.add(sil)
             theta, corr, found = self.sizing.calibrate(self, pts, nrm, sil)

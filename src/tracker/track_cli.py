@@ -179,9 +179,14 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
         # what was segmented was too small to start from, or its fit left too much unexplained to be a hand
         # (LossSettings.start_min_pixels, no_hand_rejected)
         st, few, out = tracker.settings, tracker.stats.too_few, tracker.stats.size_out
+        absent = tracker.stats.not_hands
         why = [f"{few} with fewer than {st.loss.start_min_pixels} pixels to start from"] if few else []
-        if tracker.stats.no_hand > few + out:
-            why.append(f"{tracker.stats.no_hand - few - out} whose fit rejected more than {st.loss.no_hand_rejected:.0%} of the points")
+        if absent:
+            why.append(f"{absent} that the hand-presence network ({st.start.presence}) called no hand "
+                       f"(p < {st.start.presence_below:g})")
+        if tracker.stats.no_hand > few + out + absent:
+            why.append(f"{tracker.stats.no_hand - few - out - absent} whose fit rejected more than "
+                       f"{st.loss.no_hand_rejected:.0%} of the points")
         if out:
             lo, hi = st.scale.range
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")

@@ -131,7 +131,7 @@ def test_a_start_on_no_hand_runs_no_search_and_a_hand_is_still_found():
     tr = FrameTracker(right, st, synergies=bundle)
     r = tr.track(ob, cam)
     # no fit was made: nothing rejected a share of its points, every point counts as unexplained
-    assert r.status == "lost" and tr.stats.not_hands == 1 and r.rejected_share == 1.0
+    assert r.status == "lost" and tr.stats.not_hands == 1 and r.rejected_share == 1.0 and tr.stats.too_few == 0
     assert tr.presence.probability_ < st.start.presence_below and tr.scale_ is None
     # without the network the same frame is searched, and its fit's rejections call it no hand
     off = FrameTracker(right, st.replace(start=dict(presence="")), synergies=bundle)
@@ -164,3 +164,28 @@ def test_training_is_reproducible_from_its_seed(scenes):
     assert la == lb and all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
     c, _ = fit(X[:24], y[:24], st, 4)
     assert not all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), c.state_dict().values()))
+
+
+def test_cli_names_the_frames_the_network_called_no_hand(tmp_path):
+    """``tracker track`` on a recording of the rendered torso without its hand (kept by ``--plane keep``):
+    the summary says which test called the frame no hand."""
+    from typer.testing import CliRunner
+
+    from handmodel import HandModel
+    from tests.tracker.test_no_hand import _scene
+    from tracker.cli import app
+    from tracker.io.writer import RecordingWriter
+
+    empty, cam = _scene(HandModel.load(right=True), "kinect1", "torso", False)
+    with RecordingWriter(tmp_path / "rec", cam, fps=30, handedness="right") as w:
+        w.write(empty)
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--plane", "keep", "--no-check-hand", "--threads",
+                                 "1", "-o", str(tmp_path / "t.csv")])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert "no hand: on 1 frame what was segmented is no hand (1 that the hand-presence network " \
+           "(hand-presence-cnn) called no hand (p < 0.05))" in out
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--plane", "keep", "--no-check-hand", "--threads",
+                                 "1", "--no-detector", "-o", str(tmp_path / "u.csv")])
+    # without it the torso is searched, sized and refused at the end of the sizes searched
+    assert r.exit_code == 0 and "1 fitted at the end of the hand sizes searched" in " ".join(r.output.split())
