@@ -341,6 +341,24 @@ def compare_heads(recipe: DataRecipe, seed: int, n_train: int, n_heldout: int, e
     return out
 
 
+def model_output(output, name: str, version: str, overwrite: bool) -> Path:
+    """The manifest path ``output/<name>-<version>.json`` of a network to write, refused when it or its
+    ``.onnx`` exists (unless ``overwrite``)."""
+    out = Path(output) / f"{name}-{version}.json"
+    if (out.exists() or out.with_suffix(".onnx").exists()) and not overwrite:
+        raise TrackerError(str(out), "exists (give another output folder or --version)")
+    return out
+
+
+def training_record(net, losses, seconds: dict, **extra) -> dict:
+    """The manifest's ``training`` entry: ``extra`` (crops, the data's SHA-256 …), the losses, the
+    parameter count, the seconds each part took and the versions that trained it."""
+    torch = require_torch()
+    return {**extra, "losses": losses, "parameters": int(sum(p.numel() for p in net.parameters())),
+            "seconds": {k: round(v, 1) for k, v in seconds.items()}, "torch": torch.__version__,
+            "numpy": np.__version__, "python": platform.python_version()}
+
+
 def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: CnnSettings | None = None,
           heldout: int = 200, segmented: int = 100, real_data=None, version: str = "1.0.0", command: str = "",
           progress=None, overwrite: bool = False) -> tuple[Path, dict]:
@@ -348,13 +366,11 @@ def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: 
     (``.onnx`` and ``.json``); returns the manifest's path and the manifest."""
     from .eval_cnn import evaluate_samples, evaluate_segmented, evaluate_starts  # it imports this module
 
-    torch = require_torch()
+    require_torch()
     recipe = recipe or DataRecipe()
     st = settings or CnnSettings()
     say = progress or (lambda msg: None)
-    out = Path(output) / f"{CNN_NAME}-{version}.json"
-    if (out.exists() or out.with_suffix(".onnx").exists()) and not overwrite:
-        raise TrackerError(str(out), "exists (give another output folder or --version)")
+    out = model_output(output, CNN_NAME, version, overwrite)
     t0 = time.perf_counter()
     say(f"drawing {st.n_crops} training crops and {heldout} held-out ones ({st.jobs} processes)")
     train = draw_samples(recipe, seed, st.n_crops, st.jobs)
@@ -385,12 +401,9 @@ def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: 
                 "recipe": recipe.to_dict(), "settings": st.to_dict(), "input_side": INPUT_SIDE,
                 "box_grow": BOX_GROW, "depth_range_m": DEPTH_RANGE_M, "z_scale_m": Z_SCALE_M,
                 "spread_scale": SPREAD_SCALE, "heldout_seed": seed + HELDOUT_SEED_OFFSET,
-                "training": {"crops": len(train), "losses": losses, "samples_sha256": data_hash.hexdigest(),
-                             "parameters": int(sum(p.numel() for p in net.parameters())),
-                             "seconds": {"draw": round(t_draw, 1), "fit": round(t_fit, 1),
-                                         "total": round(time.perf_counter() - t0, 1)},
-                             "torch": torch.__version__, "numpy": np.__version__,
-                             "python": platform.python_version()},
+                "training": training_record(net, losses, {"draw": t_draw, "fit": t_fit,
+                                                          "total": time.perf_counter() - t0},
+                                            crops=len(train), samples_sha256=data_hash.hexdigest()),
                 "metrics": metrics, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     path = save_cnn(out, onnx_bytes, manifest, overwrite=overwrite)
     return path, manifest

@@ -23,7 +23,6 @@ model.
 from __future__ import annotations
 
 import hashlib
-import platform
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -36,7 +35,7 @@ from ..hand_presence import BOX_SIDE_M, PRESENCE_FORMAT, PRESENCE_NAME, Presence
 from ..io.cameras import Camera
 from ..keypoint_cnn import BOX_GROW, DEPTH_RANGE_M, INPUT_SIDE, hand_box, save_cnn
 from .dataset import DataRecipe, draw_scene
-from .train_cnn import export_onnx, require_torch
+from .train_cnn import export_onnx, model_output, require_torch, training_record
 from .train_detector import HELDOUT_SEED_OFFSET, _r
 
 #: A hand's extent (m) at size 1 from wrist to the middle fingertip, open: the random boxes' size.
@@ -332,13 +331,11 @@ def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: 
           progress=None, overwrite: bool = False) -> tuple[Path, dict]:
     """Train, export, evaluate the exported network and write ``output/hand-presence-cnn-<version>``
     (``.onnx`` and ``.json``); returns the manifest's path and the manifest."""
-    torch = require_torch()
+    require_torch()
     recipe = recipe or DataRecipe()
     st = settings or PresenceSettings()
     say = progress or (lambda msg: None)
-    out = Path(output) / f"{PRESENCE_NAME}-{version}.json"
-    if (out.exists() or out.with_suffix(".onnx").exists()) and not overwrite:
-        raise TrackerError(str(out), "exists (give another output folder or --version)")
+    out = model_output(output, PRESENCE_NAME, version, overwrite)
     t0 = time.perf_counter()
     say(f"drawing {st.n_scenes} training frames and {heldout} held-out ones ({jobs} processes)")
     X, y, _ = draw_presence(recipe, st, seed, st.n_scenes, jobs)
@@ -362,13 +359,9 @@ def build(output, *, seed: int = 0, recipe: DataRecipe | None = None, settings: 
                 "recipe": recipe.to_dict(), "settings": st.to_dict(), "input_side": INPUT_SIDE,
                 "box_grow": BOX_GROW, "depth_range_m": DEPTH_RANGE_M, "box_side_m": BOX_SIDE_M,
                 "heldout_seed": seed + HELDOUT_SEED_OFFSET,
-                "training": {"crops": int(len(y)), "hands": int(y.sum()), "losses": losses,
-                             "samples_sha256": data_hash,
-                             "parameters": int(sum(p.numel() for p in net.parameters())),
-                             "seconds": {"draw": round(t_draw, 1), "fit": round(t_fit, 1),
-                                         "total": round(time.perf_counter() - t0, 1)},
-                             "torch": torch.__version__, "numpy": np.__version__,
-                             "python": platform.python_version()},
+                "training": training_record(net, losses, {"draw": t_draw, "fit": t_fit,
+                                                          "total": time.perf_counter() - t0},
+                                            crops=int(len(y)), hands=int(y.sum()), samples_sha256=data_hash),
                 "metrics": metrics, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     path = save_cnn(out, onnx_bytes, manifest, overwrite=overwrite, fmt=PRESENCE_FORMAT)
     return path, manifest
