@@ -215,6 +215,8 @@ def train_detector(
     head: str = typer.Option("heatmap", "--head", help="cnn: heatmap (soft-argmax) or regression."),
     segmented: int = typer.Option(100, "--segmented", min=0, help="cnn: held-out whole frames evaluated through the "
                                   "tracker's segmentation."),
+    hand_less: float = typer.Option(0.25, "--hand-less", min=0.0, max=1.0, help="presence: the share of training "
+                                    "frames drawn without a hand (an object, torso, table) [0.25; 1.0.0: 0]."),
     trees: int = typer.Option(3, "--trees", min=1, help="Trees in the forest."),
     depth: int = typer.Option(20, "--depth", min=1, help="Largest tree depth."),
     features: int = typer.Option(400, "--features", min=2, help="Offset pairs the trees choose from."),
@@ -261,7 +263,7 @@ def train_detector(
     if family == "presence":
         return _train_presence(output, seed=seed, scenes=crops or 2000, epochs=epochs, heldout=heldout,
                                real_data=real_data, recipe=DataRecipe(orientations=orientations), version=version,
-                               jobs=jobs, overwrite=overwrite)
+                               jobs=jobs, overwrite=overwrite, hand_less=hand_less)
     if family == "cnn":
         return _train_cnn(output, seed=seed, crops=crops or 4000, epochs=epochs, head=head, heldout=heldout,
                           segmented=segmented, real_data=real_data, recipe=DataRecipe(orientations=orientations),
@@ -317,7 +319,7 @@ def _train_cnn(output, *, seed, crops, epochs, head, heldout, segmented, real_da
                   f"{r['tips_within_15px']}/{r['tips']} tips within 15 px")
 
 
-def _train_presence(output, *, seed, scenes, epochs, heldout, real_data, recipe, version, jobs, overwrite):
+def _train_presence(output, *, seed, scenes, epochs, heldout, real_data, recipe, version, jobs, overwrite, hand_less):
     """``train-detector --family presence``: :func:`tracker.sim.train_presence.build` and its figures."""
     import sys
 
@@ -329,7 +331,7 @@ def _train_presence(output, *, seed, scenes, epochs, heldout, real_data, recipe,
     require_torch()
     err = Console(stderr=True, markup=False)
     command = "tracker train-detector " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 else ""
-    settings = PresenceSettings(n_scenes=scenes, epochs=epochs)
+    settings = PresenceSettings(n_scenes=scenes, epochs=epochs, p_hand_less=hand_less)
     path, manifest = build(output, seed=seed, recipe=recipe, settings=settings, heldout=heldout, real_data=real_data,
                            version=version, command=command, jobs=jobs, progress=err.print, overwrite=overwrite)
     h = manifest["metrics"]["heldout"]

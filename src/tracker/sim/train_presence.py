@@ -12,7 +12,10 @@ whole rendered frames (:func:`tracker.sim.dataset.draw_scene` with the frame as 
   where it holds at least half the hand and the hand is at least 30 % of it;
 - **not hands**: the segmentation's box where at most 10 % of it is hand (it took the forearm, the
   torso, the table's edge or the object), and boxes of a hand's size (at that depth) on random
-  surface pixels that are not hand (at most 3 % hand pixels in the box).
+  surface pixels that are not hand (at most 3 % hand pixels in the box); and, on a share of frames
+  (``PresenceSettings.p_hand_less``), frames without the hand (:func:`hand_less_scene`: a torso, a
+  table and an object of any size from 2 to 24 cm where the hand would be), the segmentation's box and
+  random boxes on them: what the tracker segments when no hand is in view.
 
 Held-out frames are drawn with seed ``S + HELDOUT_SEED_OFFSET``. :func:`build` trains (PyTorch, the
 ``[train]`` extra), exports to ONNX, checks the export against torch, evaluates the exported network
@@ -29,12 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
+from handmodel import HandModel
+
 from ..detector import OTHER
 from ..errors import TrackerError
 from ..hand_presence import BOX_SIDE_M, PRESENCE_FORMAT, PRESENCE_NAME, PresenceCNN, presence_input
 from ..io.cameras import Camera
 from ..keypoint_cnn import BOX_GROW, DEPTH_RANGE_M, INPUT_SIDE, hand_box, save_cnn
-from .dataset import DataRecipe, draw_scene
+from .clutter import Clutter
+from .dataset import Crop, DataRecipe, draw_scene
+from .noise import NoiseModel
+from .render import DepthRenderer
 from .train_cnn import export_onnx, model_output, require_torch, training_record
 from .train_detector import HELDOUT_SEED_OFFSET, _r
 
@@ -55,6 +63,7 @@ class PresenceSettings:
     random_boxes : boxes on random non-hand surface per scene, each ``random_size`` (log-uniform) × a
         hand's box at that depth (a segmentation's region of something else has any size)
     size_jitter, shift_jitter, median_jitter_m : the true box's jitter (as the keypoint CNN's training)
+    p_hand_less : the share of frames drawn without the hand (:func:`hand_less_scene`; 1.0.0 had none)
     """
 
     n_scenes: int = 2000
@@ -69,6 +78,7 @@ class PresenceSettings:
     size_jitter: float = 0.15
     shift_jitter: float = 0.10
     median_jitter_m: float = 0.01
+    p_hand_less: float = 0.25
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -149,12 +159,45 @@ def scene_crops(crop, rng, st: PresenceSettings, *, segment=True) -> tuple[list,
     return X, y, kind
 
 
+def hand_less_scene(recipe: DataRecipe, rng):
+    """A whole frame as :func:`tracker.sim.dataset.draw_scene` draws one (sensor, camera, distance, noise),
+    with no hand (and so no forearm) in view: a torso and a table as the recipe draws them and always an
+    object, a box or a cylinder of half-extents 1–12 cm, at the place and depth the hand would be; every
+    pixel's part label is "other"."""
+    from .dataset import SENSORS, _pick
+
+    sensor = _pick(recipe.sensors, rng)
+    cam, noise_name = SENSORS.get(sensor, SENSORS["kinect1"])
+    z = float(rng.uniform(*recipe.distance_m))
+    u, v = rng.uniform(0.15, 0.85) * cam.width, rng.uniform(0.15, 0.85) * cam.height
+    centre = np.array([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z])
+    clutter = Clutter(forearm=False, torso=bool(rng.random() < recipe.p_torso),
+                      torso_gap_m=float(rng.uniform(0.05, 0.30)),
+                      torso_offset_m=(float(rng.uniform(-0.1, 0.1)), float(rng.uniform(0.0, 0.2))),
+                      table=bool(rng.random() < recipe.p_table), table_view_deg=float(rng.uniform(15, 90)),
+                      table_gap_m=float(rng.uniform(0.04, 0.15)), object="box" if rng.random() < 0.5 else "cylinder",
+                      object_offset_m=(0.0, 0.0, 0.0),
+                      object_size_m=tuple(float(x) for x in np.exp(rng.uniform(np.log(0.01), np.log(0.12), 3))))
+    hand = HandModel.load(recipe.hand_model)
+    theta = np.zeros(hand.n_dofs)
+    theta[:3] = centre + np.array([50.0, 0.0, 0.0])  # the hand far out of view; the clutter stays
+    r = DepthRenderer(hand, cam).render(theta, labels=False, clutter=clutter.fixed(centre), incidence=True,
+                                        reflectance=True)
+    nm = NoiseModel.preset("none" if sensor == "none" else noise_name)
+    depth = nm.apply(r.depth, cam, rng, r.cos_incidence, r.reflectance).astype(np.float32)
+    parts = np.where(np.isfinite(depth), OTHER, -1).astype(np.int8)
+    return Crop(depth, parts, np.array([cam.fx, cam.fy, cam.cx, cam.cy]), np.full((21, 2), np.nan),
+                np.full(21, np.nan), 1.0 if rng.random() < 0.5 else -1.0, {"sensor": sensor, "hand_less": True})
+
+
 def _draw(recipe_dict: dict, st_dict: dict, seed: int, indices) -> tuple:
     recipe, st = DataRecipe(**recipe_dict), PresenceSettings(**st_dict)
     X, y, kind = [], [], []
     for i in indices:
         rng = np.random.default_rng([seed, i])
-        a, b, k = scene_crops(draw_scene(recipe, rng), rng, st)
+        # a frame's kind is drawn from its own generator, so that p_hand_less 0 draws every frame as before
+        empty = st.p_hand_less > 0 and np.random.default_rng([seed, i, 7]).random() < st.p_hand_less
+        a, b, k = scene_crops(hand_less_scene(recipe, rng) if empty else draw_scene(recipe, rng), rng, st)
         X += a
         y += b
         kind += k
