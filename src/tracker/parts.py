@@ -280,6 +280,7 @@ class HandPresence:
     def absent(self, sil, hand: str) -> bool:
         """Whether the frame's :class:`tracker.correspond.Silhouette` region is no hand (False where it
         cannot be asked: no mask, no depth or no camera)."""
+        # loaded with the network only: a run without detectors loads none (test_startup)
         from .hand_presence import hand_probability
 
         self.probability_ = float("nan")

@@ -191,6 +191,7 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
                          st.start.detector_accept_mm)
     presence = None
     if st.start.presence:
+        # loaded when named, as the depth detector is (a run without detectors loads none)
         from .hand_presence import load_presence
 
         presence = HandPresence(load_presence(st.start.presence), st.start.presence_below, stats)
