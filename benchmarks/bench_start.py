@@ -4,8 +4,8 @@ hands 0.8/1.0/1.5× with fingers ±10 %) tracked alone by a fresh tracker at the
 the tracker without a detector (``--no-detector``: every start the full search) and with ``start.detector``
 (the default: the keypoint CNN's hand fitted first, the full search only when that scores above
 ``start.detector_accept_mm``), one core, the
-same frames in the same run; and the default, which also asks the hand-presence network (``start.presence``)
-before it searches a region. Per variant: frames found (not "no hand"), the mean keypoint error's
+same frames in the same run; and with the hand-presence network (``--presence``, ``start.presence``, opt-in)
+asked before a region is searched. Per variant: frames found (not "no hand"), the mean keypoint error's
 mean / median over them, frames within 10 mm, the frames whose full search was skipped, wall ms per start.
 
 Run: .venv/bin/python benchmarks/bench_start.py [--frames 0,10,20,30,40] [--detector hand-keypoints-cnn]
@@ -62,13 +62,14 @@ def main():
     ap.add_argument("--motions", default="fist-palm,fist-side,pinch,grasp-back")
     ap.add_argument("--detector", default="hand-keypoints-cnn")
     ap.add_argument("--accept", type=float, default=TrackerSettings().start.detector_accept_mm)
-    ap.add_argument("--presence", default=TrackerSettings().start.presence)
+    ap.add_argument("--presence", default="hand-presence-cnn")
     a = ap.parse_args()
     frames = [int(f) for f in a.frames.split(",")]
     hand, bundle = HandModel.load(TRACKING_HAND), load_bundle("fingerfist")
     variants = {"the full search (--no-detector)": {"detector": "", "presence": ""},
-                f"{a.detector}'s hand first": {"detector": a.detector, "detector_accept_mm": a.accept, "presence": ""},
-                "+ the presence test (default)": {"detector": a.detector, "detector_accept_mm": a.accept,
+                f"{a.detector}'s hand first (default)": {"detector": a.detector, "detector_accept_mm": a.accept,
+                                                         "presence": ""},
+                "+ the presence test (--presence)": {"detector": a.detector, "detector_accept_mm": a.accept,
                                                    "presence": a.presence}}
     res = {v: {"mm": [], "ms": [], "skipped": []} for v in variants}
     for motion in a.motions.split(","):

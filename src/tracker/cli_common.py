@@ -267,14 +267,14 @@ OPTION_OF = {"mode": "--mode", "subspace.variance": "--variance", "subspace.n_pc
              "scale.hand_scale": "--hand-scale", "refine.unseen_prior": "--unseen-prior",
              "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride",
              "start.search_budget_ms": "--search-budget-ms", "start.detector": "--detector",
-             "start.detector_accept_mm": "--detector-accept-mm"}
+             "start.detector_accept_mm": "--detector-accept-mm", "start.presence": "--presence"}
 
 
 def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                           prediction, robust, finger_search, projected_steps, hand_scale, check_hand, *,
                           rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
                           threads=None, search_budget_ms=None, detector=None,
-                          detector_accept_mm=None, no_detector=False):
+                          detector_accept_mm=None, no_detector=False, presence=None):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`checked_settings`)."""
     from .errors import TrackerError
@@ -282,10 +282,10 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
 
     if pcs and variance is not None:  # one of them decides the PCs: the other would be ignored silently
         raise TrackerError("--pcs", f"give --pcs or --variance, not both (got {pcs} and {variance})")
-    presence = None
     if no_detector:
-        if detector:
-            raise TrackerError("--no-detector", f"give --detector or --no-detector, not both (got --detector {detector})")
+        if detector or presence:
+            given = f"--detector {detector}" if detector else f"--presence {presence}"
+            raise TrackerError("--no-detector", f"give {given.split()[0]} or --no-detector, not both (got {given})")
         # no learned part at all: neither the keypoint CNN nor the hand-presence network
         detector, presence = "", ""
     groups = {

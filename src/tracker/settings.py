@@ -143,8 +143,9 @@ class StartSettings(SettingsGroup):
         with a budget the result depends on the machine's speed)
     presence : a hand-presence network (a name or file under ``models/detectors/``,
         :mod:`tracker.hand_presence`) asked before a start searches whether its region is a hand at all
-        ("hand-presence-cnn", the newest shipped; "" = none, the paper's: every region is searched, and
-        the fit's rejections decide)
+        ("" = none, the default and the paper's: every region is searched, and the fit's rejections
+        decide; "hand-presence-cnn": the newest shipped, opt-in — it calls a fist seen from the back with
+        no arm in view no hand: docs/experiments/detector.md, "Is it a hand?")
     presence_below : … and the probability below which the region is "no hand" without a search (0.05:
         99 % of the held-out rendered hands above it; docs/experiments/detector.md, "Is it a hand?")
     """
@@ -155,7 +156,7 @@ class StartSettings(SettingsGroup):
     detector: str = "hand-keypoints-cnn"
     detector_accept_mm: float = 1.5
     search_budget_ms: float = 0.0
-    presence: str = "hand-presence-cnn"
+    presence: str = ""
     presence_below: float = 0.05
 
     @classmethod

@@ -129,7 +129,28 @@ def test_settings_check_the_threshold():
     for bad in (-0.1, 1.0, float("nan"), True):
         with pytest.raises(TrackerError, match="presence_below"):
             TrackerSettings().replace(start=dict(presence_below=bad)).check()
-    assert TrackerSettings.paper().start.presence == ""
+    # opt-in: it calls a fist seen from the back with no arm in view no hand (below)
+    assert TrackerSettings.paper().start.presence == "" and TrackerSettings().start.presence == ""
+
+
+def test_a_fist_from_the_back_without_an_arm_is_the_networks_known_miss(model):
+    """Why the network is opt-in: the grasp from the back (the tracker's hand alone, Kinect v1, no noise)
+    closed to a fist, frames 45 and 59, scores below the tracker's threshold (1.1.0: 0.02 and 0.038), where
+    the same hand open scores 1.0. A fist is a hand; this network does not yet know that without its arm."""
+    from handmodel import HandModel
+    from tracker import TRACKING_HAND
+    from tracker.io.cameras import preset
+    from tracker.observe import observe
+    from tracker.sim.motions import make_motion
+    from tracker.sim.render import DepthRenderer
+
+    hand, cam = HandModel.load(TRACKING_HAND), preset("kinect1")
+    theta = make_motion("grasp-back", hand=hand).theta
+    p = []
+    for f in (0, 45, 59):
+        depth = DepthRenderer(hand, cam).render(theta[f], labels=False).depth
+        p.append(hand_probability(depth, cam, observe(depth, cam).mask, "left", model=model))
+    assert p[0] > 0.99 and min(p[1:]) < TrackerSettings().start.presence_below, p
 
 
 def test_a_start_on_no_hand_runs_no_search_and_a_hand_is_still_found():
@@ -199,12 +220,15 @@ def test_cli_names_the_frames_the_network_called_no_hand(tmp_path):
     with RecordingWriter(tmp_path / "rec", cam, fps=30, handedness="right") as w:
         w.write(empty)
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--plane", "keep", "--no-check-hand", "--threads",
-                                 "1", "-o", str(tmp_path / "t.csv")])
+                                 "1", "--presence", "hand-presence-cnn", "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
     assert "no hand: on 1 frame what was segmented is no hand (1 that the hand-presence network " \
            "(hand-presence-cnn) called no hand (p < 0.05))" in out
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--plane", "keep", "--no-check-hand", "--threads",
-                                 "1", "--no-detector", "-o", str(tmp_path / "u.csv")])
-    # without it the torso is searched, sized and refused at the end of the sizes searched
+                                 "1", "-o", str(tmp_path / "u.csv")])
+    # without it (the default) the torso is searched, sized and refused at the end of the sizes searched
     assert r.exit_code == 0 and "1 fitted at the end of the hand sizes searched" in " ".join(r.output.split())
+    r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--presence", "hand-presence-cnn", "--no-detector",
+                                 "-o", str(tmp_path / "v.csv")])
+    assert r.exit_code == 2 and "--no-detector: give --presence or --no-detector, not both" in r.stderr, r.output
