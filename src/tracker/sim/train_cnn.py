@@ -132,20 +132,24 @@ def _draw(recipe_dict: dict, seed: int, indices) -> list:
     return [sample_of(draw_scene(recipe, np.random.default_rng([seed, i]))) for i in indices]
 
 
+def in_chunks(draw, args: tuple, n: int, chunk: int, jobs: int, serial_below: int) -> list:
+    """``[draw(*args, indices) for each chunk of 0…n−1]``, in order: in this process when ``jobs`` ≤ 1 or
+    ``n`` < ``serial_below``, else in ``jobs`` spawned processes (``draw`` a module-level function)."""
+    chunks = [range(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+    if jobs <= 1 or n < serial_below:
+        return [draw(*args, c) for c in chunks]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
+        return list(ex.map(draw, *([a] * len(chunks) for a in args), chunks))
+
+
 def draw_samples(recipe: DataRecipe, seed: int, n: int, jobs: int = 1) -> list:
     """Samples of crops ``(seed, 0…n−1)`` (:func:`tracker.sim.dataset.draw_crops`'s scenes), drawn by
     ``jobs`` processes; crops whose hand shows too few pixels are left out."""
-    chunks = [range(a, min(a + 100, n)) for a in range(0, n, 100)]
-    if jobs <= 1 or n < 200:
-        out = [s for c in chunks for s in _draw(recipe.to_dict(), seed, c)]
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            parts = ex.map(_draw, [recipe.to_dict()] * len(chunks), [seed] * len(chunks), chunks)
-            out = [s for p in parts for s in p]
-    return [s for s in out if s is not None]
+    parts = in_chunks(_draw, (recipe.to_dict(), seed), n, 100, jobs, 200)
+    return [s for p in parts for s in p if s is not None]
 
 
 def jitter_box(s: Sample, rng, st: CnnSettings) -> tuple:
@@ -178,6 +182,15 @@ def batch_arrays(samples, boxes):
 
 
 # ----------------------------------------------------------------------------- the network
+def down_block(i, o):
+    """Two 3×3 convolutions (the second of stride 2), each with batch norm and ReLU: ``i`` → ``o`` channels,
+    the side halved (both networks' backbone)."""
+    from torch import nn
+
+    return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.BatchNorm2d(o), nn.ReLU(),
+                         nn.Conv2d(o, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU())
+
+
 def build_net(head: str):
     """The network (a ``torch.nn.Module``): input ``(B, 1, 64, 64)``; outputs keypoints ``(B, 21, 3)``
     and spread ``(B, 21)``."""
@@ -187,9 +200,7 @@ def build_net(head: str):
     if head not in ("heatmap", "regression"):
         raise TrackerError("head", f"must be heatmap or regression, got {head!r}")
 
-    def block(i, o):
-        return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.BatchNorm2d(o), nn.ReLU(),
-                             nn.Conv2d(o, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU())
+    block = down_block
 
     def conv(i, o):
         return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.BatchNorm2d(o), nn.ReLU())
@@ -255,40 +266,56 @@ def heatmap_loss(logp, Y, gx, gy, sigma: float = 1.0 / HEATMAP_SIDE):
     return -(t * logp).sum(2).mean()
 
 
-def fit(samples, st: CnnSettings, seed: int, progress=None):
-    """The trained network and its loss per epoch. Seeded: torch's generator and the boxes' and the
-    batches' numpy generator ``(seed, 2)``."""
+def train(make_net, batch_loss, n: int, st, seed: int, progress=None):
+    """The network ``make_net()`` trained on ``n`` items and its loss per epoch: AdamW (``st.lr``,
+    ``st.weight_decay``) with a one-cycle schedule over ``st.epochs`` passes in batches of ``st.batch``
+    on ``st.threads`` threads; ``batch_loss(net, indices, rng)`` gives a batch's loss. Seeded: torch's
+    generator (before the network is made) and the numpy generator ``(seed, 2)`` that orders each pass
+    and is handed to ``batch_loss`` (both networks' :func:`fit`)."""
     torch = require_torch()
     say = progress or (lambda msg: None)
     torch.manual_seed(seed)
     torch.set_num_threads(st.threads)
     rng = np.random.default_rng([seed, 2])
-    net = build_net(st.head)
+    net = make_net()
     opt = torch.optim.AdamW(net.parameters(), st.lr, weight_decay=st.weight_decay)
-    steps = st.epochs * int(np.ceil(len(samples) / st.batch))
+    steps = st.epochs * int(np.ceil(n / st.batch))
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, st.lr, total_steps=steps, pct_start=0.1)
     losses = []
     for ep in range(st.epochs):
         net.train()
-        perm = rng.permutation(len(samples))
+        perm = rng.permutation(n)
         total, t0 = 0.0, time.perf_counter()
         for k in range(0, len(perm), st.batch):
-            sel = [samples[i] for i in perm[k:k + st.batch]]
-            X, Y = batch_arrays(sel, [jitter_box(s, rng, st) for s in sel])
-            Y = torch.from_numpy(Y)
-            kp, _, logp = net(torch.from_numpy(X[:, None]), True)
-            loss = torch.nn.functional.smooth_l1_loss(kp, Y, beta=0.02)
-            if logp is not None and st.heatmap_weight > 0:
-                loss = loss + st.heatmap_weight * heatmap_loss(logp, Y, net.gx, net.gy)
+            sel = perm[k:k + st.batch]
+            loss = batch_loss(net, sel, rng)
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
             total += loss.item() * len(sel)
-        losses.append(round(total / len(samples), 5))
+        losses.append(round(total / n, 5))
         say(f"epoch {ep + 1}/{st.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t0:.0f} s)")
     net.eval()
     return net, losses
+
+
+def fit(samples, st: CnnSettings, seed: int, progress=None):
+    """The trained network and its loss per epoch (:func:`train`): each batch's boxes jittered as a
+    segmentation errs (:func:`jitter_box`, the batches' generator)."""
+    torch = require_torch()
+
+    def batch_loss(net, sel, rng):
+        batch = [samples[i] for i in sel]
+        X, Y = batch_arrays(batch, [jitter_box(s, rng, st) for s in batch])
+        Y = torch.from_numpy(Y)
+        kp, _, logp = net(torch.from_numpy(X[:, None]), True)
+        loss = torch.nn.functional.smooth_l1_loss(kp, Y, beta=0.02)
+        if logp is not None and st.heatmap_weight > 0:
+            loss = loss + st.heatmap_weight * heatmap_loss(logp, Y, net.gx, net.gy)
+        return loss
+
+    return train(lambda: build_net(st.head), batch_loss, len(samples), st, seed, progress)
 
 
 def export_onnx(net, output_names=("keypoints", "spread"), channels: int = 1) -> bytes:

@@ -43,7 +43,7 @@ from .clutter import Clutter
 from .dataset import Crop, DataRecipe, draw_scene
 from .noise import NoiseModel
 from .render import DepthRenderer
-from .train_cnn import export_onnx, model_output, require_torch, training_record
+from .train_cnn import down_block, export_onnx, in_chunks, model_output, require_torch, train, training_record
 from .train_detector import HELDOUT_SEED_OFFSET, _r
 
 #: A hand's extent (m) at size 1 from wrist to the middle fingertip, open: the random boxes' size.
@@ -205,19 +205,10 @@ def _draw(recipe_dict: dict, st_dict: dict, seed: int, indices) -> tuple:
 
 
 def draw_presence(recipe: DataRecipe, st: PresenceSettings, seed: int, n: int, jobs: int = 1) -> tuple:
-    """``(X (N, 64, 64) float32, y (N,) uint8, kinds)`` of scenes ``(seed, 0…n−1)`` drawn with the whole
+    """``(X (N, 2, 64, 64) float32, y (N,) uint8, kinds)`` of scenes ``(seed, 0…n−1)`` drawn with the whole
     frame as the window, by ``jobs`` processes."""
     whole = replace(recipe, window_m=100.0)
-    chunks = [range(a, min(a + 50, n)) for a in range(0, n, 50)]
-    if jobs <= 1 or n < 100:
-        parts = [_draw(whole.to_dict(), st.to_dict(), seed, c) for c in chunks]
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            parts = list(ex.map(_draw, [whole.to_dict()] * len(chunks), [st.to_dict()] * len(chunks),
-                                [seed] * len(chunks), chunks))
+    parts = in_chunks(_draw, (whole.to_dict(), st.to_dict(), seed), n, 50, jobs, 100)
     X = [x for p in parts for x in p[0]]
     y = [v for p in parts for v in p[1]]
     kind = [k for p in parts for k in p[2]]
@@ -232,15 +223,11 @@ def build_net():
     require_torch()
     from torch import nn
 
-    def block(i, o):
-        return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.BatchNorm2d(o), nn.ReLU(),
-                             nn.Conv2d(o, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU())
-
     class Net(nn.Module):
         def __init__(self):
             super().__init__()
-            self.features = nn.Sequential(block(2, 16), block(16, 32), block(32, 48), block(48, 64),
-                                          nn.AdaptiveAvgPool2d(1), nn.Flatten())
+            self.features = nn.Sequential(down_block(2, 16), down_block(16, 32), down_block(32, 48),
+                                          down_block(48, 64), nn.AdaptiveAvgPool2d(1), nn.Flatten())
             self.out = nn.Linear(64, 1)
 
         def forward(self, x, logits: bool = False):
@@ -264,41 +251,21 @@ class TorchPresence:
 
 
 def fit(X, y, st: PresenceSettings, seed: int, progress=None):
-    """The trained network and its loss per epoch. Seeded (torch's generator, the batches' ``(seed, 2)``);
-    each batch mirrored left–right at random (a hand's side is the input's mirroring; a non-hand has none)."""
+    """The trained network and its loss per epoch (:func:`tracker.sim.train_cnn.train`); each batch mirrored
+    left–right at random (a hand's side is the input's mirroring; a non-hand has none)."""
     torch = require_torch()
-    say = progress or (lambda msg: None)
-    torch.manual_seed(seed)
-    torch.set_num_threads(st.threads)
-    rng = np.random.default_rng([seed, 2])
-    net = build_net()
-    opt = torch.optim.AdamW(net.parameters(), st.lr, weight_decay=st.weight_decay)
-    steps = st.epochs * int(np.ceil(len(X) / st.batch))
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, st.lr, total_steps=steps, pct_start=0.1)
     # the classes weighed equally whatever their counts
-    w_pos = float((y == 0).sum()) / max(float((y == 1).sum()), 1.0)
-    losses = []
-    for ep in range(st.epochs):
-        net.train()
-        perm = rng.permutation(len(X))
-        total, t0 = 0.0, time.perf_counter()
-        for k in range(0, len(perm), st.batch):
-            sel = perm[k:k + st.batch]
-            xb = X[sel].copy()
-            flip = rng.random(len(sel)) < 0.5
-            xb[flip] = xb[flip, :, :, ::-1]
-            yb = torch.from_numpy(y[sel].astype(np.float32))
-            z = net(torch.from_numpy(xb), logits=True)
-            loss = torch.nn.functional.binary_cross_entropy_with_logits(z, yb, pos_weight=torch.tensor(w_pos))
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            total += loss.item() * len(sel)
-        losses.append(round(total / len(X), 5))
-        say(f"epoch {ep + 1}/{st.epochs}: loss {losses[-1]:.4f} ({time.perf_counter() - t0:.0f} s)")
-    net.eval()
-    return net, losses
+    w_pos = torch.tensor(float((y == 0).sum()) / max(float((y == 1).sum()), 1.0))
+
+    def batch_loss(net, sel, rng):
+        xb = X[sel].copy()
+        flip = rng.random(len(sel)) < 0.5
+        xb[flip] = xb[flip, :, :, ::-1]
+        z = net(torch.from_numpy(xb), logits=True)
+        return torch.nn.functional.binary_cross_entropy_with_logits(z, torch.from_numpy(y[sel].astype(np.float32)),
+                                                                    pos_weight=w_pos)
+
+    return train(build_net, batch_loss, len(X), st, seed, progress)
 
 
 # ----------------------------------------------------------------------------- evaluation
