@@ -10,6 +10,7 @@ Every part has the one interface :class:`FramePart`: its counts go to the tracke
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Protocol
 
 import numpy as np
@@ -279,17 +280,14 @@ class HandPresence:
 
     def absent(self, sil, hand: str) -> bool:
         """Whether the frame's :class:`tracker.correspond.Silhouette` region is no hand (False where it
-        cannot be asked: no mask, no depth or no camera)."""
+        cannot be asked: no mask, no depth or no camera), asked as the keypoint detector is
+        (:func:`tracker.keypoint_fit.detect_in`: the whole frame's depth, the segmentation as the mask)."""
         # loaded with the network only: a run without detectors loads none (test_startup)
         from .hand_presence import hand_probability
+        from .keypoint_fit import detect_in
 
-        self.probability_ = float("nan")
-        if sil is None or sil.empty or sil.camera is None:
-            return False
-        depth = sil.frame_depth if getattr(sil, "frame_depth", None) is not None else sil.depth
-        if depth is None:
-            return False
-        self.probability_ = hand_probability(depth, sil.camera, sil.mask, hand, model=self.model)
+        p = detect_in(partial(hand_probability, model=self.model), sil, hand)
+        self.probability_ = float("nan") if p is None else p
         absent = bool(self.probability_ < self.below)  # NaN: no answer, not "no hand"
         self.stats.not_hands += absent
         return absent
@@ -403,8 +401,6 @@ def depth_detector(name: str):
     onnxruntime) for ``.onnx`` files and names starting with ``hand-keypoints``, else the hand-part
     forest (:mod:`tracker.detector`). Loaded here, once: a missing or damaged file is a
     :class:`tracker.errors.TrackerError` when the tracker is built, not on its first start."""
-    from functools import partial
-
     if str(name).endswith(".onnx") or str(name).startswith("hand-keypoints"):
         from .keypoint_cnn import detect, load_cnn
 
