@@ -176,16 +176,38 @@ def parabola_scale(context_for, theta, hand_from, points, centre, *, half_width=
     parabola through the scores; its vertex (kept within the probed sizes) is the size, the probe
     nearest it gives θ. Probe scores are noisy at the percent level (each short fit ends a little
     differently), so a golden-section search, which trusts every comparison, wanders by a few percent
-    on a flat score; a parabola averages the noise over every probe. Returns ``(scale, θ, corr, score)``."""
+    on a flat score; a parabola averages the noise over every probe. Returns ``(scale, θ, corr, score)``;
+    :func:`parabola_scale_steps` is the same a probe at a time."""
+    return run_steps(parabola_scale_steps(context_for, theta, hand_from, points, centre, half_width=half_width,
+                                          probes=probes, silhouette=silhouette, normals=normals, n_icp=n_icp))
+
+
+def parabola_scale_steps(context_for, theta, hand_from, points, centre, *, half_width=0.06, probes=7,
+                         silhouette=None, normals=None, n_icp=10):
+    """:func:`parabola_scale` as probes (see :func:`run_steps`): before each probe's fit it yields the
+    ICP iterations that fit costs; its return value is :func:`parabola_scale`'s."""
     x = math.log(centre) + np.linspace(-half_width, half_width, probes)
-    found = [scale_score(context_for, math.exp(v), theta, hand_from, points, silhouette=silhouette,
-                         normals=normals, n_icp=n_icp) for v in x]
+    found = []
+    for v in x:
+        yield n_icp
+        found.append(scale_score(context_for, math.exp(v), theta, hand_from, points, silhouette=silhouette,
+                                 normals=normals, n_icp=n_icp))
     y = np.array([f[0] for f in found])
     a, b, _ = np.polyfit(x - x.mean(), y, 2)
     best = int(np.argmin(y))
     v = x[best] if a <= 0 else float(np.clip(x.mean() - b / (2 * a), x[0], x[-1]))
     near = int(np.argmin(np.abs(x - v)))
     return math.exp(v), found[near][1], found[near][2], float(y[near])
+
+
+def run_steps(steps):
+    """Run the work ``steps`` (a generator that yields a cost before each probe and returns its
+    result) to its end; returns that result."""
+    try:
+        while True:
+            next(steps)
+    except StopIteration as done:
+        return done.value
 
 
 def calibrate_scale_searched(context_for, points, settings: InitSettings | None = None, *, silhouette=None,
@@ -343,6 +365,13 @@ FINGER_PRIOR_SD = 0.06
 
 def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15, probes=5, n_icp=4,
                   limits=(0.8, 1.25), prior_sd=FINGER_PRIOR_SD, spread=None):
+    """Each finger's length factor (:func:`finger_scales_steps`, run at once)."""
+    return run_steps(finger_scales_steps(ctx, base, scale, frames, fingers=fingers, half_width=half_width,
+                                         probes=probes, n_icp=n_icp, limits=limits, prior_sd=prior_sd, spread=spread))
+
+
+def finger_scales_steps(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15, probes=5, n_icp=4,
+                        limits=(0.8, 1.25), prior_sd=FINGER_PRIOR_SD, spread=None):
     """Each finger's length factor on the hand ``base`` × ``scale`` (whose context is ``ctx``), from
     tracked ``frames``: ``(points, normals, silhouette, θ)`` with θ fitted on that hand. Finger by
     finger (the others at their factors found so far), ``probes`` factors evenly spread on log scale
@@ -360,7 +389,8 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
     shrunk towards 1 by ``prior_sd² / (prior_sd² + se²)`` (a normal prior of ``prior_sd`` on the
     log factor; ``prior_sd=None``: no shrinking); a summed parabola that opens downwards says nothing
     and leaves the finger at 1. The factor is then kept within ``limits``. ``spread``: a dict that
-    receives finger name → ``(raw factor, se)``. Returns finger name → factor."""
+    receives finger name → ``(raw factor, se)``. Returns finger name → factor. As probes (see
+    :func:`run_steps`): before each short fit it yields that fit's ICP iterations."""
     found = dict.fromkeys(FINGERS, 1.0)
     x = np.linspace(-half_width, half_width, probes)
     for f in fingers:
@@ -378,6 +408,7 @@ def finger_scales(ctx, base, scale, frames, *, fingers=FINGERS, half_width=0.15,
             for i, (points, normals, sil, _) in enumerate(frames):
                 lowest = np.inf
                 for theta in starts[i]:
+                    yield n_icp
                     th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
                     lowest = min(lowest, size_score(c, th, corr, sil))
                 y[i, k] = lowest
@@ -447,6 +478,7 @@ def calibration_record(tracker, *, recording=None, frames=None) -> dict:
         # each frame fitted from its own start (FrameTracker.calibrate_each), or tracked frame to frame
         "each_frame": bool(getattr(tracker, "calibrated_each_", False)),
         "settings": {"scale_frames": int(st.scale.frames), "scale_refine": st.scale.refine,
+                     "scale_budget": int(st.scale.budget),
                      "finger_lengths": bool(st.scale.finger_lengths), "scale_range": [float(v) for v in st.scale.range]},
         "tool": f"{GENERATOR} {generator_version()} (tracker.scale.calibrated_hand)",
         "written_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),

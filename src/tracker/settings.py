@@ -143,9 +143,11 @@ class StartSettings(SettingsGroup):
         with a budget the result depends on the machine's speed)
     presence : a hand-presence network (a name or file under ``models/detectors/``,
         :mod:`tracker.hand_presence`) asked before a start searches whether its region is a hand at all
-        ("" = none, the default and the paper's: every region is searched, and the fit's rejections
-        decide; "hand-presence-cnn": the newest shipped, opt-in — it calls a fist seen from the back with
-        no arm in view no hand: docs/experiments/detector.md, "Is it a hand?")
+        ("hand-presence-cnn", the newest shipped; "" = none, the paper's: every region is searched, and
+        the fit's rejections decide). A region it calls no hand is searched all the same when the
+        ``detector``'s hand fits it within ``detector_accept_mm`` (:meth:`tracker.parts.StartSearch.detected_fits`:
+        the network calls a fist seen from the back with no arm in view no hand; without a ``detector``
+        nothing overrules it): docs/experiments/detector.md, "Is it a hand?"
     presence_below : … and the probability below which the region is "no hand" without a search (0.05:
         99 % of the held-out rendered hands above it; docs/experiments/detector.md, "Is it a hand?")
     """
@@ -156,7 +158,7 @@ class StartSettings(SettingsGroup):
     detector: str = "hand-keypoints-cnn"
     detector_accept_mm: float = 1.5
     search_budget_ms: float = 0.0
-    presence: str = ""
+    presence: str = "hand-presence-cnn"
     presence_below: float = 0.05
 
     @classmethod
@@ -188,8 +190,12 @@ class ScaleSettings(SettingsGroup):
     frames : frames whose estimates the automatic size is the median of (5)
     trust_mm : while the calibrated frames' fits score above this (mm), the next frame is calibrated
         again (6.0)
-    refine : how the next frames estimate it, "search" (each calibrated alone) or "local" (around
-        the current size) ("search")
+    refine : how the next frames estimate it, "search" (each calibrated alone), "local" (around
+        the current size) or "checked" (around the current size, calibrated alone only where that
+        disagrees) ("checked")
+    budget : the ICP iterations of size work (probe fits) a tracked frame spends at most: the
+        refining estimates and the finger lengths are spread over the frames, a probe at a time
+        (≥ 0; 0 = each done on its frame at once; 40)
     finger_lengths : with "auto", each finger's length factor too (True, the paper: False)
     range : the sizes searched, (low, high) factors ((0.6, 2.0))
     """
@@ -197,7 +203,8 @@ class ScaleSettings(SettingsGroup):
     hand_scale: float | str = "auto"
     frames: int = 5
     trust_mm: float = 6.0
-    refine: str = "search"
+    refine: str = "checked"
+    budget: int = 40
     finger_lengths: bool = True
     range: tuple = (0.6, 2.0)
 
@@ -212,7 +219,11 @@ class ScaleSettings(SettingsGroup):
         ok = v == "auto" if isinstance(v, str) else math.isfinite(v) and lo <= v <= hi
         _need(ok, "scale.hand_scale", f"must be 'auto' or a factor in {lo:g}–{hi:g} (the hand model's size × it), "
                                       f"got {v!r}")
-        _need(self.refine in ("search", "local"), "scale.refine", f"must be 'search' or 'local', got {self.refine!r}")
+        _need(self.refine in ("search", "local", "checked"), "scale.refine",
+              f"must be 'search', 'local' or 'checked', got {self.refine!r}")
+        b = self.budget
+        _need(isinstance(b, (int, float)) and not isinstance(b, bool) and b >= 0 and float(b).is_integer(), "scale.budget",
+              f"must be a whole number of ICP iterations ≥ 0 (0 = no bound), got {self.budget!r}")
 
 
 @dataclass(frozen=True)

@@ -19,9 +19,9 @@ from .parts import TrackerStats, frame_silhouette, silhouette_mask, usable_point
 from .resize import resized_context
 from .scale import (
     calibrate_scale,
-    finger_scales,
+    finger_scales_steps,
     hand_side,
-    parabola_scale,
+    parabola_scale_steps,
     rescaled,
     size_score,
 )
@@ -30,6 +30,42 @@ from .scale import (
 #: when its size differs from the tracked fit's by more than this (log; 6 %, as
 #: :func:`tracker.scale.calibrate_scale` searches again when the size moved so far).
 SIZE_RESTART_LOG = 0.06
+
+
+class SpreadWork:
+    """Size work done a probe at a time, spread over frames: ``steps`` yields each probe's cost (ICP
+    iterations) before it runs the probe, and returns the work's result (as
+    :func:`tracker.scale.parabola_scale_steps` and :func:`tracker.scale.finger_scales_steps`).
+
+    Attributes
+    ----------
+    finished : whether the work is done; result : what it returned then
+    """
+
+    def __init__(self, steps):
+        self.steps, self.finished, self.result = steps, False, None
+        self._cost = None  # the next probe's cost; None: not asked yet
+
+    def run(self, budget: int, spent: int = 0) -> int:
+        """Run probes while the frame's ICP iterations (``spent`` so far) stay within ``budget``, at
+        least one probe a frame (0: every probe); returns the iterations spent then. Counted in
+        iterations, not time: the same frames get the same work on any machine."""
+        while not self.finished:
+            if self._cost is None:
+                self._advance()  # up to the first probe (no fit)
+                continue
+            if budget and spent and spent + self._cost > budget:
+                break
+            spent += self._cost
+            self._advance()
+        return spent
+
+    def _advance(self):
+        """Run the work up to its next probe (the one whose cost it then yields) or its end."""
+        try:
+            self._cost = next(self.steps)
+        except StopIteration as end:
+            self.finished, self.result = True, end.value
 
 
 def fit_context(hand, settings, synergies=None):
@@ -109,6 +145,9 @@ class SizeCalibration:
     finger_scales_, finger_spread_ : finger → length factor (None: the model's), and its estimate
         before shrinking with its standard error
     calibrated_each_ : calibrated by :meth:`calibrate_each` (stills), not while tracking
+    work_ : the ICP iterations of size work each refining frame spent (:meth:`refine`; a frame's own
+        search not counted)
+    searches_ : refining frames calibrated on their own because their local estimate disagreed
     """
 
     def __init__(self, settings, init, margin_mm: float, stats: TrackerStats | None = None):
@@ -121,6 +160,9 @@ class SizeCalibration:
         self.calibrated_each_ = False
         self._open = False  # an automatic size not settled yet: the next frame is calibrated again
         self._frames = []  # (points, normals, silhouette, θ, hand) of the frames that refined the size
+        self._work = None  # ("estimate" | "fingers", SpreadWork, its frame | spread dict): work under way
+        self._queued = []  # (points, normals, silhouette, θ, hand) of refining frames whose estimate is to come
+        self.work_, self.searches_ = [], 0
 
     def reset(self):
         pass
@@ -130,8 +172,9 @@ class SizeCalibration:
         return self.auto and (self.scale_ is None or self._open)
 
     def refining(self) -> bool:
-        """Whether a tracked frame adds an estimate (:meth:`refine`)."""
-        return not self.calibrated_each_ and len(self.scale_estimates_) < (self.settings.frames if self.auto else 0)
+        """Whether a tracked frame adds an estimate or goes on with the size's work (:meth:`refine`)."""
+        return not self.calibrated_each_ and (len(self.scale_estimates_) < (self.settings.frames if self.auto else 0)
+                                              or self._work is not None or bool(self._queued))
 
     def calibrate(self, tr, pts, nrm, sil):
         """``(θ, corr, found)`` of a frame fitted with :func:`tracker.scale.calibrate_scale`; a fit that
@@ -177,26 +220,81 @@ class SizeCalibration:
                 "size_guess": keypoint_scale(det, tr.context_for(1.0).hand)}
 
     def refine(self, tr, pts, nrm, sil):
-        """One more tracked frame's size estimate; the size becomes the median of the estimates, θ
-        follows it. ``refine="search"``: the frame calibrated on its own (one frame's wrong size is
-        outvoted); ``"local"``: :func:`tracker.scale.parabola_scale` around the current size."""
-        s, st = self.scale_, self.settings
-        found = None
-        if st.refine == "search":
-            tr.cue.add(sil)
-            est, th_est, _ = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
-                                             scale_range=st.range, **self._detected(tr, sil))
-            if abs(math.log(est / s)) > SIZE_RESTART_LOG:
-                # a size far from the tracked fit's: its search may hold a better start (its hand taken
-                # before the probed sizes' contexts are dropped)
-                found = (tr.context_for(est).hand, th_est)
-        else:
-            # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
-            keep = hand_side(pts, tr.hand, tr.theta)
-            pts, nrm = pts[keep], None if nrm is None else nrm[keep]
-            sub = thin(pts, self.init.refine_points)
-            est, _, _, _ = parabola_scale(tr.context_for, tr.theta, tr.hand, pts[sub], s, silhouette=sil,
-                                          normals=None if nrm is None else nrm[sub])
+        """One more tracked frame's part in the size: its estimate, the size the median of the estimates,
+        θ following it; once ``frames`` estimates are in, each finger's length. ``refine="search"``: the
+        frame calibrated on its own (one frame's wrong size is outvoted); ``"local"``:
+        :func:`tracker.scale.parabola_scale` around the current size from the tracked fit; ``"checked"``:
+        that, and the frame calibrated on its own instead where the tracked fit is poor (:meth:`disagrees`).
+        The local estimates and the finger lengths run as probes (:class:`SpreadWork`): this frame
+        spends at most ``budget`` ICP iterations on them (at least one probe; 0 = all at once) and
+        the next tracked frames go on where it stopped. The frames that refine are still the first
+        ``frames`` − 1 tracked ones (each kept until its estimate's turn: frames later in a motion
+        gave other sizes and finger lengths, a hand 0.8× on a table 2.6 → 3.1 mm); a frame's own
+        search is not split."""
+        st = self.settings
+        if len(self.scale_estimates_) + len(self._queued) + (self._work is not None) < st.frames:
+            if st.refine == "search":
+                self._searched(tr, pts, nrm, sil)
+            else:
+                self._queued.append((pts, nrm, sil, tr.theta.copy(), tr.hand))
+        spent = 0
+        while True:
+            if self._work is None and self._queued:
+                self._work = ("estimate", *self._local_work(tr, *self._queued.pop(0)))
+            if self._work is None:
+                break
+            kind, work, frame = self._work
+            spent = work.run(st.budget, spent)
+            if not work.finished:
+                break
+            self._work = None
+            if kind == "fingers":
+                self._fingers_found(tr, work.result, frame)
+            elif st.refine == "checked" and self.disagrees(work.result[0], work.result[3]):
+                # the tracked fit cannot tell the size: this frame's own search does (and may hold a better start)
+                self.searches_ += 1
+                self._searched(tr, pts, nrm, sil)
+            else:
+                self._add_estimate(tr, work.result[0], frame)
+        self.work_.append(spent)
+
+    def disagrees(self, est, score_mm) -> bool:
+        """Whether a local estimate (its probe's size score ``score_mm``) cannot be trusted: the
+        tracked fit explains its frame poorly at every probed size (above ``trust_mm``: a wrong posture
+        or orientation). An estimate at the edge of the probes (±6 %) is kept: the median moves the
+        size that way and the next frame probes around it (on the 1.5× fast sweeps the edge's searches
+        found 1.50 and 1.14, the local estimates 1.39–1.49)."""
+        return score_mm > self.settings.trust_mm
+
+    def _local_work(self, tr, pts, nrm, sil, theta, hand):
+        """``(work, frame)``: the probes of :func:`tracker.scale.parabola_scale_steps` around the current
+        size from a frame's tracked fit ``theta`` on ``hand``, and the frame as the finger lengths take it."""
+        # the points on the fingers' side of this frame's wrist (forearm points reward a larger hand)
+        keep = hand_side(pts, hand, theta)
+        cut, cut_nrm = pts[keep], None if nrm is None else nrm[keep]
+        sub = thin(cut, self.init.refine_points)
+        steps = parabola_scale_steps(tr.context_for, theta, hand, cut[sub], self.scale_, silhouette=sil,
+                                     normals=None if cut_nrm is None else cut_nrm[sub])
+        return SpreadWork(steps), (pts, nrm, sil, theta, hand)
+
+    def _searched(self, tr, pts, nrm, sil):
+        """This frame calibrated on its own (:func:`tracker.scale.calibrate_scale`) as its estimate; its
+        search may replace the tracked fit (:meth:`take_better_start`)."""
+        s = self.scale_
+        tr.cue.add(sil)
+        est, th_est, _ = calibrate_scale(tr.context_for, pts, self.init, silhouette=sil, normals=nrm,
+                                         scale_range=self.settings.range, **self._detected(tr, sil))
+        # a size far from the tracked fit's: its search may hold a better start (its hand taken before the
+        # probed sizes' contexts are dropped)
+        found = (tr.context_for(est).hand, th_est) if abs(math.log(est / s)) > SIZE_RESTART_LOG else None
+        self._add_estimate(tr, est, None, (pts, nrm, sil), found)
+
+    def _add_estimate(self, tr, est, frame, seen=None, found=None):
+        """Add the estimate ``est`` of a frame (``frame``: its ``(points, normals, silhouette, θ, hand)``;
+        None: the frame ``seen`` = ``(points, normals, silhouette)``, its θ the tracked one after the size
+        is updated and ``found``, a better start, is tried); once ``frames`` estimates are in, the finger
+        lengths' work begins."""
+        st, s = self.settings, self.scale_
         est = float(np.clip(est, *st.range))
         keep_key = round(float(np.median(self.scale_estimates_ + [est])), 5)
         # the sizes the search probed are not needed again
@@ -211,11 +309,11 @@ class SizeCalibration:
             tr.prev = None if tr.prev is None else rescaled(old, tr.hand, tr.prev)
             tr.last_good = tr.theta
         if found is not None:
-            self.take_better_start(tr, pts, nrm, sil, *found)
+            self.take_better_start(tr, *seen, *found)
         if st.finger_lengths:
-            self._frames.append((pts, nrm, sil, tr.theta.copy(), tr.hand))
+            self._frames.append(frame if frame is not None else (*seen, tr.theta.copy(), tr.hand))
         if st.finger_lengths and len(self.scale_estimates_) >= st.frames:
-            self.find_finger_lengths(tr)
+            self._work = ("fingers", *self._finger_work(tr))
 
     def take_better_start(self, tr, pts, nrm, sil, hand_est, theta_est) -> bool:
         """While the size is refined by searches, the tracked θ is replaced by this frame's search
@@ -238,15 +336,26 @@ class SizeCalibration:
 
     def find_finger_lengths(self, tr):
         """Each finger's length factor at the settled size, from the frames that refined it (their θ
-        moved onto the settled hand; :func:`tracker.scale.finger_scales`); θ keeps its meaning."""
+        moved onto the settled hand; :func:`tracker.scale.finger_scales`), at once; θ keeps its meaning."""
+        work, spread = self._finger_work(tr)
+        work.run(0)
+        self._fingers_found(tr, work.result, spread)
+
+    def _finger_work(self, tr):
+        """``(work, spread)``: the probes of :func:`tracker.scale.finger_scales_steps` at the settled size
+        on the frames that refined it, and the dict that receives each finger's unshrunk factor and
+        standard error (the calibration record's spread)."""
         s = self.scale_
         ctx = tr.context_for(s)
         frames = [(p, n, sil, rescaled(h, ctx.hand, th)) for p, n, sil, th, h in self._frames]
-        # finger → (unshrunk factor, its standard error over the frames): the calibration record's spread
-        self.finger_spread_ = {}
-        self.finger_scales_ = finger_scales(ctx, tr.base_hand, s, frames, spread=self.finger_spread_)
         self._frames = []
-        tr.use_scale(s)
+        spread = {}
+        return SpreadWork(finger_scales_steps(ctx, tr.base_hand, s, frames, spread=spread)), spread
+
+    def _fingers_found(self, tr, found, spread):
+        """Track with the finger length factors ``found`` from now on (θ keeps its meaning)."""
+        self.finger_spread_, self.finger_scales_ = spread, found
+        tr.use_scale(self.scale_)
 
     def calibrate_each(self, tr, observations, camera, min_points, max_points):
         """Calibrate on frames each fitted from its own start: each frame's size found alone, the size
