@@ -274,7 +274,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
                           prediction, robust, finger_search, projected_steps, hand_scale, check_hand, *,
                           rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
                           threads=None, search_budget_ms=None, detector=None,
-                          detector_accept_mm=None, no_detector=False, presence=None):
+                          detector_accept_mm=None, no_detector=False, presence=None, no_presence=False):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`checked_settings`)."""
     from .errors import TrackerError
@@ -288,6 +288,10 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
             raise TrackerError("--no-detector", f"give {given.split()[0]} or --no-detector, not both (got {given})")
         # no learned part at all: neither the keypoint CNN nor the hand-presence network
         detector, presence = "", ""
+    if no_presence:
+        if presence:
+            raise TrackerError("--no-presence", f"give --presence or --no-presence, not both (got --presence {presence})")
+        presence = ""
     groups = {
         "observe": dict(stride=stride, smooth=smooth, target_points=points or None),
         "icp": dict(icp_iterations=icp, gn_iterations=gn, damping=damping, silhouette_weight=silhouette,

@@ -21,7 +21,7 @@ from ._wrist_kernels import surface_past_outline
 from .correspond import Silhouette
 from .coupling import restart_uncoupled
 from .icp import centre_shift, posed_samples
-from .init import SearchBudget, fit_single_frame, seeded_search
+from .init import SearchBudget, detected_fit, fit_single_frame, seeded_search
 from .observe import past_wrist, predicted_near
 from .rgb import RgbSeed
 from .wrist import arm_behind, wrist_cue
@@ -50,6 +50,8 @@ class TrackerStats:
         their time (ms)
     not_hands : starts whose region the hand-presence network called no hand (``start.presence``): no
         search ran
+    hands_fitted : starts the network called no hand where the detected hand fitted the region as an
+        accepted start does (:meth:`StartSearch.detected_fits`): searched as hands
     """
 
     net_runs: int = 0
@@ -74,6 +76,7 @@ class TrackerStats:
     searches_cut: int = 0
     search_ms: float = 0.0
     not_hands: int = 0
+    hands_fitted: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""
@@ -268,8 +271,10 @@ class LossCheck:
 class HandPresence:
     """Whether a start's region is a hand at all, asked of the hand-presence network
     (:mod:`tracker.hand_presence`, ``start.presence``) before any search: a region it calls no hand
-    (probability below ``below``) is "no hand" at once, counted in ``stats.not_hands``; the last
-    answer is ``probability_`` (NaN: the region had no box, or the frame no depth)."""
+    (probability below ``below``) is "no hand" without a search, counted in ``stats.not_hands``, unless
+    the model fit says otherwise (``fits``: :meth:`StartSearch.detected_fits`, counted in
+    ``stats.hands_fitted``); the last answer is ``probability_`` (NaN: the region had no box, or the
+    frame no depth)."""
 
     def __init__(self, model, below: float, stats: TrackerStats | None = None):
         self.model, self.below, self.stats = model, float(below), stats or TrackerStats()
@@ -278,10 +283,11 @@ class HandPresence:
     def reset(self):
         pass
 
-    def absent(self, sil, hand: str) -> bool:
+    def absent(self, sil, hand: str, fits=None) -> bool:
         """Whether the frame's :class:`tracker.correspond.Silhouette` region is no hand (False where it
         cannot be asked: no mask, no depth or no camera), asked as the keypoint detector is
-        (:func:`tracker.keypoint_fit.detect_in`: the whole frame's depth, the segmentation as the mask)."""
+        (:func:`tracker.keypoint_fit.detect_in`: the whole frame's depth, the segmentation as the mask).
+        ``fits()``: whether a hand fitted to the region all the same, asked only when the network says no."""
         # loaded with the network only: a run without detectors loads none (test_startup)
         from .hand_presence import hand_probability
         from .keypoint_fit import detect_in
@@ -289,6 +295,12 @@ class HandPresence:
         p = detect_in(partial(hand_probability, model=self.model), sil, hand)
         self.probability_ = float("nan") if p is None else p
         absent = bool(self.probability_ < self.below)  # NaN: no answer, not "no hand"
+        if absent and fits is not None and fits():
+            # two answers to one question: the network's misses (a fist seen from its back without the
+            # arm, 0.01-0.07) are fitted within 0.2 mm; the regions it turned away on the harder scenes
+            # (a forearm's end, a torso's edge) fit no better than 2.5 mm (docs/experiments/detector.md)
+            self.stats.hands_fitted += 1
+            return False
         self.stats.not_hands += absent
         return absent
 
@@ -426,9 +438,20 @@ class KeypointSeed:
 
     def start(self, hand, sil) -> tuple:
         """``(θ,)`` fitted to the keypoints detected in the frame's hand region, or ``()``."""
+        return self.fit(self.detection(sil, hand.handedness), hand)
+
+    def detection(self, sil, handedness: str):
+        """The detector's answer on the frame of ``sil`` (:func:`tracker.keypoint_fit.detect_in`), or None;
+        found once per frame and hand side (kept on the silhouette as ``detected``: the presence
+        test's fit, the start and the size calibration ask for it)."""
         from .keypoint_fit import detect_in
 
-        return self.fit(detect_in(self.detect, sil, hand.handedness), hand)
+        kept = getattr(sil, "detected", None)
+        if kept is None or kept[0] != handedness:
+            kept = (handedness, detect_in(self.detect, sil, handedness))
+            if sil is not None:
+                sil.detected = kept
+        return kept[1]
 
     def fit(self, detection, hand) -> tuple:
         """``(θ,)`` of ``hand`` fitted to a ``detection`` (None: nothing detected), or ``()``; counted in
@@ -499,6 +522,23 @@ class Prediction:
         return pred, recentred, pts, nrm, all_pts, all_nrm
 
 
+def calibration_sizes(base, points, detection, scale_range=(0.6, 2.0), guess=1.1) -> list:
+    """The sizes a size calibration tries first (:func:`tracker.scale.calibrate_scale`): ``guess`` × the
+    open hand's extent or the detected keypoints' size if larger, then ``guess`` × a closed hand's extent
+    (a fist; the keypoint CNN sizes a fist seen from the back 0.79 where it is 1.0). ``base``: the
+    :class:`tracker.init.FitContext` at size 1."""
+    from .keypoint_fit import keypoint_scale
+    from .scale import closed_posture, extent_scale
+
+    lo, hi = scale_range
+    n_post = int((~base.hand.pose_mask).sum())
+    first = guess * extent_scale(base.hand, points, np.zeros(n_post))
+    kp = keypoint_scale(detection, base.hand)
+    first = first if kp is None else max(first, kp)
+    closed = guess * extent_scale(base.hand, points, closed_posture(base))
+    return [float(np.clip(s, lo, hi)) for s in (first, closed)]
+
+
 class StartSearch:
     """A frame fitted without one before it (the first, after a loss): the single-frame search
     (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ, the colour seed
@@ -515,6 +555,27 @@ class StartSearch:
 
     def reset(self):
         pass
+
+    def detected_fits(self, ctx, context_for, pts, nrm, sil, scale_range=(0.6, 2.0)) -> bool:
+        """Whether the detector's hand, fitted to this frame's region (:func:`tracker.init.detected_fit`),
+        scores at most ``accept_mm``: as well as a start accepted without the full search. On ``ctx``'s
+        hand; with ``ctx`` None (the size not known yet) at the size calibration's first guesses
+        (:func:`calibration_sizes`) through ``context_for(scale)``, the first that fits. False without a
+        detector, a detection or a threshold."""
+        if self.keypoints is None or not self.accept_mm:
+            return False
+        from .keypoint_fit import fit_start
+
+        det = self.keypoints.detection(sil, (ctx or context_for(1.0)).hand.handedness)
+        if det is None:
+            return False
+        for c in [ctx] if ctx is not None else [context_for(s) for s in calibration_sizes(context_for(1.0), pts, det,
+                                                                                            scale_range)]:
+            seed = fit_start(det, c.hand, self.keypoints.synergies)
+            if seed is not None and detected_fit(c, pts, self.init, seed, silhouette=sil, normals=nrm,
+                                                 wrist=self.cue.of(sil))[2] <= self.accept_mm:
+                return True
+        return False
 
     def __call__(self, ctx, pts, nrm, sil, last_good, refit, color=None, depth=None, camera=None):
         """``(θ, corr)`` on ``ctx``'s hand; ``refit(start)``: the tracking ICP the colour seed is refined by."""

@@ -343,7 +343,9 @@ class FrameTracker:
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
         if self.loss.too_small(n_in, sil):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
-        if self.presence is not None and self.presence.absent(sil, self.base_hand.handedness):
+        fits = partial(self.search.detected_fits, None if self.sizing.calibrating() else self.context, self.context_for,
+                       pts, nrm, sil, self.settings.scale.range)
+        if self.presence is not None and self.presence.absent(sil, self.base_hand.handedness, fits):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
         if self.sizing.calibrating():
             self.cue.add(sil)

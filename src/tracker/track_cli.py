@@ -66,7 +66,8 @@ def track(
     every: int = typer.Option(1, "--every", help="Recording files: track every N-th frame."),
     rgb_seed: bool = typer.Option(False, "--rgb-seed", help="Start searches also from the hand fitted to MediaPipe's keypoints on the colour frames, lifted with the depth (extra [rgb])."),
     detector: Optional[str] = typer.Option(None, "--detector", help="The depth keypoint detector whose hand the searches start from (starts, size calibration, the safety net's search beyond the tracked pose), the full search only where that fits poorly: a name or file under models/detectors/ [hand-keypoints-cnn, the shipped keypoint CNN; none with --paper]."),
-    presence: Optional[str] = typer.Option(None, "--presence", help="A hand-presence network asked before a start searches whether its region is a hand at all (a region it calls no hand is lost at once): a name or file under models/detectors/, e.g. hand-presence-cnn [none: opt-in, it calls a fist seen from the back without an arm no hand]."),
+    presence: Optional[str] = typer.Option(None, "--presence", help="The hand-presence network asked before a start searches whether its region is a hand at all (a region it calls no hand is lost without a search, unless the detected hand fits it as an accepted start does): a name or file under models/detectors/ [hand-presence-cnn, the shipped network; none with --paper]."),
+    no_presence: bool = typer.Option(False, "--no-presence", help="No hand-presence network: every region is searched and the fit's rejections decide whether it is a hand."),
     no_detector: bool = typer.Option(False, "--no-detector", help="No learned detector (the keypoint CNN, the hand-presence network): every start is the full search (as with --paper)."),
     detector_accept_mm: Optional[float] = typer.Option(None, "--detector-accept-mm", help="The score (mm) at or under which the detected hand's fit is the start and the full search does not run [1.5; 0 = the search always runs]."),
     search_budget_ms: Optional[float] = typer.Option(None, "--search-budget-ms", help="A start search's budget in ms: once spent, its optional stages are skipped and its best start so far converged (the result then depends on the machine's speed; the summary counts the searches cut) [0 = none]."),
@@ -116,7 +117,8 @@ def track(
                              rgb_seed=rgb_seed, finger_lengths=finger_lengths, safety_net=safety_net,
                              unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
                              search_budget_ms=search_budget_ms, detector=detector,
-                             detector_accept_mm=detector_accept_mm, no_detector=no_detector, presence=presence)
+                             detector_accept_mm=detector_accept_mm, no_detector=no_detector, presence=presence,
+                             no_presence=no_presence)
 
         # heavy modules load here, not at import time, so `tracker --help` answers at once
         from .run import TrackJob
@@ -193,6 +195,10 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
         console.print(f"no hand: on {tracker.stats.no_hand} frame{'s' * (tracker.stats.no_hand != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
+    if tracker.stats.hands_fitted:
+        n = tracker.stats.hands_fitted
+        console.print(f"the hand-presence network called {n} frame{'s' * (n != 1)} no hand where the detected hand "
+                      f"fitted within {tracker.settings.start.detector_accept_mm:g} mm: searched as hands")
     if len(rows) and not any(found):
         why = ("nothing segmented looks like a hand" if tracker.stats.no_hand
                else "nothing segmented where a hand can be")

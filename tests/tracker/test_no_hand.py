@@ -119,17 +119,18 @@ def test_the_papers_method_has_no_such_test():
 def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
     bag = shared("sensor_recordings", RECORDINGS[0])
     r = CliRunner().invoke(app, ["track", str(bag), "--hand", "right", "--no-check-hand", "--threads", "1",
-                                 "-o", str(tmp_path / "t.csv")])
+                                 "--no-presence", "-o", str(tmp_path / "t.csv")])
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
     assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 20% of the points)" in out
-    # the hand-presence network (opt-in; 1.1.0: 0.02 and 0.01) turns both frames' region (a wall's edge) away
-    # before any fit
+    # the hand-presence network (the default; 1.1.0: 0.02 and 0.01) turns both frames' region (a wall's edge)
+    # away before any search, and the detected hand does not fit it
     r2 = CliRunner().invoke(app, ["track", str(bag), "--hand", "right", "--no-check-hand", "--threads", "1",
-                                  "--presence", "hand-presence-cnn", "-o", str(tmp_path / "t2.csv")])
+                                  "-o", str(tmp_path / "t2.csv")])
     assert r2.exit_code == 0, r2.output
     assert ("no hand: on 2 frames what was segmented is no hand (2 that the hand-presence network "
             "(hand-presence-cnn) called no hand (p < 0.05))") in " ".join(r2.output.split())
+    assert "searched as hands" not in r2.output
     assert "nothing segmented looks like a hand" in out
     # a fit of the wrong hand is rejected too (7 of the 19 right-hand stills tracked as left): the hint says so
     assert "that the hand is the right one (--hand)" in out
