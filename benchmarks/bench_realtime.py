@@ -16,10 +16,13 @@ sweeps), under Kinect v1 and RealSense SR305 noise, hands 0.8× and 1.5× the mo
 
 ``--search-budget-ms B`` adds this tree with the start searches' budget (``start.search_budget_ms``);
 ``--no-detector`` this tree without the keypoint detector (on by default: ``start.detector``), every
-start the full search.
+start the full search; ``--scale-budget N …`` this tree with each of these size-work budgets
+(``scale.budget``, ICP iterations a frame; 0 = the size's work at once, as before it was spread);
+``--scale-search`` this tree with the size refined as before the spread work (``scale.refine="search"``,
+``scale.budget=0``).
 
 Run: .venv/bin/python benchmarks/bench_realtime.py [--frames 60] [--peer REV] [--no-peer] [--no-stills]
-[--search-budget-ms B] [--no-detector]
+[--search-budget-ms B] [--no-detector] [--scale-budget N ...] [--scale-search] [--only NAME ...]
 """
 from __future__ import annotations
 
@@ -130,11 +133,22 @@ def main():
                     help="also this tree with this start-search budget (start.search_budget_ms)")
     ap.add_argument("--no-detector", action="store_true",
                     help="also this tree without the keypoint detector (start.detector \"\", every start the full search)")
+    ap.add_argument("--scale-budget", type=int, nargs="*", default=[],
+                    help="also this tree with each of these size-work budgets (scale.budget, ICP iterations a frame)")
+    ap.add_argument("--scale-search", action="store_true",
+                    help="also this tree with the size refined as before its work was spread (refine search, budget 0)")
+    ap.add_argument("--only", nargs="*", default=None, help="only the recordings whose name starts with one of these")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
         tmp = Path(tmp)
         recs = make_recordings(tmp / "recs", a.frames, not a.no_stills)
+        if a.only:
+            recs = [r for r in recs if any(r[0].startswith(o) for o in a.only)]
         trees = [("this tree", ROOT / "src", None)]
+        for b in a.scale_budget:
+            trees.append((f"scale.budget {b}", ROOT / "src", {"scale": {"budget": b}}))
+        if a.scale_search:
+            trees.append(("size search", ROOT / "src", {"scale": {"refine": "search", "budget": 0}}))
         if a.search_budget_ms:
             trees.append((f"budget {a.search_budget_ms:g} ms", ROOT / "src",
                           {"start": {"search_budget_ms": a.search_budget_ms}}))

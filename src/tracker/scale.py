@@ -184,12 +184,12 @@ def parabola_scale(context_for, theta, hand_from, points, centre, *, half_width=
 
 def parabola_scale_steps(context_for, theta, hand_from, points, centre, *, half_width=0.06, probes=7,
                          silhouette=None, normals=None, n_icp=10):
-    """:func:`parabola_scale` as probes (see :func:`run_steps`): before each probe's fit it yields the
-    ICP iterations that fit costs; its return value is :func:`parabola_scale`'s."""
+    """:func:`parabola_scale` as probes (see :func:`run_steps`): before each probe's fit it yields that
+    fit's cost (:func:`probe_cost`); its return value is :func:`parabola_scale`'s."""
     x = math.log(centre) + np.linspace(-half_width, half_width, probes)
     found = []
     for v in x:
-        yield n_icp
+        yield probe_cost(n_icp, len(points))
         found.append(scale_score(context_for, math.exp(v), theta, hand_from, points, silhouette=silhouette,
                                  normals=normals, n_icp=n_icp))
     y = np.array([f[0] for f in found])
@@ -198,6 +198,18 @@ def parabola_scale_steps(context_for, theta, hand_from, points, centre, *, half_
     v = x[best] if a <= 0 else float(np.clip(x.mean() - b / (2 * a), x[0], x[-1]))
     near = int(np.argmin(np.abs(x - v)))
     return math.exp(v), found[near][1], found[near][2], float(y[near])
+
+
+#: a short fit's cost as the size's work counts it (:func:`probe_cost`): ICP iterations on this many points
+COST_POINTS = 1500
+
+
+def probe_cost(n_icp, n_points) -> float:
+    """A short fit's cost in ICP iterations on :data:`COST_POINTS` points: an iteration's time has a
+    part that does not grow with the points (the model's samples, the solve), measured 0.17 ms + 0.27 ms
+    per 1000 points on one core (an open hand, 376–1126 points, 4 and 10 iterations)."""
+    per = lambda n: 0.17 + 0.27 * n / 1000.0  # noqa: E731
+    return n_icp * per(n_points) / per(COST_POINTS)
 
 
 def run_steps(steps):
@@ -390,7 +402,7 @@ def finger_scales_steps(ctx, base, scale, frames, *, fingers=FINGERS, half_width
     log factor; ``prior_sd=None``: no shrinking); a summed parabola that opens downwards says nothing
     and leaves the finger at 1. The factor is then kept within ``limits``. ``spread``: a dict that
     receives finger name → ``(raw factor, se)``. Returns finger name → factor. As probes (see
-    :func:`run_steps`): before each short fit it yields that fit's ICP iterations."""
+    :func:`run_steps`): before each short fit it yields that fit's cost (:func:`probe_cost`)."""
     found = dict.fromkeys(FINGERS, 1.0)
     x = np.linspace(-half_width, half_width, probes)
     for f in fingers:
@@ -408,7 +420,7 @@ def finger_scales_steps(ctx, base, scale, frames, *, fingers=FINGERS, half_width
             for i, (points, normals, sil, _) in enumerate(frames):
                 lowest = np.inf
                 for theta in starts[i]:
-                    yield n_icp
+                    yield probe_cost(n_icp, len(points))
                     th, corr = c.fit(theta, points, "full", 0, n_icp, silhouette=sil, normals=normals)
                     lowest = min(lowest, size_score(c, th, corr, sil))
                 y[i, k] = lowest

@@ -193,9 +193,10 @@ class ScaleSettings(SettingsGroup):
     refine : how the next frames estimate it, "search" (each calibrated alone), "local" (around
         the current size) or "checked" (around the current size, calibrated alone only where that
         disagrees) ("checked")
-    budget : the ICP iterations of size work (probe fits) a tracked frame spends at most: the
-        refining estimates and the finger lengths are spread over the frames, a probe at a time
-        (≥ 0; 0 = each done on its frame at once; 40)
+    budget : the size work (short probe fits, in ICP iterations on 1,500 points:
+        :func:`tracker.scale.probe_cost`) a tracked frame spends at most: the refining estimates and
+        the finger lengths are spread over the frames, a probe at a time (≥ 0; 0 = each done on its
+        frame at once, as before; 40)
     finger_lengths : with "auto", each finger's length factor too (True, the paper: False)
     range : the sizes searched, (low, high) factors ((0.6, 2.0))
     """

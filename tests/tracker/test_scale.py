@@ -159,7 +159,9 @@ def test_poor_first_fits_are_calibrated_again_and_the_best_kept(bundle):
     best-scoring one is used; then the tracker tracks and refines the size."""
     hand = BASE.scaled(1.2)
     _, ob, _ = scene(hand, "palm", POSTURES["open"])
-    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", trust_mm=0.0, frames=3)), synergies=bundle)
+    # budget 0: the tracked frame's estimate at once (spread over frames: test_scale_budget.py)
+    tr = FrameTracker(BASE, TrackerSettings().replace(scale=dict(hand_scale="auto", trust_mm=0.0, frames=3, budget=0)),
+                      synergies=bundle)
     status = [tr.track(ob, CAM).status for _ in range(4)]
     assert status[:3] == ["reinit"] * 3 and status[3] == "tracked", status
     assert len(tr.sizing.calibrations_) == 3

@@ -2,13 +2,16 @@
 each frame's probes within the budget in ICP iterations, the same result as the work done at once, the
 size and finger lengths still found on a rendered hand, and ``refine="checked"`` calibrating a frame on its
 own only where the tracked fit explains it poorly."""
+import math
+
 import numpy as np
 import pytest
 from test_init_orientation import CAM, scene
 
 from handmodel import HandModel
 from tracker.errors import TrackerError
-from tracker.scale import parabola_scale, parabola_scale_steps, run_steps
+from tracker.resize import shaped_hand
+from tracker.scale import COST_POINTS, parabola_scale, parabola_scale_steps, probe_cost, run_steps
 from tracker.settings import ScaleSettings
 from tracker.sim.motions import POSTURES
 from tracker.sizing import SpreadWork
@@ -79,11 +82,21 @@ def test_a_parabola_spread_over_frames_finds_what_it_finds_at_once(bundle):
     while not work.finished:
         assert work.run(20) <= 20
         frames += 1
-    assert frames == 4  # 7 probes of 10 iterations, two a frame
+    cost = probe_cost(10, len(pts))
+    assert frames == math.ceil(7 / (20 // cost))  # 7 probes, as many a frame as fit in 20
     spread = work.result
     assert spread[0] == once[0] and spread[3] == once[3]
     np.testing.assert_array_equal(spread[1], once[1])
     assert run_steps(parabola_scale_steps(tr.context_for, start, BASE, pts, 1.1, silhouette=sil))[0] == once[0]
+
+
+def test_a_probe_costs_its_iterations_on_the_reference_points_and_less_on_fewer():
+    """:func:`tracker.scale.probe_cost`: 10 iterations on ``COST_POINTS`` points cost 10; fewer points
+    cost less, but not in proportion (an iteration's fixed part), more points more."""
+    assert probe_cost(10, COST_POINTS) == pytest.approx(10.0)
+    small, large = probe_cost(10, COST_POINTS // 3), probe_cost(10, 2 * COST_POINTS)
+    assert 10.0 / 3 < small < 10.0 < large < 20.0
+    assert probe_cost(4, 500) == pytest.approx(0.4 * probe_cost(10, 500))
 
 
 def track_still(bundle, scale, n, **changes):
@@ -98,7 +111,7 @@ def track_still(bundle, scale, n, **changes):
 
 def test_size_and_fingers_settle_within_the_budget(bundle):
     """Default settings (``refine="checked"``, ``budget`` 40): every refining frame's size work within
-    the budget (a probe costs at most 10 iterations, less than it), spread over more frames than the
+    the budget (a probe costs at most 10, on at most 1,500 points: less than it), spread over more frames than the
     estimates need, and still the size within 3 % of the rendered 1.25× hand, the finger lengths found,
     no frame calibrated on its own (the tracked fit is good), and the size work over once it is done."""
     st = ScaleSettings()
@@ -114,6 +127,21 @@ def test_size_and_fingers_settle_within_the_budget(bundle):
     tr0, _ = track_still(bundle, 1.25, st.frames, budget=0)
     assert len(tr0.sizing.work_) == st.frames - 1 and max(tr0.sizing.work_) > st.budget
     assert tr0.finger_scales_ is not None and abs(tr0.scale_ / 1.25 - 1.0) <= 0.03
+
+
+def test_finish_does_the_rest_at_once(bundle):
+    """A recording that ends while the work is under way (the first calibration and four refining frames
+    kept, their estimates and the finger lengths to come): :meth:`SizeCalibration.finish` does it all,
+    and then there is nothing left to do."""
+    tr, _ = track_still(bundle, 1.25, 5)
+    sz = tr.sizing
+    assert sz.refining() and tr.finger_scales_ is None and len(tr.scale_estimates_) < 5
+    assert sz.finish(tr)
+    assert len(tr.scale_estimates_) == 5 and abs(tr.scale_ / 1.25 - 1.0) <= 0.03 and tr.finger_scales_ is not None
+    assert not sz.refining() and not sz.finish(tr)
+    # the tracked hand has the lengths found
+    th = np.zeros(BASE.n_dofs)
+    np.testing.assert_allclose(tr.hand.keypoints(th), shaped_hand(BASE, tr.scale_, tr.finger_scales_).keypoints(th))
 
 
 def test_checked_calibrates_a_frame_alone_where_the_tracked_fit_is_poor(bundle):
