@@ -148,14 +148,17 @@ def test_the_summary_says_what_a_size_number_brings_back(rec, tmp_path):
 
 @pytest.mark.slow
 def test_calibrate_then_track_on_the_file(rec, tmp_path):
-    """``tracker calibrate`` writes the hand of the first frames; ``track --hand-model`` uses it as it
-    is and says so; neither overwrites an existing file."""
+    """``tracker calibrate`` writes the hand of the first frames (every frame tracked until the size and
+    finger lengths are settled: their work spread over the frames, ``scale.budget``, here the whole
+    six-frame recording); ``track --hand-model`` uses it as it is and says so; neither overwrites an
+    existing file."""
     hand = tmp_path / "me.yaml"
     r = _cli("calibrate", rec / "rec", "-o", hand)
     assert r.exit_code == 0, r.output
     assert f"size (× {TRACKING_HAND})" in r.output and f"wrote {hand}" in r.output
     cal = yaml.safe_load(hand.read_text())["provenance"]["calibration"]
-    assert abs(cal["hand_scale"] / 1.2 - 1) <= 0.03 and cal["frames"] == list(range(5))
+    assert abs(cal["hand_scale"] / 1.2 - 1) <= 0.03 and cal["frames"] == list(range(6))
+    assert len(cal["scale_estimates"]) == 5 and cal["finger_lengths"] is not None
     before = hand.read_bytes()
     _one_error_line(_cli("calibrate", rec / "rec", "-o", hand), hand)
     assert hand.read_bytes() == before
