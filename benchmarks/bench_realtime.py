@@ -19,10 +19,11 @@ sweeps), under Kinect v1 and RealSense SR305 noise, hands 0.8× and 1.5× the mo
 start the full search; ``--scale-budget N …`` this tree with each of these size-work budgets
 (``scale.budget``, ICP iterations a frame; 0 = the size's work at once, as before it was spread);
 ``--scale-search`` this tree with the size refined as before the spread work (``scale.refine="search"``,
-``scale.budget=0``).
+``scale.budget=0``); ``--changes JSON …`` this tree with each of these settings changes.
 
 Run: .venv/bin/python benchmarks/bench_realtime.py [--frames 60] [--peer REV] [--no-peer] [--no-stills]
-[--search-budget-ms B] [--no-detector] [--scale-budget N ...] [--scale-search] [--only NAME ...]
+[--search-budget-ms B] [--no-detector] [--scale-budget N ...] [--scale-search] [--changes JSON ...]
+[--only NAME ...]
 """
 from __future__ import annotations
 
@@ -137,6 +138,8 @@ def main():
                     help="also this tree with each of these size-work budgets (scale.budget, ICP iterations a frame)")
     ap.add_argument("--scale-search", action="store_true",
                     help="also this tree with the size refined as before its work was spread (refine search, budget 0)")
+    ap.add_argument("--changes", nargs="*", default=[],
+                    help="also this tree with each of these settings changes (JSON, e.g. '{\"scale\": {\"refine\": \"search\"}}')")
     ap.add_argument("--only", nargs="*", default=None, help="only the recordings whose name starts with one of these")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
@@ -147,6 +150,8 @@ def main():
         trees = [("this tree", ROOT / "src", None)]
         for b in a.scale_budget:
             trees.append((f"scale.budget {b}", ROOT / "src", {"scale": {"budget": b}}))
+        for c in a.changes:
+            trees.append((c.replace(" ", "")[:14], ROOT / "src", json.loads(c)))
         if a.scale_search:
             trees.append(("size search", ROOT / "src", {"scale": {"refine": "search", "budget": 0}}))
         if a.search_budget_ms:
