@@ -139,7 +139,7 @@ def main():
     ap.add_argument("--scale-search", action="store_true",
                     help="also this tree with the size refined as before its work was spread (refine search, budget 0)")
     ap.add_argument("--changes", nargs="*", default=[],
-                    help="also this tree with each of these settings changes (JSON, e.g. '{\"scale\": {\"refine\": \"search\"}}')")
+                    help="also this tree with each of these settings changes (TrackerSettings.replace as JSON)")
     ap.add_argument("--only", nargs="*", default=None, help="only the recordings whose name starts with one of these")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp:
