@@ -284,6 +284,8 @@ def run_job(job: TrackJob, on_frame=None, *, source=None) -> TrackRun:
             viewer.abort()
         raise
     wall_s = time.perf_counter() - t_start
+    # the size's work still under way when the recording ended (scale.budget spreads it over the frames)
+    tracker.sizing.finish(tracker)
     meta = tracking_metadata(job.recording, tracker, bundle.spec if bundle else "", bundle.path if bundle else "")
     try:
         # without overwrite a file that appeared while tracking is not replaced either
@@ -393,6 +395,8 @@ def calibrate_job(job: TrackJob, output, *, max_frames=60, on_frame=None, each=F
                 on_frame(frame, r, ob)
             if calibration_done(tracker) or len(frames) >= max_frames:
                 break
+        # the size's work still under way when the recording ended (as tracker track --save-hand does)
+        tracker.sizing.finish(tracker)
         if tracker.scale_ is None:
             raise TrackerError(job.recording, f"no hand found to calibrate in its first {len(frames)} frames "
                                               "(--depth-range, --box or --forearm steer the segmentation)")
