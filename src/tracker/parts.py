@@ -522,23 +522,6 @@ class Prediction:
         return pred, recentred, pts, nrm, all_pts, all_nrm
 
 
-def calibration_sizes(base, points, detection, scale_range=(0.6, 2.0), guess=1.1) -> list:
-    """The sizes a size calibration tries first (:func:`tracker.scale.calibrate_scale`): ``guess`` × the
-    open hand's extent or the detected keypoints' size if larger, then ``guess`` × a closed hand's extent
-    (a fist; the keypoint CNN sizes a fist seen from the back 0.79 where it is 1.0). ``base``: the
-    :class:`tracker.init.FitContext` at size 1."""
-    from .keypoint_fit import keypoint_scale
-    from .scale import closed_posture, extent_scale
-
-    lo, hi = scale_range
-    n_post = int((~base.hand.pose_mask).sum())
-    first = guess * extent_scale(base.hand, points, np.zeros(n_post))
-    kp = keypoint_scale(detection, base.hand)
-    first = first if kp is None else max(first, kp)
-    closed = guess * extent_scale(base.hand, points, closed_posture(base))
-    return [float(np.clip(s, lo, hi)) for s in (first, closed)]
-
-
 class StartSearch:
     """A frame fitted without one before it (the first, after a loss): the single-frame search
     (:func:`tracker.init.fit_single_frame`, ``init``) from the last good θ, the colour seed
@@ -560,7 +543,7 @@ class StartSearch:
         """Whether the detector's hand, fitted to this frame's region (one fit from the hand fitted to its
         keypoints, the search's ``icp_iterations``), scores at most ``accept_mm`` (:func:`tracker.init.score`):
         as well as a start accepted without the full search. On ``ctx``'s hand; with ``ctx`` None (the size
-        not known yet) at the size calibration's first guesses (:func:`calibration_sizes`) through
+        not known yet) at the size calibration's first guesses (:func:`tracker.scale.first_sizes`) through
         ``context_for(scale)``, the first that fits. False without a detector, a detection or a threshold."""
         if self.keypoints is None or not self.accept_mm:
             return False
@@ -569,8 +552,13 @@ class StartSearch:
         det = self.keypoints.detection(sil, (ctx or context_for(1.0)).hand.handedness)
         if det is None:
             return False
-        for c in [ctx] if ctx is not None else [context_for(s) for s in calibration_sizes(context_for(1.0), pts, det,
-                                                                                            scale_range)]:
+        if ctx is None:
+            from .keypoint_fit import keypoint_scale
+            from .scale import first_sizes
+
+            base = context_for(1.0)
+            sizes = first_sizes(base, pts, keypoint_scale(det, base.hand), scale_range)
+        for c in [ctx] if ctx is not None else [context_for(s) for s in sizes]:
             seed = fit_start(det, c.hand, self.keypoints.synergies)
             if seed is None:
                 continue

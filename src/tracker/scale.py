@@ -265,6 +265,19 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
     return s1, th, corr
 
 
+def first_sizes(base, points, size_guess=None, scale_range=(0.6, 2.0), guess=1.1) -> tuple:
+    """The sizes :func:`calibrate_scale` searches first, ``(open, closed)``: ``guess`` × the open hand's extent
+    (:func:`extent_scale`), or ``size_guess`` where that is larger, and ``guess`` × a closed hand's extent (a
+    fist's size: :func:`closed_posture`), each within ``scale_range``. ``base``: the
+    :class:`tracker.init.FitContext` at size 1."""
+    lo, hi = scale_range
+    g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
+    # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
+    # SR305 stills): the larger is the nearer
+    s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
+    return s0, float(np.clip(extent_scale(base.hand, points, closed_posture(base)) * guess, lo, hi))
+
+
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
                     scale_range=(0.6, 2.0), guess=1.1, width=1.35, research=0.06, cut=True, seeds=None, size_guess=None,
                     accept_mm=0.0):
@@ -293,9 +306,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     lo, hi = scale_range
     base = context_for(1.0)
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
-    # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
-    # SR305 stills): the larger is the nearer
-    s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
+    s0, s_c = first_sizes(base, points, size_guess, scale_range, guess)
     found = () if seeds is None else tuple(seeds(context_for(s0).hand))
     if found:
         th0, _, _ = seeded_search(context_for(s0), points, st, found[0], accept_mm=accept_mm, silhouette=silhouette,
@@ -332,7 +343,6 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     # better and well (a large closed hand covers any compact blob a little)
     if (best[0] > POOR_SIZE_SCORE_MM
             or extent_scale(base.hand, all_points, th0[~base.hand.pose_mask], keep=False) / g > CURLED_EXTENT):
-        s_c = float(np.clip(extent_scale(base.hand, all_points, closed_posture(base)) * guess, lo, hi))
         if math.log(s_c / best[1]) > research:
             th_c, _ = fit_single_frame(context_for(s_c), points, st, silhouette=silhouette, normals=normals)
             closed = sized(s_c, th_c)

@@ -221,9 +221,9 @@ class SizeCalibration:
         if seed is None:
             return {}
         # loaded with a detector only: without one a run loads neither the fit nor the forests
-        from .keypoint_fit import detect_in, keypoint_scale
+        from .keypoint_fit import keypoint_scale
 
-        det = detect_in(seed.detect, sil, tr.base_hand.handedness)
+        det = seed.detection(sil, tr.base_hand.handedness)
         if det is None:
             return {}
         return {"seeds": lambda hand: seed.fit(det, hand), "accept_mm": tr.search.accept_mm,
