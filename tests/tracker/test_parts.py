@@ -141,12 +141,13 @@ def test_the_parts_share_one_count_the_cue_and_the_gate():
     parts = build_parts(HAND, TrackerSettings().replace(start=dict(rgb_seed=True)), None, stats,
                         keypoint_detector=lambda color: None, depth_detector=lambda depth, camera, mask, hand: None)
     assert all(p.stats is stats for p in parts if hasattr(p, "stats"))
-    assert sum(hasattr(p, "stats") for p in parts) == 11  # all but the hand sizes (and no hand presence: opt-in)
+    assert sum(hasattr(p, "stats") for p in parts) == 12  # all but the hand sizes (the hand presence included)
+    assert parts.presence is not None and parts.presence.stats is stats
     assert parts.net.cue is parts.cue and parts.search.cue is parts.cue and parts.search.colour is parts.colour
     assert parts.prediction.gate is parts.gate and parts.prediction.recentring is parts.recentring
     assert parts.search.keypoints is not None and parts.search.keypoints.stats is stats
-    plain = build_parts(HAND, TrackerSettings().replace(start=dict(detector="")), None, TrackerStats())
-    assert plain.colour is None and plain.search.keypoints is None
+    plain = build_parts(HAND, TrackerSettings().replace(start=dict(detector="", presence="")), None, TrackerStats())
+    assert plain.colour is None and plain.search.keypoints is None and plain.presence is None
     with pytest.raises(TrackerError, match="needs a synergy bundle"):
         build_parts(HAND, TrackerSettings(mode="reduced"), None, stats)
 
