@@ -48,6 +48,7 @@ def live(
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="Check the handedness on the first frame [on]."),
     hand_scale: Optional[str] = typer.Option(None, "--hand-scale", help="Hand size factor, or 'auto' (as tracker track) [auto; 1 with --paper]."),
     no_detector: bool = typer.Option(False, "--no-detector", help="No learned detector (the keypoint CNN, the hand-presence network): every start is the full search (as tracker track --no-detector)."),
+    no_presence: bool = typer.Option(False, "--no-presence", help="No hand-presence network: every region is searched (as tracker track --no-presence)."),
     depth_range: Optional[str] = DEPTH_RANGE,
     box: Optional[str] = BOX,
     forearm: str = FOREARM,
@@ -85,7 +86,7 @@ def live(
     with StartUp() as start_up:
         segmenter = segmenter_from_options(depth_range, box, forearm, plane)
         settings = settings_from_options(paper, mode, pcs, variance, None, None, None, None, None, None, None, None, None, None,
-                             None, None, hand_scale, check_hand, no_detector=no_detector)
+                             None, None, hand_scale, check_hand, no_detector=no_detector, no_presence=no_presence)
 
         # heavy modules (and the optional pyrealsense2) load here, so `tracker --help` answers at once
         import signal

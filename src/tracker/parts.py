@@ -436,6 +436,11 @@ class KeypointSeed:
     def reset(self):
         pass
 
+    @property
+    def model(self):
+        """The loaded detector (its ``manifest`` names it), or None for a ``detect`` given in code."""
+        return getattr(self.detect, "keywords", {}).get("detector")
+
     def start(self, hand, sil) -> tuple:
         """``(θ,)`` fitted to the keypoints detected in the frame's hand region, or ``()``."""
         return self.fit(self.detection(sil, hand.handedness), hand)

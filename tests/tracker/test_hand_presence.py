@@ -256,10 +256,20 @@ def test_cli_names_the_frames_the_network_called_no_hand(tmp_path):
     out = " ".join(r.output.split())
     assert "no hand: on 1 frame what was segmented is no hand (1 that the hand-presence network " \
            "(hand-presence-cnn) called no hand (p < 0.05))" in out
+    # the output says which networks made it: name, version and the manifest's seal
+    from tracker.io.tracking_file import read_tracking
+    from tracker.keypoint_cnn import load_cnn
+
+    _, meta = read_tracking(tmp_path / "t.csv")
+    m, k = load_presence().manifest, load_cnn().manifest
+    assert meta["presence"] == f"hand-presence-cnn {m['version']} (manifest_sha256 {m['manifest_sha256']})"
+    assert meta["detector"] == f"hand-keypoints-cnn {k['version']} (manifest_sha256 {k['manifest_sha256']})"
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--plane", "keep", "--no-check-hand", "--threads",
                                  "1", "--no-presence", "-o", str(tmp_path / "u.csv")])
     # without it the torso is searched, sized and refused at the end of the sizes searched
     assert r.exit_code == 0 and "1 fitted at the end of the hand sizes searched" in " ".join(r.output.split())
+    _, meta = read_tracking(tmp_path / "u.csv")
+    assert meta["presence"] == "" and meta["detector"].startswith("hand-keypoints-cnn ")
     r = CliRunner().invoke(app, ["track", str(tmp_path / "rec"), "--presence", "hand-presence-cnn", "--no-detector",
                                  "-o", str(tmp_path / "v.csv")])
     assert r.exit_code == 2 and "--no-detector: give --presence or --no-detector, not both" in r.stderr, r.output

@@ -125,9 +125,16 @@ def test_live_is_the_track_pipeline(synthetic_bag, tmp_path):
     assert np.allclose([saved.camera.fx, saved.camera.cy], [src.camera.fx, src.camera.cy], rtol=1e-6)
     r = _run(["track", tmp_path / "saved", "-o", tmp_path / "track.csv", "--no-check-hand", "--hand-scale", "1"])
     assert r.exit_code == 0, r.output
-    live, _ = read_tracking(tmp_path / "live.csv")
-    track, _ = read_tracking(tmp_path / "track.csv")
+    live, lmeta = read_tracking(tmp_path / "live.csv")
+    track, tmeta = read_tracking(tmp_path / "track.csv")
     pd.testing.assert_frame_equal(live.drop(columns=["ms", "time_s"]), track.drop(columns=["ms", "time_s"]))
+    # the same learned parts as tracker track's defaults; --no-presence takes the network away as it does there
+    assert lmeta["presence"] == tmeta["presence"] != "" and lmeta["detector"] == tmeta["detector"] != ""
+    r = _run(["live", "--playback", bag, "-o", tmp_path / "np.csv", "--no-check-hand", "--hand-scale", "1",
+              "--no-presence"])
+    assert r.exit_code == 0, r.output
+    _, nmeta = read_tracking(tmp_path / "np.csv")
+    assert nmeta["presence"] == "" and nmeta["detector"] == tmeta["detector"]
     assert (live["status"] != "lost").all() and live["fit_mm"].max() < 2.0
     kp, kmeta = read_keypoints(tmp_path / "kp.csv", [])
     assert len(kp) == 5 and kmeta["recording"]

@@ -57,7 +57,21 @@ def tracking_metadata(recording_path, tracker, synergies_spec="", synergies_file
             "hand_model": f"{hand.name} {hand.sha256}", "handedness": hand.handedness,
             "hand_model_file": str(hand.path), "hand_calibration": _calibration_text(hand),
             "hand_scale": _scale_text(tracker), "hand_shape": _shape_text(tracker),
-            "hand_check": str(getattr(tracker, "hand_check_", None) or ""), "units": "metres, radians"}
+            "hand_check": str(getattr(tracker, "hand_check_", None) or ""),
+            "detector": _learned_text(getattr(getattr(tracker, "search", None), "keypoints", None)),
+            "presence": _learned_text(getattr(tracker, "presence", None)), "units": "metres, radians"}
+
+
+def _learned_text(part) -> str:
+    """A learned part's identity (:class:`tracker.parts.KeypointSeed`, :class:`tracker.parts.HandPresence`):
+    its model's name, version and manifest seal, so that a result says which network made it; "" without the
+    part, "given in code" for a detector passed as a function."""
+    if part is None:
+        return ""
+    m = getattr(getattr(part, "model", None), "manifest", None)
+    if not isinstance(m, dict):
+        return "given in code"
+    return f"{m.get('name', '')} {m.get('version', '')} (manifest_sha256 {m.get('manifest_sha256', '')})"
 
 
 def _calibration_text(hand) -> str:
