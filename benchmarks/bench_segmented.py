@@ -167,11 +167,12 @@ def frames_of(hand, sensor, spec, n, color=True):
     return cam, out
 
 
-def skip_frames():
-    """The frames left out: the start and the size's refinement are not the tracking rate."""
-    from tracker.track import TrackerSettings
-
-    return TrackerSettings().scale.frames + 1
+def skip_frames(busy) -> int:
+    """The frames left out: the start and the size's work (calibration, refinement, finger lengths, spread
+    over the first frames by ``scale.budget``) are not the tracking rate. ``busy``: per frame, whether the
+    size's work was under way when it was tracked (``calibrating()`` or ``refining()``, which either tree
+    has); the frames from the first one without it are kept."""
+    return next((i for i, b in enumerate(busy) if not b), len(busy))
 
 
 def track_pass(hand, bundle, cam, frames, timer, stages_on=False):
@@ -186,8 +187,9 @@ def track_pass(hand, bundle, cam, frames, timer, stages_on=False):
     # one core: a start search's fits one after the other too (InitSettings.threads)
     tr = FrameTracker(hand, TrackerSettings().replace(init=dict(threads=1)), synergies=bundle)
     seg, seg_whole = Segmenter(), Segmenter()
-    out, stages = [], []
+    out, stages, busy = [], [], []
     for depth, color in frames:
+        busy.append(tr.sizing.calibrating() or tr.sizing.refining())
         window = tr.segment_window(cam)
         timer.active = stages_on
         t0 = time.process_time()
@@ -203,7 +205,7 @@ def track_pass(hand, bundle, cam, frames, timer, stages_on=False):
         observe(depth, cam, tr.settings.observe, segmenter=seg_whole, color=color)
         t3 = time.process_time()
         out.append(((t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, ob.window is not None))
-    skip = skip_frames()
+    skip = skip_frames(busy)
     return np.array(out, float)[skip:], stages[skip:]
 
 
