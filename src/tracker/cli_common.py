@@ -267,14 +267,16 @@ OPTION_OF = {"mode": "--mode", "subspace.variance": "--variance", "subspace.n_pc
              "scale.hand_scale": "--hand-scale", "refine.unseen_prior": "--unseen-prior",
              "loss.no_hand_rejected": "--no-hand-rejected", "observe.stride": "--stride",
              "start.search_budget_ms": "--search-budget-ms", "start.detector": "--detector",
-             "start.detector_accept_mm": "--detector-accept-mm", "start.presence": "--presence"}
+             "start.detector_accept_mm": "--detector-accept-mm", "start.presence": "--presence",
+             "scale.refine": "--size-refine"}
 
 
 def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, icp, gn, damping, model, silhouette,
                           prediction, robust, finger_search, projected_steps, hand_scale, check_hand, *,
                           rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
                           threads=None, search_budget_ms=None, detector=None,
-                          detector_accept_mm=None, no_detector=False, presence=None, no_presence=False):
+                          detector_accept_mm=None, no_detector=False, presence=None, no_presence=False,
+                          size_refine=None):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`checked_settings`)."""
     from .errors import TrackerError
@@ -298,7 +300,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
                     robust_mm=robust, projected_steps=projected_steps),
         "correspond": dict(model=model), "predict": dict(share=prediction),
         "init": dict(finger_search=finger_search, threads=threads),
-        "scale": dict(hand_scale=parse_hand_scale(hand_scale), finger_lengths=finger_lengths),
+        "scale": dict(hand_scale=parse_hand_scale(hand_scale), finger_lengths=finger_lengths, refine=size_refine),
         "start": dict(check_hand=check_hand, rgb_seed=rgb_seed, search_budget_ms=search_budget_ms, detector=detector,
                       detector_accept_mm=detector_accept_mm, presence=presence),
         "net": dict(enabled=safety_net),

@@ -49,6 +49,7 @@ def track(
     hand_model: Optional[str] = typer.Option(None, "--hand-model", help="Hand model name or YAML path; a hand file written by tracker calibrate or --save-hand is tracked as it is (its size is in it; --hand-scale auto estimates again) [human: the shipped hand with its finger bases on the human metacarpal arc; default, the paper's, with --paper]."),
     save_hand: Optional[Path] = typer.Option(None, "--save-hand", help="Also write the hand calibrated on the first frames (size, and finger lengths when estimated) as a YAML hand file for --hand-model."),
     finger_lengths: Optional[bool] = typer.Option(None, "--finger-lengths/--no-finger-lengths", help="With --hand-scale auto, also estimate each finger's length once the size is settled [on; paper off]."),
+    size_refine: Optional[str] = typer.Option(None, "--size-refine", help="With --hand-scale auto, how the frames after the first refine the size: checked (around the tracked fit, spread over frames; a frame searched only where the fit is poor), local (around the tracked fit only) or search (each of the first frames searched: slow frames 1-4; realistic scenes 2.81 against 2.89 mm) [checked]."),
     check_hand: bool = typer.Option(True, "--check-hand/--no-check-hand", help="On the first frame also fit the mirror-image hand and warn when it fits clearly better (one more start search) [on]."),
     safety_net: Optional[bool] = typer.Option(None, "--safety-net/--no-safety-net", help="Test every tracked frame and run the cheap start search on a doubtful one, keeping the better estimate (in reduced mode the far-points test only: a fit that leaves most of the cloud far away is lost) [on; paper off]."),
     no_hand: Optional[float] = typer.Option(None, "--no-hand-rejected", help="A start (first frame, after a loss) whose fit rejects more than this share of its points found no hand: the frame is lost, without θ [0.2; 0 = off, as with --paper]."),
@@ -118,7 +119,7 @@ def track(
                              unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
                              search_budget_ms=search_budget_ms, detector=detector,
                              detector_accept_mm=detector_accept_mm, no_detector=no_detector, presence=presence,
-                             no_presence=no_presence)
+                             no_presence=no_presence, size_refine=size_refine)
 
         # heavy modules load here, not at import time, so `tracker --help` answers at once
         from .run import TrackJob

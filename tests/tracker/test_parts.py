@@ -80,6 +80,10 @@ def test_the_command_line_names_the_option_of_a_bad_field():
     with pytest.raises(TrackerError, match=r"^--no-hand-rejected: must be a share in \[0, 1\)"):
         settings_from_options(*args, no_hand=1.0)
     assert settings_from_options(*args, unseen_prior=0.25, safety_net=False).refine.unseen_prior == 0.25
+    with pytest.raises(TrackerError, match=r"^--size-refine: must be 'search', 'local' or 'checked', got 'fast'$"):
+        settings_from_options(*args, size_refine="fast")
+    assert settings_from_options(*args, size_refine="search").scale.refine == "search"
+    assert settings_from_options(*args).scale.refine == TrackerSettings().scale.refine == "checked"
 
 
 def test_loss_check_alone():
