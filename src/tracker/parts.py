@@ -297,8 +297,9 @@ class HandPresence:
         absent = bool(self.probability_ < self.below)  # NaN: no answer, not "no hand"
         if absent and fits is not None and fits():
             # two answers to one question: the network's misses (a fist seen from its back without the
-            # arm, 0.01-0.07) are fitted within 0.2 mm; the regions it turned away on the harder scenes
-            # (a forearm's end, a torso's edge) fit no better than 2.5 mm (docs/experiments/detector.md)
+            # arm, 0.01-0.07) are fitted within 0.7 mm; none of the 38 regions it turned away on the harder
+            # scenes' starts (a forearm's end, a torso's edge), nor a real wall's edge, fits within the
+            # threshold (docs/experiments/detector.md, "On by default: the model fit overrules the network")
             self.stats.hands_fitted += 1
             return False
         self.stats.not_hands += absent
@@ -552,15 +553,13 @@ class StartSearch:
         ``context_for(scale)``, the first that fits. False without a detector, a detection or a threshold."""
         if self.keypoints is None or not self.accept_mm:
             return False
-        from .keypoint_fit import fit_start
+        from .keypoint_fit import fit_start, keypoint_scale
+        from .scale import first_sizes
 
         det = self.keypoints.detection(sil, (ctx or context_for(1.0)).hand.handedness)
         if det is None:
             return False
         if ctx is None:
-            from .keypoint_fit import keypoint_scale
-            from .scale import first_sizes
-
             base = context_for(1.0)
             sizes = first_sizes(base, pts, keypoint_scale(det, base.hand), scale_range)
         for c in [ctx] if ctx is not None else [context_for(s) for s in sizes]:
