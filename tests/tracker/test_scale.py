@@ -3,9 +3,13 @@ the parabola search, the one-search calibration against the earlier one, the tra
 over several frames when a frame's fit is poor, and the size within 3 % on resized rendered hands in
 clutter under Kinect v1 and RealSense noise."""
 import copy
+import functools
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import settings as hyp_settings
+from hypothesis import strategies as hst
 from test_init_orientation import CAM, scene
 
 from handmodel import HandModel
@@ -200,3 +204,34 @@ def test_size_within_3_percent_in_clutter_and_noise(bundle, sensor, scale, clutt
     print(f"\n{sensor} ×{scale} {clutter}: size {r['scale'][-1] / scale:.4f}, keypoints {np.round(r['keypoint_mm'], 1)}")
     assert abs(r["scale"][-1] / scale - 1.0) <= 0.03, r["scale"] / scale
     assert np.nanmean(r["keypoint_mm"]) <= 10.0
+
+
+
+@functools.lru_cache(maxsize=1)
+def _base_context():
+    return fit_context(BASE, TrackerSettings())[0]
+
+
+@hyp_settings(max_examples=25, deadline=None)
+@given(s=hst.floats(0.7, 1.7), q=hst.lists(hst.floats(-1, 1), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1),
+       shift=hst.lists(hst.floats(-0.3, 0.3), min_size=3, max_size=3), closed=hst.booleans())
+def test_first_sizes_of_the_models_own_surface_are_its_size(s, q, shift, closed):
+    """``first_sizes`` on the model's own palm-side surface (open or closed), scaled by ``s``, turned and moved
+    anywhere: the matching guess is ``guess`` × s (an extent is blind to rotation and translation), both
+    within the range, the closed guess at least the open one, and a keypoint size larger than the open guess
+    takes its place."""
+    from handmodel.rigid import quat_to_matrix
+    from tracker.init.candidates import _palm_side
+    from tracker.scale import closed_posture, first_sizes
+
+    ctx = _base_context()
+    posture = closed_posture(ctx) if closed else np.zeros(int((~BASE.pose_mask).sum()))
+    pts = _palm_side(BASE, posture)[3]
+    R = quat_to_matrix(np.asarray(q) / np.linalg.norm(q))
+    cloud = s * (pts - pts.mean(0)) @ R.T + np.asarray(shift) + [0, 0, 0.7]
+    open_s, closed_s = first_sizes(ctx, cloud, None, (0.6, 2.0), 1.1)
+    assert (closed_s if closed else open_s) == pytest.approx(min(1.1 * s, 2.0), rel=1e-6)
+    assert 0.6 <= open_s <= 2.0 and 0.6 <= closed_s <= 2.0
+    # the closed model spreads less than the open one: the same cloud is a larger closed hand
+    assert closed_s >= open_s
+    assert first_sizes(ctx, cloud, open_s + 0.1, (0.6, 2.0), 1.1)[0] == pytest.approx(min(open_s + 0.1, 2.0))
