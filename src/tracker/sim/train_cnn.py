@@ -152,18 +152,26 @@ def draw_samples(recipe: DataRecipe, seed: int, n: int, jobs: int = 1) -> list:
     return [s for p in parts for s in p if s is not None]
 
 
+def jittered(box, rng, st) -> tuple:
+    """``box`` (:func:`tracker.keypoint_cnn.hand_box`'s ``(cu, cv, size, median_m)``) with a segmentation's
+    errors: the side × 1 ± ``st.size_jitter``, the centre ± ``st.shift_jitter`` × the side, the depth origin
+    ± ``st.median_jitter_m`` (SD) — both networks' training boxes."""
+    cu, cv, size, med = box
+    size = size * rng.uniform(1 - st.size_jitter, 1 + st.size_jitter)
+    return (cu + rng.uniform(-st.shift_jitter, st.shift_jitter) * size,
+            cv + rng.uniform(-st.shift_jitter, st.shift_jitter) * size, size, med + rng.normal(0.0, st.median_jitter_m))
+
+
 def jitter_box(s: Sample, rng, st: CnnSettings) -> tuple:
-    """A box as a segmentation might give it (see :class:`CnnSettings`) around the true pixels."""
+    """A box as a segmentation might give it (see :class:`CnnSettings`) around the true pixels: stretched
+    towards the forearm on a share of them, then :func:`jittered`."""
     c0, c1, r0, r1 = map(float, s.bbox)
     if rng.random() < st.p_forearm:
         e = s.uv[0] - s.uv[9]  # middle finger base → wrist: towards the forearm
         e = e / (np.linalg.norm(e) + 1e-9) * rng.uniform(*st.forearm_reach) * max(c1 - c0, r1 - r0)
         c0, c1 = min(c0, c0 + e[0]), max(c1, c1 + e[0])
         r0, r1 = min(r0, r0 + e[1]), max(r1, r1 + e[1])
-    size = (BOX_GROW * max(c1 - c0, r1 - r0) + 2.0) * rng.uniform(1 - st.size_jitter, 1 + st.size_jitter)
-    cu = (c0 + c1) / 2 + rng.uniform(-st.shift_jitter, st.shift_jitter) * size
-    cv = (r0 + r1) / 2 + rng.uniform(-st.shift_jitter, st.shift_jitter) * size
-    return cu, cv, size, s.box[3] + rng.normal(0.0, st.median_jitter_m)
+    return jittered(((c0 + c1) / 2, (r0 + r1) / 2, BOX_GROW * max(c1 - c0, r1 - r0) + 2.0, s.box[3]), rng, st)
 
 
 def target(s: Sample, box) -> np.ndarray:

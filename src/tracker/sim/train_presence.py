@@ -43,7 +43,8 @@ from .clutter import Clutter
 from .dataset import Crop, DataRecipe, draw_scene
 from .noise import NoiseModel
 from .render import DepthRenderer
-from .train_cnn import down_block, export_onnx, in_chunks, model_output, require_torch, train, training_record
+from .train_cnn import (down_block, export_onnx, in_chunks, jittered, model_output, require_torch, train,
+                        training_record)
 from .train_detector import HELDOUT_SEED_OFFSET, _r
 
 #: A hand's extent (m) at size 1 from wrist to the middle fingertip, open: the random boxes' size.
@@ -92,13 +93,6 @@ def scene_camera(crop) -> Camera:
     return Camera(w, h, fx, fy, cx, cy, 0.001, "uint16", "frame")
 
 
-def _jittered(box, rng, st: PresenceSettings) -> tuple:
-    cu, cv, size, med = box
-    size = size * rng.uniform(1 - st.size_jitter, 1 + st.size_jitter)
-    return (cu + rng.uniform(-st.shift_jitter, st.shift_jitter) * size,
-            cv + rng.uniform(-st.shift_jitter, st.shift_jitter) * size, size, med + rng.normal(0.0, st.median_jitter_m))
-
-
 def _box_share(mask, box) -> tuple[float, int]:
     """The share of the box's pixels in ``mask``, and the box's pixel count (inside the image)."""
     cu, cv, size, _ = box
@@ -134,7 +128,7 @@ def scene_crops(crop, rng, st: PresenceSettings, *, segment=True) -> tuple[list,
     box = hand_box(depth, hand)
     if box is not None:
         for _ in range(st.jitters):
-            X.append(presence_input(depth, _jittered(box, rng, st), mirror, fx))
+            X.append(presence_input(depth, jittered(box, rng, st), mirror, fx))
             y.append(1)
             kind.append("true")
     if segment:
