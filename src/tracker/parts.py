@@ -566,7 +566,7 @@ class StartSearch:
             seed = fit_start(det, c.hand, self.keypoints.synergies)
             if seed is None:
                 continue
-            # one fit, not detected_fit's synergy starts (~20 ms): the same answers on the fists from the back
+            # one fit, not seeded_search's first step with its synergy starts (~20 ms): the same answers on the fists from the back
             # (0.63-0.67 against 0.60-0.61 mm) and the real hand-less frames (8-13 against 7-10 mm), ~2 ms
             theta, corr = c.fit(seed, pts, "full", 1, self.init.icp_iterations, silhouette=sil, normals=nrm,
                                 wrist=self.cue.of(sil))

@@ -39,7 +39,6 @@ from .search import (
     PAIR_SCORE_MM,
     SearchBudget,
     converge,
-    detected_fit,
     finger_search,
     finger_search_batched,
     fit_single_frame,
@@ -64,6 +63,6 @@ __all__ = [
     # overlap
     "finger_capsules", "finger_overlap_mm", "segment_distances", "FINGER_OVERLAP_WEIGHT", "FINGER_OVERLAP_SHARE",
     # search
-    "fit_single_frame", "seeded_search", "detected_fit", "converge", "restart_fingers", "SearchBudget", "finger_search", "finger_search_batched",
+    "fit_single_frame", "seeded_search", "converge", "restart_fingers", "SearchBudget", "finger_search", "finger_search_batched",
     "PAIR_SCORE_MM", "COUPLED_RESTART_DEG",
 ]

@@ -102,18 +102,6 @@ def fit_single_frame(ctx: FitContext, points, settings: InitSettings | None = No
                            normals=normals, extra=extra, search=search, wrist=wrist, budget=budget)
 
 
-def detected_fit(ctx: FitContext, points, settings: InitSettings | None, seed, *, silhouette=None, normals=None,
-                 extra=(), wrist=None):
-    """The first step of :func:`seeded_search`: the synergy postures set at a detected hand's (``seed``'s)
-    global pose, with ``seed`` itself and the ``extra`` θ, fitted as the search fits its starts
-    (:func:`fit_single_frame` from ``theta0``: no synergy grid, no finger restarts). Returns
-    ``(θ, corr, score)`` (:func:`score`, mm)."""
-    st = settings or InitSettings()
-    theta, corr = fit_single_frame(ctx, points, st, theta0=seed, silhouette=silhouette, normals=normals,
-                                   extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
-    return theta, corr, score(ctx, theta, corr, silhouette)
-
-
 def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, *, accept_mm: float = 0.0,
                   silhouette=None, normals=None, extra=(), wrist=None, budget=None):
     """The single-frame search with a detected hand first (a keypoint detector's, as the hybrid trackers'
@@ -124,8 +112,9 @@ def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, 
     better of the two by score is kept (successive halving can drop a good start on its coarse cloud).
     Returns ``(θ, corr, searched)``."""
     st = settings or InitSettings()
-    theta, corr, first = detected_fit(ctx, points, st, seed, silhouette=silhouette, normals=normals, extra=extra,
-                                      wrist=wrist)
+    theta, corr = fit_single_frame(ctx, points, st, theta0=seed, silhouette=silhouette, normals=normals,
+                                   extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
+    first = score(ctx, theta, corr, silhouette)
     if first <= accept_mm:
         # a fit that scores this well can still hold one finger in a wrong local minimum the tracking
         # never leaves (a curled thumb after blank frames: 3.2 against 0.4° on the frames after); the
