@@ -38,10 +38,13 @@ from ._kernel_arrays import (
     Pairs,
     ProjectionArrays,
     SampleArrays,
+    ScoreTerms,
     SilhouetteArrays,
     StageArrays,
+    WristCueArrays,
     WristLine,
 )
+from ._search_kernels import search_score
 from ._silhouette_kernels import silhouette_pairs_kernel
 
 #: the moments per node (:func:`node_moments`)
@@ -817,3 +820,30 @@ def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, term
     return fit_kernel(theta0, HandArrays(*hand), CapsuleArrays(*caps), points, normals, MatchRules(*rules),
                       StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms),
                       SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), Pairs(*out), stats)
+
+
+@njit(cache=True, nogil=True)
+def fit_score_many_entry(thetas, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist,
+                         score_terms, score_samples, score_sil, cue, out_t, out_s, stats):
+    """A batch of fits and their scores in one call (:meth:`tracker.init.FitContext.fit_many`): from
+    each row of ``thetas`` :func:`fit_kernel` with the same arguments (as :func:`fit_entry`'s, plain
+    tuples), its result into ``out_t``'s row and :func:`tracker._search_kernels.search_score` of it
+    (``score_terms``, ``score_samples``, ``score_sil``, ``cue``: that kernel's) into ``out_s``. Each
+    fit's arithmetic is a lone fit's (its pairs start from fresh rows): what a batch saves is the
+    Python around each fit and score, not work inside them."""
+    h, c, r = HandArrays(*hand), CapsuleArrays(*caps), MatchRules(*rules)
+    st, pj, g, t = StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms)
+    sa, si, wl = SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist)
+    s_terms, s_samples = ScoreTerms(*score_terms), SampleArrays(*score_samples)
+    s_sil, s_cue = SilhouetteArrays(*score_sil), WristCueArrays(*cue)
+    P = points.shape[0]
+    out = Pairs(np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P), np.zeros(P, np.int64),
+                np.empty(P, np.bool_))
+    for k in range(thetas.shape[0]):
+        # the rows a lone fit's Pairs.empty starts from (a pass leaves a point without a pair untouched)
+        out.p[:] = 0.0
+        out.n[:] = 0.0
+        out.node[:] = 0
+        th = fit_kernel(thetas[k], h, c, points, normals, r, st, pj, g, t, sa, si, wl, out, stats)
+        out_t[k] = th
+        out_s[k] = search_score(th, h, c, points, out.valid, s_terms, s_samples, s_sil, s_cue)

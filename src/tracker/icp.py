@@ -228,20 +228,33 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
         return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
                              samples=samples, silhouette=silhouette, wrist=wrist)
+    args = fit_arguments(hand, points, stages, matcher, st, n_rigid=n_rigid, normals=normals, samples=samples,
+                         silhouette=silhouette, wrist=wrist, moments=moments)
+    pts = args[2]
+    out = Pairs.empty(len(pts))
+    th = FK.fit_entry(np.array(hand.check_theta(theta), float), *args, tuple(out),
+                      np.zeros(5, np.int64) if stats is None else stats)
+    return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
+
+
+def fit_arguments(hand, points, stages, matcher, settings: IcpSettings, *, n_rigid=0, normals=None, samples=None,
+                  silhouette=None, wrist=None, moments=True) -> tuple:
+    """The compiled fit's arguments after θ and before its output pairs and stats, as plain tuples
+    (:func:`tracker._kernel_arrays.plain`): what :func:`fit` passes to
+    :func:`tracker._fit_kernels.fit_entry` for a :class:`~tracker.correspond.Matcher` on the capsule
+    model (the batched fits, :func:`tracker._fit_kernels.fit_score_many_entry`, take the same). The
+    data points are the third (float64, contiguous, ``(N, 3)``)."""
+    st = settings
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     nrm = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
     sil_on = silhouette is not None and samples is not None and st.silhouette_weight > 0 and not silhouette.empty
     solver = st.solver()
     terms = FitTerms(float(st.robust_mm), bool(st.point_to_plane), bool(moments), st.local_mm / 1000.0, sil_on,
                      float(st.silhouette_weight), SILHOUETTE_TOLERANCE_PX, int(n_rigid))
-    out = Pairs.empty(len(pts))
-    th = FK.fit_entry(*plain(np.array(hand.check_theta(theta), float), HandArrays.of(hand),
-                             CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
-                             *stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
-                             SampleArrays.of(samples) if sil_on else NO_SAMPLES,
-                             SilhouetteArrays.of(silhouette) if sil_on else NO_SILHOUETTE,
-                             wrist_line(hand, wrist, st), out, np.zeros(5, np.int64) if stats is None else stats))
-    return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
+    return plain(HandArrays.of(hand), CapsuleArrays.of(matcher.surface.caps), pts, nrm, match_rules(matcher, normals),
+                 *stage_arrays(hand, stages, solver), GaussNewton.of(solver), terms,
+                 SampleArrays.of(samples) if sil_on else NO_SAMPLES,
+                 SilhouetteArrays.of(silhouette) if sil_on else NO_SILHOUETTE, wrist_line(hand, wrist, st))
 
 
 #: re-centring needs this many camera-facing model samples to say where the hand is

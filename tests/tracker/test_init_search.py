@@ -82,6 +82,39 @@ def test_fit_many_is_one_fit_and_score_per_start(bundle):
     assert not np.array_equal(T1[0], ctx.fit(starts[0], pts, "full", 0, 2, silhouette=sil, normals=nrm)[0])
 
 
+def test_batched_fits_are_lone_fits_with_a_wrist_cue_without_silhouette_and_off_the_cloud(bundle):
+    """The compiled batch (one call for every start, :func:`tracker._fit_kernels.fit_score_many_entry`) is
+    each start's lone :meth:`FitContext.fit` and :func:`score` bit for bit: with the frame's wrist cue in the
+    score, without a silhouette (no model→data term), with rigid steps, and for starts so far off that
+    some of the cloud's points find no model surface (a pair row a lone fit leaves as it found it: the
+    batch must not carry the start before's rows over)."""
+    from tracker.wrist import WristCue
+
+    tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
+    ctx = tr.context
+    (_, start, ob, sil), = protocol_frames(bundle, [3100])
+    sub = thin(ob.points, 350)
+    pts, nrm = ob.points[sub], ob.normals[sub]
+    sil.wrist = WristCue(point=pts.mean(0) + [0.0, 0.08, 0.0], pixel=np.zeros(2), direction=np.array([0.0, 1.0, 0.0]),
+                         width_m=0.06)
+    rng = np.random.default_rng(2)
+    starts = [start + np.r_[rng.normal(0.0, 0.01, 6), rng.normal(0.0, 0.3, HAND.n_dofs - 6)] for _ in range(4)]
+    far = start.copy()
+    far[:3] += [0.0, 0.0, 0.4]  # 40 cm behind the cloud, every pair farther than the rejection distance
+    starts.insert(2, far)
+    for silhouette, n_rigid in ((sil, 0), (None, 1), (sil, 2)):
+        T, S = ctx.fit_many(starts, pts, "full", n_rigid, 3, silhouette=silhouette, normals=nrm, gn=2)
+        for th0, th, s in zip(starts, T, S):
+            one, c1 = replace(ctx, icp=replace(ctx.icp, gn_iterations=2)).fit(th0, pts, "full", n_rigid, 3,
+                                                                               silhouette=silhouette, normals=nrm)
+            np.testing.assert_array_equal(th, one)
+            assert s == score(ctx, one, c1, silhouette)
+        assert not np.all(np.isfinite(S)) or len(np.unique(S)) == len(S)
+    # the far start's pairs are all rejected at the start: the test above compared that case
+    _, c_far = ctx.fit(far, pts, "full", 0, 0, normals=nrm)
+    assert not c_far.valid.any()
+
+
 def test_fits_in_threads_are_the_fits_one_after_another(bundle):
     """A batch fitted on 3 threads gives every start's θ and score bit for bit, in the starts' order (a
     shared buffer or a shuffled result would not), and a whole start search on 2 threads is the one on

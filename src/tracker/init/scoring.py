@@ -21,6 +21,7 @@ from .._kernel_arrays import (
     WristCueArrays,
     plain,
 )
+from .._fit_kernels import fit_score_many_entry
 from .._search_kernels import data_cost_mean_entry, search_score_entry
 from ..correspond import (
     DATA_CAP_MM,
@@ -32,7 +33,7 @@ from ..correspond import (
     ModelSamples,
     data_to_model_mm,
 )
-from ..icp import IcpSettings, fit, model_to_data_mean, search_schedule
+from ..icp import IcpSettings, fit, fit_arguments, model_to_data_mean, search_schedule
 from ..wrist import WRIST_REACH_MM, WRIST_TURN_MM, wrist_cost_mm
 from .overlap import finger_capsules
 from .settings import _pool
@@ -93,11 +94,21 @@ class FitContext:
         stages = search_schedule(mode, n_icp, self.full, self.reduced, self.ladder, through=through)
         out_t = np.empty_like(thetas)
         out_s = np.empty(len(thetas))
+        scored = _score_arguments(self, silhouette)
+        if scored is not None and isinstance(self.matcher, Matcher):
+            # the whole batch in compiled calls (fit_score_many_entry: each fit and score as one by one)
+            args = fit_arguments(self.hand, points, stages, self.matcher, icp, n_rigid=n_rigid, normals=normals,
+                                 samples=self.samples, silhouette=silhouette)
+            starts = np.ascontiguousarray(self.hand.check_theta(thetas))
 
-        def one(k):
-            out_t[k], corr = fit(self.hand, points, thetas[k], stages, self.matcher, icp, n_rigid=n_rigid,
-                                 normals=normals, samples=self.samples, silhouette=silhouette)
-            out_s[k] = score(self, out_t[k], corr, silhouette)
+            def one(k):
+                k = slice(k, k + 1) if isinstance(k, int) else k
+                fit_score_many_entry(starts[k], *args, *scored, out_t[k], out_s[k], np.zeros(5, np.int64))
+        else:
+            def one(k):
+                out_t[k], corr = fit(self.hand, points, thetas[k], stages, self.matcher, icp, n_rigid=n_rigid,
+                                     normals=normals, samples=self.samples, silhouette=silhouette)
+                out_s[k] = score(self, out_t[k], corr, silhouette)
 
         if len(thetas):
             # the first on this thread: a kernel compiled while another thread calls it gave wrong numbers
@@ -107,9 +118,13 @@ class FitContext:
         if self.threads > 1 and len(thetas) > 2:
             # list(): the first exception a fit raised is raised here
             list(_pool(self.threads).map(one, range(1, len(thetas))))
+        elif scored is not None and isinstance(self.matcher, Matcher):
+            one(slice(1, len(thetas)))
         else:
             for k in range(1, len(thetas)):
                 one(k)
+        # a fit gone to NaN raises as score's check of it does one by one
+        self.hand.check_theta(out_t)
         return out_t, out_s
 
 
@@ -146,6 +161,17 @@ def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> flo
 def _score_compiled(ctx, theta, corr, silhouette, samples, cue) -> float:
     """:func:`score` by :func:`tracker._search_kernels.search_score` (``samples`` None: no model→data
     term; ``cue`` None: no wrist cost)."""
+    return float(search_score_entry(np.array(ctx.hand.check_theta(theta), float), *plain(HandArrays.of(ctx.hand),
+                                    CapsuleArrays.of(ctx.matcher.surface.caps)),
+                                    np.ascontiguousarray(corr.points, dtype=np.float64),
+                                    np.ascontiguousarray(corr.valid, dtype=np.bool_),
+                                    *_score_terms(samples, silhouette, cue)))
+
+
+def _score_terms(samples, silhouette, cue) -> tuple:
+    """The last four arguments of :func:`tracker._search_kernels.search_score_entry` (terms, samples,
+    silhouette, wrist cue) as plain tuples (``samples`` None: no model→data term; ``cue`` None: no wrist
+    cost)."""
     on = samples is not None
     terms = ScoreTerms(REJECTED_PAIR_MM, DATA_CAP_MM, on, MODEL_TO_DATA_WEIGHT, M2D_TOLERANCE_MM, M2D_TOLERANCE_PX,
                        M2D_CAP_MM)
@@ -154,11 +180,19 @@ def _score_compiled(ctx, theta, corr, silhouette, samples, cue) -> float:
     wrist = (WristCueArrays(True, np.asarray(cue.point, np.float64), np.asarray(cue.direction, np.float64),
                             WRIST_REACH_MM, WRIST_TURN_MM) if cue is not None
              else WristCueArrays(False, _ZERO3, _ZERO3, WRIST_REACH_MM, WRIST_TURN_MM))
-    return float(search_score_entry(*plain(np.array(ctx.hand.check_theta(theta), float), HandArrays.of(ctx.hand),
-                                           CapsuleArrays.of(ctx.matcher.surface.caps),
-                                           np.ascontiguousarray(corr.points, dtype=np.float64),
-                                           np.ascontiguousarray(corr.valid, dtype=np.bool_), terms,
-                                           SampleArrays.of(samples) if on else NO_SAMPLES, sil, wrist)))
+    return plain(terms, SampleArrays.of(samples) if on else NO_SAMPLES, sil, wrist)
+
+
+def _score_arguments(ctx, silhouette):
+    """:func:`_score_terms` for the fits of :meth:`FitContext.fit_many` when :func:`score` of them takes
+    its compiled path (a capsule matcher posing ``ctx.hand``, the score samples too), else None."""
+    cue = getattr(silhouette, "wrist", None)
+    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
+    m2d = silhouette is not None and samples is not None and not silhouette.empty
+    surf = ctx.matcher.surface
+    if not (isinstance(surf, CapsuleModel) and surf.hand is ctx.hand and (not m2d or samples.hand is ctx.hand)):
+        return None
+    return _score_terms(samples if m2d else None, silhouette, cue)
 
 
 _ZERO3 = np.zeros(3)
