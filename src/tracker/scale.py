@@ -44,21 +44,42 @@ from .resize import FINGERS, shaped_context, shaped_hand
 _MODEL_SPREAD = {}
 
 
-def extent_scale(hand, points, posture, *, keep=True) -> float:
+def extent_scale(hand, points, posture, *, keep=True, view="palm") -> float:
     """A first guess of the hand's global scale: the spread of the cloud over that of the model's
-    palm-side surface (at ``posture``) in their two main directions. Posture changes the spread, so
-    this only brackets the scale; :func:`fit_scale` finds it. ``keep``: the model's spread at this
-    posture is kept for the next call (the fixed postures; not a fitted one, met once)."""
-    key = (hand.sha256, hand.handedness, np.asarray(posture, float).tobytes())
+    surface as a camera sees it (at ``posture``) in their two main directions. Posture changes the
+    spread, so this only brackets the scale; :func:`fit_scale` finds it. ``view``: ``"palm"`` (the
+    palm-side surface, seen along the palm's normal) or ``"side"`` (seen along the knuckles' line, the
+    thumb's and the little finger's side alike: a fist seen from its side is ~25 % narrower than from
+    its palm). ``keep``: the model's spread at this posture is kept for the next call (the fixed
+    postures; not a fitted one, met once)."""
+    key = (hand.sha256, hand.handedness, np.asarray(posture, float).tobytes(), view)
     ev_m = _MODEL_SPREAD.get(key)
     if ev_m is None:
         # sampling the model's surface costs ~0.05-0.1 s, a tenth of the calibration's budget: once per hand
-        ms = _palm_side(hand, posture)[3]
-        ev_m = np.linalg.svd(ms - ms.mean(0), compute_uv=False) ** 2 / len(ms)
+        ev_m = _seen_spread(hand, posture, view)
         if keep:
             _MODEL_SPREAD[key] = ev_m
     ev_d = np.linalg.svd(points - points.mean(0), compute_uv=False) ** 2 / len(points)
     return float(np.sqrt((ev_d[0] + ev_d[1]) / (ev_m[0] + ev_m[1])))
+
+
+def _seen_spread(hand, posture, view) -> np.ndarray:
+    """The variances along their principal axes of the model's surface samples (at ``posture``) a camera
+    sees from ``view`` (:func:`extent_scale`). ``"side"``: the samples facing each side of the hand (its
+    frame has the knuckles' line along x) projected on that camera's image plane, the two sides' means
+    (the thumb's side spreads ~5 % more). Projected, because the samples facing a side include the fist's
+    top and bottom, which reach far in depth where a depth image sees a narrow band: unprojected, a
+    closed hand seen from its side at 1.5× gave 1.28-1.37× (rendered Kinect v1), projected 1.62-1.71×,
+    both × the calibration's 1.1."""
+    base, S, N, palm = _palm_side(hand, posture)
+    if view == "palm":
+        return np.linalg.svd(palm - palm.mean(0), compute_uv=False) ** 2 / len(palm)
+    out = np.zeros(3)
+    for sign in (1.0, -1.0):
+        seen = S[sign * N[:, 0] < 0]
+        flat = (seen - seen.mean(0))[:, 1:]  # the image plane of a camera looking along x
+        out[:2] += np.linalg.svd(flat, compute_uv=False) ** 2 / len(seen) / 2.0
+    return out
 
 
 def rescaled(hand_from, hand_to, theta) -> np.ndarray:
@@ -266,16 +287,18 @@ def calibrate_scale_searched(context_for, points, settings: InitSettings | None 
 
 
 def first_sizes(base, points, size_guess=None, scale_range=(0.6, 2.0), guess=1.1) -> tuple:
-    """The sizes :func:`calibrate_scale` searches first, ``(open, closed)``: ``guess`` × the open hand's extent
-    (:func:`extent_scale`), or ``size_guess`` where that is larger, and ``guess`` × a closed hand's extent (a
-    fist's size: :func:`closed_posture`), each within ``scale_range``. ``base``: the
-    :class:`tracker.init.FitContext` at size 1."""
+    """The sizes :func:`calibrate_scale` searches first, ``(open, closed, closed from the side)``: ``guess`` ×
+    the open hand's extent (:func:`extent_scale`), or ``size_guess`` where that is larger, and ``guess`` × a
+    closed hand's extent (a fist's size: :func:`closed_posture`) seen from its palm and from its side, each
+    within ``scale_range``. ``base``: the :class:`tracker.init.FitContext` at size 1."""
     lo, hi = scale_range
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
     # both guesses err low (the extent on a curled hand; the shipped CNN's keypoints 0.8-0.95x on the real
     # SR305 stills): the larger is the nearer
     s0 = float(np.clip(g * guess if size_guess is None else max(g * guess, size_guess), lo, hi))
-    return s0, float(np.clip(extent_scale(base.hand, points, closed_posture(base)) * guess, lo, hi))
+    closed = closed_posture(base)
+    return (s0, *(float(np.clip(extent_scale(base.hand, points, closed, view=v) * guess, lo, hi))
+                  for v in ("palm", "side")))
 
 
 def calibrate_scale(context_for, points, settings: InitSettings | None = None, *, silhouette=None, normals=None,
@@ -306,7 +329,7 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     lo, hi = scale_range
     base = context_for(1.0)
     g = extent_scale(base.hand, points, np.zeros(int((~base.hand.pose_mask).sum())))
-    s0, s_c = first_sizes(base, points, size_guess, scale_range, guess)
+    s0, *closed_sizes = first_sizes(base, points, size_guess, scale_range, guess)
     found = () if seeds is None else tuple(seeds(context_for(s0).hand))
     if found:
         th0, _, _ = seeded_search(context_for(s0), points, st, found[0], accept_mm=accept_mm, silhouette=silhouette,
@@ -343,9 +366,14 @@ def calibrate_scale(context_for, points, settings: InitSettings | None = None, *
     # better and well (a large closed hand covers any compact blob a little)
     if (best[0] > POOR_SIZE_SCORE_MM
             or extent_scale(base.hand, all_points, th0[~base.hand.pose_mask], keep=False) / g > CURLED_EXTENT):
-        if math.log(s_c / best[1]) > research:
+        tried = []
+        for s_c in closed_sizes:
+            # only a larger hand (the fist's ambiguity), and not one a closed search already settled near
+            if math.log(s_c / best[1]) <= research or any(abs(math.log(s_c / s)) <= research for s in tried):
+                continue
             th_c, _ = fit_single_frame(context_for(s_c), points, st, silhouette=silhouette, normals=normals)
             closed = sized(s_c, th_c)
+            tried.append(closed[1])
             if closed[0] <= min(best[0], CLOSED_GOOD_MM):
                 best = closed
     _, s1, th1 = best

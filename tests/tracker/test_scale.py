@@ -229,7 +229,7 @@ def test_first_sizes_of_the_models_own_surface_are_its_size(s, q, shift, closed)
     pts = _palm_side(BASE, posture)[3]
     R = quat_to_matrix(np.asarray(q) / np.linalg.norm(q))
     cloud = s * (pts - pts.mean(0)) @ R.T + np.asarray(shift) + [0, 0, 0.7]
-    open_s, closed_s = first_sizes(ctx, cloud, None, (0.6, 2.0), 1.1)
+    open_s, closed_s, _ = first_sizes(ctx, cloud, None, (0.6, 2.0), 1.1)
     assert (closed_s if closed else open_s) == pytest.approx(min(1.1 * s, 2.0), rel=1e-6)
     assert 0.6 <= open_s <= 2.0 and 0.6 <= closed_s <= 2.0
     # the closed model spreads less than the open one: the same cloud is a larger closed hand
