@@ -14,6 +14,11 @@ of the child — since on a shared machine wall time also measures the other job
 - ``tracker track`` of that still: the whole command, outputs written, up to the process's end;
 - ``tracker track`` of a recording that is not there: the time to its one-line error (exit status 2).
 
+The first-frame row's line below the table splits the frame (medians): the kernels numba loads from its
+cache (the time its compiler lock is held, through numba's event API; a cold cache's compiling would show
+here), the size calibration and the handedness check's mirror-image search (each less the kernels loaded
+within it), and the rest (the tracker's parts, the segmentation, the detectors' networks).
+
 "Warm" is what an installed package has: numba's cache (one untimed run first fills it; ``tracker
 compile`` does it at install) and Python's bytecode cache (``pip install`` compiles the modules; an
 editable install writes them at the first import). The children keep their bytecode in a folder of
@@ -43,17 +48,81 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 STILL = ROOT.parent / "shared" / "data" / "realsense_sr305_lada" / "20210326-230536_110.png"
 
-# the child: the time after its imports, and each frame's result time, as json on stdout
+# the child: the time after its imports, each frame's result time and, up to the first result, where the
+# frame's time went (the kernels loaded from numba's cache, the size calibration, the handedness check), as
+# json on stdout
 DRIVER = r"""
-import json, sys, time
+import json, sys, threading, time
 from tracker.run import TrackJob, run_job
 from tracker.settings import TrackerSettings
 t_import = time.time()
-stamps = []
+from numba.core import event  # loaded with tracker.run: numba's event API times the compiler lock
+from numba.core.registry import CPUDispatcher
+
+
+class Kernels(event.Listener):
+    # the time the compiler lock is held (from the first request to the last release when threads
+    # overlap): loading a kernel from the cache, or compiling it when the cache is cold
+    def __init__(self):
+        self.lock, self.depth, self.total = threading.Lock(), 0, 0.0
+
+    def on_start(self, ev):
+        with self.lock:
+            if self.depth == 0:
+                self.t0 = time.perf_counter()
+            self.depth += 1
+
+    def on_end(self, ev):
+        with self.lock:
+            self.depth -= 1
+            if self.depth == 0:
+                self.total += time.perf_counter() - self.t0
+
+
+kernels, spans = Kernels(), {}
+event.register("numba:compiler_lock", kernels)
+
+
+def timed(module, owner, name, key):
+    # the wall time of a stage, less the kernels loaded within it (counted once, as kernels); a tree
+    # without that function (a --peer of another time) leaves the stage out of the breakdown
+    try:
+        owner = getattr(__import__(module, fromlist=["_"]), owner) if owner else __import__(module, fromlist=["_"])
+        f = getattr(owner, name)
+    except (ImportError, AttributeError):
+        return
+    timing.append(key)
+
+    def g(*a, **k):
+        t, k0 = time.perf_counter(), kernels.total
+        try:
+            return f(*a, **k)
+        finally:
+            spans[key] = spans.get(key, 0.0) + (time.perf_counter() - t) - (kernels.total - k0)
+    setattr(owner, name, g)
+
+
+timing, stamps, first = [], [], {}
+timed("tracker.sizing", "SizeCalibration", "calibrate", "size")
+timed("tracker.track", None, "check_hand", "hand_check")
+
+
+def loaded():
+    # each kernel once (a module that imports another's kernel holds the same dispatcher)
+    found = {id(d): d for m in list(sys.modules.values()) for d in list(getattr(m, "__dict__", {}).values())
+             if isinstance(d, CPUDispatcher)}
+    return sum(sum(d.stats.cache_hits.values()) for d in found.values())
+
+
+def on_frame(frame, r, ob):
+    stamps.append(time.time())
+    if not first:
+        first.update({k: spans.get(k, 0.0) for k in timing}, kernels=kernels.total, loaded=loaded())
+
+
 settings = TrackerSettings().replace(start=dict(check_hand=True))  # tracker track's --check-hand, its default
-run_job(TrackJob(sys.argv[1], sys.argv[2], settings=settings, overwrite=True),
-        on_frame=lambda frame, r, ob: stamps.append(time.time()))
-print(json.dumps({"import": t_import, "stamps": stamps}))
+run_job(TrackJob(sys.argv[1], sys.argv[2], settings=settings, overwrite=True), on_frame=on_frame)
+print(json.dumps({"import": t_import, "stamps": stamps, "first": first}))
 """
 
 
@@ -157,7 +226,7 @@ def main():
                     wall, cpu, stdout, t0 = timed(cmd, src, status=2 if label in failing else 0)
                     if label.startswith("process start"):
                         res = json.loads(stdout.strip().splitlines()[-1])
-                        first[tree].append((res["import"] - t0, res["stamps"][0] - t0))
+                        first[tree].append((res["import"] - t0, res["stamps"][0] - t0, res["first"]))
                         wall = res["stamps"][0] - t0
                     walls[tree, label].append(wall)
                     cpus[tree, label].append(cpu)
@@ -172,10 +241,18 @@ def main():
                   f"{statistics.median(cpus[tree, label]):8.2f}")
         if not first[tree]:
             continue
-        imp = statistics.median(a for a, _ in first[tree])
-        frame = statistics.median(b - a for a, b in first[tree])
+        imp = statistics.median(a for a, _, _ in first[tree])
+        frame = statistics.median(b - a for a, b, _ in first[tree])
         print(f"  first frame: imports {imp:.2f} s, then the frame (size calibration, start search, "
               f"handedness check) {frame:.2f} s (wall, medians); CPU of the whole child above")
+        parts = [p for _, _, p in first[tree]]
+        med = {k: f"{statistics.median(p[k] for p in parts):.2f} s" if k in parts[0] else "-"
+               for k in ("kernels", "size", "hand_check")}
+        rest = statistics.median(b - a - sum(p.get(k, 0.0) for k in ("kernels", "size", "hand_check"))
+                                 for a, b, p in first[tree])
+        print(f"    the frame: {statistics.median(p['loaded'] for p in parts):.0f} kernels loaded from numba's cache "
+              f"{med['kernels']}, size calibration {med['size']}, handedness check {med['hand_check']} (each "
+              f"without the kernels it loaded), the rest (the tracker, segmentation, detectors) {rest:.2f} s")
 
 
 if __name__ == "__main__":
