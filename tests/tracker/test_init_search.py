@@ -267,7 +267,10 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
 
 
 @pytest.mark.parametrize("change, word", [({"strategy": "quick"}, "strategy"), ({"halving": {"keep": (0, 3)}}, "keep"),
-                                          ({"halving": {"keep": (4,)}}, "keep"), ({"threads": -1}, "threads")])
+                                          ({"halving": {"keep": (4,)}}, "keep"), ({"threads": -1}, "threads"),
+                                          ({"halving": {"restart_icp": 0}}, "restart_icp"),
+                                          ({"halving": {"restart_margin_mm": -1.0}}, "restart_margin_mm"),
+                                          ({"seeded": {"first": "one"}}, "seeded first")])
 def test_bad_search_settings_are_refused(bundle, change, word):
     tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     st = InitSettings().replace(**change)

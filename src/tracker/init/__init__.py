@@ -45,7 +45,7 @@ from .search import (
     restart_fingers,
     seeded_search,
 )
-from .settings import STRATEGIES, HalvingSettings, InitSettings, available_cores, search_threads
+from .settings import STRATEGIES, HalvingSettings, InitSettings, SeededSettings, available_cores, search_threads
 
 # not this package's public names, but imported from tracker.init where they were before the split
 # (tracker.scale's palm-side samples; the data term's cap, tracker.correspond's, in the tests)
@@ -54,7 +54,7 @@ from .candidates import _palm_side  # noqa: F401
 
 __all__ = [
     # settings
-    "InitSettings", "HalvingSettings", "STRATEGIES", "available_cores", "search_threads",
+    "InitSettings", "HalvingSettings", "SeededSettings", "STRATEGIES", "available_cores", "search_threads",
     # candidates
     "placements", "posture_candidates", "posture_grid", "diverse", "FINGER_SHAPES_DEG", "PAIR_SHAPES",
     "finger_shapes", "finger_variants", "finger_pair_variants", "thin",

@@ -107,28 +107,61 @@ def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, 
     """The single-frame search with a detected hand first (a keypoint detector's, as the hybrid trackers'
     re-initialisers: Sharp et al. 2015): the synergy postures fitted at ``seed``'s global pose, with
     ``seed`` itself and the ``extra`` θ (:func:`fit_single_frame` from ``theta0``, no synergy grid,
-    no finger restarts: ~15× cheaper than the search). When that fit scores at most ``accept_mm``
-    (:func:`score`) it is the answer; otherwise the full search runs with it as one more start and the
-    better of the two by score is kept (successive halving can drop a good start on its coarse cloud).
-    Returns ``(θ, corr, searched)``."""
+    no finger restarts: ~15× cheaper than the search; ``settings.seeded.first`` "fit": one fit from
+    ``seed`` and from each ``extra`` θ first, :class:`tracker.init.SeededSettings`). When that fit scores at most
+    ``accept_mm`` (:func:`score`) it is the answer, after one sweep of finger-wise restarts; otherwise
+    the full search runs with it as one more start and the better of the two by score is kept
+    (successive halving can drop a good start on its coarse cloud). Returns ``(θ, corr, searched)``."""
     st = settings or InitSettings()
+    if st.seeded.first == "fit":
+        theta, corr, first = _one_fit_each(ctx, points, st, (seed,) + tuple(extra), silhouette=silhouette,
+                                           normals=normals, wrist=wrist)
+        if first <= accept_mm:
+            return (*_accepted(ctx, theta, corr, points, st, silhouette=silhouette, normals=normals, wrist=wrist),
+                    False)
     theta, corr = fit_single_frame(ctx, points, st, theta0=seed, silhouette=silhouette, normals=normals,
                                    extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
     first = score(ctx, theta, corr, silhouette)
     if first <= accept_mm:
-        # a fit that scores this well can still hold one finger in a wrong local minimum the tracking
-        # never leaves (a curled thumb after blank frames: 3.2 against 0.4° on the frames after); the
-        # detector's fingertips agree with that fit (it started there), so the finger-wise restarts decide
-        if st.finger_search:
-            theta, corr = restart_fingers(ctx, theta, corr, points,
-                                          st.replace(halving=dict(finger_sweeps=ACCEPTED_FINGER_SWEEPS)),
-                                          silhouette=silhouette, normals=normals, wrist=wrist)
-        return theta, corr, False
+        return (*_accepted(ctx, theta, corr, points, st, silhouette=silhouette, normals=normals, wrist=wrist),
+                False)
     th2, c2 = fit_single_frame(ctx, points, st, silhouette=silhouette, normals=normals, extra=tuple(extra) + (theta,),
                                wrist=wrist, budget=budget)
     if first < score(ctx, th2, c2, silhouette):
         return theta, corr, True
     return th2, c2, True
+
+
+def _one_fit_each(ctx: FitContext, points, st: InitSettings, starts, *, silhouette=None, normals=None, wrist=None):
+    """The best by :func:`score` of one fit from each of ``starts`` (all DoF, one rigid step, then
+    ``icp_iterations`` on the whole cloud: the hand-presence test's fit), as ``(θ, corr, score)``."""
+    best = None
+    for th0 in starts:
+        theta, corr = ctx.fit(np.asarray(th0, float), points, "full", 1, st.icp_iterations, silhouette=silhouette,
+                              normals=normals, wrist=wrist)
+        s = score(ctx, theta, corr, silhouette)
+        if best is None or s < best[2]:
+            best = (theta, corr, s)
+    return best
+
+
+def _accepted(ctx: FitContext, theta, corr, points, st: InitSettings, *, silhouette=None, normals=None, wrist=None):
+    """An accepted detected start ``(θ, corr)`` after its finger-wise restarts (``st.seeded``'s restart
+    settings, ``ACCEPTED_FINGER_SWEEPS`` sweeps)."""
+    # a fit that scores this well can still hold one finger in a wrong local minimum the tracking
+    # never leaves (a curled thumb after blank frames: 3.2 against 0.4° on the frames after); the
+    # detector's fingertips agree with that fit (it started there), so the finger-wise restarts decide
+    if not st.finger_search:
+        return theta, corr
+    sd = st.seeded
+    halving = dict(finger_sweeps=ACCEPTED_FINGER_SWEEPS)
+    if sd.restart_icp is not None:
+        halving["restart_icp"] = sd.restart_icp
+    if sd.restart_margin_mm is not None:
+        halving["restart_margin_mm"] = sd.restart_margin_mm
+    restarts = st.replace(halving=halving, finger_pairs=st.finger_pairs if sd.restart_pairs is None
+                          else st.finger_pairs and sd.restart_pairs)
+    return restart_fingers(ctx, theta, corr, points, restarts, silhouette=silhouette, normals=normals, wrist=wrist)
 
 
 def _start_sets(ctx: FitContext, poses, st: InitSettings, mode, points, *, theta0, postures, extra, search):
@@ -251,8 +284,9 @@ def restart_fingers(ctx: FitContext, theta, corr, points, settings: InitSettings
 
 def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings, *, silhouette=None, normals=None):
     """The finger-wise restarts of :func:`finger_search` as successive halving: all fingers' shapes
-    (from the current θ) fitted briefly in one batch on ``rank_points`` points; the best shape of each
-    finger that comes within 2 mm of θ's own score there is fitted longer on ``refine_points`` beside θ
+    (from the current θ) fitted briefly in one batch on ``rank_points`` points (``restart_icp`` ICP
+    iterations); the best shape of each finger that comes within ``restart_margin_mm`` of θ's own score
+    there is fitted longer on ``refine_points`` beside θ
     with the same fit, and the best one replaces θ when it scores better. With
     ``settings.finger_pairs``, while θ scores above ``PAIR_SCORE_MM`` there, the pair restarts are
     ranked too (:func:`finger_pair_variants`; the best of each pair goes on like a finger's best).
@@ -287,12 +321,12 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
                     owner.append(k)
         if len(starts) == 1:
             break
-        T, S = ctx.fit_many(starts, pr, "full", 0, st.rank_icp + 2, silhouette=silhouette, normals=nr, gn=st.rank_gn)
+        T, S = ctx.fit_many(starts, pr, "full", 0, st.restart_icp, silhouette=silhouette, normals=nr, gn=st.rank_gn)
         S = S + overlap(T)
         if settings.finger_pairs and S[0] > PAIR_SCORE_MM:
             pairs = finger_pair_variants(ctx, theta)
             if pairs:
-                Tp, Sp = ctx.fit_many([th for _, th in pairs], pr, "full", 0, st.rank_icp + 2, silhouette=silhouette,
+                Tp, Sp = ctx.fit_many([th for _, th in pairs], pr, "full", 0, st.restart_icp, silhouette=silhouette,
                                       normals=nr, gn=st.rank_gn)
                 T, S = np.concatenate([T, Tp]), np.concatenate([S, Sp + overlap(Tp)])
                 owner += [n + k for k, _ in pairs]
@@ -302,7 +336,7 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
         broken = uncoupled(ctx.hand, theta, COUPLED_RESTART_DEG)
         if broken.any():
             Tc, Sc = ctx.fit_many([recoupled(ctx.hand, theta, np.arange(5) == k, ctx.limits)
-                                   for k in np.flatnonzero(broken)], pr, "full", 0, st.rank_icp + 2,
+                                   for k in np.flatnonzero(broken)], pr, "full", 0, st.restart_icp,
                                   silhouette=silhouette, normals=nr, gn=st.rank_gn)
             T, S = np.concatenate([T, Tc]), np.concatenate([S, Sc + overlap(Tc)])
             owner += [2 * n + k for k in np.flatnonzero(broken)]
@@ -312,7 +346,7 @@ def finger_search_batched(ctx: FitContext, theta, points, settings: InitSettings
             idx = np.flatnonzero(owner == k)
             if idx.size:
                 i = idx[np.argmin(S[idx])]
-                if S[i] < S[0] + 2.0:
+                if S[i] < S[0] + st.restart_margin_mm:
                     finalists.append(T[i])
         if len(finalists) == 1:
             break

@@ -27,10 +27,43 @@ class HalvingSettings(SettingsGroup):
     refine_icp: int = 8
     polish_icp: int = 4
     finger_sweeps: int = 3
+    restart_icp: int = 4
+    restart_margin_mm: float = 2.0
 
     def check(self):
         if min(self.keep, default=0) < 1 or len(self.keep) != 2:
             raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
+        if int(self.restart_icp) < 1 or not self.restart_margin_mm >= 0:
+            raise TrackerError("settings", f"init restart_icp must be ≥ 1 and restart_margin_mm ≥ 0, got "
+                                           f"{self.restart_icp!r}, {self.restart_margin_mm!r}")
+
+
+@dataclass(frozen=True)
+class SeededSettings(SettingsGroup):
+    """How :func:`tracker.init.seeded_search` fits a detected hand before it decides whether the full
+    search runs, and the finger-wise restarts of a start it accepts.
+
+    ``first``: ``"search"`` (default) fits the synergy postures at the detected hand's global pose with the
+    detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid);
+    ``"fit"`` fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the whole
+    cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
+    when none scores within the acceptance. ``restart_icp``, ``restart_margin_mm`` and ``restart_pairs``
+    replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
+    ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
+    """
+
+    first: str = "search"
+    restart_icp: int | None = None
+    restart_margin_mm: float | None = None
+    restart_pairs: bool | None = None
+
+    def check(self):
+        if self.first not in SEEDED_FIRST:
+            raise TrackerError("settings", f"init seeded first must be one of {', '.join(SEEDED_FIRST)}, "
+                                           f"got {self.first!r}")
+
+
+SEEDED_FIRST = ("search", "fit")
 
 
 @dataclass(frozen=True)
@@ -51,13 +84,17 @@ class InitSettings(SettingsGroup):
     ``strategy``: ``"halving"`` (default, successive halving: ``halving``, :class:`HalvingSettings`,
     whose fields read as this object's too, ``rank_points`` …) ranks every start briefly
     (:meth:`FitContext.fit_many`), the coarse stage on ``coarse_points``; the finger-wise restarts
-    rank all fingers' shapes at once and refit only the promising ones; the winner is converged with
+    rank all fingers' shapes at once (``restart_icp`` ICP iterations on ``rank_points``) and refit only
+    the promising ones (ranked within ``restart_margin_mm`` of θ's own score); the winner is converged with
     all DoF (``icp_iterations`` on ``refine_points``, then ``polish_icp`` on the full cloud); ``finger_pairs``: the restarts also set two neighbouring
     fingers at once while the fit scores poorly (:func:`finger_pair_variants`, ``PAIR_SCORE_MM``;
     3× the restarts' starts). ``refit_pose``: a given ``theta0`` may be off (a previous frame's), so
     it is also fitted longer and both go on. ``"exhaustive"``: the earlier search, every
     start refined with ``icp_iterations`` on the full cloud (2–3× the CPU time with the compiled ICP
     loop, ~14× with the Python one; kept as the reference the benchmark compares with).
+
+    ``seeded``: how the search with a detected hand first (:func:`tracker.init.seeded_search`) fits that
+    hand and restarts an accepted start's fingers (:class:`SeededSettings`).
     """
 
     icp_iterations: int = 12
@@ -72,6 +109,7 @@ class InitSettings(SettingsGroup):
     refit_pose: bool = False
     finger_pairs: bool = True
     threads: int = 0
+    seeded: SeededSettings = field(default_factory=SeededSettings)
 
     # the halving schedule's fields, read where the search reads them
     rank_points = property(lambda self: self.halving.rank_points)
@@ -82,6 +120,8 @@ class InitSettings(SettingsGroup):
     refine_icp = property(lambda self: self.halving.refine_icp)
     polish_icp = property(lambda self: self.halving.polish_icp)
     finger_sweeps = property(lambda self: self.halving.finger_sweeps)
+    restart_icp = property(lambda self: self.halving.restart_icp)
+    restart_margin_mm = property(lambda self: self.halving.restart_margin_mm)
 
     @classmethod
     def cheap(cls, **changes) -> InitSettings:
@@ -103,6 +143,7 @@ class InitSettings(SettingsGroup):
         if self.strategy not in STRATEGIES:
             raise TrackerError("settings", f"init strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         self.halving.check()
+        self.seeded.check()
         if int(self.threads) < 0:
             raise TrackerError("settings", f"init threads must be ≥ 0 (0 = the cores available), got {self.threads!r}")
 
