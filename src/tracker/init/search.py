@@ -159,6 +159,8 @@ def _accepted(ctx: FitContext, theta, corr, points, st: InitSettings, *, silhoue
         halving["restart_icp"] = sd.restart_icp
     if sd.restart_margin_mm is not None:
         halving["restart_margin_mm"] = sd.restart_margin_mm
+    if sd.restart_points is not None:
+        halving["rank_points"] = sd.restart_points
     restarts = st.replace(halving=halving, finger_pairs=st.finger_pairs if sd.restart_pairs is None
                           else st.finger_pairs and sd.restart_pairs)
     return restart_fingers(ctx, theta, corr, points, restarts, silhouette=silhouette, normals=normals, wrist=wrist)

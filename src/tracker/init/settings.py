@@ -47,20 +47,23 @@ class SeededSettings(SettingsGroup):
     detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid);
     ``"fit"`` fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the whole
     cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
-    when none scores within the acceptance. ``restart_icp``, ``restart_margin_mm`` and ``restart_pairs``
-    replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
-    ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
+    when none scores within the acceptance. ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and
+    ``restart_pairs`` replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
+    ``rank_points``, ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
     """
 
     first: str = "search"
     restart_icp: int | None = None
     restart_margin_mm: float | None = None
+    restart_points: int | None = None
     restart_pairs: bool | None = None
 
     def check(self):
         if self.first not in SEEDED_FIRST:
             raise TrackerError("settings", f"init seeded first must be one of {', '.join(SEEDED_FIRST)}, "
                                            f"got {self.first!r}")
+        if self.restart_points is not None and int(self.restart_points) < 1:
+            raise TrackerError("settings", f"init seeded restart_points must be ≥ 1, got {self.restart_points!r}")
 
 
 SEEDED_FIRST = ("search", "fit")
