@@ -52,6 +52,7 @@ class TrackerStats:
         search ran
     hands_fitted : starts the network called no hand where the detected hand fitted the region as an
         accepted start does (:meth:`StartSearch.detected_fits`): searched as hands
+    wrist_cuts : frames whose points behind the detected wrist were left out (``start.detector_wrist_m``)
     """
 
     net_runs: int = 0
@@ -77,6 +78,7 @@ class TrackerStats:
     search_ms: float = 0.0
     not_hands: int = 0
     hands_fitted: int = 0
+    wrist_cuts: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""

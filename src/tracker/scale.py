@@ -36,6 +36,7 @@ from .init import (
     thin,
 )
 from .resize import FINGERS, shaped_context, shaped_hand
+from .wrist import ahead_of_wrist
 
 # (hand sha256, handedness, posture) → the palm-side surface's variances along its principal axes. The
 # handedness is in the key because a mirrored hand keeps its file's sha256 but not its palm-side samples:
@@ -144,8 +145,7 @@ def hand_side(points, hand, theta, margin_m=None) -> np.ndarray:
     scores better for that instead (−4 to −6 %)."""
     margin_m = WRIST_MARGIN_M if margin_m is None else margin_m
     kp = hand.keypoints(np.asarray(theta, float))
-    axis = kp[9] - kp[0]
-    ahead = (np.asarray(points, float) - kp[0]) @ (axis / max(float(np.linalg.norm(axis)), 1e-9)) >= -margin_m
+    ahead = ahead_of_wrist(points, kp[0], kp[9], margin_m)
     return ahead if ahead.sum() >= 30 else np.ones(len(ahead), bool)
 
 

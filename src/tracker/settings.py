@@ -150,6 +150,12 @@ class StartSettings(SettingsGroup):
         nothing overrules it): docs/experiments/detector.md, "Is it a hand?"
     presence_below : … and the probability below which the region is "no hand" without a search (0.05:
         99 % of the held-out rendered hands above it; docs/experiments/detector.md, "Is it a hand?")
+    detector_wrist_m : with a ``detector``, a frame's points farther than this (m) behind its detected wrist
+        (along the detected wrist → middle finger base) are left out: an arm the segmentation did not cut (a
+        fist seen from its side is as narrow as its forearm). While tracking, the detector is asked only
+        where the points reach this far behind the last frame's wrist (0.03: 1.5 × the keypoint CNN's
+        median wrist error on its held-out frames through the segmentation, 19 mm; 0 = none;
+        docs/experiments/detector.md, "The detected wrist")
     """
 
     wrist_cue: bool = True
@@ -160,6 +166,7 @@ class StartSettings(SettingsGroup):
     search_budget_ms: float = 0.0
     presence: str = "hand-presence-cnn"
     presence_below: float = 0.05
+    detector_wrist_m: float = 0.03
 
     @classmethod
     def paper(cls):
@@ -179,6 +186,9 @@ class StartSettings(SettingsGroup):
         q = self.presence_below
         _need(isinstance(q, (int, float)) and not isinstance(q, bool) and 0 <= q < 1,
               "start.presence_below", f"must be a probability in [0, 1), got {q!r}")
+        w = self.detector_wrist_m
+        _need(isinstance(w, (int, float)) and not isinstance(w, bool) and 0 <= w < math.inf,
+              "start.detector_wrist_m", f"must be a distance in m ≥ 0 (0 = off), got {w!r}")
 
 
 @dataclass(frozen=True)

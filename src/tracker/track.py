@@ -41,6 +41,7 @@ from .parts import (
 )
 from .resize import shaped_context
 from .settings import TrackerSettings
+from .wrist import ahead_of_wrist
 from .sizing import HandSizes, SizeCalibration, fit_context
 
 
@@ -314,6 +315,7 @@ class FrameTracker:
         sil = frame_silhouette(mask, depth, camera, frame_depth)
         t0 = time.perf_counter()
         pts, nrm = usable_points(points, normals, self.settings.loss.max_points)
+        pts, nrm = self._before_detected_wrist(pts, nrm, sil)
         n_in = len(pts)
         if n_in < self.settings.loss.min_points:
             # nothing seen: no θ is output (an unreadable frame's row repeated the frame before it, which
@@ -338,6 +340,26 @@ class FrameTracker:
             self.hand_check_ = check_hand(self.context, self.settings, self.synergies, frame.points, frame.normals,
                                           sil, frame.theta, frame.corr)
         return self._decide(frame, sil, n_in, t0)
+
+    def _before_detected_wrist(self, pts, nrm, sil):
+        """The points the keypoint detector's wrist leaves (``start.detector_wrist_m``), or all of them."""
+        margin = self.settings.start.detector_wrist_m
+        seed = self.search.keypoints
+        if not margin > 0 or seed is None or sil is None or len(pts) < self.settings.loss.min_points:
+            return pts, nrm
+        if self.theta is not None and not self.lost and not self.sizing.calibrating():
+            # the detector runs (~3.5 ms) only where the points reach this far behind the last frame's wrist
+            kp = self.hand.keypoints(self.theta)
+            if ahead_of_wrist(pts, kp[0], kp[9], margin).all():
+                return pts, nrm
+        det = seed.detection(sil, self.base_hand.handedness)
+        if det is None or not np.all(np.isfinite(det.keypoints_xyz[[0, 9]])):
+            return pts, nrm
+        keep = ahead_of_wrist(pts, det.keypoints_xyz[0], det.keypoints_xyz[9], margin)
+        if keep.all() or keep.sum() < self.settings.loss.min_points:
+            return pts, nrm
+        self.stats.wrist_cuts += 1
+        return pts[keep], None if nrm is None else nrm[keep]
 
     def _start(self, pts, nrm, sil, n_in, t0, color, depth, camera):
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""

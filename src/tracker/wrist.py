@@ -268,3 +268,16 @@ def wrist_cost_mm(cue: WristCue, hand, theta, *, reach_mm=WRIST_REACH_MM, turn_m
     if na > MIN_ARM_DIRECTION and nf > MIN_FINGER_SPAN_M:
         cost += turn_mm * max(float(arm @ fingers) / (na * nf), 0.0)
     return cost
+
+
+def ahead_of_wrist(points, wrist, middle_base, margin_m=0.0) -> np.ndarray:
+    """Which ``points`` ``(N, 3)`` lie on the fingers' side of the plane through ``wrist`` across the
+    hand's axis (``wrist`` → ``middle_base``, the middle finger's base), or at most ``margin_m`` behind it.
+
+    >>> ahead_of_wrist(np.array([[0.0, 0.05, 0.5], [0.0, -0.05, 0.5]]), np.array([0.0, 0.0, 0.5]),
+    ...                np.array([0.0, 0.08, 0.5]), 0.02).tolist()
+    [True, False]
+    """
+    axis = np.asarray(middle_base, float) - np.asarray(wrist, float)
+    axis /= max(float(np.linalg.norm(axis)), 1e-9)
+    return (np.asarray(points, float) - wrist) @ axis >= -margin_m
