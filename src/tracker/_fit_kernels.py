@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from handmodel._geometry_kernels import CAPSULE, closest_local
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
@@ -26,7 +27,8 @@ from handmodel._solver_kernels import (
     solve_stages,
 )
 
-from ._correspond_kernels import hand_frames, match, match_same, new_frames
+from ._correspond_kernels import MM as MM_PER_M
+from ._correspond_kernels import _model_to_data_at, _pair_ok, hand_frames, match, match_same, new_frames
 from ._kernel_arrays import (
     ENTRY_CLAMP,
     ENTRY_THROUGH,
@@ -44,8 +46,9 @@ from ._kernel_arrays import (
     WristCueArrays,
     WristLine,
 )
-from ._search_kernels import search_score
+from ._search_kernels import pairwise_sum
 from ._silhouette_kernels import silhouette_pairs_kernel
+from ._wrist_kernels import wrist_cost_at
 
 #: the moments per node (:func:`node_moments`)
 N_MOMENTS = 23
@@ -661,26 +664,9 @@ def _solve_pairs(theta, hand, mom, G0, M, mu, m, lo, hi, damp, eye, gn, terms, p
 
 
 @njit(cache=True, nogil=True)
-def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
-    """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``terms.n_rigid`` rigid steps, then per
-    stage correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs
-    and silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the
-    result (in ``out``). The arguments are the named tuples of :mod:`tracker._kernel_arrays`: the
-    ``hand`` and its ``caps``, the data ``points`` and ``normals``, the pairs' ``rules``, the
-    ``stages`` and their projections ``proj``, the Gauss-Newton settings ``gn``, the energy's
-    ``terms``, the model ``samples`` and silhouette ``sil`` of the silhouette term, the ``wrist`` line.
-
-    A stage with ``stages.local`` takes a local pass (:func:`match_same`: each point stays on the
-    primitive it was matched to; the silhouette pairs of the stage before are kept) instead of the
-    search over every primitive while the model moved less than ``terms.local_m`` (m;
-    :func:`pairs_moved`) since the pass before. ``wrist.on``: one more pair, the point
-    ``wrist.local`` of node ``wrist.node`` (the wrist crease) to its closest point on the plane
-    through the camera centre with unit normal ``wrist.normal`` (the arm's centre line), weighing like
-    ``wrist.share`` × the valid data pairs, when it lies more than ``wrist.free_m`` from the plane (its
-    target then that far from the plane; else no pair). ``terms.moments``: Gauss-Newton on moment sums
-    (point-to-point only), else the per-pair solver; the moment path adds its steps taken and failed
-    to ``stats`` (see :func:`solve_stage_moments`), every closest-point pass adds 1 to ``stats[3]``,
-    every local pass to ``stats[4]``. Returns θ."""
+def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+    """:func:`fit_kernel` but its last closest-point pass: θ after the rigid steps and the stages (``out``
+    holds the pairs of the last pass before the last solve)."""
     n = hand.dof_axes.shape[0]
     N = hand.parents.shape[0]
     P = points.shape[0]
@@ -808,6 +794,33 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
                              pt_local[:k], tgt[:k], w[:k], plane, k, stages.m[s:s + 1], stats)
         if proj.on[s]:
             theta = clamp_into(theta, proj.M[s], proj.mu[s], proj.lo[s], proj.hi[s], proj.m[s], proj.eye[s])
+    return theta
+
+
+@njit(cache=True, nogil=True)
+def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+    """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``terms.n_rigid`` rigid steps, then per
+    stage correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs
+    and silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the
+    result (in ``out``). The arguments are the named tuples of :mod:`tracker._kernel_arrays`: the
+    ``hand`` and its ``caps``, the data ``points`` and ``normals``, the pairs' ``rules``, the
+    ``stages`` and their projections ``proj``, the Gauss-Newton settings ``gn``, the energy's
+    ``terms``, the model ``samples`` and silhouette ``sil`` of the silhouette term, the ``wrist`` line.
+
+    A stage with ``stages.local`` takes a local pass (:func:`match_same`: each point stays on the
+    primitive it was matched to; the silhouette pairs of the stage before are kept) instead of the
+    search over every primitive while the model moved less than ``terms.local_m`` (m;
+    :func:`pairs_moved`) since the pass before. ``wrist.on``: one more pair, the point
+    ``wrist.local`` of node ``wrist.node`` (the wrist crease) to its closest point on the plane
+    through the camera centre with unit normal ``wrist.normal`` (the arm's centre line), weighing like
+    ``wrist.share`` × the valid data pairs, when it lies more than ``wrist.free_m`` from the plane (its
+    target then that far from the plane; else no pair). ``terms.moments``: Gauss-Newton on moment sums
+    (point-to-point only), else the per-pair solver; the moment path adds its steps taken and failed
+    to ``stats`` (see :func:`solve_stage_moments`), every closest-point pass adds 1 to ``stats[3]``,
+    every local pass to ``stats[4]``. Returns θ."""
+    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out,
+                        stats)
+    G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
     match(G, caps, points, normals, rules, out)
     stats[3] += 1
@@ -822,6 +835,123 @@ def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, term
                       SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), Pairs(*out), stats)
 
 
+@njit(cache=True)
+def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_seg, out_d, any_d):
+    """Two closest-point searches over the primitives in one: the pass of
+    :func:`handmodel._geometry_kernels.closest_points_facing` with ``cam`` and ``facing_only`` (the closest
+    front-facing point, its normal, primitive and absolute distance into ``out_*``; −1 and +inf without
+    one) and the same with ``facing_only`` False, of which only the distance is kept (``any_d``: what
+    :func:`tracker._search_kernels.data_cost_mean` measures). Each search keeps its own best and skips a
+    primitive by its own bound exactly as the lone search does; a primitive is posed once when either
+    needs it. (The lone searches' visit order differs, which changes no result: ties go to the lowest
+    index and the bound only skips primitives that cannot win.)"""
+    P = points.shape[0]
+    S = caps.node.shape[0]
+    seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th = caps.node, caps.shape, caps.length, caps.r0, caps.r1, \
+        caps.thickness
+    q = np.empty(3)
+    loc = np.empty(7)
+    wp = np.empty(3)
+    wn = np.empty(3)
+    sc = np.empty((S, 3))
+    sr = np.empty(S)
+    for s in range(S):
+        j = seg_node[s]
+        L = seg_len[s]
+        if seg_shape[s] == CAPSULE:
+            sr[s] = 0.5 * L + max(seg_r0[s], seg_r1[s])
+        else:
+            w = max(max(seg_r0[s] - seg_th[s], 0.0), max(seg_r1[s] - seg_th[s], 0.0))
+            sr[s] = np.sqrt(0.25 * L * L + w * w) + seg_th[s]
+        for r in range(3):
+            sc[s, r] = G[j, r, 1] * 0.5 * L + G[j, r, 3]
+    prev = 0
+    for i in range(P):
+        best, bs = 1e300, -1      # the facing search
+        best_a, bs_a = 1e300, -1  # the search on any side
+        for t in range(S):
+            s = prev if t == 0 else (t - 1 if t - 1 < prev else t)
+            c0 = points[i, 0] - sc[s, 0]
+            c1 = points[i, 1] - sc[s, 1]
+            c2 = points[i, 2] - sc[s, 2]
+            bound = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) - sr[s]
+            skip = bound > best + 1e-5 * abs(best) + 1e-6
+            skip_a = bound > best_a + 1e-5 * abs(best_a) + 1e-6
+            if skip and skip_a:
+                continue
+            j = seg_node[s]
+            d0 = points[i, 0] - G[j, 0, 3]
+            d1 = points[i, 1] - G[j, 1, 3]
+            d2 = points[i, 2] - G[j, 2, 3]
+            for r in range(3):
+                q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
+            closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
+            dist = abs(loc[6])
+            if not skip_a and not (dist > best_a or (dist == best_a and s > bs_a)):
+                best_a = dist
+                bs_a = s
+            if skip or dist > best or (dist == best and s > bs):
+                continue
+            for r in range(3):
+                wp[r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
+                wn[r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+            if facing_only:
+                view = (wp[0] - cam[0]) * wn[0] + (wp[1] - cam[1]) * wn[1] + (wp[2] - cam[2]) * wn[2]
+                if view > 0.0:
+                    continue
+            best = dist
+            bs = s
+            for r in range(3):
+                out_p[i, r] = wp[r]
+                out_n[i, r] = wn[r]
+        out_seg[i] = bs
+        out_d[i] = best if bs >= 0 else np.inf
+        any_d[i] = best_a if bs_a >= 0 else np.inf
+        if bs >= 0:
+            prev = bs
+
+
+@njit(cache=True)
+def _fit_and_score(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, s_terms,
+                   s_samples, s_sil, cue, out, any_d, stats):
+    """:func:`fit_kernel` and :func:`tracker._search_kernels.search_score` of its result in one: the fit's
+    last closest-point pass and the score's data term share one search over the primitives
+    (:func:`closest_pass_and_any`); the sums are the lone kernels', in their order. Returns ``(θ, score)``."""
+    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out,
+                        stats)
+    G, wa, wo = new_frames(hand)
+    hand_frames(theta, hand, G, wa, wo)
+    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d)
+    stats[3] += 1
+    # match's pairs from the pass (tracker._correspond_kernels.match)
+    node, out_n, out_d, out_node, out_valid = caps.node, out.n, out.d, out.node, out.valid
+    reject, agreement = rules.reject_m, rules.agreement
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
+    for i in range(points.shape[0]):
+        sg = out.seg[i]
+        out_node[i] = node[sg] if sg >= 0 else 0
+        out_valid[i] = sg >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
+    # search_score: the data term (data_cost_mean's sums), the model→data term, the wrist cue
+    P = points.shape[0]
+    cap_mm = s_terms.data_cap_mm
+    if P == 0:
+        sc = cap_mm
+    else:
+        for i in range(P):
+            d = any_d[i] * MM_PER_M if np.isfinite(any_d[i]) else cap_mm
+            d = min(d, cap_mm)
+            if not out_valid[i]:
+                d = d + s_terms.rejected_mm
+            any_d[i] = min(d, cap_mm)
+        sc = pairwise_sum(any_d, 0, P) / P
+    if s_terms.m2d:
+        sc += s_terms.m2d_weight * _model_to_data_at(G, s_samples, s_sil, s_terms.m2d_tolerance_mm,
+                                                     s_terms.m2d_tolerance_px, s_terms.m2d_cap_mm)
+    if cue.on:
+        sc += wrist_cost_at(G, cue.point, cue.direction, cue.reach_mm, cue.turn_mm)
+    return theta, sc
+
+
 @njit(cache=True, nogil=True)
 def fit_score_many_entry(thetas, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist,
                          score_terms, score_samples, score_sil, cue, out_t, out_s, stats):
@@ -829,8 +959,9 @@ def fit_score_many_entry(thetas, hand, caps, points, normals, rules, stages, pro
     each row of ``thetas`` :func:`fit_kernel` with the same arguments (as :func:`fit_entry`'s, plain
     tuples), its result into ``out_t``'s row and :func:`tracker._search_kernels.search_score` of it
     (``score_terms``, ``score_samples``, ``score_sil``, ``cue``: that kernel's) into ``out_s``. Each
-    fit's arithmetic is a lone fit's (its pairs start from fresh rows): what a batch saves is the
-    Python around each fit and score, not work inside them."""
+    fit's and score's arithmetic is a lone fit's and score's (its pairs start from fresh rows; the fit's
+    last closest-point pass and the score's data term share one search, :func:`_fit_and_score`): the batch
+    saves the Python around each fit and score and one search over the primitives a fit."""
     h, c, r = HandArrays(*hand), CapsuleArrays(*caps), MatchRules(*rules)
     st, pj, g, t = StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms)
     sa, si, wl = SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist)
@@ -839,11 +970,13 @@ def fit_score_many_entry(thetas, hand, caps, points, normals, rules, stages, pro
     P = points.shape[0]
     out = Pairs(np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P), np.zeros(P, np.int64),
                 np.empty(P, np.bool_))
+    any_d = np.empty(P)
     for k in range(thetas.shape[0]):
         # the rows a lone fit's Pairs.empty starts from (a pass leaves a point without a pair untouched)
         out.p[:] = 0.0
         out.n[:] = 0.0
         out.node[:] = 0
-        th = fit_kernel(thetas[k], h, c, points, normals, r, st, pj, g, t, sa, si, wl, out, stats)
+        th, sc = _fit_and_score(thetas[k], h, c, points, normals, r, st, pj, g, t, sa, si, wl, s_terms, s_samples,
+                                s_sil, s_cue, out, any_d, stats)
         out_t[k] = th
-        out_s[k] = search_score(th, h, c, points, out.valid, s_terms, s_samples, s_sil, s_cue)
+        out_s[k] = sc

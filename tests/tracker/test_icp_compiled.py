@@ -253,6 +253,41 @@ def test_pruned_closest_points_equal_the_exhaustive_search(spread):
             assert found.mean() > 0.3
 
 
+@pytest.mark.parametrize("spread", [0.005, 0.03, 0.2])
+def test_one_search_for_the_fit_s_pass_and_the_score_s_distances_is_the_two_searches(spread):
+    """:func:`tracker._fit_kernels.closest_pass_and_any` (the batched fits' last pass and the score's data
+    term in one search) gives the facing pass's points, normals, segments and distances and the any-side
+    search's distances to the bit, with ``facing_only`` on and off, in scan order and shuffled."""
+    from tracker._kernel_arrays import CapsuleArrays
+
+    rng = np.random.default_rng(int(spread * 1000) + 1)
+    caps = HAND.capsules.kernel_args()
+    for k in range(4):
+        theta = HAND.zero()
+        theta[2] = 0.7
+        theta[3:6] = rng.normal(size=3)
+        theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
+        G = HAND.node_frames(theta)
+        pts = HAND.keypoints(theta)[rng.integers(0, 21, 200)] + rng.normal(scale=spread, size=(200, 3))
+        if k % 2:
+            pts = pts[np.argsort(pts[:, 0])]
+        P = len(pts)
+        cam = np.array([0.0, 0.0, -0.05 * k])
+        for facing in (True, False):
+            lone = np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P)
+            GK.closest_points_facing(G, *caps, pts, cam, facing, *lone)
+            lone_any = np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P)
+            GK.closest_points_facing(G, *caps, pts, np.zeros(3), False, *lone_any)
+            both = np.zeros((P, 3)), np.zeros((P, 3)), np.empty(P, np.int64), np.empty(P)
+            any_d = np.empty(P)
+            K.closest_pass_and_any(G, CapsuleArrays(*caps), pts, cam, facing, *both, any_d)
+            for a, b in zip(both, lone):
+                np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(any_d, lone_any[3])
+            if facing:
+                assert (lone[3] != lone_any[3]).any()  # some point's nearest surface faces away
+
+
 def test_posed_samples_and_centre_shift_are_the_numpy_ones(bundle):
     """The compiled posing of the model samples is ModelSamples.pose (to round-off), and the
     re-centring's shift is the numpy medians' (bit for bit); too few facing samples give None."""

@@ -141,12 +141,8 @@ def score(ctx: FitContext, theta, corr, silhouette=None, *, data_mm=None) -> flo
     restarts add :func:`finger_overlap_mm`, see :func:`finger_search_batched`.) ``data_mm``: the
     points' :func:`tracker.correspond.data_to_model_mm` at ``theta`` when the caller has them already."""
     # the hand's frames once for the data term and the wrist cue (a search scores hundreds of fits)
-    cue = getattr(silhouette, "wrist", None)
-    samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
-    m2d = silhouette is not None and samples is not None and not silhouette.empty
-    surf = ctx.matcher.surface
-    if (data_mm is None and corr.points is not None and isinstance(surf, CapsuleModel) and surf.hand is ctx.hand
-            and (not m2d or samples.hand is ctx.hand)):
+    samples, m2d, cue, compiled = _score_parts(ctx, silhouette)
+    if data_mm is None and corr.points is not None and compiled:
         # one compiled call (the same sums in the same order as the terms below)
         return _score_compiled(ctx, theta, corr, silhouette, samples if m2d else None, cue)
     G = ctx.hand.node_frames(theta) if cue is not None or (data_mm is None and corr.points is not None) else None
@@ -183,16 +179,23 @@ def _score_terms(samples, silhouette, cue) -> tuple:
     return plain(terms, SampleArrays.of(samples) if on else NO_SAMPLES, sil, wrist)
 
 
-def _score_arguments(ctx, silhouette):
-    """:func:`_score_terms` for the fits of :meth:`FitContext.fit_many` when :func:`score` of them takes
-    its compiled path (a capsule matcher posing ``ctx.hand``, the score samples too), else None."""
+def _score_parts(ctx, silhouette) -> tuple:
+    """What :func:`score` scores with on ``silhouette``: ``(samples, m2d, cue, compiled)``: the model→data
+    samples, whether that term is on, the frame's wrist cue (or None) and whether the compiled score
+    applies (a capsule matcher posing ``ctx.hand``, the score samples too, for fits with their points)."""
     cue = getattr(silhouette, "wrist", None)
     samples = ctx.score_samples if ctx.score_samples is not None else ctx.samples
     m2d = silhouette is not None and samples is not None and not silhouette.empty
     surf = ctx.matcher.surface
-    if not (isinstance(surf, CapsuleModel) and surf.hand is ctx.hand and (not m2d or samples.hand is ctx.hand)):
-        return None
-    return _score_terms(samples if m2d else None, silhouette, cue)
+    compiled = isinstance(surf, CapsuleModel) and surf.hand is ctx.hand and (not m2d or samples.hand is ctx.hand)
+    return samples, m2d, cue, compiled
+
+
+def _score_arguments(ctx, silhouette):
+    """:func:`_score_terms` for the fits of :meth:`FitContext.fit_many` when :func:`score` of them takes
+    its compiled path (:func:`_score_parts`), else None."""
+    samples, m2d, cue, compiled = _score_parts(ctx, silhouette)
+    return _score_terms(samples if m2d else None, silhouette, cue) if compiled else None
 
 
 _ZERO3 = np.zeros(3)
