@@ -44,7 +44,7 @@ def summarise(hand, theta, truth, status=None, ms=None, thresholds_deg=(2, 5, 10
         out[f"share_keypoints_below_{t}mm"] = float(np.mean(np.nan_to_num(ke, nan=np.inf) < t))
     if status is not None:
         st = np.asarray(status)
-        for s in ("tracked", "lost", "reinit"):
+        for s in ("tracked", "lost", "reinit", "predicted"):
             out[f"share_{s}"] = float(np.mean(st == s))
     if ms is not None:
         out["ms_median"] = float(np.median(ms))

@@ -48,11 +48,13 @@ class TrackerStats:
         not run (``start.detector_accept_mm``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
-    not_hands : starts whose region the hand-presence network called no hand (``start.presence``): no
-        search ran
-    hands_fitted : starts the network called no hand where the detected hand fitted the region as an
-        accepted start does (:meth:`StartSearch.detected_fits`): searched as hands
+    not_hands : starts (and re-centred tracked frames, ``predict.jump_presence``) whose region the
+        hand-presence network called no hand (``start.presence``): no search ran
+    hands_fitted : regions the network called no hand where the detected hand fitted them as an accepted
+        start does (:meth:`StartSearch.detected_fits`): searched (or tracked) as hands
     wrist_cuts : frames whose points behind the detected wrist were left out (``start.detector_wrist_m``)
+    jumps_refused : tracked frames whose points the prediction missed and whose region the hand-presence
+        network called no hand: the prediction output (status ``"predicted"``), nothing fitted
     """
 
     net_runs: int = 0
@@ -79,6 +81,7 @@ class TrackerStats:
     not_hands: int = 0
     hands_fitted: int = 0
     wrist_cuts: int = 0
+    jumps_refused: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""

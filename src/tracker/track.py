@@ -122,6 +122,13 @@ def check_hand(ctx, settings, synergies, pts, nrm, sil, theta, corr) -> HandChec
     return HandCheck(score(ctx, theta, corr, sil), score(octx, th, c, sil), other.handedness)
 
 
+@dataclass(frozen=True)
+class Predicted:
+    """A tracked frame not fitted: its output is the prediction ``theta`` (:meth:`FrameTracker._not_a_hand`)."""
+
+    theta: np.ndarray
+
+
 def _output_theta(theta) -> np.ndarray:
     """A copy of θ as a frame's result gives it: the global rotation in [−π, π) (the tracker's own θ
     keeps its turns: its fits start from it)."""
@@ -327,6 +334,8 @@ class FrameTracker:
             frame = self._start(pts, nrm, sil, n_in, t0, color, whole, camera)
         else:
             frame = self._follow(pts, nrm, sil)
+        if isinstance(frame, Predicted):  # a jump to no hand: the prediction, the state as before it
+            return frame_result(self.stats, self.hand.n_dofs, frame.theta, "predicted", n_in, t0)
         if isinstance(frame, FrameResult):  # a start that found no hand: lost, the state as before it
             self.lost = True
             return frame
@@ -385,11 +394,26 @@ class FrameTracker:
             self.net.search_level = score(self.context, theta, corr, sil)
         return FrameFit(theta, corr, "reinit", "", False, False, pts, nrm)
 
+    def _not_a_hand(self, ctx, pts, nrm, sil) -> bool:
+        """Whether a tracked frame whose points the prediction missed (re-centred: the hand jumped, or the
+        segmentation took something else) is no hand by the hand-presence network, the detected hand not
+        fitting it either (as a start asks, :meth:`_start`): a forearm's far end is not followed."""
+        if self.presence is None or not self.settings.predict.jump_presence:
+            return False
+        fits = partial(self.search.detected_fits, ctx, self.context_for, pts, nrm, sil, self.settings.scale.range)
+        if not self.presence.absent(sil, self.base_hand.handedness, fits):
+            return False
+        self.stats.jumps_refused += 1
+        return True
+
     def _follow(self, pts, nrm, sil):
         """A tracked frame: predict (gate, re-centre), fit, the coupling restarts, check (the safety net)."""
         st, ctx = self.settings, self.context
+        predicted = self.predict()
         pred, recentred, pts, nrm, all_pts, all_nrm = self.prediction.points(self.hand, ctx.score_samples,
-                                                                             self.predict(), pts, nrm)
+                                                                             predicted, pts, nrm)
+        if recentred and self._not_a_hand(ctx, all_pts, all_nrm, sil):
+            return Predicted(predicted)
         theta, corr = self._fit(pred, pts, nrm, sil)
         theta, corr = self.restart(self.hand, theta, corr, partial(self._fit, pts=pts, nrm=nrm, sil=sil),
                                    partial(score, ctx, silhouette=sil), self.limits)
