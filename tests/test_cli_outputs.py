@@ -269,9 +269,15 @@ def test_outputs_are_checked_before_the_long_work(name, inp, full_fs, tmp_path, 
     from tracker.cli import app as tracker_app
 
     reached = []
+    # every module imported before any is patched: a module imported for the first time while another's
+    # function is patched keeps the patch after the test (tracker.sim.synthesize binds
+    # tracker.sim.motions.make_motion at its import), and the tests after this one meet it
+    owners = []
     for mod, attr in _work_of(name):
         head, _, cls = mod.rpartition(".") if mod.endswith("Recording") else (mod, "", "")
         owner = getattr(importlib.import_module(head), cls) if cls else importlib.import_module(mod)
+        owners.append((mod, attr, cls, owner))
+    for mod, attr, cls, owner in owners:
 
         def work(*a, _what=f"{mod}.{attr}", **k):
             reached.append(_what)
