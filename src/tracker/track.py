@@ -41,8 +41,8 @@ from .parts import (
 )
 from .resize import shaped_context
 from .settings import TrackerSettings
-from .wrist import ahead_of_wrist
 from .sizing import HandSizes, SizeCalibration, fit_context
+from .wrist import ahead_of_wrist
 
 
 @dataclass
