@@ -4,12 +4,12 @@ hands 0.8/1.0/1.5× with fingers ±10 %) tracked alone by a fresh tracker at the
 the tracker without a detector (``--no-detector``: every start the full search), with ``start.detector``
 but without the hand-presence network (``--no-presence``: the keypoint CNN's hand fitted first, the full
 search only when that scores above ``start.detector_accept_mm``), and with both (the default: the network
-asked before a region is searched, overruled where the detected hand fits), one core (the fits on one thread, ``--threads``), the same frames in
-the same run; ``--settings`` adds the default with those changes (JSON, e.g. ``'{"init": {"seeded":
-{"first": "fit"}}}'``). Per variant: frames found (not "no hand"), the mean keypoint error's mean / median
-over them, frames within 10 mm, the frames whose full search was skipped, wall ms per start; for the
-starts without the full search, their wall and CPU ms (CPU: this process's, one thread, so the
-machine's other load counts less) and errors.
+asked before a region is searched, overruled where the detected hand fits), one core (the search's fits on
+one thread, ``--threads``), the same frames in the same run; ``--settings`` adds the default with those
+changes (JSON, e.g. ``'{"init": {"seeded": {"first": "fit"}}}'``). Per variant: frames found (not "no
+hand"), the mean keypoint error's mean / median over them, frames within 10 mm, the frames whose full
+search was skipped, wall ms per start; for the starts without the full search, their wall and CPU ms (CPU:
+this process's, one thread, so the machine's other load counts less) and errors.
 
 Run: .venv/bin/python benchmarks/bench_start.py [--frames 0,10,20,30,40] [--detector hand-keypoints-cnn]
 [--accept 1.5] [--presence hand-presence-cnn] [--motions fist-palm,fist-side,pinch,grasp-back] [--settings JSON]
@@ -117,7 +117,8 @@ def main():
         if skip.any():
             print(f"{'':46s} the starts without the full search: {np.median(ms[skip]):.0f} ms median "
                   f"(CPU {np.median(cpu[skip]):.1f} ms median, {np.mean(cpu[skip]):.1f} mean), "
-                  f"{np.nanmedian(e[skip]):.2f} mm median, {np.nanmean(e[skip]):.2f} mean (the full search on those frames: "
+                  f"{np.nanmedian(e[skip]):.2f} mm median, {np.nanmean(e[skip]):.2f} mean "
+                  f"(the full search on those frames: "
                   f"{np.nanmedian(np.array(res[next(iter(res))]['mm'])[skip]):.1f} mm, "
                   f"{np.median(np.array(res[next(iter(res))]['ms'])[skip]):.0f} ms)")
 

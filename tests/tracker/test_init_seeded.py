@@ -81,8 +81,8 @@ def test_restart_settings_set_the_ranking_fits_and_the_finalists(ring_curled):
     finalists, errs = {}, {}
     for margin in (1e9, 2.0, 0.0):
         c = counting(ctx)
-        th = finger_search_batched(c, wrong, ob.points, st.replace(halving=dict(restart_margin_mm=margin, restart_icp=3)),
-                                   silhouette=sil, normals=ob.normals)
+        restarts = st.replace(halving=dict(restart_margin_mm=margin, restart_icp=3))
+        th = finger_search_batched(c, wrong, ob.points, restarts, silhouette=sil, normals=ob.normals)
         ranked = [n for n, it in c.calls if it == 3]
         refined = [n for n, it in c.calls if it == st.refine_icp]
         assert ranked and sum(ranked) >= 5 * 3  # every finger's shapes, ranked with restart_icp iterations
