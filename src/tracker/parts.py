@@ -48,10 +48,10 @@ class TrackerStats:
         not run (``start.detector_accept_mm``)
     searches, searches_cut, search_ms : start searches, of them cut short by ``start.search_budget_ms``,
         their time (ms)
-    not_hands : starts (and re-centred tracked frames, ``predict.jump_presence``) whose region the
-        hand-presence network called no hand (``start.presence``): no search ran
-    hands_fitted : regions the network called no hand where the detected hand fitted them as an accepted
-        start does (:meth:`StartSearch.detected_fits`): searched (or tracked) as hands
+    not_hands : starts whose region the hand-presence network called no hand (``start.presence``): no
+        search ran
+    hands_fitted : starts the network called no hand where the detected hand fitted the region as an
+        accepted start does (:meth:`StartSearch.detected_fits`): searched as hands
     wrist_cuts : frames whose points behind the detected wrist were left out (``start.detector_wrist_m``)
     jumps_refused : tracked frames whose points the prediction missed and whose region the hand-presence
         network called no hand: the prediction output (status ``"predicted"``), nothing fitted
@@ -288,11 +288,12 @@ class HandPresence:
     def reset(self):
         pass
 
-    def absent(self, sil, hand: str, fits=None) -> bool:
+    def absent(self, sil, hand: str, fits=None, *, counted: bool = True) -> bool:
         """Whether the frame's :class:`tracker.correspond.Silhouette` region is no hand (False where it
         cannot be asked: no mask, no depth or no camera), asked as the keypoint detector is
         (:func:`tracker.keypoint_fit.detect_in`: the whole frame's depth, the segmentation as the mask).
-        ``fits()``: whether a hand fitted to the region all the same, asked only when the network says no."""
+        ``fits()``: whether a hand fitted to the region all the same, asked only when the network says no.
+        ``counted``: the answer counts in ``stats`` (a start's; a tracked frame's jump counts its own)."""
         # loaded with the network only: a run without detectors loads none (test_startup)
         from .hand_presence import hand_probability
         from .keypoint_fit import detect_in
@@ -305,9 +306,9 @@ class HandPresence:
             # arm, 0.01-0.07) are fitted within 0.7 mm; none of the 38 regions it turned away on the harder
             # scenes' starts (a forearm's end, a torso's edge), nor a real wall's edge, fits within the
             # threshold (docs/experiments/detector.md, "On by default: the model fit overrules the network")
-            self.stats.hands_fitted += 1
+            self.stats.hands_fitted += counted
             return False
-        self.stats.not_hands += absent
+        self.stats.not_hands += absent and counted
         return absent
 
 

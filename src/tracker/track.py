@@ -401,7 +401,7 @@ class FrameTracker:
         if self.presence is None or not self.settings.predict.jump_presence:
             return False
         fits = partial(self.search.detected_fits, ctx, self.context_for, pts, nrm, sil, self.settings.scale.range)
-        if not self.presence.absent(sil, self.base_hand.handedness, fits):
+        if not self.presence.absent(sil, self.base_hand.handedness, fits, counted=False):
             return False
         self.stats.jumps_refused += 1
         return True

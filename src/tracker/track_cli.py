@@ -200,6 +200,14 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
         n = tracker.stats.hands_fitted
         console.print(f"the hand-presence network called {n} frame{'s' * (n != 1)} no hand where the detected hand "
                       f"fitted within {tracker.settings.start.detector_accept_mm:g} mm: searched as hands")
+    if tracker.stats.jumps_refused:
+        n = tracker.stats.jumps_refused
+        console.print(f"on {n} tracked frame{'s' * (n != 1)} the points left the predicted hand for a region the "
+                      f"hand-presence network called no hand: the prediction given (status predicted)")
+    if tracker.stats.wrist_cuts:
+        n = tracker.stats.wrist_cuts
+        console.print(f"on {n} frame{'s' * (n != 1)} the points more than {tracker.settings.start.detector_wrist_m:g} m "
+                      f"behind the detected wrist (an arm the segmentation kept) were left out")
     if len(rows) and not any(found):
         why = ("nothing segmented looks like a hand" if tracker.stats.no_hand
                else "nothing segmented where a hand can be")

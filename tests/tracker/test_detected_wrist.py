@@ -146,3 +146,22 @@ def test_while_tracking_the_detector_is_asked_only_past_the_last_wrist(bundle):
         r = tr.track(observe(ren.render(th, labels=False).depth, cam), cam)
         assert r.status in ("reinit", "tracked")
     assert len(calls) == 1 and tr.stats.wrist_cuts == 0
+
+
+def test_tracker_track_says_where_the_detected_wrist_cut(tmp_path):
+    """``tracker track`` on a rendered side fist with its forearm and a torso (``tracker synth -m fist-side``):
+    the summary names the frames whose arm was left out behind the detected wrist; ``--no-detector`` has none."""
+    from typer.testing import CliRunner
+
+    from tracker.cli import app
+
+    def run(*args):
+        return CliRunner().invoke(app, [str(a) for a in args], env={"SYNERGY_PATH": ""})
+
+    rec = tmp_path / "rec"
+    assert run("synth", "-m", "fist-side", "-f", "30", "--seed", "2", "--clutter", "forearm,torso", "--color",
+               "-o", rec).exit_code == 0
+    r = run("track", rec, "-o", tmp_path / "t.csv", "--hand-scale", "1")
+    assert r.exit_code == 0 and "behind the detected wrist" in r.output, r.output
+    r = run("track", rec, "-o", tmp_path / "n.csv", "--hand-scale", "1", "--no-detector")
+    assert r.exit_code == 0 and "behind the detected wrist" not in r.output, r.output
