@@ -134,23 +134,10 @@ def closest_local_many(shape, L, r0, r1, th, pts, out_p, out_n):
 
 
 @njit(cache=True, inline="always")
-def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, signed,
-             out_p, out_n, out_seg, out_d):
-    """The closest candidate over all primitives for every point (see the two kernels below); the
-    smallest signed distance wins when ``signed``, else the smallest absolute one; of equally close
-    candidates the lowest segment index.
-
-    Every primitive lies inside a bounding sphere, and no surface inside it is nearer than the
-    distance to the sphere: primitives whose sphere is farther than the best candidate so far are
-    skipped without their closest-point computation. The search starts with the previous point's
-    winner (neighbouring points of a scan mostly share it), so the bound prunes from the start.
-    The order of the visits does not change the result (ties go to the lowest index)."""
-    P = points.shape[0]
+def bounding_spheres(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th):
+    """``(centres (S, 3), radii (S,))``: each primitive's bounding sphere at the node frames ``G`` (no surface
+    of it is nearer a point than that sphere: the closest-point searches skip primitives by it)."""
     S = seg_node.shape[0]
-    q = np.empty(3)
-    loc = np.empty(7)
-    wp = np.empty(3)
-    wn = np.empty(3)
     sc = np.empty((S, 3))
     sr = np.empty(S)
     for s in range(S):
@@ -163,6 +150,28 @@ def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, ca
             sr[s] = np.sqrt(0.25 * L * L + w * w) + seg_th[s]
         for r in range(3):
             sc[s, r] = G[j, r, 1] * 0.5 * L + G[j, r, 3]
+    return sc, sr
+
+
+@njit(cache=True, inline="always")
+def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, cam, facing_only, signed,
+             out_p, out_n, out_seg, out_d):
+    """The closest candidate over all primitives for every point (see the two kernels below); the
+    smallest signed distance wins when ``signed``, else the smallest absolute one; of equally close
+    candidates the lowest segment index.
+
+    Every primitive lies inside a bounding sphere, and no surface inside it is nearer than the
+    distance to the sphere: primitives whose sphere is farther than the best candidate so far are
+    skipped without their closest-point computation. The search starts with the previous point's
+    winner (neighbouring points of a scan mostly share it), so the bound prunes from the start.
+    The order of the visits does not change the result (ties go to the lowest index)."""
+    P = points.shape[0]
+    q = np.empty(3)
+    loc = np.empty(7)
+    wp = np.empty(3)
+    wn = np.empty(3)
+    sc, sr = bounding_spheres(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th)
+    S = sr.shape[0]
     prev = 0
     for i in range(P):
         best = 1e300

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from handmodel._geometry_kernels import CAPSULE, closest_local
+from handmodel._geometry_kernels import bounding_spheres, closest_local
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
@@ -846,25 +846,14 @@ def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_se
     needs it. (The lone searches' visit order differs, which changes no result: ties go to the lowest
     index and the bound only skips primitives that cannot win.)"""
     P = points.shape[0]
-    S = caps.node.shape[0]
     seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th = caps.node, caps.shape, caps.length, caps.r0, caps.r1, \
         caps.thickness
     q = np.empty(3)
     loc = np.empty(7)
     wp = np.empty(3)
     wn = np.empty(3)
-    sc = np.empty((S, 3))
-    sr = np.empty(S)
-    for s in range(S):
-        j = seg_node[s]
-        L = seg_len[s]
-        if seg_shape[s] == CAPSULE:
-            sr[s] = 0.5 * L + max(seg_r0[s], seg_r1[s])
-        else:
-            w = max(max(seg_r0[s] - seg_th[s], 0.0), max(seg_r1[s] - seg_th[s], 0.0))
-            sr[s] = np.sqrt(0.25 * L * L + w * w) + seg_th[s]
-        for r in range(3):
-            sc[s, r] = G[j, r, 1] * 0.5 * L + G[j, r, 3]
+    sc, sr = bounding_spheres(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th)
+    S = sr.shape[0]
     prev = 0
     for i in range(P):
         best, bs = 1e300, -1      # the facing search
