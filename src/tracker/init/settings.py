@@ -43,22 +43,22 @@ class SeededSettings(SettingsGroup):
     """How :func:`tracker.init.seeded_search` fits a detected hand before it decides whether the full
     search runs, and the finger-wise restarts of a start it accepts.
 
-    ``first``: ``"search"`` fits the synergy postures at the detected hand's global pose with the
+    ``first``: ``"search"`` (default) fits the synergy postures at the detected hand's global pose with the
     detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid);
-    ``"fit"`` (default) fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the
-    whole cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
+    ``"fit"`` fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the whole
+    cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
     when none scores within the acceptance. ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and
     ``restart_pairs`` replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
     ``rank_points``, ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
-    The defaults (``"fit"``, restarts ranked with 2 ICP iterations, a restart going on only when it ranks
-    better than the fit itself) halve an accepted start (70-77 → 30-37 ms CPU on bench_start's 46 accepted
-    starts), at equal or better accuracy on every scene set measured (docs/experiments/start-cost.md);
-    ``first="search", restart_icp=None, restart_margin_mm=None`` is the earlier start to the bit.
+    ``first="fit", restart_icp=2, restart_margin_mm=0`` halves an accepted start (70-77 → 30-37 ms CPU on
+    bench_start's 46) and is as good or better on the harder and realistic scenes, but not the default: on
+    the paper's Fig. 8 sequences it is worse (1 + 0 ICP iterations 1.77° → 4.48°, 1 + 1 1.05° → 1.82°) and
+    on the hard cases (docs/experiments/start-cost.md).
     """
 
-    first: str = "fit"
-    restart_icp: int | None = 2
-    restart_margin_mm: float | None = 0.0
+    first: str = "search"
+    restart_icp: int | None = None
+    restart_margin_mm: float | None = None
     restart_points: int | None = None
     restart_pairs: bool | None = None
 
