@@ -6,7 +6,7 @@ but without the hand-presence network (``--no-presence``: the keypoint CNN's han
 search only when that scores above ``start.detector_accept_mm``), and with both (the default: the network
 asked before a region is searched, overruled where the detected hand fits), one core (the search's fits on
 one thread, ``--threads``), the same frames in the same run; ``--settings`` adds the default with those
-changes (JSON, e.g. ``'{"init": {"seeded": {"first": "fit"}}}'``). Per variant: frames found (not "no
+changes (JSON, e.g. ``'{"init": {"halving": {"seeded": {"first": "fit"}}}}'``). Per variant: frames found (not "no
 hand"), the mean keypoint error's mean / median over them, frames within 10 mm, the frames whose full
 search was skipped, wall ms per start; for the starts without the full search, their wall and CPU ms (CPU:
 this process's, one thread, so the machine's other load counts less) and errors.

@@ -270,8 +270,8 @@ def test_batched_finger_search_bends_back_a_finger_flexed_alone(bundle):
                                           ({"halving": {"keep": (4,)}}, "keep"), ({"threads": -1}, "threads"),
                                           ({"halving": {"restart_icp": 0}}, "restart_icp"),
                                           ({"halving": {"restart_margin_mm": -1.0}}, "restart_margin_mm"),
-                                          ({"seeded": {"first": "one"}}, "seeded first"),
-                                          ({"seeded": {"restart_points": 0}}, "restart_points")])
+                                          ({"halving": {"seeded": {"first": "one"}}}, "seeded first"),
+                                          ({"halving": {"seeded": {"restart_points": 0}}}, "restart_points")])
 def test_bad_search_settings_are_refused(bundle, change, word):
     tr = FrameTracker(HAND, TrackerSettings(), synergies=bundle)
     st = InitSettings().replace(**change)

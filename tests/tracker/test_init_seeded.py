@@ -104,7 +104,7 @@ def test_a_detected_hand_fitted_once_is_accepted_with_its_restarts(ring_curled):
     out = {}
     for first in ("fit", "search"):
         c = counting(ctx)
-        st = InitSettings().replace(seeded=dict(first=first, restart_icp=3))  # 3: no other fit's count
+        st = InitSettings().replace(halving=dict(seeded=dict(first=first, restart_icp=3)))  # 3: no other fit's count
         th, _, searched = seeded_search(c, ob.points, st, seed, accept_mm=3.0, silhouette=sil, normals=ob.normals)
         assert not searched
         ranking = [i for i, (_, it) in enumerate(c.calls) if it == 3][0]
@@ -120,7 +120,7 @@ def test_a_detected_hand_not_accepted_is_searched_as_by_default(ring_curled):
     truth, wrong, ob, sil, ctx = ring_curled
     res = {}
     for first in ("fit", "search"):
-        st = InitSettings.cheap().replace(seeded=dict(first=first))
+        st = InitSettings.cheap().replace(halving=dict(seeded=dict(first=first)))
         res[first] = seeded_search(ctx, ob.points, st, wrong, accept_mm=1e-9, silhouette=sil, normals=ob.normals)
     assert res["fit"][2] and res["search"][2]
     np.testing.assert_array_equal(res["fit"][0], res["search"][0])

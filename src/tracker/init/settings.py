@@ -11,34 +11,6 @@ from ..settings_base import SettingsGroup
 
 
 @dataclass(frozen=True)
-class HalvingSettings(SettingsGroup):
-    """The successive-halving schedule of the single-frame search (:class:`InitSettings` ``strategy``
-    "halving"): every start fitted briefly on ``rank_points`` points (``rank_icp`` ICP iterations of
-    ``rank_gn`` Gauss-Newton steps), the best ``keep[0]`` longer on the coarse cloud, the best
-    ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; at most ``finger_sweeps``
-    sweeps of finger-wise restarts; the winner polished with ``polish_icp`` on the full cloud.
-    """
-
-    rank_points: int = 300
-    rank_icp: int = 2
-    rank_gn: int = 2
-    keep: tuple = (12, 3)
-    refine_points: int = 1500
-    refine_icp: int = 8
-    polish_icp: int = 4
-    finger_sweeps: int = 3
-    restart_icp: int = 4
-    restart_margin_mm: float = 2.0
-
-    def check(self):
-        if min(self.keep, default=0) < 1 or len(self.keep) != 2:
-            raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
-        if int(self.restart_icp) < 1 or not self.restart_margin_mm >= 0:
-            raise TrackerError("settings", f"init restart_icp must be ≥ 1 and restart_margin_mm ≥ 0, got "
-                                           f"{self.restart_icp!r}, {self.restart_margin_mm!r}")
-
-
-@dataclass(frozen=True)
 class SeededSettings(SettingsGroup):
     """How :func:`tracker.init.seeded_search` fits a detected hand before it decides whether the full
     search runs, and the finger-wise restarts of a start it accepts.
@@ -74,6 +46,39 @@ SEEDED_FIRST = ("search", "fit")
 
 
 @dataclass(frozen=True)
+class HalvingSettings(SettingsGroup):
+    """The successive-halving schedule of the single-frame search (:class:`InitSettings` ``strategy``
+    "halving"): every start fitted briefly on ``rank_points`` points (``rank_icp`` ICP iterations of
+    ``rank_gn`` Gauss-Newton steps), the best ``keep[0]`` longer on the coarse cloud, the best
+    ``keep[1]`` of those for ``refine_icp`` iterations on ``refine_points``; at most ``finger_sweeps``
+    sweeps of finger-wise restarts; the winner polished with ``polish_icp`` on the full cloud. ``seeded``:
+    how a detected hand's start is fitted and its restarts ranked (:class:`SeededSettings`; read as
+    ``InitSettings.seeded`` too).
+    """
+
+    rank_points: int = 300
+    rank_icp: int = 2
+    rank_gn: int = 2
+    keep: tuple = (12, 3)
+    refine_points: int = 1500
+    refine_icp: int = 8
+    polish_icp: int = 4
+    finger_sweeps: int = 3
+    restart_icp: int = 4
+    restart_margin_mm: float = 2.0
+    seeded: SeededSettings = field(default_factory=SeededSettings)
+
+    def check(self):
+        if min(self.keep, default=0) < 1 or len(self.keep) != 2:
+            raise TrackerError("settings", f"init keep must be two counts ≥ 1, got {self.keep!r}")
+        if int(self.restart_icp) < 1 or not self.restart_margin_mm >= 0:
+            raise TrackerError("settings", f"init restart_icp must be ≥ 1 and restart_margin_mm ≥ 0, got "
+                                           f"{self.restart_icp!r}, {self.restart_margin_mm!r}")
+
+
+
+
+@dataclass(frozen=True)
 class InitSettings(SettingsGroup):
     """The single-frame search.
 
@@ -100,8 +105,8 @@ class InitSettings(SettingsGroup):
     start refined with ``icp_iterations`` on the full cloud (2–3× the CPU time with the compiled ICP
     loop, ~14× with the Python one; kept as the reference the benchmark compares with).
 
-    ``seeded``: how the search with a detected hand first (:func:`tracker.init.seeded_search`) fits that
-    hand and restarts an accepted start's fingers (:class:`SeededSettings`).
+    ``seeded`` (``halving.seeded``): how the search with a detected hand first (:func:`tracker.init.seeded_search`)
+    fits that hand and restarts an accepted start's fingers (:class:`SeededSettings`).
     """
 
     icp_iterations: int = 12
@@ -116,7 +121,6 @@ class InitSettings(SettingsGroup):
     refit_pose: bool = False
     finger_pairs: bool = True
     threads: int = 0
-    seeded: SeededSettings = field(default_factory=SeededSettings)
 
     # the halving schedule's fields, read where the search reads them
     rank_points = property(lambda self: self.halving.rank_points)
@@ -128,6 +132,7 @@ class InitSettings(SettingsGroup):
     polish_icp = property(lambda self: self.halving.polish_icp)
     finger_sweeps = property(lambda self: self.halving.finger_sweeps)
     restart_icp = property(lambda self: self.halving.restart_icp)
+    seeded = property(lambda self: self.halving.seeded)
     restart_margin_mm = property(lambda self: self.halving.restart_margin_mm)
 
     @classmethod
@@ -150,7 +155,7 @@ class InitSettings(SettingsGroup):
         if self.strategy not in STRATEGIES:
             raise TrackerError("settings", f"init strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         self.halving.check()
-        self.seeded.check()
+        self.halving.seeded.check()
         if int(self.threads) < 0:
             raise TrackerError("settings", f"init threads must be ≥ 0 (0 = the cores available), got {self.threads!r}")
 
