@@ -134,6 +134,26 @@ def closest_local_many(shape, L, r0, r1, th, pts, out_p, out_n):
 
 
 @njit(cache=True, inline="always")
+def closest_on_primitive(G, j, shape, L, r0, r1, th, px, py, pz, q, loc):
+    """The closest point to the world point ``(px, py, pz)`` on one primitive posed by node frame ``G[j]``,
+    in its local frame: ``q`` ← the point there (Rᵀ (p − o)), ``loc`` ← :func:`closest_local`'s answer."""
+    d0 = px - G[j, 0, 3]
+    d1 = py - G[j, 1, 3]
+    d2 = pz - G[j, 2, 3]
+    for r in range(3):
+        q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
+    closest_local(shape, L, r0, r1, th, q, loc)
+
+
+@njit(cache=True, inline="always")
+def to_world(G, j, loc, wp, wn):
+    """``wp``, ``wn`` ← :func:`closest_local`'s point and normal ``loc`` in the world, by node frame ``G[j]``."""
+    for r in range(3):
+        wp[r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
+        wn[r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+
+
+@njit(cache=True, inline="always")
 def bounding_spheres(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th):
     """``(centres (S, 3), radii (S,))``: each primitive's bounding sphere at the node frames ``G`` (no surface
     of it is nearer a point than that sphere: the closest-point searches skip primitives by it)."""
@@ -187,19 +207,12 @@ def _closest(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th, points, ca
             if bound > best + 1e-5 * abs(best) + 1e-6:
                 continue
             j = seg_node[s]
-            # world -> local: Rᵀ (p − o)
-            d0 = points[i, 0] - G[j, 0, 3]
-            d1 = points[i, 1] - G[j, 1, 3]
-            d2 = points[i, 2] - G[j, 2, 3]
-            for r in range(3):
-                q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
-            closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
+            closest_on_primitive(G, j, seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], points[i, 0],
+                                 points[i, 1], points[i, 2], q, loc)
             dist = loc[6] if signed else abs(loc[6])
             if dist > best or (dist == best and s > bs):
                 continue
-            for r in range(3):
-                wp[r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
-                wn[r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+            to_world(G, j, loc, wp, wn)
             if facing_only:
                 view = (wp[0] - cam[0]) * wn[0] + (wp[1] - cam[1]) * wn[1] + (wp[2] - cam[2]) * wn[2]
                 if view > 0.0:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from handmodel._geometry_kernels import closest_local, closest_points_facing
+from handmodel._geometry_kernels import closest_on_primitive, closest_points_facing, to_world
 from handmodel.kinematics import fk_single
 
 from ._kernel_arrays import HandArrays, SampleArrays, SilhouetteArrays
@@ -88,15 +88,9 @@ def match_same(G, caps, points, normals, rules, out):
         if s < 0:
             continue
         j = node[s]
-        d0 = points[i, 0] - G[j, 0, 3]
-        d1 = points[i, 1] - G[j, 1, 3]
-        d2 = points[i, 2] - G[j, 2, 3]
-        for r in range(3):
-            q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
-        closest_local(shape[s], length[s], r0[s], r1[s], thickness[s], q, loc)
-        for r in range(3):
-            out_p[i, r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
-            out_n[i, r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+        closest_on_primitive(G, j, shape[s], length[s], r0[s], r1[s], thickness[s], points[i, 0], points[i, 1],
+                             points[i, 2], q, loc)
+        to_world(G, j, loc, out_p[i], out_n[i])
         out_d[i] = abs(loc[6])
         if facing_only:
             view = ((out_p[i, 0] - cam[0]) * out_n[i, 0] + (out_p[i, 1] - cam[1]) * out_n[i, 1]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from handmodel._geometry_kernels import bounding_spheres, closest_local
+from handmodel._geometry_kernels import bounding_spheres, closest_on_primitive, to_world
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
@@ -869,21 +869,15 @@ def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_se
             if skip and skip_a:
                 continue
             j = seg_node[s]
-            d0 = points[i, 0] - G[j, 0, 3]
-            d1 = points[i, 1] - G[j, 1, 3]
-            d2 = points[i, 2] - G[j, 2, 3]
-            for r in range(3):
-                q[r] = G[j, 0, r] * d0 + G[j, 1, r] * d1 + G[j, 2, r] * d2
-            closest_local(seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], q, loc)
+            closest_on_primitive(G, j, seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], points[i, 0],
+                                 points[i, 1], points[i, 2], q, loc)
             dist = abs(loc[6])
             if not skip_a and not (dist > best_a or (dist == best_a and s > bs_a)):
                 best_a = dist
                 bs_a = s
             if skip or dist > best or (dist == best and s > bs):
                 continue
-            for r in range(3):
-                wp[r] = G[j, r, 0] * loc[0] + G[j, r, 1] * loc[1] + G[j, r, 2] * loc[2] + G[j, r, 3]
-                wn[r] = G[j, r, 0] * loc[3] + G[j, r, 1] * loc[4] + G[j, r, 2] * loc[5]
+            to_world(G, j, loc, wp, wn)
             if facing_only:
                 view = (wp[0] - cam[0]) * wn[0] + (wp[1] - cam[1]) * wn[1] + (wp[2] - cam[2]) * wn[2]
                 if view > 0.0:
