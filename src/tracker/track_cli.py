@@ -196,18 +196,15 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
             why.append(f"{out} fitted at the end of the hand sizes searched ({lo:g}–{hi:g}× the model)")
         console.print(f"no hand: on {tracker.stats.no_hand} frame{'s' * (tracker.stats.no_hand != 1)} what was segmented is no "
                       f"hand ({'; '.join(why)}); those frames are lost, without θ")
-    if tracker.stats.hands_fitted:
-        n = tracker.stats.hands_fitted
-        console.print(f"the hand-presence network called {n} frame{'s' * (n != 1)} no hand where the detected hand "
-                      f"fitted within {tracker.settings.start.detector_accept_mm:g} mm: searched as hands")
-    if tracker.stats.jumps_refused:
-        n = tracker.stats.jumps_refused
-        console.print(f"on {n} tracked frame{'s' * (n != 1)} the points left the predicted hand for a region the "
-                      f"hand-presence network called no hand: the prediction given (status predicted)")
-    if tracker.stats.wrist_cuts:
-        n = tracker.stats.wrist_cuts
-        console.print(f"on {n} frame{'s' * (n != 1)} the points more than {tracker.settings.start.detector_wrist_m:g} m "
-                      f"behind the detected wrist (an arm the segmentation kept) were left out")
+    stats, start = tracker.stats, tracker.settings.start
+    for n, line in ((stats.hands_fitted, "the hand-presence network called {} no hand where the detected hand fitted "
+                                         f"within {start.detector_accept_mm:g} mm: searched as hands"),
+                    (stats.jumps_refused, "on {} the tracked points left the predicted hand for a region the "
+                                          "hand-presence network called no hand: the prediction given (status predicted)"),
+                    (stats.wrist_cuts, "on {} the points more than " + f"{start.detector_wrist_m:g} m behind the "
+                                       "detected wrist (an arm the segmentation kept) were left out")):
+        if n:
+            console.print(line.format(f"{n} frame{'s' * (n != 1)}"))
     if len(rows) and not any(found):
         why = ("nothing segmented looks like a hand" if tracker.stats.no_hand
                else "nothing segmented where a hand can be")
