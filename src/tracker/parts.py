@@ -568,7 +568,7 @@ class StartSearch:
         if ctx is None:
             base = context_for(1.0)
             sizes = first_sizes(base, pts, keypoint_scale(det, base.hand), scale_range)
-        for c in [ctx] if ctx is not None else [context_for(s) for s in sizes]:
+        for c in [ctx] if ctx is not None else (context_for(s) for s in sizes):  # a size's context only if asked
             seed = fit_start(det, c.hand, self.keypoints.synergies)
             if seed is None:
                 continue

@@ -374,9 +374,7 @@ class FrameTracker:
         """A frame fitted without one before it: a size calibration, or the start search (re-initialisation)."""
         if self.loss.too_small(n_in, sil):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
-        fits = partial(self.search.detected_fits, None if self.sizing.calibrating() else self.context, self.context_for,
-                       pts, nrm, sil, self.settings.scale.range)
-        if self.presence is not None and self.presence.absent(sil, self.base_hand.handedness, fits):
+        if self._region_absent(None if self.sizing.calibrating() else self.context, pts, nrm, sil):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
         if self.sizing.calibrating():
             self.cue.add(sil)
@@ -394,14 +392,20 @@ class FrameTracker:
             self.net.search_level = score(self.context, theta, corr, sil)
         return FrameFit(theta, corr, "reinit", "", False, False, pts, nrm)
 
-    def _not_a_hand(self, ctx, pts, nrm, sil) -> bool:
-        """Whether a tracked frame whose points the prediction missed (re-centred: the hand jumped, or the
-        segmentation took something else) is no hand by the hand-presence network, the detected hand not
-        fitting it either (as a start asks, :meth:`_start`): a forearm's far end is not followed."""
-        if self.presence is None or not self.settings.predict.jump_presence:
+    def _region_absent(self, ctx, pts, nrm, sil, *, counted=True) -> bool:
+        """Whether the frame's region is no hand: the hand-presence network says so and the detected hand
+        does not fit it (:meth:`tracker.parts.StartSearch.detected_fits` on ``ctx``'s hand; None: at the size
+        calibration's first guesses); False without the network. ``counted``: as a start's answer."""
+        if self.presence is None:
             return False
         fits = partial(self.search.detected_fits, ctx, self.context_for, pts, nrm, sil, self.settings.scale.range)
-        if not self.presence.absent(sil, self.base_hand.handedness, fits, counted=False):
+        return self.presence.absent(sil, self.base_hand.handedness, fits, counted=counted)
+
+    def _not_a_hand(self, ctx, pts, nrm, sil) -> bool:
+        """Whether a tracked frame whose points the prediction missed (re-centred: the hand jumped, or the
+        segmentation took something else) is no hand, asked as a start asks (:meth:`_region_absent`): a
+        forearm's far end is not followed."""
+        if not (self.settings.predict.jump_presence and self._region_absent(ctx, pts, nrm, sil, counted=False)):
             return False
         self.stats.jumps_refused += 1
         return True
