@@ -135,6 +135,9 @@ class Detection:
         Mean probability of "some hand part" over the pixels classified (0: no hand there).
     pixels : int
         Pixels classified.
+    region : (H, W) bool or None
+        The part of the mask the keypoints were found in, where the detector narrowed it (the keypoint
+        CNN's re-crop, :func:`tracker.keypoint_cnn.detect`); None: the whole mask it was given.
     """
 
     keypoints_px: np.ndarray
@@ -143,6 +146,7 @@ class Detection:
     confidence: np.ndarray
     hand_score: float
     pixels: int
+    region: np.ndarray | None = None
 
     @property
     def found(self) -> np.ndarray:

@@ -53,6 +53,23 @@ MIN_MASK_PIXELS = 20
 #: (spread quartiles 0.23 / 0.27 / 0.30 in the head comparison, seed 7's held-out crops): a median
 #: keypoint gets ~0.45, one twice as spread ~0.04 (below fit_start's 0.2).
 SPREAD_SCALE = 0.3
+#: Re-crops of the box around the network's own keypoints, at most (the refined hand localisation of
+#: DeepPrior++, Oberweger & Lepetit 2017): a segmentation that kept the forearm gives a box several hands
+#: long, which the network never saw in training (boxes at most ~2 hands long: ``CnnSettings.forearm_reach``);
+#: its keypoints there still lie towards the hand, and each box around them is nearer to one hand's.
+RECROP_PASSES = 3
+#: A re-cropped box: the keypoints' larger extent plus this margin (m, at their median depth) on each side
+#: (the skin beyond the joints, a finger's width, and room for keypoints the pass before placed short).
+RECROP_MARGIN_M = 0.03
+#: Re-crops go on while each shortens the box's side by more than this share (a box already about the
+#: hand's is left as it is: the same keypoints as without the re-crop) …
+RECROP_CUT = 0.1
+#: … and their last is taken only where the box's side is then at most this share of the mask's: a box
+#: more than 1.67 hands long, longer than all but ~6 % of the training's boxes (a third of them
+#: stretched towards the forearm by 0.2-0.8 of the hand: ``CnnSettings.forearm_reach``). Boxes the
+#: network knows are better read whole (a 1.5x side fist with a third of its mask arm: 14 mm whole,
+#: 16 mm re-cropped to 0.73 of the box).
+RECROP_TAKE = 0.6
 MAX_ONNX_BYTES = 64 << 20
 MAX_MANIFEST_BYTES = 4 << 20
 
@@ -78,6 +95,34 @@ def hand_box(depth, mask, grow: float = BOX_GROW):
     cu, cv = (cols.min() + cols.max()) / 2.0, (rows.min() + rows.max()) / 2.0
     size = grow * max(cols.max() - cols.min(), rows.max() - rows.min()) + 2.0
     return float(cu), float(cv), float(size), float(np.median(d[m]))
+
+
+def recropped(mask, keypoints_px, keypoints_z, fx: float, margin_m: float = RECROP_MARGIN_M):
+    """``mask`` kept within the square around the keypoints (their larger pixel extent plus ``margin_m``
+    on each side at their median depth), or None when no keypoint has a place.
+
+    >>> m = np.ones((100, 100), bool)
+    >>> kp = np.array([[40.0, 40.0], [50.0, 60.0]])
+    >>> r = recropped(m, kp, np.array([0.5, 0.5]), 100.0, margin_m=0.05)
+    >>> int(r.sum()), np.argwhere(r).min(axis=0).tolist(), np.argwhere(r).max(axis=0).tolist()
+    (1681, [30, 25], [70, 65])
+    """
+    uv = np.asarray(keypoints_px, float)
+    ok = np.isfinite(uv).all(axis=1)
+    z = np.asarray(keypoints_z, float)[ok]
+    z = z[np.isfinite(z) & (z > 0)]
+    if not ok.any() or not len(z):
+        return None
+    lo, hi = uv[ok].min(axis=0), uv[ok].max(axis=0)
+    cu, cv = (lo + hi) / 2.0
+    half = 0.5 * float(np.max(hi - lo)) + margin_m * float(fx) / float(np.median(z))
+    m = np.asarray(mask, bool)
+    out = np.zeros_like(m)
+    r0, r1 = max(0, int(np.ceil(cv - half))), min(m.shape[0], int(np.floor(cv + half)) + 1)
+    c0, c1 = max(0, int(np.ceil(cu - half))), min(m.shape[1], int(np.floor(cu + half)) + 1)
+    if r0 < r1 and c0 < c1:
+        out[r0:r1, c0:c1] = m[r0:r1, c0:c1]
+    return out
 
 
 def crop_image(depth, box, mirror: bool, side: int = INPUT_SIDE) -> np.ndarray:
@@ -236,7 +281,8 @@ def _nothing(pixels: int = 0) -> Detection:
                      np.zeros(N_PARTS), 0.0, pixels)
 
 
-def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN | None = None) -> Detection:
+def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN | None = None,
+           recrop: int = RECROP_PASSES) -> Detection:
     """The hand's 21 keypoints (:data:`tracker.detector.PART_NAMES` order) from one depth frame.
 
     Parameters
@@ -249,6 +295,9 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
         depth origin; the network reads every pixel in the box.
     hand : "left" or "right"
     detector : the network (default: the shipped one)
+    recrop : at most this many passes again on the mask :func:`recropped` around the last pass's keypoints,
+        while each shortens the box by more than :data:`RECROP_CUT`; the last is the answer where its box
+        is at most :data:`RECROP_TAKE` of the mask's, else the first (0: the mask's box only)
 
     Returns
     -------
@@ -256,7 +305,8 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
         Every keypoint has a place when the mask has :data:`MIN_MASK_PIXELS` pixels with depth
         (confidence from the heatmaps' spread); otherwise none (NaN, confidence 0, hand score 0).
         ``hand_score`` is the mean confidence: the network was not trained on crops without a hand,
-        so it says how sure the keypoints are, not whether a hand is there.
+        so it says how sure the keypoints are, not whether a hand is there. ``region``: the re-cropped
+        mask of the last pass, None when no re-crop was taken.
     """
     cam, d = checked_frame(depth_m, camera, hand)
     if mask is None:
@@ -269,11 +319,25 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
         return _nothing(int(m.sum()))
     net = detector or load_cnn()
     mirror = hand == "right"
-    out, spread = net.run(crop_image(d, box, mirror)[None])
-    uv, z, xyz = box_keypoints(out[0], box, mirror, cam)
-    conf = spread_confidence(spread[0])
-    return Detection(uv, z, xyz, conf, float(conf.mean()), int(m.sum()))
+    passes = []  # (box, region, network output, spread, keypoints (uv, z, xyz))
+    box0, region = box, None
+    for k in range(int(recrop) + 1):
+        out, spread = net.run(crop_image(d, box, mirror)[None])
+        passes.append((region, out[0], spread[0], box_keypoints(out[0], box, mirror, cam)))
+        if k == recrop:
+            break
+        uv, z, _ = passes[-1][3]
+        # the original mask around these keypoints: a pass that strayed is not compounded
+        r = recropped(m, uv, z, cam.fx)
+        nbox = None if r is None else hand_box(d, r)
+        if nbox is None or nbox[2] >= (1.0 - RECROP_CUT) * box[2]:
+            break
+        box, region = nbox, r
+    region, _, spread, (uv, z, xyz) = passes[-1] if box[2] <= RECROP_TAKE * box0[2] else passes[0]
+    conf = spread_confidence(spread)
+    return Detection(uv, z, xyz, conf, float(conf.mean()), int(m.sum()), region)
 
 
-__all__ = ["CNN_NAME", "INPUT_SIDE", "BOX_GROW", "KeypointCNN", "PART_NAMES", "box_keypoints", "cnn_path",
-           "crop_image", "detect", "hand_box", "load_cnn", "read_cnn", "save_cnn", "spread_confidence"]
+__all__ = ["CNN_NAME", "INPUT_SIDE", "BOX_GROW", "KeypointCNN", "PART_NAMES", "RECROP_PASSES", "box_keypoints",
+           "cnn_path", "crop_image", "detect", "hand_box", "load_cnn", "read_cnn", "recropped", "save_cnn",
+           "spread_confidence"]

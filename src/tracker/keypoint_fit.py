@@ -8,13 +8,14 @@ import numpy as np
 from .detector import Detection
 
 
-def detect_in(detect, sil, hand: str):
+def detect_in(detect, sil, hand: str, mask=None):
     """``detect``'s answer on a frame's :class:`tracker.correspond.Silhouette` (its whole depth frame where
-    it has one, the segmentation as the mask), or None when the frame has no hand region or no depth."""
+    it has one, the segmentation as the mask, or ``mask`` where given), or None when the frame has no hand
+    region or no depth."""
     if sil is None or sil.empty or sil.camera is None:
         return None
     depth = sil.frame_depth if getattr(sil, "frame_depth", None) is not None else sil.depth
-    return None if depth is None else detect(depth, sil.camera, sil.mask, hand)
+    return None if depth is None else detect(depth, sil.camera, sil.mask if mask is None else mask, hand)
 
 
 def confident(detection: Detection, min_confidence: float = 0.2) -> np.ndarray:

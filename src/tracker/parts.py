@@ -279,10 +279,12 @@ class HandPresence:
     (probability below ``below``) is "no hand" without a search, counted in ``stats.not_hands``, unless
     the model fit says otherwise (``fits``: :meth:`StartSearch.detected_fits`, counted in
     ``stats.hands_fitted``); the last answer is ``probability_`` (NaN: the region had no box, or the
-    frame no depth)."""
+    frame no depth). ``region(sil, hand)``: a narrower mask to ask it on (:meth:`KeypointSeed.region`), or
+    None."""
 
-    def __init__(self, model, below: float, stats: TrackerStats | None = None):
+    def __init__(self, model, below: float, stats: TrackerStats | None = None, region=None):
         self.model, self.below, self.stats = model, float(below), stats or TrackerStats()
+        self.region = region  # region(sil, hand): the keypoint detector's narrowed mask, or None
         self.probability_ = float("nan")
 
     def reset(self):
@@ -298,7 +300,10 @@ class HandPresence:
         from .hand_presence import hand_probability
         from .keypoint_fit import detect_in
 
-        p = detect_in(partial(hand_probability, model=self.model), sil, hand)
+        # a region narrowed to the hand by the keypoint CNN's re-crop (a forearm's length kept by the
+        # segmentation) is asked as the network was trained: a box about one hand long
+        narrowed = None if self.region is None else self.region(sil, hand)
+        p = detect_in(partial(hand_probability, model=self.model), sil, hand, mask=narrowed)
         self.probability_ = float("nan") if p is None else p
         absent = bool(self.probability_ < self.below)  # NaN: no answer, not "no hand"
         if absent and fits is not None and fits():
@@ -464,6 +469,12 @@ class KeypointSeed:
             if sil is not None:
                 sil.detected = kept
         return kept[1]
+
+    def region(self, sil, handedness: str):
+        """The mask the detector narrowed the frame's region to (:attr:`tracker.detector.Detection.region`),
+        or None (nothing detected, or the whole region kept)."""
+        det = self.detection(sil, handedness)
+        return None if det is None else det.region
 
     def fit(self, detection, hand) -> tuple:
         """``(θ,)`` of ``hand`` fitted to a ``detection`` (None: nothing detected), or ``()``; counted in

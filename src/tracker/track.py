@@ -202,7 +202,8 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
         # loaded when named, as the depth detector is (a run without detectors loads none)
         from .hand_presence import load_presence
 
-        presence = HandPresence(load_presence(st.start.presence), st.start.presence_below, stats)
+        presence = HandPresence(load_presence(st.start.presence), st.start.presence_below, stats,
+                                None if keypoints is None else keypoints.region)
     return TrackerParts(cue, net, gate, recentring, prediction, prior, restart, loss, sizing, colour, search,
                         HandSizes(hand, st, synergies), presence)
 
