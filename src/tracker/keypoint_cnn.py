@@ -97,16 +97,10 @@ def hand_box(depth, mask, grow: float = BOX_GROW):
     return float(cu), float(cv), float(size), float(np.median(d[m]))
 
 
-def recropped(mask, keypoints_px, keypoints_z, fx: float, margin_m: float = RECROP_MARGIN_M):
-    """``mask`` kept within the square around the keypoints (their larger pixel extent plus ``margin_m``
-    on each side at their median depth), or None when no keypoint has a place.
-
-    >>> m = np.ones((100, 100), bool)
-    >>> kp = np.array([[40.0, 40.0], [50.0, 60.0]])
-    >>> r = recropped(m, kp, np.array([0.5, 0.5]), 100.0, margin_m=0.05)
-    >>> int(r.sum()), np.argwhere(r).min(axis=0).tolist(), np.argwhere(r).max(axis=0).tolist()
-    (1681, [30, 25], [70, 65])
-    """
+def recrop_window(keypoints_px, keypoints_z, fx: float, shape, margin_m: float = RECROP_MARGIN_M):
+    """``(r0, r1, c0, c1)``: the rows and columns of an image of ``shape`` within the square around the
+    keypoints (their larger pixel extent plus ``margin_m`` on each side at their median depth), or None
+    when no keypoint has a place or the square misses the image."""
     uv = np.asarray(keypoints_px, float)
     ok = np.isfinite(uv).all(axis=1)
     z = np.asarray(keypoints_z, float)[ok]
@@ -116,13 +110,40 @@ def recropped(mask, keypoints_px, keypoints_z, fx: float, margin_m: float = RECR
     lo, hi = uv[ok].min(axis=0), uv[ok].max(axis=0)
     cu, cv = (lo + hi) / 2.0
     half = 0.5 * float(np.max(hi - lo)) + margin_m * float(fx) / float(np.median(z))
+    r0, r1 = max(0, int(np.ceil(cv - half))), min(shape[0], int(np.floor(cv + half)) + 1)
+    c0, c1 = max(0, int(np.ceil(cu - half))), min(shape[1], int(np.floor(cu + half)) + 1)
+    return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
+
+
+def recropped(mask, keypoints_px, keypoints_z, fx: float, margin_m: float = RECROP_MARGIN_M):
+    """``mask`` kept within :func:`recrop_window` (all False where there is none), or None when no keypoint
+    has a place.
+
+    >>> m = np.ones((100, 100), bool)
+    >>> kp = np.array([[40.0, 40.0], [50.0, 60.0]])
+    >>> r = recropped(m, kp, np.array([0.5, 0.5]), 100.0, margin_m=0.05)
+    >>> int(r.sum()), np.argwhere(r).min(axis=0).tolist(), np.argwhere(r).max(axis=0).tolist()
+    (1681, [30, 25], [70, 65])
+    """
+    if not np.isfinite(np.asarray(keypoints_px, float)).all(axis=1).any():
+        return None
     m = np.asarray(mask, bool)
     out = np.zeros_like(m)
-    r0, r1 = max(0, int(np.ceil(cv - half))), min(m.shape[0], int(np.floor(cv + half)) + 1)
-    c0, c1 = max(0, int(np.ceil(cu - half))), min(m.shape[1], int(np.floor(cu + half)) + 1)
-    if r0 < r1 and c0 < c1:
+    win = recrop_window(keypoints_px, keypoints_z, fx, m.shape, margin_m)
+    if win is not None:
+        r0, r1, c0, c1 = win
         out[r0:r1, c0:c1] = m[r0:r1, c0:c1]
     return out
+
+
+def _box_in(depth, mask, win):
+    """:func:`hand_box` of ``mask`` kept within the window ``win`` (:func:`recrop_window`), computed on the
+    window alone (the mask is False outside it)."""
+    if win is None:
+        return None
+    r0, r1, c0, c1 = win
+    b = hand_box(depth[r0:r1, c0:c1], mask[r0:r1, c0:c1])
+    return None if b is None else (b[0] + c0, b[1] + r0, b[2], b[3])
 
 
 def crop_image(depth, box, mirror: bool, side: int = INPUT_SIDE) -> np.ndarray:
@@ -319,25 +340,30 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
         return _nothing(int(m.sum()))
     net = detector or load_cnn()
     mirror = hand == "right"
-    passes = []  # (box, region, network output, spread, keypoints (uv, z, xyz))
-    box0, region = box, None
+    passes = []  # (window, spread, keypoints (uv, z, xyz)) of each pass
+    box0, win = box, None
     for k in range(int(recrop) + 1):
         out, spread = net.run(crop_image(d, box, mirror)[None])
-        passes.append((region, out[0], spread[0], box_keypoints(out[0], box, mirror, cam)))
+        passes.append((win, spread[0], box_keypoints(out[0], box, mirror, cam)))
         if k == recrop:
             break
-        uv, z, _ = passes[-1][3]
+        uv, z, _ = passes[-1][2]
         # the original mask around these keypoints: a pass that strayed is not compounded
-        r = recropped(m, uv, z, cam.fx)
-        nbox = None if r is None else hand_box(d, r)
+        nwin = recrop_window(uv, z, cam.fx, m.shape)
+        nbox = _box_in(d, m, nwin)
         if nbox is None or nbox[2] >= (1.0 - RECROP_CUT) * box[2]:
             break
-        box, region = nbox, r
-    region, _, spread, (uv, z, xyz) = passes[-1] if box[2] <= RECROP_TAKE * box0[2] else passes[0]
+        box, win = nbox, nwin
+    win, spread, (uv, z, xyz) = passes[-1] if box[2] <= RECROP_TAKE * box0[2] else passes[0]
+    region = None
+    if win is not None:
+        r0, r1, c0, c1 = win
+        region = np.zeros_like(m)
+        region[r0:r1, c0:c1] = m[r0:r1, c0:c1]
     conf = spread_confidence(spread)
     return Detection(uv, z, xyz, conf, float(conf.mean()), int(m.sum()), region)
 
 
 __all__ = ["CNN_NAME", "INPUT_SIDE", "BOX_GROW", "KeypointCNN", "PART_NAMES", "RECROP_PASSES", "box_keypoints",
-           "cnn_path", "crop_image", "detect", "hand_box", "load_cnn", "read_cnn", "recropped", "save_cnn",
-           "spread_confidence"]
+           "cnn_path", "crop_image", "detect", "hand_box", "load_cnn", "read_cnn", "recrop_window", "recropped",
+           "save_cnn", "spread_confidence"]
