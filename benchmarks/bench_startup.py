@@ -12,6 +12,7 @@ of the child — since on a shared machine wall time also measures the other job
   settings (the library's defaults and the handedness check, ``--check-hand``: on the first frame the
   mirror-image hand's start search too), the time of the first result as seen from the parent;
 - ``tracker track`` of that still: the whole command, outputs written, up to the process's end;
+- the same with ``--no-check-hand``: what the handedness check costs the whole command;
 - ``tracker track`` of a recording that is not there: the time to its one-line error (exit status 2).
 
 The first-frame row's line below the table splits the frame (medians): the kernels numba loads from its
@@ -130,6 +131,7 @@ print(json.dumps({"import": t_import, "stamps": stamps, "first": first}))
 ROWS = {"reference": 'python -c "import numpy, scipy" (reference)', "help": "tracker --help",
         "import": "import tracker.run", "first": "process start -> first frame's result (one still)",
         "track": "tracker track of one still (whole command)",
+        "nocheck": "the same, --no-check-hand",
         "missing": "tracker track of a missing recording (its error)"}
 
 #: where the children keep their bytecode (None: as the environment says); set by main()
@@ -208,6 +210,7 @@ def main():
             "import": [py, "-c", "import tracker.run"],
             "first": [py, "-c", DRIVER, str(rec), str(out)],
             "track": [py, "-m", "tracker.cli", "track", str(rec), "-o", str(out), "--overwrite"],
+            "nocheck": [py, "-m", "tracker.cli", "track", str(rec), "-o", str(out), "--overwrite", "--no-check-hand"],
             "missing": [py, "-m", "tracker.cli", "track", str(tmp / "none"), "-o", str(out), "--overwrite"],
         }
         for src in trees.values():
