@@ -189,7 +189,7 @@ def build_parts(hand, settings: TrackerSettings, synergies, stats: TrackerStats,
     prior = UnseenPrior(hand, synergies, st.refine, st.mode, stats)
     restart = FingerRestart(st.refine, st.mode, stats)
     loss = LossCheck(st.loss, st.scale.range, stats)
-    sizing = SizeCalibration(st.scale, st.init, st.net.margin_mm, stats)
+    sizing = SizeCalibration(st.scale, st.init.sizing(), st.net.margin_mm, stats)
     colour = ColourSeed(keypoint_detector, stats) if st.start.rgb_seed else None
     if depth_detector is None and st.start.detector:
         depth_detector = load_depth_detector(st.start.detector)

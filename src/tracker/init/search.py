@@ -119,7 +119,8 @@ def seeded_search(ctx: FitContext, points, settings: InitSettings | None, seed, 
         if first <= accept_mm:
             return (*_accepted(ctx, theta, corr, points, st, silhouette=silhouette, normals=normals, wrist=wrist),
                     False)
-    theta, corr = fit_single_frame(ctx, points, st, theta0=seed, silhouette=silhouette, normals=normals,
+    detected = st if st.seeded.keep is None else st.replace(halving=dict(keep=tuple(st.seeded.keep)))
+    theta, corr = fit_single_frame(ctx, points, detected, theta0=seed, silhouette=silhouette, normals=normals,
                                    extra=(np.asarray(seed, float),) + tuple(extra), search=False, wrist=wrist)
     first = score(ctx, theta, corr, silhouette)
     if first <= accept_mm:

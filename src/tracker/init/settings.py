@@ -19,7 +19,9 @@ class SeededSettings(SettingsGroup):
     detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid);
     ``"fit"`` fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the whole
     cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
-    when none scores within the acceptance. ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and
+    when none scores within the acceptance. ``keep`` replaces the search's ``HalvingSettings.keep`` in
+    ``"search"``'s fits of the detected hand (how many of its synergy starts go on to the coarse and the
+    refinement cloud; None keeps the search's; a full search that follows keeps the search's). ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and
     ``restart_pairs`` replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
     ``rank_points``, ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
     ``first="fit", restart_icp=2, restart_margin_mm=0`` halves an accepted start (70-77 → 30-37 ms CPU on
@@ -29,15 +31,26 @@ class SeededSettings(SettingsGroup):
     """
 
     first: str = "search"
+    keep: tuple | None = None
     restart_icp: int | None = None
     restart_margin_mm: float | None = None
     restart_points: int | None = None
     restart_pairs: bool | None = None
+    calibration: bool = False
+
+    @classmethod
+    def full(cls) -> SeededSettings:
+        """The detected hand fitted by the search's own fits (its synergy starts, the search's ``keep``) and its
+        restarts ranked by the search's own settings."""
+        return cls(first="search", keep=None, restart_icp=None, restart_margin_mm=None, restart_points=None,
+                   restart_pairs=None, calibration=True)
 
     def check(self):
         if self.first not in SEEDED_FIRST:
             raise TrackerError("settings", f"init seeded first must be one of {', '.join(SEEDED_FIRST)}, "
                                            f"got {self.first!r}")
+        if self.keep is not None and (len(self.keep) != 2 or min(self.keep) < 1):
+            raise TrackerError("settings", f"init seeded keep must be two counts ≥ 1, got {self.keep!r}")
         if self.restart_points is not None and int(self.restart_points) < 1:
             raise TrackerError("settings", f"init seeded restart_points must be ≥ 1, got {self.restart_points!r}")
 
@@ -150,6 +163,12 @@ class InitSettings(SettingsGroup):
     def paper(cls):
         """The paper's fit from the synergy mean: no coarse or finger-wise search."""
         return cls(search=False, finger_search=False)
+
+    def sizing(self) -> InitSettings:
+        """These settings as the size calibration searches with them (:class:`tracker.sizing.SizeCalibration`):
+        its first search from a detected hand by ``seeded`` when ``seeded.calibration``, else by the search's
+        own fits and restarts (:meth:`SeededSettings.full`)."""
+        return self if self.seeded.calibration else self.replace(halving=dict(seeded=SeededSettings.full()))
 
     def check(self):
         if self.strategy not in STRATEGIES:
