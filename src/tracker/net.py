@@ -124,10 +124,11 @@ class SafetyNet:
         self._wrist_passed = None if wrong else (np.array(theta, float), entry, 0)
         return wrong
 
-    def __call__(self, ctx, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil, last_good):
+    def __call__(self, ctx, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil, last_good, absent=None):
         """``(θ, corr, points, normals, what)``: the tracked estimate (``what`` ``""``: not doubtful, or
         ``"kept"``), or the cheap start search's on the whole segmented cloud (``"replaced"``) when the
-        frame is doubtful and the search scores better by ``margin_mm``."""
+        frame is doubtful and the search scores better by ``margin_mm``; ``"absent"`` when the frame is
+        doubtful and ``absent()`` says its region is no hand (nothing searched)."""
         near = None
         if corr.points is not None and (corr.points is all_pts or np.array_equal(corr.points, all_pts)):
             # the score's data term and the far-points test measure the same points at the same θ:
@@ -140,6 +141,9 @@ class SafetyNet:
             # level learnt from doubtful ones rises with a fit going wrong and stops the net)
             self._scores.append(s)
             return theta, corr, pts, nrm, ""
+        if absent is not None and absent():
+            # a search on a region that is no hand can only move the hand onto it
+            return theta, corr, pts, nrm, "absent"
         t0 = time.perf_counter()
         self.stats.net_runs += 1
         self.stats.net_wrong_way += why == "wrist"

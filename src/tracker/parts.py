@@ -53,8 +53,9 @@ class TrackerStats:
     hands_fitted : starts the network called no hand where the detected hand fitted the region as an
         accepted start does (:meth:`StartSearch.detected_fits`): searched as hands
     wrist_cuts : frames whose points behind the detected wrist were left out (``start.detector_wrist_m``)
-    jumps_refused : tracked frames whose points the prediction missed and whose region the hand-presence
-        network called no hand: the prediction output (status ``"predicted"``), nothing fitted
+    jumps_refused : tracked frames whose points the prediction missed, or whose fit the safety net doubted,
+        and whose region the hand-presence network called no hand: the prediction output (status
+        ``"predicted"``), nothing fitted or searched
     """
 
     net_runs: int = 0

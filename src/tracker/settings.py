@@ -77,11 +77,11 @@ class PredictSettings(SettingsGroup):
         global pose on by its change from the frame before to the replacement, when that is within the
         net's jump limits (:meth:`tracker.net.SafetyNet.is_motion`; the posture's change is a correction,
         not motion) (True, the paper: False)
-    jump_presence : a frame whose points the prediction missed (re-centred) is asked the start's question
-        first, whether its region is a hand (``start.presence``, the detected hand's fit overruling as at a
-        start); where not, the frame gives the prediction (status ``"predicted"``) and nothing is fitted:
-        a segmentation that took the forearm's far end is not followed there (True; no effect without
-        ``start.presence``)
+    jump_presence : a frame whose points the prediction missed (re-centred), or whose fit the safety net
+        doubts (before its search), is asked the start's question first, whether its region is a hand
+        (``start.presence``, the detected hand's fit overruling as at a start); where not, the frame gives
+        the prediction (status ``"predicted"``) and nothing more is fitted or searched: a segmentation that
+        took the forearm's far end is not followed there (True; no effect without ``start.presence``)
     """
 
     share: float = 1.0

@@ -404,8 +404,8 @@ class FrameTracker:
 
     def _not_a_hand(self, ctx, pts, nrm, sil) -> bool:
         """Whether a tracked frame whose points the prediction missed (re-centred: the hand jumped, or the
-        segmentation took something else) is no hand, asked as a start asks (:meth:`_region_absent`): a
-        forearm's far end is not followed."""
+        segmentation took something else), or whose fit the safety net doubts, is no hand, asked as a start
+        asks (:meth:`_region_absent`): a forearm's far end is not followed."""
         if not (self.settings.predict.jump_presence and self._region_absent(ctx, pts, nrm, sil, counted=False)):
             return False
         self.stats.jumps_refused += 1
@@ -425,7 +425,10 @@ class FrameTracker:
         status, net, far_lost = "tracked", "", False
         if st.net.enabled and st.mode != "reduced":
             theta, corr, pts, nrm, net = self.net(ctx, theta, corr, pred, pts, nrm, all_pts, all_nrm, sil,
-                                                  self.last_good)
+                                                  self.last_good,
+                                                  partial(self._not_a_hand, ctx, all_pts, all_nrm, sil))
+            if net == "absent":
+                return Predicted(predicted)
             if net == "replaced":
                 status, self.prev = "reinit", None
         elif st.net.enabled and self.net.far_off(ctx, theta, all_pts, most=200):

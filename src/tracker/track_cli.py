@@ -199,8 +199,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
     stats, start = tracker.stats, tracker.settings.start
     for n, line in ((stats.hands_fitted, "the hand-presence network called {} no hand where the detected hand fitted "
                                          f"within {start.detector_accept_mm:g} mm: searched as hands"),
-                    (stats.jumps_refused, "on {} the tracked points left the predicted hand for a region the "
-                                          "hand-presence network called no hand: the prediction given (status predicted)"),
+                    (stats.jumps_refused, "on {} the tracked points left the predicted hand, or its fit was "
+                                          "doubtful, on a region the hand-presence network called no hand: the "
+                                          "prediction given (status predicted)"),
                     (stats.wrist_cuts, "on {} the points more than " + f"{start.detector_wrist_m:g} m behind the "
                                        "detected wrist (an arm the segmentation kept) were left out")):
         if n:

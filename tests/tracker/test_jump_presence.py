@@ -56,3 +56,43 @@ def test_a_jump_to_the_arms_end_gives_the_prediction(scene):
 
 def test_the_paper_does_not_ask():
     assert not TrackerSettings.paper().predict.jump_presence
+
+
+def test_a_doubtful_frame_on_no_hand_gives_the_prediction_without_a_search():
+    """A rendered open hand (no noise) tracked for 5 frames, then a frame where a flat square plate of its
+    size stands in its place: the prediction meets the plate (nothing re-centred), the fit is doubtful, and
+    the safety net's search would move the hand onto the plate (``reinit``); asked first, the hand-presence
+    network calls the plate no hand (p ~2e-5), so the frame gives the prediction and no search runs."""
+    from handmodel import HandModel
+    from synergy.bundle import load_bundle
+    from tracker import TRACKING_HAND
+    from tracker.io.cameras import preset
+    from tracker.sim.motions import make_motion
+    from tracker.sim.render import DepthRenderer
+
+    hand, cam = HandModel.load(TRACKING_HAND), preset("kinect1")
+    truth = make_motion("open-close", hand=hand, frames=30).theta[:5]
+    frames = [DepthRenderer(hand, cam).render(th, labels=False).depth for th in truth]
+    d = frames[-1]
+    rows, cols = np.nonzero(np.isfinite(d) & (d > 0))
+    rc, cc = (rows.min() + rows.max()) // 2, (cols.min() + cols.max()) // 2
+    h = int(0.35 * max(np.ptp(rows), np.ptp(cols)))
+    plate = np.full_like(d, np.nan)
+    plate[rc - h:rc + h, cc - h:cc + h] = np.nanmedian(d[np.isfinite(d)])
+    frames.append(plate)
+
+    def run(jump_presence):
+        tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=1.0),
+                                                          predict=dict(jump_presence=jump_presence)),
+                          synergies=load_bundle("fingerfist"))
+        out = [tr.track(observe(dep, cam, window=tr.segment_window(cam)), cam) for dep in frames]
+        return tr, out
+
+    tr, on = run(True)
+    assert [r.status for r in on[:5]] == ["reinit"] + ["tracked"] * 4
+    assert on[5].status == "predicted" and tr.stats.recentred == 0 and tr.stats.net_runs == 0
+    assert tr.stats.jumps_refused == 1
+    # the prediction: the last frame's hand moved on by its last change, within a few mm of frame 4's truth
+    assert np.linalg.norm(hand.keypoints(on[5].theta) - hand.keypoints(truth[4]), axis=1).mean() < 0.01
+    tr, off = run(False)
+    assert off[5].status == "reinit" and tr.stats.net_runs == 1  # searched, and moved onto the plate
