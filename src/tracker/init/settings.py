@@ -16,24 +16,34 @@ class SeededSettings(SettingsGroup):
     search runs, and the finger-wise restarts of a start it accepts.
 
     ``first``: ``"search"`` (default) fits the synergy postures at the detected hand's global pose with the
-    detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid);
-    ``"fit"`` fits the detected θ and each extra θ once (``icp_iterations`` with all DoF on the whole
-    cloud, one rigid step first, as the hand-presence test's fit) and falls back to ``"search"``'s fits
-    when none scores within the acceptance. ``keep`` replaces the search's ``HalvingSettings.keep`` in
-    ``"search"``'s fits of the detected hand (how many of its synergy starts go on to the coarse and the
-    refinement cloud; None keeps the search's; a full search that follows keeps the search's). ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and
-    ``restart_pairs`` replace the search's own (``HalvingSettings.restart_icp``, ``restart_margin_mm``,
-    ``rank_points``, ``InitSettings.finger_pairs``) for an accepted start's restarts; None keeps the search's.
-    ``first="fit", restart_icp=2, restart_margin_mm=0`` halves an accepted start (70-77 → 30-37 ms CPU on
-    bench_start's 46) and is as good or better on the harder and realistic scenes, but not the default: on
-    the paper's Fig. 8 sequences it is worse (1 + 0 ICP iterations 1.77° → 4.48°, 1 + 1 1.05° → 1.82°) and
-    on the hard cases (docs/experiments/start-cost.md).
+    detected θ and the extra θ (:func:`tracker.init.fit_single_frame` from ``theta0``, no synergy grid),
+    ``keep`` of them going on to the coarse and the refinement cloud (the search's ``HalvingSettings.keep``
+    when None; a full search that follows keeps the search's); ``"fit"`` fits the detected θ and each extra θ
+    once (``icp_iterations`` with all DoF on the whole cloud, one rigid step first, as the hand-presence
+    test's fit) and falls back to ``"search"``'s fits when none scores within the acceptance.
+    ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and ``restart_pairs`` replace the search's own
+    (``HalvingSettings.restart_icp``, ``restart_margin_mm``, ``rank_points``, ``InitSettings.finger_pairs``)
+    for an accepted start's restarts; None keeps the search's. ``calibration``: the size calibration's first
+    search (:meth:`InitSettings.sizing`) uses these settings too; False (default): the search's own
+    (:meth:`full`): with cheaper fits there (``keep`` (2, 1), restarts ranked with 2 ICP iterations on 200
+    points, margin 0), 4 of the harder scenes' 24 calibrated sizes moved, all 4 further from the true size (found / true 0.999 → 0.939, 1.120 → 1.189, 1.174 → 0.790,
+    0.903 → 0.676).
+
+    The defaults (``keep`` (2, 1): the best 2 of the detected hand's 7 starts on the coarse cloud, the best 1
+    on the refinement cloud; a restart going on only when it ranks better than the fit itself) cut an accepted
+    start by a third (bench_start's 46: 69-71 → 46-47 ms CPU, mean keypoint error 4.30 → 4.12 mm) and hold the
+    paper's Fig. 8 (1 + 0 and 1 + 1 ICP iterations 1.77° / 1.05° → 1.41° / 1.02°), the hard cases and the
+    thumb after blank frames (test_track). Cheaper restarts (``restart_icp=2``: 34-37 ms) missed that thumb
+    (0.44° → 2.1° after the blank frames). ``first="fit"`` with ``restart_icp=2``, ``restart_margin_mm=0``
+    ("C1", ~30 ms) was reverted as the default: Fig. 8's sequences begin at the synergy mean, one of
+    ``"search"``'s starts, and its one fit was left unconverged when no restart went on (Fig. 8 1.77° →
+    4.48°; docs/experiments/start-cost.md).
     """
 
     first: str = "search"
-    keep: tuple | None = None
+    keep: tuple | None = (2, 1)
     restart_icp: int | None = None
-    restart_margin_mm: float | None = None
+    restart_margin_mm: float | None = 0.0
     restart_points: int | None = None
     restart_pairs: bool | None = None
     calibration: bool = False
