@@ -56,6 +56,8 @@ class TrackerStats:
     jumps_refused : tracked frames whose points the prediction missed, or whose fit the safety net doubted,
         and whose region the hand-presence network called no hand: the prediction output (status
         ``"predicted"``), nothing fitted or searched
+    surface_starts : starts whose region the hand-presence network called no hand, begun instead on the hand
+        the keypoint CNN found along that region's surface (``FrameTracker._hand_along_surface``)
     """
 
     net_runs: int = 0
@@ -83,6 +85,7 @@ class TrackerStats:
     hands_fitted: int = 0
     wrist_cuts: int = 0
     jumps_refused: int = 0
+    surface_starts: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""

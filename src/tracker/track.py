@@ -113,6 +113,14 @@ class FrameFit(NamedTuple):
     normals: np.ndarray | None
 
 
+#: A hand looked for along a turned-away region's surface (:meth:`FrameTracker._hand_along_surface`) is
+#: taken only where the hand-presence network calls it a hand more likely than not: a region the
+#: segmentation offered is turned away only below ``start.presence_below`` (0.05), but one we went looking
+#: for must be a hand by the network's own decision point (a real wall's edge, librealsense's sample bag:
+#: a hand-sized patch of it scored above 0.05).
+SURFACE_HAND_P = 0.5
+
+
 def check_hand(ctx, settings, synergies, pts, nrm, sil, theta, corr) -> HandCheck:
     """:class:`HandCheck` of a frame's fit (``theta``, ``corr`` on ``ctx``'s hand) against the single-frame
     search with the mirror-image hand (same size)."""
@@ -376,7 +384,10 @@ class FrameTracker:
         if self.loss.too_small(n_in, sil):
             return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0)
         if self._region_absent(None if self.sizing.calibrating() else self.context, pts, nrm, sil):
-            return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
+            along = self._hand_along_surface(sil, depth, camera)
+            if along is None:
+                return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
+            pts, nrm, sil = along
         if self.sizing.calibrating():
             self.cue.add(sil)
             theta, corr, found = self.sizing.calibrate(self, pts, nrm, sil)
@@ -392,6 +403,42 @@ class FrameTracker:
             # what a good fit scores in this scene: clutter that stays (a forearm, a table) raises it
             self.net.search_level = score(self.context, theta, corr, sil)
         return FrameFit(theta, corr, "reinit", "", False, False, pts, nrm)
+
+    def _hand_along_surface(self, sil, depth, camera):
+        """``(points, normals, silhouette)`` of a hand found along the surface a start's region belongs to,
+        when that region is no hand, or None. A segmentation can take the near end of a forearm reaching
+        towards the camera for the hand; the hand lies at the arm's other end, on the same surface: the
+        keypoint CNN, given the whole surface (depth-continuous, :func:`tracker.segment.surfaces.surfaces`),
+        narrows its box onto the hand by its re-crop (:func:`tracker.keypoint_cnn.detect`), and the region it
+        narrowed to is taken when the hand-presence network calls it a hand."""
+        from .observe import backproject
+        from .segment.surfaces import surfaces
+
+        seed = self.search.keypoints
+        if seed is None or self.presence is None or sil is None or depth is None or camera is None:
+            return None
+        with np.errstate(invalid="ignore"):
+            depth = np.where(np.asarray(depth, float) > 0, depth, np.nan)  # 0: no depth
+        lab, _ = surfaces(depth)
+        under = lab[sil.mask & (lab > 0)]
+        if not len(under):
+            return None
+        surface = lab == np.bincount(under).argmax()
+        det = seed.detect(depth, camera, surface, self.base_hand.handedness)
+        region = det.region
+        if region is None or not (region & ~sil.mask).any():
+            return None  # nothing narrowed, or back onto the region turned away
+        found = frame_silhouette(region, np.where(region, depth, np.nan), camera, depth)
+        self.presence.absent(found, self.base_hand.handedness, counted=False)
+        if not self.presence.probability_ >= SURFACE_HAND_P:
+            return None
+        P = backproject(np.where(region, depth, np.nan), camera).reshape(-1, 3)
+        pts, nrm = usable_points(P[np.isfinite(P).all(axis=1)], None, self.settings.loss.max_points)
+        if len(pts) < self.settings.loss.min_points:
+            return None
+        self.stats.surface_starts += 1
+        pts, nrm = self._before_detected_wrist(pts, nrm, found)
+        return pts, nrm, found
 
     def _region_absent(self, ctx, pts, nrm, sil, *, counted=True) -> bool:
         """Whether the frame's region is no hand: the hand-presence network says so and the detected hand

@@ -202,6 +202,8 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
                     (stats.jumps_refused, "on {} the tracked points left the predicted hand, or its fit was "
                                           "doubtful, on a region the hand-presence network called no hand: the "
                                           "prediction given (status predicted)"),
+                    (stats.surface_starts, "on {} the region segmented was no hand, and the start began on the hand "
+                                           "the keypoint CNN found along its surface (an arm's far end)"),
                     (stats.wrist_cuts, "on {} the points more than " + f"{start.detector_wrist_m:g} m behind the "
                                        "detected wrist (an arm the segmentation kept) were left out")):
         if n:
