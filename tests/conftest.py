@@ -190,6 +190,24 @@ def realistic_frame(hand, sensor, scale, spec, frame, noise_seed=0, seed=0, moti
     return cam, depth, r.color, r.labels
 
 
+def harder_frame(motion, sensor, scale, frame, noise_seed=2, frames=45):
+    """``(hand, camera, depth, colour, labels, true keypoints)``: frame ``frame`` of the harder scenes' ``motion``
+    as ``tools/harder_scenes.py`` renders it (forearm and torso, the tracking hand × ``scale`` with
+    :func:`~tracker.sim.experiments.realistic_fingers`, noise seed 2 by default), the keypoints of the hand shown."""
+    from handmodel import HandModel
+    from tracker import TRACKING_HAND
+    from tracker.sim.experiments import realistic_fingers
+    from tracker.sim.hands import HandShape
+    from tracker.sim.motions import make_motion
+
+    hand = HandModel.load(TRACKING_HAND)
+    cam, depth, color, labels = realistic_frame(hand, sensor, scale, "forearm,torso", frame, noise_seed=noise_seed,
+                                                motion=motion, frames=frames)
+    shown = HandShape(scale, realistic_fingers(scale, 0)).apply(hand)
+    kp = shown.keypoints(make_motion(motion, hand=shown, frames=frames, seed=0).theta[frame])
+    return hand, cam, depth, color, labels, kp
+
+
 def mask_scores(mask, depth, labels):
     """``(recall, precision)`` of a hand ``mask`` against the rendered hand's seen pixels (``labels`` ≥ 0
     with depth)."""

@@ -13,7 +13,7 @@ from hypothesis import settings as hyp_settings
 from hypothesis import strategies as hst
 
 from handmodel.rigid import quat_to_matrix
-from tests.conftest import mask_scores, realistic_frame
+from tests.conftest import harder_frame, mask_scores
 from tracker.detector import Detection
 from tracker.errors import TrackerError
 from tracker.observe import observe
@@ -58,17 +58,7 @@ def test_the_paper_has_no_detected_wrist():
 @functools.lru_cache(maxsize=None)
 def _side_fist(sensor, scale, frame):
     """``(hand, camera, observation, colour, true keypoints, mask precision)`` of a fist-side frame."""
-    from handmodel import HandModel
-    from tracker import TRACKING_HAND
-    from tracker.sim.experiments import realistic_fingers
-    from tracker.sim.hands import HandShape
-    from tracker.sim.motions import make_motion
-
-    hand = HandModel.load(TRACKING_HAND)
-    cam, depth, color, labels = realistic_frame(hand, sensor, scale, "forearm,torso", frame, noise_seed=2,
-                                                motion="fist-side", frames=45)
-    shown = HandShape(scale, realistic_fingers(scale, 0)).apply(hand)
-    kp = shown.keypoints(make_motion("fist-side", hand=shown, frames=45, seed=0).theta[frame])
+    hand, cam, depth, color, labels, kp = harder_frame("fist-side", sensor, scale, frame)
     ob = observe(depth, cam, color=color)
     return hand, cam, ob, color, kp, mask_scores(ob.mask, depth, labels)[1]
 

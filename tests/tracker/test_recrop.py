@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import settings as hyp_settings
 from hypothesis import strategies as hst
 
-from tests.conftest import mask_scores, realistic_frame
+from tests.conftest import harder_frame, mask_scores
 from tracker.keypoint_cnn import detect, hand_box, load_cnn, recropped
 from tracker.observe import observe
 
@@ -45,18 +45,7 @@ def test_recropped_without_keypoints_is_none():
 @functools.lru_cache(maxsize=None)
 def _frame(sensor, scale, frame):
     """``(hand, camera, depth, colour, labels, true keypoints)`` of a fist-side frame."""
-    from handmodel import HandModel
-    from tracker import TRACKING_HAND
-    from tracker.sim.experiments import realistic_fingers
-    from tracker.sim.hands import HandShape
-    from tracker.sim.motions import make_motion
-
-    hand = HandModel.load(TRACKING_HAND)
-    cam, depth, color, labels = realistic_frame(hand, sensor, scale, "forearm,torso", frame, noise_seed=2,
-                                                motion="fist-side", frames=45)
-    shown = HandShape(scale, realistic_fingers(scale, 0)).apply(hand)
-    kp = shown.keypoints(make_motion("fist-side", hand=shown, frames=45, seed=0).theta[frame])
-    return hand, cam, depth, color, labels, kp
+    return harder_frame("fist-side", sensor, scale, frame)
 
 
 def _side_fist(sensor, scale, frame):

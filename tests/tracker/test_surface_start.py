@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.conftest import mask_scores, realistic_frame
+from tests.conftest import harder_frame, mask_scores
 from tracker.observe import observe
 from tracker.track import FrameTracker, TrackerSettings
 
@@ -24,17 +24,7 @@ def test_the_arms_near_end_leads_to_the_hand(bundle, motion, sensor, scale):
     """The harder scenes' first frames (forearm and torso, noise seed 2) whose segmentation holds no pixel of the
     hand: the presence network turns the region away, and the start begins on the hand found along the arm
     (measured 18.0 and 27.3 mm at the rendered size; before, both frames were "no hand")."""
-    from handmodel import HandModel
-    from tracker import TRACKING_HAND
-    from tracker.sim.experiments import realistic_fingers
-    from tracker.sim.hands import HandShape
-    from tracker.sim.motions import make_motion
-
-    hand = HandModel.load(TRACKING_HAND)
-    shown = HandShape(scale, realistic_fingers(scale, 0)).apply(hand)
-    kp = shown.keypoints(make_motion(motion, hand=shown, frames=45, seed=0).theta[0])
-    cam, depth, color, labels = realistic_frame(hand, sensor, scale, "forearm,torso", 0, noise_seed=2, motion=motion,
-                                                frames=45)
+    hand, cam, depth, color, labels, kp = harder_frame(motion, sensor, scale, 0)
     ob = observe(depth, cam, color=color)
     assert mask_scores(ob.mask, depth, labels)[0] == 0.0  # the case itself: the region is all arm
     tr = FrameTracker(hand, TrackerSettings().replace(scale=dict(hand_scale=scale)), synergies=bundle)
