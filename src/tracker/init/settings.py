@@ -22,22 +22,22 @@ class SeededSettings(SettingsGroup):
     once (``icp_iterations`` with all DoF on the whole cloud, one rigid step first, as the hand-presence
     test's fit) and falls back to ``"search"``'s fits when none scores within the acceptance.
     ``restart_icp``, ``restart_margin_mm``, ``restart_points`` and ``restart_pairs`` replace the search's own
-    (``HalvingSettings.restart_icp``, ``restart_margin_mm``, ``rank_points``, ``InitSettings.finger_pairs``)
-    for an accepted start's restarts; None keeps the search's. ``calibration``: the size calibration's first
-    search (:meth:`InitSettings.sizing`) uses these settings too; False (default): the search's own
-    (:meth:`full`): with cheaper fits there (``keep`` (2, 1), restarts ranked with 2 ICP iterations on 200
-    points, margin 0), 4 of the harder scenes' 24 calibrated sizes moved, all 4 further from the true size (found / true 0.999 → 0.939, 1.120 → 1.189, 1.174 → 0.790,
-    0.903 → 0.676).
+    (``HalvingSettings.restart_icp``, ``restart_margin_mm``, ``rank_points``, ``InitSettings.finger_pairs``) for an
+    accepted start's restarts; None keeps the search's. ``calibration``: the size calibration's first search
+    (:meth:`InitSettings.sizing`) uses these settings too; False (default): the search's own (:meth:`full`): with
+    cheaper fits there (``keep`` (2, 1), restarts ranked with 2 ICP iterations on 200 points, margin 0), 4 of the
+    harder scenes' 24 calibrated sizes moved, all 4 further from the true size (found / true 0.999 → 0.939, 1.120 →
+    1.189, 1.174 → 0.790, 0.903 → 0.676).
 
-    The defaults (``keep`` (2, 1): the best 2 of the detected hand's 7 starts on the coarse cloud, the best 1
-    on the refinement cloud; a restart going on only when it ranks better than the fit itself) cut an accepted
-    start by a third (bench_start's 46: 69 → 46 ms CPU median alternating, 73 → 53 in bench_start's run under
-    load; mean keypoint error 4.30 → 4.12 mm) and hold the paper's Fig. 8 (1 + 0 and 1 + 1 ICP iterations
-    1.77° / 1.05° → 1.41° / 1.02°), the harder scenes, the thumb after blank frames (test_track) and the hard
-    cases but a rotation lost without the net (16.7° → 20.6°, lost at the same frame). Cheaper restarts (``restart_icp=2``: 34-37 ms) missed that thumb
-    (0.44° → 2.1° after the blank frames). ``first="fit"`` with ``restart_icp=2``, ``restart_margin_mm=0``
-    ("C1", ~30 ms) was reverted as the default: Fig. 8's sequences begin at the synergy mean, one of
-    ``"search"``'s starts, and its one fit was left unconverged when no restart went on (Fig. 8 1.77° →
+    The defaults (``keep`` (2, 1): the best 2 of the detected hand's 7 starts on the coarse cloud, the best 1 on the
+    refinement cloud; a restart going on only when it ranks better than the fit itself) cut an accepted start by a
+    third (bench_start's 46: 69 → 46 ms CPU median alternating, 73 → 53 in bench_start's run under load; mean
+    keypoint error 4.30 → 4.12 mm) and hold the paper's Fig. 8 (1 + 0 and 1 + 1 ICP iterations 1.77° / 1.05° → 1.41°
+    / 1.02°), the harder scenes, the thumb after blank frames (test_track) and the hard cases but a rotation lost
+    without the net (16.7° → 20.6°, lost at the same frame). Cheaper restarts (``restart_icp=2``: 34-37 ms) missed
+    that thumb (0.44° → 2.1° after the blank frames). ``first="fit"`` with ``restart_icp=2``,
+    ``restart_margin_mm=0`` ("C1", ~30 ms) was reverted as the default: Fig. 8's sequences begin at the synergy
+    mean, one of ``"search"``'s starts, and its one fit was left unconverged when no restart went on (Fig. 8 1.77° →
     4.48°; docs/experiments/start-cost.md).
     """
 
