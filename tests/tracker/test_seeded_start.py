@@ -104,3 +104,13 @@ def test_fig8_one_plus_zero_segment_holds_its_start(bundle):
     assert tr.stats.detector_starts == 1  # the start is the detected hand's (accepted without the full search)
     assert np.isfinite(r.error_deg).all()
     assert r.mean_error <= 3.0
+
+
+@pytest.mark.parametrize("bad", [3, (2,), (2, 0), ("a", 1), (2.5, 1), (True, 1), "21"])
+def test_a_bad_keep_is_one_clear_error(bad):
+    """A settings file or ``--settings`` JSON with a malformed ``keep`` is the package's error naming the setting,
+    never a ``TypeError`` from inside the check."""
+    from tracker.errors import TrackerError
+
+    with pytest.raises(TrackerError, match="init seeded keep must be two counts"):
+        TrackerSettings().replace(init=dict(halving=dict(seeded=dict(keep=bad)))).check()

@@ -60,7 +60,9 @@ class SeededSettings(SettingsGroup):
         if self.first not in SEEDED_FIRST:
             raise TrackerError("settings", f"init seeded first must be one of {', '.join(SEEDED_FIRST)}, "
                                            f"got {self.first!r}")
-        if self.keep is not None and (len(self.keep) != 2 or min(self.keep) < 1):
+        k = self.keep
+        if k is not None and not (isinstance(k, (tuple, list)) and len(k) == 2
+                                  and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in k)):
             raise TrackerError("settings", f"init seeded keep must be two counts ≥ 1, got {self.keep!r}")
         if self.restart_points is not None and int(self.restart_points) < 1:
             raise TrackerError("settings", f"init seeded restart_points must be ≥ 1, got {self.restart_points!r}")
