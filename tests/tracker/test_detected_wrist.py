@@ -71,10 +71,10 @@ def bundle():
 
 
 #: The detected hand's start as wide as the search's own (every synergy start on the longer fits, a finger
-#: restart kept as the search keeps it): these tests are about the points the wrist cut leaves, not about how
-#: cheap an accepted start is. With the default's narrower start (``keep`` (2, 1), margin 0) the exact
-#: detector's case starts 17.4 mm off instead of 8.3, and the shipped CNN's finds the fist on frame 27 even
-#: with the arm (the cut then narrows nothing the test can see).
+#: restart kept as the search keeps it; the default), named here: these tests are about the points the wrist
+#: cut leaves, not about how cheap an accepted start is. With a narrower start (``keep`` (2, 1), margin 0) the
+#: exact detector's case starts 17.4 mm off instead of 8.3, and the shipped CNN's finds the fist on frame 27
+#: even with the arm (the cut then narrows nothing the test can see).
 WIDE_START = dict(halving=dict(seeded=dict(keep=None, restart_margin_mm=None)))
 
 

@@ -93,7 +93,7 @@ def test_the_size_calibration_searches_with_the_search_s_own_fits_unless_told():
 def test_fig8_one_plus_zero_segment_holds_its_start(bundle):
     """The fourth of Fig. 8's segments (the hand at 0.9 m; ``report.segments(4, 60)``), the experiment's
     tracker with ``icp_iterations=0`` and the default start: mean posture error over its 60 frames after the
-    lead at most 3° (measured: 1.81° with the start before, 1.73° with ``SeededSettings``' defaults; C1 6.32°)."""
+    lead at most 3° (measured: 1.81° with the default start, 1.73° with ``keep`` (2, 1) and margin 0; C1 6.32°)."""
     from tracker.sim.report import segments
 
     truth = E._segment_truths(bundle, segments(4, 60))[3]
