@@ -57,7 +57,8 @@ class TrackerStats:
         and whose region the hand-presence network called no hand: the prediction output (status
         ``"predicted"``), nothing fitted or searched
     surface_starts : starts whose region the hand-presence network called no hand, begun instead on the hand
-        the keypoint CNN found along that region's surface (``FrameTracker._hand_along_surface``)
+        the keypoint CNN found along that region's surface (``FrameTracker._hand_along_surface``; not counted
+        in ``not_hands``)
     """
 
     net_runs: int = 0

@@ -387,6 +387,9 @@ class FrameTracker:
             along = self._hand_along_surface(sil, depth, camera)
             if along is None:
                 return no_hand(self.stats, self.hand.n_dofs, None, n_in, t0, small=False)
+            # a hand's frame after all: counted as a surface start, not among the regions called no hand
+            # (tracker track's "no hand" line counts those against the frames lost)
+            self.stats.not_hands -= 1
             pts, nrm, sil = along
         if self.sizing.calibrating():
             self.cue.add(sil)
