@@ -237,6 +237,10 @@ def main():
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}"
           + (", no bytecode cache" if args.no_pyc else "")
           + (f"; peer: {args.peer}" if args.peer is not None else ""))
+    # a tree without ../shared beside it times another frame: its figures do not compare with the README's
+    frame = (f"the SR305 still {STILL.name}" if STILL.is_file()
+             else f"a rendered SR305 frame ({STILL.parent} is absent): not the still of the README's row")
+    print(f"  timed on {frame}")
     for tree in trees:
         print(f"  {tree + ':':58s} {'wall s':>8s} {'CPU s':>8s}")
         for label in rows:
