@@ -128,11 +128,15 @@ def recropped(mask, keypoints_px, keypoints_z, fx: float, margin_m: float = RECR
     if not np.isfinite(np.asarray(keypoints_px, float)).all(axis=1).any():
         return None
     m = np.asarray(mask, bool)
-    out = np.zeros_like(m)
-    win = recrop_window(keypoints_px, keypoints_z, fx, m.shape, margin_m)
+    return _kept_in(m, recrop_window(keypoints_px, keypoints_z, fx, m.shape, margin_m))
+
+
+def _kept_in(mask, win):
+    """``mask`` within the window ``win`` (:func:`recrop_window`), False elsewhere (all False without one)."""
+    out = np.zeros_like(mask)
     if win is not None:
         r0, r1, c0, c1 = win
-        out[r0:r1, c0:c1] = m[r0:r1, c0:c1]
+        out[r0:r1, c0:c1] = mask[r0:r1, c0:c1]
     return out
 
 
@@ -355,11 +359,7 @@ def detect(depth_m, camera, mask, hand: str = "left", *, detector: KeypointCNN |
             break
         box, win = nbox, nwin
     win, spread, (uv, z, xyz) = passes[-1] if box[2] <= RECROP_TAKE * box0[2] else passes[0]
-    region = None
-    if win is not None:
-        r0, r1, c0, c1 = win
-        region = np.zeros_like(m)
-        region[r0:r1, c0:c1] = m[r0:r1, c0:c1]
+    region = None if win is None else _kept_in(m, win)
     conf = spread_confidence(spread)
     return Detection(uv, z, xyz, conf, float(conf.mean()), int(m.sum()), region)
 

@@ -431,11 +431,12 @@ class FrameTracker:
         region = det.region
         if region is None or not (region & ~sil.mask).any():
             return None  # nothing narrowed, or back onto the region turned away
-        found = frame_silhouette(region, np.where(region, depth, np.nan), camera, depth)
+        seen = np.where(region, depth, np.nan)
+        found = frame_silhouette(region, seen, camera, depth)
         self.presence.absent(found, self.base_hand.handedness, counted=False)
         if not self.presence.probability_ >= SURFACE_HAND_P:
             return None
-        P = backproject(np.where(region, depth, np.nan), camera).reshape(-1, 3)
+        P = backproject(seen, camera).reshape(-1, 3)
         pts, nrm = usable_points(P[np.isfinite(P).all(axis=1)], None, self.settings.loss.max_points)
         if len(pts) < self.settings.loss.min_points:
             return None
