@@ -223,6 +223,17 @@ def _exhaustive(G, caps, points, facing, signed):
     return seg, best
 
 
+def _posed_points(rng, n, spread):
+    """``(node frames, points)``: the hand at a random pose and posture within limits 0.7 m away, and ``n``
+    points about its keypoints (Gaussian, SD ``spread`` m)."""
+    theta = HAND.zero()
+    theta[2] = 0.7
+    theta[3:6] = rng.normal(size=3)
+    theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
+    pts = HAND.keypoints(theta)[rng.integers(0, 21, n)] + rng.normal(scale=spread, size=(n, 3))
+    return HAND.node_frames(theta), pts
+
+
 @pytest.mark.parametrize("spread", [0.005, 0.03, 0.2])
 def test_pruned_closest_points_equal_the_exhaustive_search(spread):
     """Bounding-sphere pruning and the warm start change nothing: same segment, same distance, for
@@ -231,12 +242,7 @@ def test_pruned_closest_points_equal_the_exhaustive_search(spread):
     rng = np.random.default_rng(int(spread * 1000))
     caps = HAND.capsules.kernel_args()
     for k in range(4):
-        theta = HAND.zero()
-        theta[2] = 0.7
-        theta[3:6] = rng.normal(size=3)
-        theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
-        G = HAND.node_frames(theta)
-        pts = HAND.keypoints(theta)[rng.integers(0, 21, 150)] + rng.normal(scale=spread, size=(150, 3))
+        G, pts = _posed_points(rng, 150, spread)
         if k % 2:
             pts = pts[np.argsort(pts[:, 0])]  # scan-like order: neighbours share their winner
         P = len(pts)
@@ -263,12 +269,7 @@ def test_one_search_for_the_fit_s_pass_and_the_score_s_distances_is_the_two_sear
     rng = np.random.default_rng(int(spread * 1000) + 1)
     caps = HAND.capsules.kernel_args()
     for k in range(4):
-        theta = HAND.zero()
-        theta[2] = 0.7
-        theta[3:6] = rng.normal(size=3)
-        theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
-        G = HAND.node_frames(theta)
-        pts = HAND.keypoints(theta)[rng.integers(0, 21, 200)] + rng.normal(scale=spread, size=(200, 3))
+        G, pts = _posed_points(rng, 200, spread)
         if k % 2:
             pts = pts[np.argsort(pts[:, 0])]
         P = len(pts)
