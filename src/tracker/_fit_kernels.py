@@ -9,7 +9,9 @@ equations are projected from all DoF's (a synergy subspace is not cheaper per st
 finger). What a stage in the synergy subspace can save is the closest-point search, the costly part
 of a stage: a local pass (:func:`tracker._correspond_kernels.match_same`) re-projects each point onto
 the primitive it was matched to. Point-to-plane pairs do not reduce to moments; they go through the
-per-pair solver of :mod:`handmodel._solver_kernels`. The arrays come as the named tuples of
+per-pair solver of :mod:`handmodel._solver_kernels`. The search over every primitive is the loop's own
+(:func:`match_posed`): :func:`tracker._correspond_kernels.match`'s pairs to the bit, with each pass's
+per-primitive constants computed once (:func:`posed_primitives`). The arrays come as the named tuples of
 :mod:`tracker._kernel_arrays`.
 """
 from __future__ import annotations
@@ -17,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from handmodel._geometry_kernels import bounding_spheres, closest_on_primitive, to_world
+from handmodel._geometry_kernels import CAPSULE, bounding_spheres, closest_local
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
@@ -28,7 +30,7 @@ from handmodel._solver_kernels import (
 )
 
 from ._correspond_kernels import MM as MM_PER_M
-from ._correspond_kernels import _model_to_data_at, _pair_ok, hand_frames, match, match_same, new_frames
+from ._correspond_kernels import _model_to_data_at, _pair_ok, hand_frames, match_same, new_frames
 from ._kernel_arrays import (
     ENTRY_CLAMP,
     ENTRY_THROUGH,
@@ -599,6 +601,234 @@ def solve_stage_moments(theta0, hand, mom, G0, M, mu, m, lo, hi, damp, eye, gn, 
     return theta
 
 
+# ----------------------------------------------------------------------------- the closest-point passes
+#: a primitive's row in :func:`posed_primitives`' profile constants: a round cone that is the hull of its
+#: two spheres (the tangent line's normal, its touching point on the base sphere and its length), or one
+#: sphere containing the other (that sphere's centre along the axis and its radius)
+PROFILE_HULL, PROFILE_SPHERE = 1.0, 0.0
+
+
+@njit(cache=True)
+def posed_primitives(G, caps):
+    """What a closest-point pass needs of each primitive at the node frames ``G``, computed once per pass
+    instead of once per point and primitive visited: ``(F, K, sc, sr)``. ``F (S, 12)``: the primitive's
+    node frame, its rotation row by row and its origin, contiguous; ``K (S, 6)``: a round cone's profile
+    constants (:func:`_cone_posed`; a slab's row is unused); ``sc (3, S)``, ``sr (S,)``: the bounding spheres
+    of :func:`handmodel._geometry_kernels.bounding_spheres`, the centres' coordinates as rows (a point's
+    squared distances to all of them are one vectorised loop)."""
+    node, shape, length, r0, r1 = caps.node, caps.shape, caps.length, caps.r0, caps.r1
+    S = node.shape[0]
+    F = np.empty((S, 12))
+    K = np.zeros((S, 6))
+    for s in range(S):
+        j = node[s]
+        for r in range(3):
+            F[s, 3 * r] = G[j, r, 0]
+            F[s, 3 * r + 1] = G[j, r, 1]
+            F[s, 3 * r + 2] = G[j, r, 2]
+            F[s, 9 + r] = G[j, r, 3]
+        if shape[s] != CAPSULE:
+            continue
+        # _round_cone_2d's constants, by its own expressions (the same bits)
+        L, ra, rb = length[s], r0[s], r1[s]
+        d = ra - rb
+        if abs(d) >= L:
+            K[s, 0] = PROFILE_SPHERE
+            if ra >= rb:
+                K[s, 1], K[s, 2] = 0.0, ra
+            else:
+                K[s, 1], K[s, 2] = L, rb
+        else:
+            nx = d / L
+            ny = np.sqrt(1.0 - nx * nx)
+            K[s, 0] = PROFILE_HULL
+            K[s, 1] = nx
+            K[s, 2] = ny
+            K[s, 3] = ra * nx
+            K[s, 4] = ra * ny
+            K[s, 5] = np.sqrt(L * L - d * d)
+    sc, sr = bounding_spheres(G, node, shape, length, r0, r1, caps.thickness)
+    return F, K, np.ascontiguousarray(sc.T), sr
+
+
+@njit(cache=True, inline="always")
+def _cone_posed(K, s, L, ra, rb, x, y, z, loc):
+    """``closest_local`` (:mod:`handmodel._geometry_kernels`) of round cone ``s`` (length ``L``, radii
+    ``ra``, ``rb``) at its local point ``(x, y, z)`` into ``loc`` (local point, normal, signed distance):
+    ``closest_local``'s and ``_round_cone_2d``'s expressions on the same operands, so the same bits, with
+    the profile's constants from ``K`` (:func:`posed_primitives`: two square roots and a division less a
+    call). (Written into the search's loop, not as a function around the slab's case too: numba's
+    inlining of that left the pass slower than the lone search's.)"""
+    # the axis along local +y, the radial direction in the x-z plane; the profile point (y, rad)
+    rad = np.sqrt(x * x + z * z)
+    if rad < 1e-15:
+        ex, ez = 1.0, 0.0
+    else:
+        ex, ez = x / rad, z / rad
+    if K[s, 0] == PROFILE_SPHERE:
+        cxs, rr = K[s, 1], K[s, 2]
+        vx, vy = y - cxs, rad
+        nn = np.sqrt(vx * vx + vy * vy)
+        if nn < 1e-15:
+            vx, vy, nn = 0.0, 1.0, 1.0
+        nax, nr = vx / nn, vy / nn
+        cx, cr, dist = cxs + rr * nax, rr * nr, nn - rr
+    else:
+        nx, ny, tax, tay, side = K[s, 1], K[s, 2], K[s, 3], K[s, 4], K[s, 5]
+        tx, ty = ny, -nx
+        t = (y - tax) * tx + (rad - tay) * ty
+        if t < 0.0:
+            nn = np.sqrt(y * y + rad * rad)
+            if nn < 1e-15:
+                cx, cr, nax, nr, dist = -ra, 0.0, -1.0, 0.0, -ra
+            else:
+                cx, cr, nax, nr, dist = ra * y / nn, ra * rad / nn, y / nn, rad / nn, nn - ra
+        elif t > side:
+            vx, vy = y - L, rad
+            nn = np.sqrt(vx * vx + vy * vy)
+            if nn < 1e-15:
+                cx, cr, nax, nr, dist = L + rb, 0.0, 1.0, 0.0, -rb
+            else:
+                cx, cr, nax, nr, dist = L + rb * vx / nn, rb * vy / nn, vx / nn, vy / nn, nn - rb
+        else:
+            cx, cr = tax + t * tx, tay + t * ty
+            nax, nr, dist = nx, ny, (y - cx) * nx + (rad - cr) * ny
+    loc[0] = cr * ex
+    loc[1] = cx
+    loc[2] = cr * ez
+    loc[3] = nr * ex
+    loc[4] = nax
+    loc[5] = nr * ez
+    loc[6] = dist
+
+
+@njit(cache=True)
+def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_seg, out_d, any_d):
+    """The closest-point pass of :func:`handmodel._geometry_kernels.closest_points_facing` with ``cam`` and
+    ``facing_only`` (the closest front-facing point, its normal, primitive and absolute distance into
+    ``out_*``; −1 and +inf without one), and with ``any_d`` (not None) the same search with ``facing_only``
+    False in the same visits, of which only the distance is kept (what
+    :func:`tracker._search_kernels.data_cost_mean` measures). ``any_d`` None compiles a version without
+    that search (numba prunes its branches).
+
+    The same results to the bit as the lone searches (tests/tracker/test_h42_closest_pass.py), for less:
+    each primitive's frame and profile constants are taken once per pass (:func:`posed_primitives`), a
+    point's squared distances to all bounding spheres are one vectorised loop and the bound compares them
+    squared (no square root per point and primitive), and a primitive is posed once when either search
+    needs it. Each search keeps its own best and skips a primitive by its own bound; the visits' order and
+    the bound's rounding change no result: ties go to the lowest index, and the bound only skips primitives
+    farther than the best by its margin (1e-5 relative and 1 µm, for node frames orthonormal to ~1e-6),
+    which cannot win. (~30 % less time a point than ``closest_points_facing`` on the start searches'
+    clouds: the fits' closest-point passes are about half of a search's time.)"""
+    P = points.shape[0]
+    F, K, sc, sr = posed_primitives(G, caps)
+    S = sr.shape[0]
+    scx, scy, scz = sc[0], sc[1], sc[2]
+    # the tuple's arrays as locals before the loop (see tracker._correspond_kernels.match)
+    shape, length, r0, r1, thickness = caps.shape, caps.length, caps.r0, caps.r1, caps.thickness
+    visits = S + 1 if S else 0  # the previous winner, then every other primitive
+    c2 = np.empty(S)
+    q = np.empty(3)
+    loc = np.empty(7)
+    prev = 0
+    for i in range(P):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        for s in range(S):
+            e0 = px - scx[s]
+            e1 = py - scy[s]
+            e2 = pz - scz[s]
+            c2[s] = e0 * e0 + e1 * e1 + e2 * e2
+        best, bs = 1e300, -1      # the facing search
+        best_a, bs_a = 1e300, -1  # the search on any side
+        w0 = w1 = w2 = m0 = m1 = m2 = 0.0
+        for t in range(visits):
+            # the previous point's winner first (neighbouring points of a scan mostly share it)
+            if t == 0:
+                s = prev
+            else:
+                s = t - 1
+                if s == prev:
+                    continue
+            # |p - c| - r > best + margin, squared (best 1e300: the reach's square overflows to inf)
+            reach = best + 1e-5 * abs(best) + 1e-6 + sr[s]
+            skip = c2[s] > reach * reach
+            if any_d is not None:
+                reach_a = best_a + 1e-5 * abs(best_a) + 1e-6 + sr[s]
+                skip_a = c2[s] > reach_a * reach_a
+            else:
+                skip_a = True
+            if skip and skip_a:
+                continue
+            # closest_on_primitive: the point in the primitive's frame, Rᵀ (p − o)
+            d0 = px - F[s, 9]
+            d1 = py - F[s, 10]
+            d2 = pz - F[s, 11]
+            x = F[s, 0] * d0 + F[s, 3] * d1 + F[s, 6] * d2
+            y = F[s, 1] * d0 + F[s, 4] * d1 + F[s, 7] * d2
+            z = F[s, 2] * d0 + F[s, 5] * d1 + F[s, 8] * d2
+            if shape[s] == CAPSULE:
+                _cone_posed(K, s, length[s], r0[s], r1[s], x, y, z, loc)
+            else:
+                q[0], q[1], q[2] = x, y, z
+                closest_local(shape[s], length[s], r0[s], r1[s], thickness[s], q, loc)
+            dist = abs(loc[6])
+            if not skip_a and not (dist > best_a or (dist == best_a and s > bs_a)):
+                best_a = dist
+                bs_a = s
+            if skip or dist > best or (dist == best and s > bs):
+                continue
+            # to_world's expressions
+            p0 = F[s, 0] * loc[0] + F[s, 1] * loc[1] + F[s, 2] * loc[2] + F[s, 9]
+            p1 = F[s, 3] * loc[0] + F[s, 4] * loc[1] + F[s, 5] * loc[2] + F[s, 10]
+            p2 = F[s, 6] * loc[0] + F[s, 7] * loc[1] + F[s, 8] * loc[2] + F[s, 11]
+            n0 = F[s, 0] * loc[3] + F[s, 1] * loc[4] + F[s, 2] * loc[5]
+            n1 = F[s, 3] * loc[3] + F[s, 4] * loc[4] + F[s, 5] * loc[5]
+            n2 = F[s, 6] * loc[3] + F[s, 7] * loc[4] + F[s, 8] * loc[5]
+            if facing_only:
+                view = (p0 - cam[0]) * n0 + (p1 - cam[1]) * n1 + (p2 - cam[2]) * n2
+                if view > 0.0:
+                    continue
+            best = dist
+            bs = s
+            w0, w1, w2, m0, m1, m2 = p0, p1, p2, n0, n1, n2
+        if bs >= 0:
+            # the winner's point and normal (a point without one keeps its rows, as the lone pass does)
+            out_p[i, 0], out_p[i, 1], out_p[i, 2] = w0, w1, w2
+            out_n[i, 0], out_n[i, 1], out_n[i, 2] = m0, m1, m2
+        out_seg[i] = bs
+        out_d[i] = best if bs >= 0 else np.inf
+        if any_d is not None:
+            any_d[i] = best_a if bs_a >= 0 else np.inf
+        if bs >= 0:
+            prev = bs
+
+
+@njit(cache=True, inline="always")
+def _kept_pairs(caps, points, normals, rules, out):
+    """:func:`tracker._correspond_kernels.match`'s pairs from its pass in ``out`` (each point's node, and
+    whether its pair is kept); returns the number kept."""
+    node, seg, out_n, out_d, out_node, out_valid = caps.node, out.seg, out.n, out.d, out.node, out.valid
+    reject, agreement = rules.reject_m, rules.agreement
+    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
+    nv = 0
+    for i in range(points.shape[0]):
+        sg = seg[i]
+        out_node[i] = node[sg] if sg >= 0 else 0
+        ok = sg >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
+        out_valid[i] = ok
+        if ok:
+            nv += 1
+    return nv
+
+
+@njit(cache=True)
+def match_posed(G, caps, points, normals, rules, out):
+    """:func:`tracker._correspond_kernels.match` (the same pairs to the bit) by the pass of
+    :func:`closest_pass_and_any`: the fit's closest-point searches. Returns the number of valid pairs."""
+    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, None)
+    return _kept_pairs(caps, points, normals, rules, out)
+
+
 # ----------------------------------------------------------------------------- the fit
 @njit(cache=True)
 def pairs_moved(G0, G, pt_node, pt_local, k):
@@ -688,7 +918,7 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
     nv = 0
     for _ in range(terms.n_rigid):
         hand_frames(theta, hand, G, wa, wo)
-        nv = match(G, caps, points, normals, rules, out)
+        nv = match_posed(G, caps, points, normals, rules, out)
         stats[3] += 1
         theta = rigid_update(theta, out_p, points, out_valid)
     # θ's frames at a stage's start (G keeps those of the pass before until the test below)
@@ -711,7 +941,7 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
             nv = match_same(G, caps, points, normals, rules, out)
             stats[4] += 1
         else:
-            nv = match(G, caps, points, normals, rules, out)
+            nv = match_posed(G, caps, points, normals, rules, out)
             stats[3] += 1
         if nv < MIN_PAIRS:
             break
@@ -822,7 +1052,7 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
                         stats)
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
-    match(G, caps, points, normals, rules, out)
+    match_posed(G, caps, points, normals, rules, out)
     stats[3] += 1
     return theta
 
@@ -833,65 +1063,6 @@ def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, term
     return fit_kernel(theta0, HandArrays(*hand), CapsuleArrays(*caps), points, normals, MatchRules(*rules),
                       StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms),
                       SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), Pairs(*out), stats)
-
-
-@njit(cache=True)
-def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_seg, out_d, any_d):
-    """Two closest-point searches over the primitives in one: the pass of
-    :func:`handmodel._geometry_kernels.closest_points_facing` with ``cam`` and ``facing_only`` (the closest
-    front-facing point, its normal, primitive and absolute distance into ``out_*``; −1 and +inf without
-    one) and the same with ``facing_only`` False, of which only the distance is kept (``any_d``: what
-    :func:`tracker._search_kernels.data_cost_mean` measures). Each search keeps its own best and skips a
-    primitive by its own bound exactly as the lone search does; a primitive is posed once when either
-    needs it. (The lone searches' visit order differs, which changes no result: ties go to the lowest
-    index and the bound only skips primitives that cannot win.)"""
-    P = points.shape[0]
-    seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th = caps.node, caps.shape, caps.length, caps.r0, caps.r1, \
-        caps.thickness
-    q = np.empty(3)
-    loc = np.empty(7)
-    wp = np.empty(3)
-    wn = np.empty(3)
-    sc, sr = bounding_spheres(G, seg_node, seg_shape, seg_len, seg_r0, seg_r1, seg_th)
-    S = sr.shape[0]
-    prev = 0
-    for i in range(P):
-        best, bs = 1e300, -1      # the facing search
-        best_a, bs_a = 1e300, -1  # the search on any side
-        for t in range(S):
-            s = prev if t == 0 else (t - 1 if t - 1 < prev else t)
-            c0 = points[i, 0] - sc[s, 0]
-            c1 = points[i, 1] - sc[s, 1]
-            c2 = points[i, 2] - sc[s, 2]
-            bound = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) - sr[s]
-            skip = bound > best + 1e-5 * abs(best) + 1e-6
-            skip_a = bound > best_a + 1e-5 * abs(best_a) + 1e-6
-            if skip and skip_a:
-                continue
-            j = seg_node[s]
-            closest_on_primitive(G, j, seg_shape[s], seg_len[s], seg_r0[s], seg_r1[s], seg_th[s], points[i, 0],
-                                 points[i, 1], points[i, 2], q, loc)
-            dist = abs(loc[6])
-            if not skip_a and not (dist > best_a or (dist == best_a and s > bs_a)):
-                best_a = dist
-                bs_a = s
-            if skip or dist > best or (dist == best and s > bs):
-                continue
-            to_world(G, j, loc, wp, wn)
-            if facing_only:
-                view = (wp[0] - cam[0]) * wn[0] + (wp[1] - cam[1]) * wn[1] + (wp[2] - cam[2]) * wn[2]
-                if view > 0.0:
-                    continue
-            best = dist
-            bs = s
-            for r in range(3):
-                out_p[i, r] = wp[r]
-                out_n[i, r] = wn[r]
-        out_seg[i] = bs
-        out_d[i] = best if bs >= 0 else np.inf
-        any_d[i] = best_a if bs_a >= 0 else np.inf
-        if bs >= 0:
-            prev = bs
 
 
 @njit(cache=True)
@@ -906,14 +1077,8 @@ def _fit_and_score(theta0, hand, caps, points, normals, rules, stages, proj, gn,
     hand_frames(theta, hand, G, wa, wo)
     closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d)
     stats[3] += 1
-    # match's pairs from the pass (tracker._correspond_kernels.match)
-    node, out_n, out_d, out_node, out_valid = caps.node, out.n, out.d, out.node, out.valid
-    reject, agreement = rules.reject_m, rules.agreement
-    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
-    for i in range(points.shape[0]):
-        sg = out.seg[i]
-        out_node[i] = node[sg] if sg >= 0 else 0
-        out_valid[i] = sg >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
+    _kept_pairs(caps, points, normals, rules, out)
+    out_valid = out.valid
     # search_score: the data term (data_cost_mean's sums), the model→data term, the wrist cue
     P = points.shape[0]
     cap_mm = s_terms.data_cap_mm
