@@ -67,7 +67,7 @@ def test_an_arm_long_box_narrows_onto_the_hand(sensor, scale, frame, before, aft
     """A small side fist at the end of the forearm the segmentation kept (the hand under a fifth of the mask):
     the network on the arm's box misplaces the keypoints by ~4-5 cm; re-cropped around its own keypoints
     it finds them within ~1.5 cm, and the hand-presence network, asked on the narrowed region, calls it a
-    hand where on the arm's box it did not."""
+    hand where on the arm's box it did not (below the surface start's 0.5)."""
     from tracker.hand_presence import hand_probability, load_presence
 
     hand, cam, depth, mask, kp, precision = _side_fist(sensor, scale, frame)
@@ -80,7 +80,8 @@ def test_an_arm_long_box_narrows_onto_the_hand(sensor, scale, frame, before, aft
     assert hand_box(depth, narrowed.region)[2] < 0.6 * hand_box(depth, mask)[2]
     assert _error_mm(whole, kp) > before and _error_mm(narrowed, kp) < after
     pres = load_presence()
-    assert hand_probability(depth, cam, mask, hand.handedness, model=pres) < 0.1
+    # the arm's box: 0.02 by presence 1.1.0, 0.20-0.24 by 1.2.0 (a hand is in it, a fifth of it)
+    assert hand_probability(depth, cam, mask, hand.handedness, model=pres) < 0.5
     assert hand_probability(depth, cam, narrowed.region, hand.handedness, model=pres) > 0.5
 
 

@@ -12,7 +12,10 @@ whole rendered frames (:func:`tracker.sim.dataset.draw_scene` with the frame as 
   where it holds at least half the hand and the hand is at least 30 % of it;
 - **not hands**: the segmentation's box where at most 10 % of it is hand (it took the forearm, the
   torso, the table's edge or the object), and boxes of a hand's size (at that depth) on random
-  surface pixels that are not hand (at most 3 % hand pixels in the box); and, on a share of frames
+  surface pixels that are not hand (at most 3 % hand pixels in the box), and boxes of a hand's size or
+  smaller beside the hand (``near``: centred on a non-hand pixel within a hand's extent of the hand, at
+  most 10 % hand pixels; mostly the forearm's piece next to the wrist, which a segmentation cut by its
+  window keeps and 1.1.0 called a hand at up to 0.93); and, on a share of frames
   (``PresenceSettings.p_hand_less``), frames without the hand (:func:`hand_less_scene`: a torso, a
   table and an object of any size from 2 to 24 cm where the hand would be), the segmentation's box and
   random boxes on them: what the tracker segments when no hand is in view.
@@ -65,6 +68,9 @@ class PresenceSettings:
         hand's box at that depth (a segmentation's region of something else has any size)
     size_jitter, shift_jitter, median_jitter_m : the true box's jitter (as the keypoint CNN's training)
     p_hand_less : the share of frames drawn without the hand (:func:`hand_less_scene`; 1.0.0 had none)
+    near_boxes : boxes beside the hand per scene (none before 1.2.0), centred on a non-hand pixel within
+        ``near_reach`` × a hand's extent (image distance at the hand's depth) of a hand pixel, each
+        ``near_size`` (log-uniform) × a hand's box, labelled no hand where at most ``near_share`` of it is hand
     """
 
     n_scenes: int = 2000
@@ -80,6 +86,10 @@ class PresenceSettings:
     shift_jitter: float = 0.10
     median_jitter_m: float = 0.01
     p_hand_less: float = 0.25
+    near_boxes: int = 2
+    near_reach: float = 1.0
+    near_size: tuple = (0.3, 1.2)
+    near_share: float = 0.10
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -116,7 +126,7 @@ def segmented_label(mask, hand) -> int | None:
 
 def scene_crops(crop, rng, st: PresenceSettings, *, segment=True) -> tuple[list, list, list]:
     """Inputs ``(2, 64, 64)`` (:func:`tracker.hand_presence.presence_input`), labels (1 hand, 0 not) and
-    kinds (``true``, ``segmented``, ``random``) of one whole-frame scene."""
+    kinds (``true``, ``segmented``, ``random``, ``near``) of one whole-frame scene."""
     from ..observe import observe
 
     depth = crop.depth
@@ -150,7 +160,32 @@ def scene_crops(crop, rng, st: PresenceSettings, *, segment=True) -> tuple[list,
             X.append(presence_input(depth, b, bool(rng.random() < 0.5), fx))
             y.append(0)
             kind.append("random")
+    if st.near_boxes and hand.any():
+        X_near = near_boxes(depth, ok, hand, fx, rng, st)
+        X += X_near
+        y += [0] * len(X_near)
+        kind += ["near"] * len(X_near)
     return X, y, kind
+
+
+def near_boxes(depth, ok, hand, fx: float, rng, st: PresenceSettings) -> list:
+    """Inputs of up to ``st.near_boxes`` boxes beside the hand that are not a hand (at most
+    ``st.near_share`` hand pixels): what a segmentation cut short by its window holds when it kept the
+    forearm's piece by the wrist, or an object or table edge touching the hand."""
+    from scipy.ndimage import distance_transform_edt
+
+    z_hand = float(np.median(depth[hand]))
+    reach = st.near_reach * HAND_EXTENT_M * fx / z_hand
+    near = np.flatnonzero((ok & ~hand & (distance_transform_edt(~hand) <= reach)).ravel())
+    out = []
+    for _ in range(st.near_boxes if len(near) else 0):
+        r, c = divmod(int(near[rng.integers(len(near))]), depth.shape[1])
+        z = float(depth[r, c])
+        size = BOX_GROW * HAND_EXTENT_M * np.exp(rng.uniform(*np.log(st.near_size))) * fx / z + 2.0
+        b = (float(c), float(r), size, z)
+        if _box_share(hand, b)[0] <= st.near_share:
+            out.append(presence_input(depth, b, bool(rng.random() < 0.5), fx))
+    return out
 
 
 def hand_less_scene(recipe: DataRecipe, rng):
@@ -288,7 +323,7 @@ def evaluate(model, X, y, kind) -> dict:
            "auc": _r(roc_auc(p, y), 4), "auc_segmented": _r(roc_auc(p[seg], y[seg]), 4)}
     for t in (0.5, StartSettings().presence_below):
         row = {}
-        for k in ("true", "segmented", "random"):
+        for k in ("true", "segmented", "random", "near"):
             sel = kind == k
             if (sel & (y == 1)).any():
                 row[f"{k}_hands_kept"] = _r(np.mean(p[sel & (y == 1)] >= t), 4)
