@@ -123,8 +123,8 @@ def test_cli_says_no_hand_and_writes_lost_frames(tmp_path):
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
     assert "no hand: on 2 frames what was segmented is no hand (2 whose fit rejected more than 20% of the points)" in out
-    # the hand-presence network (the default; 1.2.0: 0.016 and 0.022, 1.1.0: 0.02 and 0.01) turns both frames' region (a wall's edge)
-    # away before any search, and the detected hand does not fit it
+    # the hand-presence network (the default; 1.2.0: 0.016 and 0.022, 1.1.0: 0.02 and 0.01) turns both frames'
+    # region (a wall's edge) away before any search, and the detected hand does not fit it
     r2 = CliRunner().invoke(app, ["track", str(bag), "--hand", "right", "--no-check-hand", "--threads", "1",
                                   "-o", str(tmp_path / "t2.csv")])
     assert r2.exit_code == 0, r2.output
