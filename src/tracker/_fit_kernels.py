@@ -703,13 +703,15 @@ def _cone_posed(K, s, L, ra, rb, x, y, z, loc):
 
 
 @njit(cache=True)
-def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_seg, out_d, any_d):
+def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_seg, out_d, any_d, hinted=False):
     """The closest-point pass of :func:`handmodel._geometry_kernels.closest_points_facing` with ``cam`` and
     ``facing_only`` (the closest front-facing point, its normal, primitive and absolute distance into
     ``out_*``; −1 and +inf without one), and with ``any_d`` (not None) the same search with ``facing_only``
     False in the same visits, of which only the distance is kept (what
     :func:`tracker._search_kernels.data_cost_mean` measures). ``any_d`` None compiles a version without
-    that search (numba prunes its branches).
+    that search (numba prunes its branches). ``hinted``: ``out_seg`` holds each point's primitive from a
+    pass at a nearby pose (the fit's pass before), visited first: the best found first prunes the most
+    (any value there gives the same results; it orders the visits only).
 
     The same results to the bit as the lone searches (tests/tracker/test_h42_closest_pass.py), for less:
     each primitive's frame and profile constants are taken once per pass (:func:`posed_primitives`), a
@@ -741,13 +743,17 @@ def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_se
         best, bs = 1e300, -1      # the facing search
         best_a, bs_a = 1e300, -1  # the search on any side
         w0 = w1 = w2 = m0 = m1 = m2 = 0.0
+        first = prev
+        if hinted and 0 <= out_seg[i] < S:
+            first = out_seg[i]
         for t in range(visits):
-            # the previous point's winner first (neighbouring points of a scan mostly share it)
+            # first the point's own winner of a pass before, else the previous point's (neighbouring points
+            # of a scan mostly share it)
             if t == 0:
-                s = prev
+                s = first
             else:
                 s = t - 1
-                if s == prev:
+                if s == first:
                     continue
             # |p - c| - r > best + margin, squared (best 1e300: the reach's square overflows to inf)
             reach = best + 1e-5 * abs(best) + 1e-6 + sr[s]
@@ -822,10 +828,12 @@ def _kept_pairs(caps, points, normals, rules, out):
 
 
 @njit(cache=True)
-def match_posed(G, caps, points, normals, rules, out):
+def match_posed(G, caps, points, normals, rules, out, hinted=False):
     """:func:`tracker._correspond_kernels.match` (the same pairs to the bit) by the pass of
-    :func:`closest_pass_and_any`: the fit's closest-point searches. Returns the number of valid pairs."""
-    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, None)
+    :func:`closest_pass_and_any`: the fit's closest-point searches (``hinted``: ``out.seg`` holds a pass
+    before's primitives, each point's first visit). Returns the number of valid pairs."""
+    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, None,
+                         hinted)
     return _kept_pairs(caps, points, normals, rules, out)
 
 
@@ -916,9 +924,11 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
     mom = np.empty((N, N_MOMENTS))
     theta = theta0.copy()
     nv = 0
+    passes = 0  # closest-point passes so far: a pass after the first starts each point at its last winner
     for _ in range(terms.n_rigid):
         hand_frames(theta, hand, G, wa, wo)
-        nv = match_posed(G, caps, points, normals, rules, out)
+        nv = match_posed(G, caps, points, normals, rules, out, passes > 0)
+        passes += 1
         stats[3] += 1
         theta = rigid_update(theta, out_p, points, out_valid)
     # θ's frames at a stage's start (G keeps those of the pass before until the test below)
@@ -941,7 +951,8 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
             nv = match_same(G, caps, points, normals, rules, out)
             stats[4] += 1
         else:
-            nv = match_posed(G, caps, points, normals, rules, out)
+            nv = match_posed(G, caps, points, normals, rules, out, passes > 0)
+            passes += 1
             stats[3] += 1
         if nv < MIN_PAIRS:
             break
@@ -1052,7 +1063,8 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
                         stats)
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
-    match_posed(G, caps, points, normals, rules, out)
+    # hinted by the last pass's primitives (without one, whatever out.seg holds only orders the visits)
+    match_posed(G, caps, points, normals, rules, out, True)
     stats[3] += 1
     return theta
 
@@ -1075,7 +1087,8 @@ def _fit_and_score(theta0, hand, caps, points, normals, rules, stages, proj, gn,
                         stats)
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
-    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d)
+    closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d,
+                         True)
     stats[3] += 1
     _kept_pairs(caps, points, normals, rules, out)
     out_valid = out.valid

@@ -33,15 +33,17 @@ def _posed_points(rng, n, spread):
     return HAND.node_frames(theta), pts
 
 
-def _both_passes(G, caps, pts, normals, rules, seed_rows):
-    """``match`` and ``match_posed`` on the same input, each from rows holding ``seed_rows`` (a point
+def _passes(G, caps, pts, normals, rules, seed_rows, hints):
+    """``match``, ``match_posed`` and ``match_posed`` with each point's first visit from ``hints`` (any
+    integers: out of range ones are no hint) on the same input, each from rows holding ``seed_rows`` (a point
     without a pair keeps its rows): ``(pairs, valid count)`` of each."""
     out = []
-    for fn in (CK.match, K.match_posed):
-        P = len(pts)
-        pairs = Pairs(seed_rows[0].copy(), seed_rows[1].copy(), np.full(P, 7, np.int64), np.full(P, 7.0),
+    P = len(pts)
+    for fn, hinted in ((CK.match, None), (K.match_posed, False), (K.match_posed, True)):
+        pairs = Pairs(seed_rows[0].copy(), seed_rows[1].copy(), hints.copy(), np.full(P, 7.0),
                       np.full(P, 3, np.int64), np.zeros(P, np.bool_))
-        nv = fn(np.ascontiguousarray(G), caps, pts, normals, rules, pairs)
+        args = (np.ascontiguousarray(G), caps, pts, normals, rules, pairs)
+        nv = fn(*args) if hinted is None else fn(*args, hinted)
         out.append((pairs, nv))
     return out
 
@@ -50,7 +52,8 @@ def _both_passes(G, caps, pts, normals, rules, seed_rows):
 def test_the_fit_s_pass_is_match_to_the_bit(spread):
     """Same points, normals, primitives, distances, nodes and kept pairs as ``match``, with the camera-facing
     test on and off, the normal test on (NaN rows among the normals) and off, points on, near and far from
-    the hand, in a scan's order and shuffled, with the camera off the origin."""
+    the hand, in a scan's order and shuffled, with the camera off the origin, and with each point's first
+    visit given (a pass before's winners: here any primitive, or none)."""
     rng = np.random.default_rng(int(spread * 1000) + 42)
     caps = CapsuleArrays(*HAND.capsules.kernel_args())
     kept = shown = 0
@@ -66,10 +69,12 @@ def test_the_fit_s_pass_is_match_to_the_bit(spread):
         for facing in (True, False):
             for nrm, agree in ((np.zeros((0, 3)), -1.0), (normals, 0.3)):
                 rules = MatchRules(np.array([0.0, 0.01 * k, -0.02 * k]), facing, 0.03, agree)
-                (a, na), (b, nb) = _both_passes(G, caps, pts, nrm, rules, seed)
-                assert na == nb
-                for x, y in zip(a, b):
-                    np.testing.assert_array_equal(x, y)
+                hints = rng.integers(-3, len(caps.node) + 3, P)
+                (a, na), *posed = _passes(G, caps, pts, nrm, rules, seed, hints)
+                for b, nb in posed:
+                    assert na == nb
+                    for x, y in zip(a, b):
+                        np.testing.assert_array_equal(x, y)
                 kept += na
                 shown += P
     assert 0 < kept < shown  # some pairs kept, some not (rejected or unmatched)
@@ -118,6 +123,13 @@ def test_profiles_of_spheres_and_points_on_the_axes_are_closest_local_s():
         K.closest_pass_and_any(G, caps, pts, cam, facing, *alone, None)
         for a, b in zip(alone, lone):
             np.testing.assert_array_equal(a, b)
+        # each point started at another primitive (what a pass before found at a nearby pose)
+        hinted = np.zeros((P, 3)), np.zeros((P, 3)), rng.integers(0, len(node), P), np.empty(P)
+        any_h = np.empty(P)
+        K.closest_pass_and_any(G, caps, pts, cam, facing, *hinted, any_h, True)
+        for a, b in zip(hinted, lone):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(any_h, lone_any[3])
     # the sphere-in-sphere primitives won points (else the case went untested)
     assert np.isin(lone[2], cone[::3]).sum() > 10
 
