@@ -174,3 +174,30 @@ def test_a_start_given_twice_is_fitted_as_if_alone(threads):
         np.testing.assert_array_equal(th, T1[0])
         assert s == S1[0]
     assert not np.array_equal(T[0], T[1])  # different starts stay different fits
+
+
+def test_the_fit_s_cholesky_solve_is_handmodel_s_to_the_bit():
+    """:func:`tracker._fit_kernels.cholesky_rows` gives :func:`handmodel._solver_kernels.cholesky_solve`'s
+    answer and x to the bit, for 1–30 unknowns (the row blocks of four and the rows left over), scales from
+    1e-6 to 1e6, and refuses exactly the matrices it refuses (a zero row, a negative direction)."""
+    from handmodel import _solver_kernels as SK
+
+    rng = np.random.default_rng(11)
+    refused = 0
+    for trial in range(600):
+        m = int(rng.integers(1, 31))
+        B = rng.normal(size=(m, m)) * 10.0 ** rng.uniform(-3, 3)
+        A = B @ B.T + rng.uniform(0, 1) * np.eye(m)
+        if trial % 4 == 0:
+            k = rng.integers(m)
+            A[k, :] = A[:, k] = 0.0 if trial % 8 == 0 else -A[k, :]
+            A[k, k] = 0.0 if trial % 8 == 0 else -1.0
+        b = rng.normal(size=m)
+        x0, x1 = np.full(m, 7.0), np.full(m, 7.0)
+        ok0 = SK.cholesky_solve(A, b, x0, np.zeros((m, m)))
+        ok1 = K.cholesky_rows(A, b, x1, np.zeros((m, m)))
+        assert ok0 == ok1
+        if ok0:
+            np.testing.assert_array_equal(x1, x0)
+        refused += not ok0
+    assert 50 < refused < 300
