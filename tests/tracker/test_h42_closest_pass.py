@@ -1,7 +1,9 @@
 """The fit loop's own closest-point pass (:func:`tracker._fit_kernels.match_posed`, the search of
 :func:`tracker._fit_kernels.closest_pass_and_any` on :func:`~tracker._fit_kernels.posed_primitives`) gives
-:func:`tracker._correspond_kernels.match`'s pairs to the bit, and a batch of fits with a start given twice
-(:meth:`tracker.init.FitContext.fit_many`, which fits it once) gives each row the fit of that start alone."""
+:func:`tracker._correspond_kernels.match`'s pairs to the bit, its Cholesky solve
+(:func:`tracker._fit_kernels.cholesky_rows`) handmodel's answers to the bit, and a batch of fits with a start
+given twice (:meth:`tracker.init.FitContext.fit_many`, which fits it once) gives each row the fit of that start
+alone."""
 import numpy as np
 import pytest
 
