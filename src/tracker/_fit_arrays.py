@@ -1,8 +1,8 @@
 """A fit's arguments as the arrays of the compiled loop (:func:`tracker._fit_kernels.fit_kernel`,
 called by :func:`tracker.icp.fit`): the stages padded into :class:`~tracker._kernel_arrays.StageArrays`
 and :class:`~tracker._kernel_arrays.ProjectionArrays` (:func:`stage_arrays`), the matcher's rules
-(:func:`match_rules`), the wrist-line pair (:func:`wrist_line`) and the stand-ins of the silhouette
-term's arrays when it is off.
+(:func:`match_rules`), the wrist-line pair (:func:`wrist_line`), the detected keypoints' pairs
+(:func:`keypoint_pairs`) and the stand-ins of the silhouette term's arrays when it is off.
 """
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ from ._kernel_arrays import (
     ENTRY_CLAMP,
     ENTRY_NONE,
     ENTRY_THROUGH,
+    NO_KEYPOINTS,
+    KeypointPairs,
     MatchRules,
     ProjectionArrays,
     StageArrays,
@@ -37,6 +39,26 @@ def wrist_line(hand, cue, settings):
     node, local = hand.wrist_crease_local()
     return WristLine(True, int(node), np.asarray(local, np.float64), arm_line_normal(cue),
                      float(settings.wrist_line_weight), settings.wrist_line_mm / 1000.0)
+
+
+def keypoint_pairs(keypoints, settings):
+    """The detected keypoints' pairs (:class:`tracker.icp_settings.IcpSettings` ``keypoint_weight``) as
+    :class:`~tracker._kernel_arrays.KeypointPairs`: of ``keypoints`` = ``(xyz (21, 3), confidence (21,))``
+    (a :class:`tracker.detector.Detection`'s) those found (finite, confidence > 0), each weighing
+    ``keypoint_weight`` × its confidence / 21 of the valid data pairs; off when the term is off or
+    nothing was given."""
+    if keypoints is None or not settings.keypoint_weight > 0:
+        return NO_KEYPOINTS
+    xyz, conf = (np.asarray(a, np.float64) for a in keypoints)
+    if xyz.shape != (21, 3) or conf.shape != (21,):
+        raise TrackerError("keypoints", f"need (21, 3) positions and (21,) confidences, got {xyz.shape} and "
+                                        f"{conf.shape}")
+    found = np.isfinite(xyz).all(axis=1) & np.isfinite(conf) & (conf > 0)
+    if not found.any():
+        return NO_KEYPOINTS
+    return KeypointPairs(True, np.flatnonzero(found).astype(np.int64), np.ascontiguousarray(xyz[found]),
+                         settings.keypoint_weight * np.minimum(conf[found], 1.0) / 21.0,
+                         settings.keypoint_mm / 1000.0)
 
 
 def match_rules(matcher, normals):

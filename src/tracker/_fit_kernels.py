@@ -37,6 +37,7 @@ from ._kernel_arrays import (
     FitTerms,
     GaussNewton,
     HandArrays,
+    KeypointPairs,
     MatchRules,
     Pairs,
     ProjectionArrays,
@@ -959,7 +960,8 @@ def _solve_pairs(theta, hand, mom, G0, M, mu, m, lo, hi, damp, eye, gn, terms, p
 
 
 @njit(cache=True, nogil=True)
-def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, kps, out,
+                stats):
     """:func:`fit_kernel` but its last closest-point pass: θ after the rigid steps and the stages (``out``
     holds the pairs of the last pass before the last solve)."""
     n = hand.dof_axes.shape[0]
@@ -969,7 +971,8 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
     out_p, out_n, out_d, out_node, out_valid = out.p, out.n, out.d, out.node, out.valid
     G, wa, wo = new_frames(hand)
     n_s = samples.nodes.shape[0] if terms.silhouette else 0
-    n_x = n_s + (1 if wrist.on else 0)
+    n_k = kps.nodes.shape[0] if kps.on else 0
+    n_x = n_s + (1 if wrist.on else 0) + n_k
     pt_node = np.empty(P + n_x, np.int64)
     pt_local = np.empty((P + n_x, 3))
     tgt = np.empty((P + n_x, 3))
@@ -1086,6 +1089,20 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
                         plane[k, r] = 0.0
                 w[k] = np.sqrt(wrist.share * nv)
                 k += 1
+        for q in range(n_k):
+            # the model's keypoint is its node's origin; the pair weighs its share of the valid data pairs
+            # times its own Cauchy weight (a keypoint the detector misplaced by far pulls little)
+            j = kps.nodes[q]
+            d2 = 0.0
+            for r in range(3):
+                pt_local[k, r] = 0.0
+                tgt[k, r] = kps.target[q, r]
+                d2 += (G[j, r, 3] - kps.target[q, r]) ** 2
+                if point_to_plane:
+                    plane[k, r] = 0.0
+            pt_node[k] = j
+            w[k] = np.sqrt(kps.share[q] * nv / (1.0 + d2 / (kps.scale_m * kps.scale_m)))
+            k += 1
         if terms.moments and not point_to_plane:
             node_moments(pt_node[:k], pt_local[:k], tgt[:k], w[:k], G, N, mom)
         # G, wa, wo: θ's frames, axes and origins (hand_frames above)
@@ -1097,7 +1114,8 @@ def _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, te
 
 
 @njit(cache=True, nogil=True)
-def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, kps, out,
+               stats):
     """One ICP fit (:func:`tracker.icp.fit_reference`'s loop): ``terms.n_rigid`` rigid steps, then per
     stage correspondences at θ, θ moved into the stage's subspace, the pairs (Cauchy-weighted data pairs
     and silhouette pairs) and one damped Gauss-Newton solve; at the end the correspondences at the
@@ -1113,12 +1131,15 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
     ``wrist.local`` of node ``wrist.node`` (the wrist crease) to its closest point on the plane
     through the camera centre with unit normal ``wrist.normal`` (the arm's centre line), weighing like
     ``wrist.share`` × the valid data pairs, when it lies more than ``wrist.free_m`` from the plane (its
-    target then that far from the plane; else no pair). ``terms.moments``: Gauss-Newton on moment sums
+    target then that far from the plane; else no pair). ``kps.on``: one pair per detected keypoint
+    (:class:`tracker._kernel_arrays.KeypointPairs`), from the model's keypoint (its node's origin) to the
+    detected one, weighing ``kps.share`` × the valid data pairs × its Cauchy weight at ``kps.scale_m``
+    (the searches' fits have none). ``terms.moments``: Gauss-Newton on moment sums
     (point-to-point only), else the per-pair solver; the moment path adds its steps taken and failed
     to ``stats`` (see :func:`solve_stage_moments`), every closest-point pass adds 1 to ``stats[3]``,
     every local pass to ``stats[4]``. Returns θ."""
-    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out,
-                        stats)
+    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, kps,
+                        out, stats)
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
     # hinted by the last pass's primitives (without one, whatever out.seg holds only orders the visits)
@@ -1128,11 +1149,19 @@ def fit_kernel(theta0, hand, caps, points, normals, rules, stages, proj, gn, ter
 
 
 @njit(cache=True, nogil=True)
-def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out, stats):
+def fit_entry(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, kps, out,
+              stats):
     """:func:`fit_kernel` with its named tuples given as plain tuples (:func:`tracker._kernel_arrays.plain`)."""
     return fit_kernel(theta0, HandArrays(*hand), CapsuleArrays(*caps), points, normals, MatchRules(*rules),
                       StageArrays(*stages), ProjectionArrays(*proj), GaussNewton(*gn), FitTerms(*terms),
-                      SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), Pairs(*out), stats)
+                      SampleArrays(*samples), SilhouetteArrays(*sil), WristLine(*wrist), KeypointPairs(*kps),
+                      Pairs(*out), stats)
+
+
+@njit(cache=True)
+def _no_keypoints():
+    """The keypoint term off (a search's fits: no detected keypoints)."""
+    return KeypointPairs(False, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), 1.0)
 
 
 @njit(cache=True)
@@ -1141,8 +1170,8 @@ def _fit_and_score(theta0, hand, caps, points, normals, rules, stages, proj, gn,
     """:func:`fit_kernel` and :func:`tracker._search_kernels.search_score` of its result in one: the fit's
     last closest-point pass and the score's data term share one search over the primitives
     (:func:`closest_pass_and_any`); the sums are the lone kernels', in their order. Returns ``(θ, score)``."""
-    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist, out,
-                        stats)
+    theta = _fit_stages(theta0, hand, caps, points, normals, rules, stages, proj, gn, terms, samples, sil, wrist,
+                        _no_keypoints(), out, stats)
     G, wa, wo = new_frames(hand)
     hand_frames(theta, hand, G, wa, wo)
     closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d,

@@ -196,6 +196,18 @@ class WristLine(NamedTuple):
     free_m: float
 
 
+class KeypointPairs(NamedTuple):
+    """The detected keypoints' pairs (:class:`tracker.icp_settings.KeypointTermSettings`): on, the model's
+    keypoint nodes (a keypoint is its node's origin), the detected positions, each pair's weight as a
+    share of the valid data pairs, and the Cauchy scale (m) of the pairs' own robust weight."""
+
+    on: bool
+    nodes: np.ndarray
+    target: np.ndarray
+    share: np.ndarray
+    scale_m: float
+
+
 class ScoreTerms(NamedTuple):
     """The terms of the start search's score (:func:`tracker.init.score`): what a rejected pair adds
     and the cap of a point's data cost (mm), the model→data term (on, its weight, tolerances in mm and
@@ -224,6 +236,7 @@ class WristCueArrays(NamedTuple):
 
 # stand-ins of the model→data and silhouette arrays' types when their term is off (one compiled
 # version serves both)
+NO_KEYPOINTS = KeypointPairs(False, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), 1.0)
 NO_SAMPLES = SampleArrays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 NO_SILHOUETTE = SilhouetteArrays(1.0, 1.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1), np.int32),
                                  np.zeros((1, 1), np.int32), np.zeros((1, 1)), 0, 0)

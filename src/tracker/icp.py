@@ -28,7 +28,7 @@ from handmodel.subspace import Subspace
 from . import _correspond_kernels as CK
 from . import _fit_kernels as FK
 from . import _observe_kernels as OK
-from ._fit_arrays import match_rules, stage_arrays, wrist_line
+from ._fit_arrays import keypoint_pairs, match_rules, stage_arrays, wrist_line
 from ._kernel_arrays import (
     NO_SAMPLES,
     NO_SILHOUETTE,
@@ -187,7 +187,7 @@ def cauchy_weights(distance_m, scale_mm) -> np.ndarray:
 
 
 def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0, normals=None,
-        samples=None, silhouette=None, wrist=None, moments=True, stats=None):
+        samples=None, silhouette=None, wrist=None, keypoints=None, moments=True, stats=None):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
 
     The whole loop runs in one compiled call (:func:`tracker._fit_kernels.fit_kernel`) when
@@ -210,6 +210,9 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         for the model→data term (both or neither)
     wrist : :class:`tracker.wrist.WristCue` or None
         the frame's wrist cue for the wrist-line pair (:class:`IcpSettings` ``wrist_line_weight``)
+    keypoints : ``(xyz (21, 3), confidence (21,))`` or None
+        the frame's detected keypoints for the keypoint term (:class:`IcpSettings` ``keypoint_weight``;
+        :func:`tracker._fit_arrays.keypoint_pairs`)
     moments : bool
         Gauss-Newton on moment sums (default) or on every pair.
     stats : int64 array (5,), optional
@@ -227,13 +230,13 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         raise TrackerError("stats", f"stats must be an int64 array of shape (5,), got {stats.dtype} {stats.shape}")
     if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
         return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
-                             samples=samples, silhouette=silhouette, wrist=wrist)
+                             samples=samples, silhouette=silhouette, wrist=wrist, keypoints=keypoints)
     args = fit_arguments(hand, points, stages, matcher, st, n_rigid=n_rigid, normals=normals, samples=samples,
                          silhouette=silhouette, wrist=wrist, moments=moments)
     pts = args[2]
     out = Pairs.empty(len(pts))
-    th = FK.fit_entry(np.array(hand.check_theta(theta), float), *args, tuple(out),
-                      np.zeros(5, np.int64) if stats is None else stats)
+    th = FK.fit_entry(np.array(hand.check_theta(theta), float), *args, tuple(keypoint_pairs(keypoints, st)),
+                      tuple(out), np.zeros(5, np.int64) if stats is None else stats)
     return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
 
 
@@ -242,8 +245,9 @@ def fit_arguments(hand, points, stages, matcher, settings: IcpSettings, *, n_rig
     """The compiled fit's arguments after θ and before its output pairs and stats, as plain tuples
     (:func:`tracker._kernel_arrays.plain`): what :func:`fit` passes to
     :func:`tracker._fit_kernels.fit_entry` for a :class:`~tracker.correspond.Matcher` on the capsule
-    model (the batched fits, :func:`tracker._fit_kernels.fit_score_many_entry`, take the same). The
-    data points are the third (float64, contiguous, ``(N, 3)``)."""
+    model (the batched fits, :func:`tracker._fit_kernels.fit_score_many_entry`, take the same; a lone fit
+    adds the keypoint pairs after them, which the searches' fits do not have). The data points are the
+    third (float64, contiguous, ``(N, 3)``)."""
     st = settings
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     nrm = _NO_ROWS if normals is None else np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -318,7 +322,7 @@ def capsule_pass(hand, matcher, theta, points, normals, segments=None):
 
 
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
-                  normals=None, samples=None, silhouette=None, wrist=None):
+                  normals=None, samples=None, silhouette=None, wrist=None, keypoints=None):
     """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled
     correspondence, silhouette and solver kernels (any matcher; the compiled loop is checked against it).
 
@@ -335,6 +339,8 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
         for the model→data term (both or neither)
     wrist : :class:`tracker.wrist.WristCue` or None
         the frame's wrist cue for the wrist-line pair
+    keypoints : ``(xyz (21, 3), confidence (21,))`` or None
+        the frame's detected keypoints for the keypoint term
 
     Returns
     -------
@@ -345,6 +351,7 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
     capsules = isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)
     line = wrist_line(hand, wrist, st)
     wl_node, wl_local, wl_normal = (line.node if line.on else -1), line.local, line.normal
+    kps = keypoint_pairs(keypoints, st)
     corr = pairs = sil_last = None
     last = None  # (θ, segments) of the pass before: where and onto which primitives it matched
     for _ in range(n_rigid):
@@ -401,6 +408,12 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
             w = np.r_[w, np.sqrt(st.wrist_line_weight * v.sum())]
             if plane is not None:
                 plane = np.r_[plane, np.zeros((1, 3))]
+        if kps.on:
+            d = np.linalg.norm(hand.keypoints(theta)[kps.nodes] - kps.target, axis=1)
+            nodes, loc, tg = np.r_[nodes, kps.nodes], np.r_[loc, np.zeros((len(kps.nodes), 3))], np.r_[tg, kps.target]
+            w = np.r_[w, np.sqrt(kps.share * v.sum()) * cauchy_weights(d, kps.scale_m * 1000.0)]
+            if plane is not None:
+                plane = np.r_[plane, np.zeros((len(kps.nodes), 3))]
         pairs, pairs_at = (nodes, loc), theta
         theta, _ = solve(hand, theta, nodes, loc, tg, weights=w, normals=plane, subspace=sp, settings=solver)
         if stage.project is not None:

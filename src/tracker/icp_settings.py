@@ -48,6 +48,26 @@ class WristLineSettings(SettingsGroup):
 
 
 @dataclass(frozen=True)
+class KeypointTermSettings(SettingsGroup):
+    """In a tracked frame's fit, the keypoint detector's 21 keypoints on that frame (issue 38's per-frame
+    term; Tkach et al. 2016/2017 and Taylor et al. 2016 pair a learned detector's keypoints with the
+    model fit the same way): one pair per keypoint found, from the model's keypoint to the detected one,
+    all 21 together weighing like ``weight`` of the valid data pairs, each in proportion to the
+    detector's confidence in it and Cauchy-weighted at ``mm`` (0 = off, the paper's; 0.02 and 20.0).
+    The detector's keypoints are 10–17 mm off where the data term fits a hand to 3–5 mm, so the weight
+    is small: it decides what the data term leaves open (the fingers of a fist seen from its side) and
+    no more (``docs/experiments/detector.md``, "A per-frame keypoint term")."""
+
+    weight: float = 0.02
+    mm: float = 20.0
+
+    def check(self):
+        if not self.weight >= 0 or not self.mm > 0:
+            raise TrackerError("settings", f"keypoint_weight must not be negative and keypoint_mm must be positive, "
+                               f"got {self.weight} and {self.mm}")
+
+
+@dataclass(frozen=True)
 class IcpSettings(SettingsGroup):
     """Iterations and the estimation of one ICP fit (why each default: ``docs/tracker.md``).
 
@@ -63,6 +83,8 @@ class IcpSettings(SettingsGroup):
         ``stages_per_pass``, ``local_mm``; :func:`tracker.icp.tracking_schedule`)
     wrist_line : a start's wrist-line pair (:class:`WristLineSettings`, read as ``wrist_line_weight``,
         ``wrist_line_mm``; :func:`tracker.icp.fit`'s ``wrist``)
+    keypoints : a tracked frame's detected keypoints (:class:`KeypointTermSettings`, read as
+        ``keypoint_weight``, ``keypoint_mm``; :func:`tracker.icp.fit`'s ``keypoints``)
     """
 
     rigid_iterations: int = 1
@@ -77,26 +99,30 @@ class IcpSettings(SettingsGroup):
     coarse_iterations: int = 1
     local: LocalPassSettings = field(default_factory=LocalPassSettings)
     wrist_line: WristLineSettings = field(default_factory=WristLineSettings)
+    keypoints: KeypointTermSettings = field(default_factory=KeypointTermSettings)
 
     # the nested groups' fields, read where the fit reads them
     stages_per_pass = property(lambda self: self.local.stages_per_pass)
     local_mm = property(lambda self: self.local.mm)
     wrist_line_weight = property(lambda self: self.wrist_line.weight)
     wrist_line_mm = property(lambda self: self.wrist_line.mm)
+    keypoint_weight = property(lambda self: self.keypoints.weight)
+    keypoint_mm = property(lambda self: self.keypoints.mm)
 
     @classmethod
     def paper(cls):
         """1 rigid + 4 non-rigid iterations × 5 Gauss-Newton steps, λ 1 on posture and 0 on pose, plain
-        least squares, no silhouette or wrist-line term, one search per stage."""
+        least squares, no silhouette, wrist-line or keypoint term, one search per stage."""
         return cls(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0, pose_damping=0.0,
                    robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, local=LocalPassSettings(stages_per_pass=1),
-                   wrist_line=WristLineSettings(weight=0.0))
+                   wrist_line=WristLineSettings(weight=0.0), keypoints=KeypointTermSettings(weight=0.0))
 
     def check(self):
         if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:
             raise TrackerError("settings", "icp_iterations and rigid_iterations must be ≥ 0, gn_iterations ≥ 1")
         self.local.check()
         self.wrist_line.check()
+        self.keypoints.check()
         if (self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0
                 or not self.wrist_line_weight >= 0 or not self.wrist_line_mm >= 0):
             raise TrackerError("settings", "projected_steps, robust_mm, silhouette_weight, wrist_line_weight and "

@@ -59,6 +59,7 @@ class TrackerStats:
     surface_starts : starts whose region the hand-presence network called no hand, begun instead on the hand
         the keypoint CNN found along that region's surface (``FrameTracker._hand_along_surface``; not counted
         in ``not_hands``)
+    keypoint_frames : tracked frames fitted with the detected keypoints' term (``icp.keypoints``)
     """
 
     net_runs: int = 0
@@ -87,6 +88,7 @@ class TrackerStats:
     wrist_cuts: int = 0
     jumps_refused: int = 0
     surface_starts: int = 0
+    keypoint_frames: int = 0
 
     def snapshot(self) -> "TrackerStats":
         """A copy (each frame's result carries one: ~4 µs, where ``dataclasses.replace`` takes ~15)."""

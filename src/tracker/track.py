@@ -470,8 +470,9 @@ class FrameTracker:
                                                                              predicted, pts, nrm)
         if recentred and self._not_a_hand(ctx, all_pts, all_nrm, sil):
             return Predicted(predicted)
-        theta, corr = self._fit(pred, pts, nrm, sil)
-        theta, corr = self.restart(self.hand, theta, corr, partial(self._fit, pts=pts, nrm=nrm, sil=sil),
+        kp = self._detected_keypoints(sil)
+        theta, corr = self._fit(pred, pts, nrm, sil, kp)
+        theta, corr = self.restart(self.hand, theta, corr, partial(self._fit, pts=pts, nrm=nrm, sil=sil, keypoints=kp),
                                    partial(score, ctx, silhouette=sil), self.limits)
         status, net, far_lost = "tracked", "", False
         if st.net.enabled and st.mode != "reduced":
@@ -521,11 +522,24 @@ class FrameTracker:
         """Where to segment the next frame (``observe(..., window=...)``; :func:`next_window`)."""
         return next_window(self, camera)
 
-    def _fit(self, start, pts, nrm, sil):
-        """The tracking ICP from ``start`` (:func:`tracker.icp.fit`, this frame's stages)."""
+    def _detected_keypoints(self, sil):
+        """The keypoint term's keypoints on this frame, ``(xyz, confidence)``: the keypoint detector's
+        (``start.detector``, found once per frame), or None (the term off, no detector, nothing found)."""
+        seed = self.search.keypoints
+        if not self.settings.icp.keypoint_weight > 0 or seed is None or sil is None:
+            return None
+        det = seed.detection(sil, self.base_hand.handedness)
+        if det is None:
+            return None
+        self.stats.keypoint_frames += 1
+        return det.keypoints_xyz, det.confidence
+
+    def _fit(self, start, pts, nrm, sil, keypoints=None):
+        """The tracking ICP from ``start`` (:func:`tracker.icp.fit`, this frame's stages; ``keypoints``:
+        the detected ones of the keypoint term)."""
         ctx, st = self.context, self.settings
         return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
-                   normals=nrm, samples=ctx.samples, silhouette=sil)
+                   normals=nrm, samples=ctx.samples, silhouette=sil, keypoints=keypoints)
 
 
 __all__ = ["FrameResult", "HandCheck", "FrameTracker", "TrackerParts", "TrackerSettings", "TrackerStats", "build_parts",

@@ -1,0 +1,53 @@
+"""The detected keypoints in the tracked frame's fit (issue 38: "a per-frame term: keypoint pairs weighted by the
+detector's confidence in the ICP energy"; ``IcpSettings.keypoints``): on a fist seen from its side, where the
+depth data leave the curled fingers' posture open, the keypoint CNN's keypoints keep the fit on the hand."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime", reason="the keypoint CNN runs on onnxruntime")
+
+from tests.conftest import harder_frame  # noqa: E402
+from tracker.observe import observe  # noqa: E402
+from tracker.settings import TrackerSettings  # noqa: E402
+from tracker.track import FrameTracker  # noqa: E402
+
+FRAMES = 13
+
+
+@pytest.fixture(scope="module")
+def side_fist():
+    """The harder scenes' side fist, SR305 noise, 1.0×: its first frames (hand, camera, [(depth, colour,
+    true keypoints)])."""
+    out = []
+    for f in range(FRAMES):
+        hand, cam, depth, color, _, kp = harder_frame("fist-side", "realsense", 1.0, f)
+        out.append((depth, color, kp))
+    return hand, cam, out
+
+
+def _track(hand, cam, frames, **changes):
+    from synergy.bundle import load_bundle
+
+    st = TrackerSettings().replace(init=dict(threads=1), scale=dict(hand_scale=1.0), **changes)
+    tr = FrameTracker(hand, st, synergies=load_bundle("fingerfist"))
+    err = []
+    for depth, color, kp in frames:
+        r = tr.track(observe(depth, cam, st.observe, window=tr.segment_window(cam)), cam, color=color)
+        err.append(np.linalg.norm(tr.hand.keypoints(r.theta) - kp, axis=1).mean() * 1000.0
+                   if np.all(np.isfinite(r.theta)) else np.nan)
+    return np.array(err), tr.stats
+
+
+def test_the_keypoints_draw_a_side_fist_towards_the_hand(side_fist):
+    """At the true size, the side fist's first 13 frames: without the term (weight 0) the fit drifts from
+    31 mm at the start to 30-36 mm (the fingers fold into the palm); with it (the default) every tracked
+    frame is nearer the truth and frames 6-12 are ~10 mm nearer (measured 22-25 mm against 32-36 mm); the
+    detector was asked on every tracked frame, and never with the term off."""
+    hand, cam, frames = side_fist
+    on, stats = _track(hand, cam, frames)
+    off, stats_off = _track(hand, cam, frames, icp=dict(keypoints=dict(weight=0.0)))
+    assert np.all(np.isfinite(on)) and np.all(np.isfinite(off))
+    assert np.all(on[1:] < off[1:]) and np.mean(on[6:]) < np.mean(off[6:]) - 5.0, (np.round(on, 1), np.round(off, 1))
+    assert stats.keypoint_frames == FRAMES - 1 and stats_off.keypoint_frames == 0
