@@ -53,13 +53,17 @@ class KeypointTermSettings(SettingsGroup):
     term; Tkach et al. 2016/2017 and Taylor et al. 2016 pair a learned detector's keypoints with the
     model fit the same way): one pair per keypoint found, from the model's keypoint to the detected one,
     all 21 together weighing like ``weight`` of the valid data pairs, each in proportion to the
-    detector's confidence in it and Cauchy-weighted at ``mm`` (0 = off, the paper's; 0.02 and 20.0).
+    detector's confidence in it and Cauchy-weighted at ``mm`` (0 = off, the paper's; 0.02 and 20.0). With
+    ``unseen_only`` (True) only on frames after one whose fit left a joint without data
+    (:class:`tracker.parts.UnseenPrior`'s test): where the data constrain every joint the keypoints would
+    only pull the fit off, and their detector's ~4 ms a frame are saved.
     The detector's keypoints are 10–17 mm off where the data term fits a hand to 3–5 mm, so the weight
     is small: it decides what the data term leaves open (the fingers of a fist seen from its side) and
     no more (``docs/experiments/detector.md``, "A per-frame keypoint term")."""
 
     weight: float = 0.02
     mm: float = 20.0
+    unseen_only: bool = True
 
     def check(self):
         if not self.weight >= 0 or not self.mm > 0:

@@ -172,6 +172,7 @@ class UnseenPrior:
     def __init__(self, hand, synergies, settings, mode: str, stats: TrackerStats | None = None):
         self.settings, self.stats = settings, stats or TrackerStats()
         self.on = bool(settings.unseen_prior) and synergies is not None and mode != "reduced"
+        self.hidden_ = True  # whether the last fit left a posture DoF without data (unknown: True)
         self.moves_, self.mean_, self.cov_ = _unseen_parts(hand, synergies) if synergies is not None else (None,) * 3
 
     def reset(self):
@@ -181,12 +182,14 @@ class UnseenPrior:
         """θ with the posture DoF that no data point constrains (fewer than ``unseen_points`` valid pairs
         of ``corr`` on the parts it moves) moved ``unseen_prior`` (``share`` when given) of the way to
         the conditional mean given the other posture DoF. Unchanged when every DoF, or none, is seen
-        (nothing to condition on)."""
-        if not self.on:
+        (nothing to condition on). Records in ``hidden_`` whether any DoF was unseen (with synergies, on or
+        off: the keypoint term asks it)."""
+        if self.moves_ is None:
             return theta
         counts = np.bincount(corr.nodes[corr.valid], minlength=hand.n_nodes)
         hid = self.moves_ @ counts < self.settings.unseen_points
-        if not hid.any() or hid.all():
+        self.hidden_ = bool(hid.any())
+        if not self.on or not hid.any() or hid.all():
             return theta
         seen, mu, S = ~hid, self.mean_, self.cov_
         post = np.flatnonzero(~hand.pose_mask)

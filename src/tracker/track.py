@@ -524,9 +524,12 @@ class FrameTracker:
 
     def _detected_keypoints(self, sil):
         """The keypoint term's keypoints on this frame, ``(xyz, confidence)``: the keypoint detector's
-        (``start.detector``, found once per frame), or None (the term off, no detector, nothing found)."""
+        (``start.detector``, found once per frame), or None (the term off, no detector, nothing found, or
+        with ``icp.keypoints.unseen_only`` the last fit left no joint without data)."""
         seed = self.search.keypoints
         if not self.settings.icp.keypoint_weight > 0 or seed is None or sil is None:
+            return None
+        if self.settings.icp.keypoints.unseen_only and not self.prior.hidden_:
             return None
         det = seed.detection(sil, self.base_hand.handedness)
         if det is None:
