@@ -59,7 +59,7 @@ class KeypointTermSettings(SettingsGroup):
     only pull the fit off, and their detector's ~4 ms a frame are saved.
     The detector's keypoints are 10–17 mm off where the data term fits a hand to 3–5 mm, so the weight
     is small: it decides what the data term leaves open (the fingers of a fist seen from its side) and
-    no more (``docs/experiments/detector.md``, "A per-frame keypoint term")."""
+    no more (``docs/experiments/detector.md``, "The keypoint term in the tracked fit")."""
 
     weight: float = 0.02
     mm: float = 20.0

@@ -205,7 +205,9 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
                     (stats.surface_starts, "on {} the region segmented was no hand, and the start began on the hand "
                                            "the keypoint CNN found along its surface (an arm's far end)"),
                     (stats.wrist_cuts, "on {} the points more than " + f"{start.detector_wrist_m:g} m behind the "
-                                       "detected wrist (an arm the segmentation kept) were left out")):
+                                       "detected wrist (an arm the segmentation kept) were left out"),
+                    (stats.keypoint_frames, "on {} the keypoint CNN's keypoints joined the fit (joints the depth "
+                                            "data left unseen, e.g. a fist's fingers; icp.keypoints)")):
         if n:
             console.print(line.format(f"{n} frame{'s' * (n != 1)}"))
     if len(rows) and not any(found):
