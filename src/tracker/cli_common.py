@@ -276,7 +276,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
                           rgb_seed=False, finger_lengths=None, safety_net=None, unseen_prior=None, no_hand=None,
                           threads=None, search_budget_ms=None, detector=None,
                           detector_accept_mm=None, no_detector=False, presence=None, no_presence=False,
-                          size_refine=None):
+                          size_refine=None, keypoint_term=None):
     """The :class:`tracker.settings.TrackerSettings` of the command line: the default or the paper's,
     with every option given replacing its value, checked (:func:`checked_settings`)."""
     from .errors import TrackerError
@@ -310,6 +310,8 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
     given = {g: {k: v for k, v in kv.items() if v is not None or (k == "target_points" and points == 0)}
              for g, kv in groups.items()}
     given["subspace"] = dict(n_pcs=pcs, variance=None if pcs else (0.99 if variance is None else variance))
+    if keypoint_term is not None:
+        given["icp"]["keypoints"] = dict(on=keypoint_term)
     base = TrackerSettings.paper() if paper else TrackerSettings()
     return checked_settings(base.replace(mode=mode, **given))
 

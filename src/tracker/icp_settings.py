@@ -53,14 +53,17 @@ class KeypointTermSettings(SettingsGroup):
     term; Tkach et al. 2016/2017 and Taylor et al. 2016 pair a learned detector's keypoints with the
     model fit the same way): one pair per keypoint found, from the model's keypoint to the detected one,
     all 21 together weighing like ``weight`` of the valid data pairs, each in proportion to the
-    detector's confidence in it and Cauchy-weighted at ``mm`` (0 = off, the paper's; 0.02 and 20.0). With
+    detector's confidence in it and Cauchy-weighted at ``mm`` (0.02 and 20.0; off unless ``on``). With
     ``unseen_only`` (True) only on frames after one whose fit left a joint without data
     (:class:`tracker.parts.UnseenPrior`'s test): where the data constrain every joint the keypoints would
     only pull the fit off, and their detector's ~4 ms a frame are saved.
     The detector's keypoints are 10–17 mm off where the data term fits a hand to 3–5 mm, so the weight
-    is small: it decides what the data term leaves open (the fingers of a fist seen from its side) and
-    no more (``docs/experiments/detector.md``, "The keypoint term in the tracked fit")."""
+    is small. Off by default (``on``; ``tracker track --keypoint-term``): it draws a fist seen from its
+    side towards the hand (the harder scenes 11.35 → 10.0 mm) but pulls a grasp seen from the back, which
+    the synergy prior fills well, off it (the paper's occluded grasp 1.29 → 6.0°;
+    ``docs/experiments/detector.md``, "The keypoint term in the tracked fit")."""
 
+    on: bool = False
     weight: float = 0.02
     mm: float = 20.0
     unseen_only: bool = True
@@ -110,7 +113,7 @@ class IcpSettings(SettingsGroup):
     local_mm = property(lambda self: self.local.mm)
     wrist_line_weight = property(lambda self: self.wrist_line.weight)
     wrist_line_mm = property(lambda self: self.wrist_line.mm)
-    keypoint_weight = property(lambda self: self.keypoints.weight)
+    keypoint_weight = property(lambda self: self.keypoints.weight if self.keypoints.on else 0.0)
     keypoint_mm = property(lambda self: self.keypoints.mm)
 
     @classmethod

@@ -69,6 +69,7 @@ def track(
     detector: Optional[str] = typer.Option(None, "--detector", help="The depth keypoint detector whose hand the searches start from (starts, size calibration, the safety net's search beyond the tracked pose), the full search only where that fits poorly: a name or file under models/detectors/ [hand-keypoints-cnn, the shipped keypoint CNN; none with --paper]."),
     presence: Optional[str] = typer.Option(None, "--presence", help="The hand-presence network asked before a start searches whether its region is a hand at all (a region it calls no hand is lost without a search, unless the detected hand fits it as an accepted start does): a name or file under models/detectors/ [hand-presence-cnn, the shipped network; none with --paper]."),
     no_presence: bool = typer.Option(False, "--no-presence", help="No hand-presence network: every region is searched and the fit's rejections decide whether it is a hand."),
+    keypoint_term: Optional[bool] = typer.Option(None, "--keypoint-term/--no-keypoint-term", help="The keypoint CNN's keypoints in each tracked frame's fit where the last fit left joints without data (a fist's fingers): nearer on fists seen from the side, farther on grasps seen from the back, which the synergy prior fills [off]."),
     no_detector: bool = typer.Option(False, "--no-detector", help="No learned detector (the keypoint CNN, the hand-presence network): every start is the full search (as with --paper)."),
     detector_accept_mm: Optional[float] = typer.Option(None, "--detector-accept-mm", help="The score (mm) at or under which the detected hand's fit is the start and the full search does not run [1.5; 0 = the search always runs]."),
     search_budget_ms: Optional[float] = typer.Option(None, "--search-budget-ms", help="A start search's budget in ms: once spent, its optional stages are skipped and its best start so far converged (the result then depends on the machine's speed; the summary counts the searches cut) [0 = none]."),
@@ -119,7 +120,7 @@ def track(
                              unseen_prior=unseen_prior, no_hand=no_hand, threads=threads,
                              search_budget_ms=search_budget_ms, detector=detector,
                              detector_accept_mm=detector_accept_mm, no_detector=no_detector, presence=presence,
-                             no_presence=no_presence, size_refine=size_refine)
+                             no_presence=no_presence, size_refine=size_refine, keypoint_term=keypoint_term)
 
         # heavy modules load here, not at import time, so `tracker --help` answers at once
         from .run import TrackJob

@@ -555,7 +555,7 @@ def _keypoints_beside(theta, offset_m, seed=0):
     return HAND.keypoints(theta) + offset_m * d / np.linalg.norm(d, axis=1, keepdims=True), np.ones(21)
 
 
-@pytest.mark.parametrize("weight,mm", [(IcpSettings().keypoint_weight, IcpSettings().keypoint_mm), (1.0, 20.0),
+@pytest.mark.parametrize("weight,mm", [(IcpSettings().keypoints.weight, IcpSettings().keypoint_mm), (1.0, 20.0),
                                        (50.0, 1000.0)])
 def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frames, weight, mm):
     """The detected keypoints' pairs (``IcpSettings.keypoint_weight``, ``keypoint_mm``) in the compiled loop
@@ -566,7 +566,7 @@ def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frame
     (a detection on something else) barely pull a default fit (their Cauchy weight: under 1 mm on average,
     where without it they would drag the hand off the data); a weight of 0 or no keypoints leaves the fit
     as it was, to the bit."""
-    tr = _tracker(bundle, True, icp=dict(keypoints=dict(weight=weight, mm=mm)))
+    tr = _tracker(bundle, True, icp=dict(keypoints=dict(on=True, weight=weight, mm=mm)))
     start, pts, nrm, sil = frames[3]
     truth = frames[4][0]
     kp = _keypoints_beside(truth, 0.015)
@@ -588,7 +588,7 @@ def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frame
     if mm > 100:
         shifted = HAND.keypoints(truth) + np.array([0.015, -0.005, 0.0])
         assert to(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=(shifted, np.ones(21))), shifted) < 0.0015
-    none = _tracker(bundle, True, icp=dict(keypoints=dict(weight=0.0)))
+    none = _tracker(bundle, True, icp=dict(keypoints=dict(on=True, weight=0.0)))
     np.testing.assert_array_equal(_one(fit, none, start, pts, nrm, sil, stages, 1, keypoints=kp), free)
     np.testing.assert_array_equal(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=None), free)
 
@@ -597,7 +597,7 @@ def test_keypoint_pairs_refuse_bad_shapes_and_skip_what_was_not_found():
     from tracker._fit_arrays import keypoint_pairs
     from tracker.errors import TrackerError
 
-    st = IcpSettings()
+    st = IcpSettings().replace(keypoints=dict(on=True))
     xyz, conf = _keypoints_beside(HAND.zero(), 0.0)
     conf[[3, 7]] = 0.0
     xyz[[5]] = np.nan
@@ -612,4 +612,5 @@ def test_keypoint_pairs_refuse_bad_shapes_and_skip_what_was_not_found():
             IcpSettings().replace(keypoints=dict(weight=bad)).check()
     with pytest.raises(TrackerError, match="keypoint_mm"):
         IcpSettings().replace(keypoints=dict(mm=0.0)).check()
-    assert IcpSettings.paper().keypoint_weight == 0.0
+    assert IcpSettings.paper().keypoint_weight == 0.0 and IcpSettings().keypoint_weight == 0.0  # off by default
+    assert not keypoint_pairs((xyz, conf), IcpSettings()).on
