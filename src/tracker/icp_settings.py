@@ -51,7 +51,8 @@ class WristLineSettings(SettingsGroup):
 class KeypointTermSettings(SettingsGroup):
     """In a tracked frame's fit, the keypoint detector's 21 keypoints on that frame (issue 38's per-frame
     term; Tkach et al. 2016/2017 and Taylor et al. 2016 pair a learned detector's keypoints with the
-    model fit the same way): one pair per keypoint found, from the model's keypoint to the detected one,
+    model fit the same way): one pair per keypoint found on a joint the last fit saw (the unseen ones are
+    the synergy prior's, :class:`tracker.parts.UnseenPrior`), from the model's keypoint to the detected one,
     all 21 together weighing like ``weight`` of the valid data pairs, each in proportion to the
     detector's confidence in it and Cauchy-weighted at ``mm`` (0.02 and 20.0; off unless ``on``). With
     ``unseen_only`` (True) only on frames after one whose fit left a joint without data
@@ -59,8 +60,8 @@ class KeypointTermSettings(SettingsGroup):
     only pull the fit off, and their detector's ~4 ms a frame are saved.
     The detector's keypoints are 10–17 mm off where the data term fits a hand to 3–5 mm, so the weight
     is small. Off by default (``on``; ``tracker track --keypoint-term``): it draws a fist seen from its
-    side towards the hand (the harder scenes 11.35 → 10.0 mm) but pulls a grasp seen from the back, which
-    the synergy prior fills well, off it (the paper's occluded grasp 1.29 → 6.0°;
+    side towards the hand (the harder scenes 11.35 → 10.3 mm) and a grasp seen from the back, which the
+    synergy prior fills well, a little away (the paper's occluded grasp 1.29 → 1.59°;
     ``docs/experiments/detector.md``, "The keypoint term in the tracked fit")."""
 
     on: bool = False

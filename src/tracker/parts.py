@@ -173,6 +173,7 @@ class UnseenPrior:
         self.settings, self.stats = settings, stats or TrackerStats()
         self.on = bool(settings.unseen_prior) and synergies is not None and mode != "reduced"
         self.hidden_ = True  # whether the last fit left a posture DoF without data (unknown: True)
+        self.hidden_nodes_ = None  # the nodes such DoF move (None: unknown)
         self.moves_, self.mean_, self.cov_ = _unseen_parts(hand, synergies) if synergies is not None else (None,) * 3
 
     def reset(self):
@@ -182,13 +183,15 @@ class UnseenPrior:
         """θ with the posture DoF that no data point constrains (fewer than ``unseen_points`` valid pairs
         of ``corr`` on the parts it moves) moved ``unseen_prior`` (``share`` when given) of the way to
         the conditional mean given the other posture DoF. Unchanged when every DoF, or none, is seen
-        (nothing to condition on). Records in ``hidden_`` whether any DoF was unseen (with synergies, on or
-        off: the keypoint term asks it)."""
+        (nothing to condition on). Records in ``hidden_`` whether any DoF was unseen and in ``hidden_nodes_``
+        the nodes those move (with synergies, on or off: the keypoint term asks them)."""
         if self.moves_ is None:
             return theta
         counts = np.bincount(corr.nodes[corr.valid], minlength=hand.n_nodes)
         hid = self.moves_ @ counts < self.settings.unseen_points
         self.hidden_ = bool(hid.any())
+        # the nodes a hidden DoF moves: their keypoints are the prior's to fill, not the keypoint term's
+        self.hidden_nodes_ = (self.moves_[hid] > 0).any(axis=0)
         if not self.on or not hid.any() or hid.all():
             return theta
         seen, mu, S = ~hid, self.mean_, self.cov_

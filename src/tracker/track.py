@@ -524,8 +524,9 @@ class FrameTracker:
 
     def _detected_keypoints(self, sil):
         """The keypoint term's keypoints on this frame, ``(xyz, confidence)``: the keypoint detector's
-        (``start.detector``, found once per frame), or None (the term off, no detector, nothing found, or
-        with ``icp.keypoints.unseen_only`` the last fit left no joint without data)."""
+        (``start.detector``, found once per frame) but those the last fit left without data (confidence 0:
+        the synergy prior fills them), or None (the term off, no detector, nothing found, or with
+        ``icp.keypoints.unseen_only`` the last fit left no joint without data)."""
         seed = self.search.keypoints
         if not self.settings.icp.keypoint_weight > 0 or seed is None or sil is None:
             return None
@@ -534,8 +535,13 @@ class FrameTracker:
         det = seed.detection(sil, self.base_hand.handedness)
         if det is None:
             return None
+        conf = det.confidence
+        if self.prior.hidden_nodes_ is not None:
+            # the keypoints of joints the data left unseen are the synergy prior's to fill: the CNN's, 10-17 mm
+            # off there, pulled the occluded grasp's hidden fingers 1.29 -> 6.0 deg off (with them left out 1.59)
+            conf = np.where(self.prior.hidden_nodes_, 0.0, conf)
         self.stats.keypoint_frames += 1
-        return det.keypoints_xyz, det.confidence
+        return det.keypoints_xyz, conf
 
     def _fit(self, start, pts, nrm, sil, keypoints=None):
         """The tracking ICP from ``start`` (:func:`tracker.icp.fit`, this frame's stages; ``keypoints``:

