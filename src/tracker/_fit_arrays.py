@@ -41,13 +41,13 @@ def wrist_line(hand, cue, settings):
                      float(settings.wrist_line_weight), settings.wrist_line_mm / 1000.0)
 
 
-def keypoint_pairs(keypoints, settings):
-    """The detected keypoints' pairs (:class:`tracker.icp_settings.IcpSettings` ``keypoint_weight``) as
-    :class:`~tracker._kernel_arrays.KeypointPairs`: of ``keypoints`` = ``(xyz (21, 3), confidence (21,))``
-    (a :class:`tracker.detector.Detection`'s) those found (finite, confidence > 0), each weighing
-    ``keypoint_weight`` × its confidence / 21 of the valid data pairs; off when the term is off or
-    nothing was given."""
-    if keypoints is None or not settings.keypoint_weight > 0:
+def keypoint_pairs(keypoints, term):
+    """The detected keypoints' pairs as :class:`~tracker._kernel_arrays.KeypointPairs`: of ``keypoints`` =
+    ``(xyz (21, 3), confidence (21,))`` (a :class:`tracker.detector.Detection`'s) those found (finite,
+    confidence > 0), each weighing ``term.weight`` × its confidence / 21 of the valid data pairs, Cauchy at
+    ``term.mm`` (:class:`tracker.icp_settings.KeypointTermSettings`; whether the term is ``on`` is the
+    caller's); none when nothing was given or the weight is 0."""
+    if keypoints is None or not term.weight > 0:
         return NO_KEYPOINTS
     xyz, conf = (np.asarray(a, np.float64) for a in keypoints)
     if xyz.shape != (21, 3) or conf.shape != (21,):
@@ -57,8 +57,7 @@ def keypoint_pairs(keypoints, settings):
     if not found.any():
         return NO_KEYPOINTS
     return KeypointPairs(True, np.flatnonzero(found).astype(np.int64), np.ascontiguousarray(xyz[found]),
-                         settings.keypoint_weight * np.minimum(conf[found], 1.0) / 21.0,
-                         settings.keypoint_mm / 1000.0)
+                         term.weight * np.minimum(conf[found], 1.0) / 21.0, term.mm / 1000.0)
 
 
 def match_rules(matcher, normals):

@@ -311,7 +311,7 @@ def settings_from_options(paper, mode, pcs, variance, stride, smooth, points, ic
              for g, kv in groups.items()}
     given["subspace"] = dict(n_pcs=pcs, variance=None if pcs else (0.99 if variance is None else variance))
     if keypoint_term is not None:
-        given["icp"]["keypoints"] = dict(on=keypoint_term)
+        given["refine"]["keypoints"] = dict(on=keypoint_term)
     base = TrackerSettings.paper() if paper else TrackerSettings()
     return checked_settings(base.replace(mode=mode, **given))
 

@@ -53,7 +53,7 @@ from .correspond import (
     silhouette_pairs,
 )
 from .errors import TrackerError
-from .icp_settings import IcpSettings
+from .icp_settings import IcpSettings, KeypointTermSettings
 
 
 @dataclass(frozen=True)
@@ -187,7 +187,7 @@ def cauchy_weights(distance_m, scale_mm) -> np.ndarray:
 
 
 def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0, normals=None,
-        samples=None, silhouette=None, wrist=None, keypoints=None, moments=True, stats=None):
+        samples=None, silhouette=None, wrist=None, keypoints=None, keypoint_term=None, moments=True, stats=None):
     """ICP: ``n_rigid`` rigid steps, then one damped Gauss-Newton IK per stage of ``stages``.
 
     The whole loop runs in one compiled call (:func:`tracker._fit_kernels.fit_kernel`) when
@@ -211,8 +211,9 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
     wrist : :class:`tracker.wrist.WristCue` or None
         the frame's wrist cue for the wrist-line pair (:class:`IcpSettings` ``wrist_line_weight``)
     keypoints : ``(xyz (21, 3), confidence (21,))`` or None
-        the frame's detected keypoints for the keypoint term (:class:`IcpSettings` ``keypoint_weight``;
-        :func:`tracker._fit_arrays.keypoint_pairs`)
+        the frame's detected keypoints for the keypoint term (:func:`tracker._fit_arrays.keypoint_pairs`)
+    keypoint_term : :class:`tracker.icp_settings.KeypointTermSettings` or None (its defaults)
+        the term's weight and Cauchy scale
     moments : bool
         Gauss-Newton on moment sums (default) or on every pair.
     stats : int64 array (5,), optional
@@ -230,12 +231,14 @@ def fit(hand, points, theta, stages, matcher, settings: IcpSettings | None = Non
         raise TrackerError("stats", f"stats must be an int64 array of shape (5,), got {stats.dtype} {stats.shape}")
     if not (isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)):
         return fit_reference(hand, points, theta, stages, matcher, st, n_rigid=n_rigid, normals=normals,
-                             samples=samples, silhouette=silhouette, wrist=wrist, keypoints=keypoints)
+                             samples=samples, silhouette=silhouette, wrist=wrist, keypoints=keypoints,
+                             keypoint_term=keypoint_term)
     args = fit_arguments(hand, points, stages, matcher, st, n_rigid=n_rigid, normals=normals, samples=samples,
                          silhouette=silhouette, wrist=wrist, moments=moments)
     pts = args[2]
     out = Pairs.empty(len(pts))
-    th = FK.fit_entry(np.array(hand.check_theta(theta), float), *args, tuple(keypoint_pairs(keypoints, st)),
+    th = FK.fit_entry(np.array(hand.check_theta(theta), float), *args,
+                      tuple(keypoint_pairs(keypoints, keypoint_term or KeypointTermSettings())),
                       tuple(out), np.zeros(5, np.int64) if stats is None else stats)
     return th, Correspondences(out.p, out.node, out.n, out.d, out.valid, pts)
 
@@ -322,7 +325,7 @@ def capsule_pass(hand, matcher, theta, points, normals, segments=None):
 
 
 def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | None = None, *, n_rigid=0,
-                  normals=None, samples=None, silhouette=None, wrist=None, keypoints=None):
+                  normals=None, samples=None, silhouette=None, wrist=None, keypoints=None, keypoint_term=None):
     """The reference implementation of :func:`fit`: the ICP loop in Python around the compiled
     correspondence, silhouette and solver kernels (any matcher; the compiled loop is checked against it).
 
@@ -341,6 +344,7 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
         the frame's wrist cue for the wrist-line pair
     keypoints : ``(xyz (21, 3), confidence (21,))`` or None
         the frame's detected keypoints for the keypoint term
+    keypoint_term : :class:`tracker.icp_settings.KeypointTermSettings` or None (its defaults)
 
     Returns
     -------
@@ -351,7 +355,7 @@ def fit_reference(hand, points, theta, stages, matcher, settings: IcpSettings | 
     capsules = isinstance(matcher, Matcher) and isinstance(matcher.surface, CapsuleModel)
     line = wrist_line(hand, wrist, st)
     wl_node, wl_local, wl_normal = (line.node if line.on else -1), line.local, line.normal
-    kps = keypoint_pairs(keypoints, st)
+    kps = keypoint_pairs(keypoints, keypoint_term or KeypointTermSettings())
     corr = pairs = sil_last = None
     last = None  # (θ, segments) of the pass before: where and onto which primitives it matched
     for _ in range(n_rigid):

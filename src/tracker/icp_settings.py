@@ -1,6 +1,7 @@
 """The settings of one ICP fit (:func:`tracker.icp.fit`): :class:`IcpSettings`, the iterations and
 the estimation, with its nested groups, the local passes (:class:`LocalPassSettings`) and the
-wrist-line pair (:class:`WristLineSettings`).
+wrist-line pair (:class:`WristLineSettings`); and the detected keypoints' term (:class:`KeypointTermSettings`,
+``TrackerSettings.refine.keypoints``: the tracker decides where it acts, :func:`tracker.icp.fit` weighs it).
 
 >>> s = IcpSettings().replace(local=dict(stages_per_pass=1))
 >>> (s.stages_per_pass, s.local_mm, IcpSettings.paper().wrist_line_weight)
@@ -49,7 +50,7 @@ class WristLineSettings(SettingsGroup):
 
 @dataclass(frozen=True)
 class KeypointTermSettings(SettingsGroup):
-    """In a tracked frame's fit, the keypoint detector's 21 keypoints on that frame (issue 38's per-frame
+    """``refine.keypoints``: in a tracked frame's fit, the keypoint detector's keypoints (issue 38's per-frame
     term; Tkach et al. 2016/2017 and Taylor et al. 2016 pair a learned detector's keypoints with the
     model fit the same way): one pair per keypoint found on a joint the last fit saw (the unseen ones are
     the synergy prior's, :class:`tracker.parts.UnseenPrior`), from the model's keypoint to the detected one,
@@ -71,8 +72,8 @@ class KeypointTermSettings(SettingsGroup):
 
     def check(self):
         if not self.weight >= 0 or not self.mm > 0:
-            raise TrackerError("settings", f"keypoint_weight must not be negative and keypoint_mm must be positive, "
-                               f"got {self.weight} and {self.mm}")
+            raise TrackerError("settings", f"refine.keypoints.weight must not be negative and refine.keypoints.mm "
+                                           f"must be positive, got {self.weight} and {self.mm}")
 
 
 @dataclass(frozen=True)
@@ -91,8 +92,6 @@ class IcpSettings(SettingsGroup):
         ``stages_per_pass``, ``local_mm``; :func:`tracker.icp.tracking_schedule`)
     wrist_line : a start's wrist-line pair (:class:`WristLineSettings`, read as ``wrist_line_weight``,
         ``wrist_line_mm``; :func:`tracker.icp.fit`'s ``wrist``)
-    keypoints : a tracked frame's detected keypoints (:class:`KeypointTermSettings`, read as
-        ``keypoint_weight``, ``keypoint_mm``; :func:`tracker.icp.fit`'s ``keypoints``)
     """
 
     rigid_iterations: int = 1
@@ -107,30 +106,26 @@ class IcpSettings(SettingsGroup):
     coarse_iterations: int = 1
     local: LocalPassSettings = field(default_factory=LocalPassSettings)
     wrist_line: WristLineSettings = field(default_factory=WristLineSettings)
-    keypoints: KeypointTermSettings = field(default_factory=KeypointTermSettings)
 
     # the nested groups' fields, read where the fit reads them
     stages_per_pass = property(lambda self: self.local.stages_per_pass)
     local_mm = property(lambda self: self.local.mm)
     wrist_line_weight = property(lambda self: self.wrist_line.weight)
     wrist_line_mm = property(lambda self: self.wrist_line.mm)
-    keypoint_weight = property(lambda self: self.keypoints.weight if self.keypoints.on else 0.0)
-    keypoint_mm = property(lambda self: self.keypoints.mm)
 
     @classmethod
     def paper(cls):
         """1 rigid + 4 non-rigid iterations × 5 Gauss-Newton steps, λ 1 on posture and 0 on pose, plain
-        least squares, no silhouette, wrist-line or keypoint term, one search per stage."""
+        least squares, no silhouette or wrist-line term, one search per stage."""
         return cls(rigid_iterations=1, icp_iterations=4, gn_iterations=5, damping=1.0, pose_damping=0.0,
                    robust_mm=0.0, silhouette_weight=0.0, projected_steps=0, local=LocalPassSettings(stages_per_pass=1),
-                   wrist_line=WristLineSettings(weight=0.0), keypoints=KeypointTermSettings(weight=0.0))
+                   wrist_line=WristLineSettings(weight=0.0))
 
     def check(self):
         if self.icp_iterations < 0 or self.rigid_iterations < 0 or self.gn_iterations < 1:
             raise TrackerError("settings", "icp_iterations and rigid_iterations must be ≥ 0, gn_iterations ≥ 1")
         self.local.check()
         self.wrist_line.check()
-        self.keypoints.check()
         if (self.projected_steps < 0 or self.robust_mm < 0 or self.silhouette_weight < 0
                 or not self.wrist_line_weight >= 0 or not self.wrist_line_mm >= 0):
             raise TrackerError("settings", "projected_steps, robust_mm, silhouette_weight, wrist_line_weight and "

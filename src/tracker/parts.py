@@ -59,7 +59,7 @@ class TrackerStats:
     surface_starts : starts whose region the hand-presence network called no hand, begun instead on the hand
         the keypoint CNN found along that region's surface (``FrameTracker._hand_along_surface``; not counted
         in ``not_hands``)
-    keypoint_frames : tracked frames fitted with the detected keypoints' term (``icp.keypoints``)
+    keypoint_frames : tracked frames fitted with the detected keypoints' term (``refine.keypoints``)
     """
 
     net_runs: int = 0

@@ -29,6 +29,7 @@ from .correspond import CorrespondSettings
 from .coupling import BENT_BACK_DEG
 from .errors import TrackerError
 from .icp import MODES, IcpSettings
+from .icp_settings import KeypointTermSettings
 from .init import InitSettings
 from .observe import ObserveSettings
 from .settings_base import SettingsGroup
@@ -321,12 +322,15 @@ class RefineSettings(SettingsGroup):
         0 = off; 50, the paper: 0)
     finger_bent_back_deg : in that refit, fingers hyperextended this much start bent the other way
         (degrees; 0 = off; :data:`tracker.coupling.BENT_BACK_DEG`)
+    keypoints : the keypoint detector's keypoints in the tracked fit where the last fit left joints unseen
+        (:class:`tracker.icp_settings.KeypointTermSettings`; off by default, ``--keypoint-term``)
     """
 
     unseen_prior: float = 0.5
     unseen_points: int = 3
     finger_restart_deg: float = 50.0
     finger_bent_back_deg: float = BENT_BACK_DEG
+    keypoints: KeypointTermSettings = field(default_factory=KeypointTermSettings)
 
     @classmethod
     def paper(cls):
@@ -334,6 +338,7 @@ class RefineSettings(SettingsGroup):
 
     def check(self):
         _need(0.0 <= self.unseen_prior <= 1.0, "refine.unseen_prior", f"must be within 0..1, got {self.unseen_prior}")
+        self.keypoints.check()
 
 
 

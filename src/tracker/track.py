@@ -526,11 +526,12 @@ class FrameTracker:
         """The keypoint term's keypoints on this frame, ``(xyz, confidence)``: the keypoint detector's
         (``start.detector``, found once per frame) but those the last fit left without data (confidence 0:
         the synergy prior fills them), or None (the term off, no detector, nothing found, or with
-        ``icp.keypoints.unseen_only`` the last fit left no joint without data)."""
+        ``refine.keypoints.unseen_only`` the last fit left no joint without data)."""
         seed = self.search.keypoints
-        if not self.settings.icp.keypoint_weight > 0 or seed is None or sil is None:
+        term = self.settings.refine.keypoints
+        if not (term.on and term.weight > 0) or seed is None or sil is None:
             return None
-        if self.settings.icp.keypoints.unseen_only and not self.prior.hidden_:
+        if term.unseen_only and not self.prior.hidden_:
             return None
         det = seed.detection(sil, self.base_hand.handedness)
         if det is None:
@@ -548,7 +549,8 @@ class FrameTracker:
         the detected ones of the keypoint term)."""
         ctx, st = self.context, self.settings
         return fit(self.hand, pts, start, self.stages, ctx.matcher, st.icp, n_rigid=st.icp.rigid_iterations,
-                   normals=nrm, samples=ctx.samples, silhouette=sil, keypoints=keypoints)
+                   normals=nrm, samples=ctx.samples, silhouette=sil, keypoints=keypoints,
+                   keypoint_term=st.refine.keypoints)
 
 
 __all__ = ["FrameResult", "HandCheck", "FrameTracker", "TrackerParts", "TrackerSettings", "TrackerStats", "build_parts",

@@ -208,7 +208,7 @@ def _track_one(job, recording, output, keypoints, overlay, mode, paper, start_up
                     (stats.wrist_cuts, "on {} the points more than " + f"{start.detector_wrist_m:g} m behind the "
                                        "detected wrist (an arm the segmentation kept) were left out"),
                     (stats.keypoint_frames, "on {} the keypoint CNN's keypoints joined the fit (joints the depth "
-                                            "data left unseen, e.g. a fist's fingers; icp.keypoints)")):
+                                            "data left unseen, e.g. a fist's fingers; refine.keypoints)")):
         if n:
             console.print(line.format(f"{n} frame{'s' * (n != 1)}"))
     if len(rows) and not any(found):

@@ -16,6 +16,7 @@ from tracker._search_kernels import pairwise_sum
 from tracker._silhouette_kernels import feature_transform
 from tracker.correspond import CorrespondSettings, Matcher, Silhouette, local_offsets
 from tracker.icp import IcpSettings, cauchy_weights, fit, fit_reference, search_schedule
+from tracker.icp_settings import KeypointTermSettings
 from tracker.observe import observe
 from tracker.sim import experiments as E
 from tracker.sim.render import DepthRenderer
@@ -555,10 +556,10 @@ def _keypoints_beside(theta, offset_m, seed=0):
     return HAND.keypoints(theta) + offset_m * d / np.linalg.norm(d, axis=1, keepdims=True), np.ones(21)
 
 
-@pytest.mark.parametrize("weight,mm", [(IcpSettings().keypoints.weight, IcpSettings().keypoint_mm), (1.0, 20.0),
+@pytest.mark.parametrize("weight,mm", [(KeypointTermSettings().weight, KeypointTermSettings().mm), (1.0, 20.0),
                                        (50.0, 1000.0)])
 def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frames, weight, mm):
-    """The detected keypoints' pairs (``IcpSettings.keypoint_weight``, ``keypoint_mm``) in the compiled loop
+    """The detected keypoints' pairs (``KeypointTermSettings.weight``, ``mm``) in the compiled loop
     give the reference loop's θ step by step. Against the truth: keypoints detected 15 mm beside the
     rendered hand draw the fit's keypoints towards them — the default weight a little (the data pin a
     rendered hand: the term decides what they leave open); the hand's keypoints moved 15 mm as one
@@ -566,15 +567,17 @@ def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frame
     (a detection on something else) barely pull a default fit (their Cauchy weight: under 1 mm on average,
     where without it they would drag the hand off the data); a weight of 0 or no keypoints leaves the fit
     as it was, to the bit."""
-    tr = _tracker(bundle, True, icp=dict(keypoints=dict(on=True, weight=weight, mm=mm)))
+    tr = _tracker(bundle, True)
+    term = KeypointTermSettings(weight=weight, mm=mm)
     start, pts, nrm, sil = frames[3]
     truth = frames[4][0]
     kp = _keypoints_beside(truth, 0.015)
     stages = tr.stages
-    assert _check_stage_by_stage(tr, start, pts, nrm, sil, stages, keypoints=kp) <= 1
-    held = _one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=kp)
+    assert _check_stage_by_stage(tr, start, pts, nrm, sil, stages, keypoints=kp, keypoint_term=term) <= 1
+    held = _one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=kp, keypoint_term=term)
     free = _one(fit, tr, start, pts, nrm, sil, stages, 1)
-    np.testing.assert_allclose(_one(fit_reference, tr, start, pts, nrm, sil, stages, 1, keypoints=kp), held, atol=2e-6)
+    np.testing.assert_allclose(_one(fit_reference, tr, start, pts, nrm, sil, stages, 1, keypoints=kp,
+                                    keypoint_term=term), held, atol=2e-6)
 
     def to(th, target):
         return float(np.linalg.norm(HAND.keypoints(th) - target, axis=1).mean())
@@ -584,33 +587,36 @@ def test_keypoint_pairs_match_the_reference_and_pull_the_keypoints(bundle, frame
     if weight < 1.0:
         assert to(free, kp[0]) - to(held, kp[0]) < 0.005
         far = _keypoints_beside(truth, 0.300)
-        assert to(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=far), HAND.keypoints(free)) < 0.001
+        assert to(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=far, keypoint_term=term),
+                  HAND.keypoints(free)) < 0.001
     if mm > 100:
         shifted = HAND.keypoints(truth) + np.array([0.015, -0.005, 0.0])
-        assert to(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=(shifted, np.ones(21))), shifted) < 0.0015
-    none = _tracker(bundle, True, icp=dict(keypoints=dict(on=True, weight=0.0)))
-    np.testing.assert_array_equal(_one(fit, none, start, pts, nrm, sil, stages, 1, keypoints=kp), free)
-    np.testing.assert_array_equal(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=None), free)
+        assert to(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=(shifted, np.ones(21)), keypoint_term=term),
+                  shifted) < 0.0015
+    np.testing.assert_array_equal(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=kp,
+                                       keypoint_term=KeypointTermSettings(weight=0.0)), free)
+    np.testing.assert_array_equal(_one(fit, tr, start, pts, nrm, sil, stages, 1, keypoints=None, keypoint_term=term),
+                                  free)
 
 
 def test_keypoint_pairs_refuse_bad_shapes_and_skip_what_was_not_found():
     from tracker._fit_arrays import keypoint_pairs
     from tracker.errors import TrackerError
 
-    st = IcpSettings().replace(keypoints=dict(on=True))
+    st = KeypointTermSettings()
     xyz, conf = _keypoints_beside(HAND.zero(), 0.0)
     conf[[3, 7]] = 0.0
     xyz[[5]] = np.nan
     kps = keypoint_pairs((xyz, conf), st)
     assert kps.on and list(kps.nodes) == [k for k in range(21) if k not in (3, 5, 7)]
-    np.testing.assert_allclose(kps.share, st.keypoint_weight / 21.0)
+    np.testing.assert_allclose(kps.share, st.weight / 21.0)
     assert not keypoint_pairs((xyz, np.zeros(21)), st).on and not keypoint_pairs(None, st).on
     with pytest.raises(TrackerError, match="keypoints"):
         keypoint_pairs((xyz[:20], conf[:20]), st)
     for bad in (-0.1, float("nan")):
-        with pytest.raises(TrackerError, match="keypoint_weight"):
-            IcpSettings().replace(keypoints=dict(weight=bad)).check()
-    with pytest.raises(TrackerError, match="keypoint_mm"):
-        IcpSettings().replace(keypoints=dict(mm=0.0)).check()
-    assert IcpSettings.paper().keypoint_weight == 0.0 and IcpSettings().keypoint_weight == 0.0  # off by default
-    assert not keypoint_pairs((xyz, conf), IcpSettings()).on
+        with pytest.raises(TrackerError, match="keypoints.weight must not be negative"):
+            TrackerSettings().replace(refine=dict(keypoints=dict(weight=bad))).check()
+    with pytest.raises(TrackerError, match="got 0.02 and 0.0"):
+        TrackerSettings().replace(refine=dict(keypoints=dict(mm=0.0))).check()
+    assert not TrackerSettings().refine.keypoints.on and not TrackerSettings.paper().refine.keypoints.on
+    assert not keypoint_pairs((xyz, conf), KeypointTermSettings(weight=0.0)).on

@@ -2,7 +2,7 @@
 detector's confidence in the ICP energy"; ``IcpSettings.keypoints``): on a fist seen from its side, where the
 depth data leave the curled fingers' posture open, the keypoint CNN's keypoints draw the fit towards the hand;
 where the data see every joint (an open hand) the detector is not asked and the fit is as without the term. Off by
-default (``icp.keypoints.on``; ``tracker track --keypoint-term``): it pulls a grasp seen from the back, which the
+default (``refine.keypoints.on``; ``tracker track --keypoint-term``): it pulls a grasp seen from the back, which the
 synergy prior fills, off the truth (docs/experiments/detector.md)."""
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from tracker.settings import TrackerSettings  # noqa: E402
 from tracker.track import FrameTracker  # noqa: E402
 
 FRAMES = 13
-ON = dict(icp=dict(keypoints=dict(on=True)))
+ON = dict(refine=dict(keypoints=dict(on=True)))
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_an_open_hand_the_data_see_whole_is_fitted_as_without_the_term():
         frames.append((depth, color, kp))
     _, stats, on = _track(hand, cam, frames, **ON)
     _, _, off = _track(hand, cam, frames)
-    _, always, moved = _track(hand, cam, frames, icp=dict(keypoints=dict(on=True, unseen_only=False)))
+    _, always, moved = _track(hand, cam, frames, refine=dict(keypoints=dict(on=True, unseen_only=False)))
     assert stats.keypoint_frames == 0 and stats.unseen_frames == 0
     np.testing.assert_array_equal(on, off)
     assert always.keypoint_frames == len(frames) - 1 and np.abs(moved[1:] - off[1:]).max() > 1e-4
