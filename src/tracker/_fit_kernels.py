@@ -23,6 +23,7 @@ from handmodel._geometry_kernels import CAPSULE, bounding_spheres, closest_local
 from handmodel._solver_kernels import (
     MM,
     _limit_grad,
+    cholesky_solve,
     converged,
     freeze_at_limits,
     solve_stages,
@@ -490,53 +491,6 @@ def moment_energy_at(theta, hand, mom, G0, G, wa, wo, A, b):
 
 
 # ----------------------------------------------------------------------------- one stage's Gauss-Newton
-@njit(cache=True)
-def cholesky_rows(A, b, x, L):
-    """:func:`handmodel._solver_kernels.cholesky_solve` (A x = b for a symmetric positive definite A, False
-    when A is not), the same results to the bit: every entry of L is the same subtractions in the same
-    order, but column by column with four rows' sums at once (four independent chains instead of one: the
-    solve is latency-bound; 26 DoF 2.9 → 1.8 µs). The first non-positive diagonal ends it, the one the
-    row-by-row solve stops at (a diagonal needs only the columns before it)."""
-    m = A.shape[0]
-    for j in range(m):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if s <= 0.0:
-            return False
-        d = np.sqrt(s)
-        L[j, j] = d
-        i = j + 1
-        while i + 3 < m:
-            s0, s1, s2, s3 = A[i, j], A[i + 1, j], A[i + 2, j], A[i + 3, j]
-            for k in range(j):
-                c = L[j, k]
-                s0 -= L[i, k] * c
-                s1 -= L[i + 1, k] * c
-                s2 -= L[i + 2, k] * c
-                s3 -= L[i + 3, k] * c
-            L[i, j] = s0 / d
-            L[i + 1, j] = s1 / d
-            L[i + 2, j] = s2 / d
-            L[i + 3, j] = s3 / d
-            i += 4
-        while i < m:
-            s0 = A[i, j]
-            for k in range(j):
-                s0 -= L[i, k] * L[j, k]
-            L[i, j] = s0 / d
-            i += 1
-    for i in range(m):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * x[k]
-        x[i] = s / L[i, i]
-    for i in range(m - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, m):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
-    return True
 
 
 @njit(cache=True)
@@ -611,13 +565,13 @@ def solve_stage_moments(theta0, hand, mom, G0, M, mu, m, lo, hi, damp, eye, gn, 
             Aa[c, c] += lam
         if clamp:
             freeze_at_limits(Aa, ba, alpha, lo, hi, m, margin)
-        if not cholesky_rows(Aa, ba, delta, L):
+        if not cholesky_solve(Aa, ba, delta, L):
             tr = 0.0
             for c in range(m):
                 tr += Aa[c, c]
             for c in range(m):
                 Aa[c, c] += RETRY_RIDGE * tr / m + RETRY_FLOOR
-            if not cholesky_rows(Aa, ba, delta, L):
+            if not cholesky_solve(Aa, ba, delta, L):
                 break
         if converged(delta, ba, m, E, tol):
             break

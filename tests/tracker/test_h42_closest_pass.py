@@ -1,7 +1,7 @@
 """The fit loop's own closest-point pass (:func:`tracker._fit_kernels.match_posed`, the search of
 :func:`tracker._fit_kernels.closest_pass_and_any` on :func:`~tracker._fit_kernels.posed_primitives`) gives
 :func:`tracker._correspond_kernels.match`'s pairs to the bit, its Cholesky solve
-(:func:`tracker._fit_kernels.cholesky_rows`) handmodel's answers to the bit, and a batch of fits with a start
+(:func:`handmodel._solver_kernels.cholesky_solve`, column by column) the row-by-row solve's answers to the bit, and a batch of fits with a start
 given twice (:meth:`tracker.init.FitContext.fit_many`, which fits it once) gives each row the fit of that start
 alone."""
 import numpy as np
@@ -178,12 +178,43 @@ def test_a_start_given_twice_is_fitted_as_if_alone(threads):
     assert not np.array_equal(T[0], T[1])  # different starts stay different fits
 
 
-def test_the_fit_s_cholesky_solve_is_handmodel_s_to_the_bit():
-    """:func:`tracker._fit_kernels.cholesky_rows` gives :func:`handmodel._solver_kernels.cholesky_solve`'s
-    answer and x to the bit, for 1–30 unknowns (the row blocks of four and the rows left over), scales from
-    1e-6 to 1e6, and refuses exactly the matrices it refuses (a zero row, a negative direction)."""
+def _cholesky_by_rows(A, b, x, L):
+    """The textbook row-by-row Cholesky solve (handmodel's before it went column by column): the reference."""
+    m = A.shape[0]
+    for i in range(m):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if s <= 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    for i in range(m):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(m - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, m):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return True
+
+
+def test_the_column_cholesky_solve_is_the_row_by_row_one_to_the_bit():
+    """:func:`handmodel._solver_kernels.cholesky_solve` (column by column, four rows at once; the fit kernels
+    use it too) gives the row-by-row solve's answer and x to the bit, for 1–30 unknowns (the row blocks of
+    four and the rows left over), scales from 1e-6 to 1e6, on strided views as the solver passes them, and
+    refuses exactly the matrices it refuses (a zero row, a negative direction)."""
+    from numba import njit
+
     from handmodel import _solver_kernels as SK
 
+    by_rows = njit(cache=False)(_cholesky_by_rows)
     rng = np.random.default_rng(11)
     refused = 0
     for trial in range(600):
@@ -196,8 +227,10 @@ def test_the_fit_s_cholesky_solve_is_handmodel_s_to_the_bit():
             A[k, k] = 0.0 if trial % 8 == 0 else -1.0
         b = rng.normal(size=m)
         x0, x1 = np.full(m, 7.0), np.full(m, 7.0)
-        ok0 = SK.cholesky_solve(A, b, x0, np.zeros((m, m)))
-        ok1 = K.cholesky_rows(A, b, x1, np.zeros((m, m)))
+        ok0 = by_rows(A, b, x0, np.zeros((m, m)))
+        big = np.zeros((32, 32))
+        big[:m, :m] = A
+        ok1 = SK.cholesky_solve(big[:m, :m], b, x1, np.zeros((32, 32))[:m, :m])
         assert ok0 == ok1
         if ok0:
             np.testing.assert_array_equal(x1, x0)
