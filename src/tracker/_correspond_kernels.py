@@ -41,6 +41,14 @@ def match(G, caps, points, normals, rules, out):
     Returns the number of valid pairs."""
     closest_points_facing(G, caps.node, caps.shape, caps.length, caps.r0, caps.r1, caps.thickness, points,
                           rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d)
+    return kept_pairs(caps, points, normals, rules, out)
+
+
+@njit(cache=True, inline="always")
+def kept_pairs(caps, points, normals, rules, out):
+    """The pairs of a closest-point pass in ``out`` (its ``seg``, ``n``, ``d``): each point's node, and whether
+    its pair is kept (:func:`match`'s rules); returns the number kept. The fits' own passes
+    (:mod:`tracker._fit_kernels`) end with it too."""
     # the tuples' arrays as locals before the loop: an array taken from a tuple inside it costs a
     # reference count update at each use
     node, seg, out_n, out_d, out_node, out_valid = caps.node, out.seg, out.n, out.d, out.node, out.valid

@@ -30,7 +30,7 @@ from handmodel._solver_kernels import (
 )
 
 from ._correspond_kernels import MM as MM_PER_M
-from ._correspond_kernels import _model_to_data_at, _pair_ok, hand_frames, match_same, new_frames
+from ._correspond_kernels import _model_to_data_at, hand_frames, kept_pairs, match_same, new_frames
 from ._kernel_arrays import (
     ENTRY_CLAMP,
     ENTRY_THROUGH,
@@ -819,24 +819,6 @@ def closest_pass_and_any(G, caps, points, cam, facing_only, out_p, out_n, out_se
             prev = bs
 
 
-@njit(cache=True, inline="always")
-def _kept_pairs(caps, points, normals, rules, out):
-    """:func:`tracker._correspond_kernels.match`'s pairs from its pass in ``out`` (each point's node, and
-    whether its pair is kept); returns the number kept."""
-    node, seg, out_n, out_d, out_node, out_valid = caps.node, out.seg, out.n, out.d, out.node, out.valid
-    reject, agreement = rules.reject_m, rules.agreement
-    use_n = normals.shape[0] == points.shape[0] and agreement > -1.0
-    nv = 0
-    for i in range(points.shape[0]):
-        sg = seg[i]
-        out_node[i] = node[sg] if sg >= 0 else 0
-        ok = sg >= 0 and _pair_ok(normals, out_n, out_d, i, reject, agreement, use_n)
-        out_valid[i] = ok
-        if ok:
-            nv += 1
-    return nv
-
-
 @njit(cache=True)
 def match_posed(G, caps, points, normals, rules, out, hinted=False):
     """:func:`tracker._correspond_kernels.match` (the same pairs to the bit) by the pass of
@@ -844,7 +826,7 @@ def match_posed(G, caps, points, normals, rules, out, hinted=False):
     before's primitives, each point's first visit). Returns the number of valid pairs."""
     closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, None,
                          hinted)
-    return _kept_pairs(caps, points, normals, rules, out)
+    return kept_pairs(caps, points, normals, rules, out)
 
 
 # ----------------------------------------------------------------------------- the fit
@@ -1131,7 +1113,7 @@ def _fit_and_score(theta0, hand, caps, points, normals, rules, stages, proj, gn,
     closest_pass_and_any(G, caps, points, rules.camera, rules.facing_only, out.p, out.n, out.seg, out.d, any_d,
                          True)
     stats[3] += 1
-    _kept_pairs(caps, points, normals, rules, out)
+    kept_pairs(caps, points, normals, rules, out)
     out_valid = out.valid
     # search_score: the data term (data_cost_mean's sums), the model→data term, the wrist cue
     P = points.shape[0]

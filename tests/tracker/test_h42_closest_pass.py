@@ -21,18 +21,9 @@ from tracker.segment import Segmenter
 from tracker.sim.render import DepthRenderer
 from tracker.track import FrameTracker, TrackerSettings
 
+from tests.tracker.test_icp_compiled import _posed_points
+
 HAND = HandModel.load()
-
-
-def _posed_points(rng, n, spread):
-    """``(node frames, points)``: the hand at a random pose and posture within limits 0.7 m away, and ``n``
-    points about its keypoints (Gaussian, SD ``spread`` m)."""
-    theta = HAND.zero()
-    theta[2] = 0.7
-    theta[3:6] = rng.normal(size=3)
-    theta[6:] = rng.uniform(HAND.limits[6:, 0], HAND.limits[6:, 1])
-    pts = HAND.keypoints(theta)[rng.integers(0, 21, n)] + rng.normal(scale=spread, size=(n, 3))
-    return HAND.node_frames(theta), pts
 
 
 def _passes(G, caps, pts, normals, rules, seed_rows, hints):
