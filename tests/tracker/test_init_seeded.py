@@ -33,7 +33,9 @@ def bundle():
 
 class Counting(FitContext):
     """A :class:`FitContext` that records each batch of fits: ``(starts, ICP iterations)``, and each lone fit
-    as ``(1, iterations)``."""
+    as ``(1, iterations)`` unless ``lone`` is False (the batches alone)."""
+
+    lone = True
 
     def __post_init__(self):
         super().__post_init__()
@@ -44,12 +46,16 @@ class Counting(FitContext):
         return super().fit_many(thetas, points, mode, n_rigid, n_icp, **kw)
 
     def fit(self, theta, points, mode, n_rigid, n_icp, **kw):
-        self.calls.append((1, n_icp))
+        if self.lone:
+            self.calls.append((1, n_icp))
         return super().fit(theta, points, mode, n_rigid, n_icp, **kw)
 
 
-def counting(ctx):
-    return Counting(**{f.name: getattr(ctx, f.name) for f in fields(ctx) if f.init})
+def counting(ctx, lone=True):
+    """``ctx`` as a :class:`Counting` context (``lone``: lone fits recorded too)."""
+    c = Counting(**{f.name: getattr(ctx, f.name) for f in fields(ctx) if f.init})
+    c.lone = lone
+    return c
 
 
 @pytest.fixture(scope="module")

@@ -10,13 +10,13 @@ these rendered frames (whose first posture is the synergy mean, one of ``"search
 unconverged when no restart went on (start score 0.525 mm against 0.176, first frame 4.2° against 1.1°), the
 net's threshold rose with that score, and this segment's mean posture error went from 1.8° to 6.3° (Fig. 8
 over four segments: 1.77° → 4.48°)."""
-from dataclasses import fields
 
 import numpy as np
 import pytest
 
 from handmodel import HandModel
-from tracker.init import FitContext, InitSettings, SeededSettings, seeded_search
+from tests.tracker.test_init_seeded import counting
+from tracker.init import InitSettings, SeededSettings, seeded_search
 from tracker.io.cameras import preset
 from tracker.observe import observe
 from tracker.parts import frame_silhouette, silhouette_mask, usable_points
@@ -36,18 +36,6 @@ def bundle():
     return load_bundle("fingerfist")
 
 
-class Counting(FitContext):
-    """A :class:`FitContext` that records each batch of fits as ``(starts, ICP iterations)``."""
-
-    def __post_init__(self):
-        super().__post_init__()
-        self.calls = []
-
-    def fit_many(self, thetas, points, mode, n_rigid, n_icp, **kw):
-        self.calls.append((len(np.atleast_2d(thetas)), n_icp))
-        return super().fit_many(thetas, points, mode, n_rigid, n_icp, **kw)
-
-
 def test_keep_sets_how_many_of_the_detected_hand_s_starts_go_on(bundle):
     """``seeded.keep`` (2, 1): the detected hand's synergy starts are all ranked, the best 2 fitted on the
     coarse cloud and the best 1 on the refinement cloud; None: the search's ``keep`` (12, 3), every start of
@@ -60,7 +48,7 @@ def test_keep_sets_how_many_of_the_detected_hand_s_starts_go_on(bundle):
     st = InitSettings()
     counts = {}
     for keep in ((2, 1), None):
-        ctx = Counting(**{f.name: getattr(base, f.name) for f in fields(base) if f.init})
+        ctx = counting(base, lone=False)  # the batches of fits alone
         s = st.replace(halving=dict(seeded=dict(first="search", keep=keep, restart_icp=3)))  # 3: no other fit's count
         th, _, searched = seeded_search(ctx, pts, s, truth, accept_mm=10.0, silhouette=sil, normals=nrm)
         assert not searched
