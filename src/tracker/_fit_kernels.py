@@ -491,8 +491,6 @@ def moment_energy_at(theta, hand, mom, G0, G, wa, wo, A, b):
 
 
 # ----------------------------------------------------------------------------- one stage's Gauss-Newton
-
-
 @njit(cache=True)
 def solve_stage_moments(theta0, hand, mom, G0, M, mu, m, lo, hi, damp, eye, gn, stats, wa0, wo0):
     """Damped Gauss-Newton in one subspace on the moments: the steps of
