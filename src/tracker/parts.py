@@ -184,9 +184,10 @@ class UnseenPrior:
         of ``corr`` on the parts it moves) moved ``unseen_prior`` (``share`` when given) of the way to
         the conditional mean given the other posture DoF. Unchanged when every DoF, or none, is seen
         (nothing to condition on). Records in ``hidden_`` whether any DoF was unseen and in ``hidden_nodes_``
-        the nodes those move (with synergies, on or off: the keypoint term asks them)."""
-        if self.moves_ is None:
-            return theta
+        the nodes those move (with synergies, when the prior or the keypoint term, ``keypoints.on``, is on:
+        the term asks them)."""
+        if self.moves_ is None or not (self.on or self.settings.keypoints.on):
+            return theta  # neither the prior nor the keypoint term asks which joints the data left unseen
         counts = np.bincount(corr.nodes[corr.valid], minlength=hand.n_nodes)
         hid = self.moves_ @ counts < self.settings.unseen_points
         self.hidden_ = bool(hid.any())
