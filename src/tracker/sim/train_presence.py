@@ -150,22 +150,27 @@ def scene_crops(crop, rng, st: PresenceSettings, *, segment=True) -> tuple[list,
             y.append(lab)
             kind.append("segmented")
     other = np.flatnonzero((ok & ~hand).ravel())
-    for _ in range(st.random_boxes if len(other) else 0):
-        p = other[rng.integers(len(other))]
-        r, c = divmod(int(p), depth.shape[1])
-        z = float(depth[r, c])
-        size = BOX_GROW * HAND_EXTENT_M * np.exp(rng.uniform(*np.log(st.random_size))) * fx / z + 2.0
-        b = (float(c), float(r), size, z)
-        if _box_share(hand, b)[0] <= 0.03:
-            X.append(presence_input(depth, b, bool(rng.random() < 0.5), fx))
-            y.append(0)
-            kind.append("random")
-    if st.near_boxes and hand.any():
-        X_near = near_boxes(depth, ok, hand, fx, rng, st)
-        X += X_near
-        y += [0] * len(X_near)
-        kind += ["near"] * len(X_near)
+    for k, boxes in (("random", boxes_on(other, st.random_boxes, st.random_size, 0.03, depth, hand, fx, rng)),
+                     ("near", near_boxes(depth, ok, hand, fx, rng, st) if st.near_boxes and hand.any() else [])):
+        X += boxes
+        y += [0] * len(boxes)
+        kind += [k] * len(boxes)
     return X, y, kind
+
+
+def boxes_on(pixels, n, size_range, max_share, depth, hand, fx: float, rng) -> list:
+    """Inputs of up to ``n`` no-hand boxes, each centred on one of ``pixels`` (flat indices) drawn at random,
+    ``size_range`` (log-uniform) × a hand's box at that pixel's depth, kept where at most ``max_share`` of
+    it is hand (``hand``), mirrored at random (a non-hand has no side)."""
+    out = []
+    for _ in range(n if len(pixels) else 0):
+        r, c = divmod(int(pixels[rng.integers(len(pixels))]), depth.shape[1])
+        z = float(depth[r, c])
+        size = BOX_GROW * HAND_EXTENT_M * np.exp(rng.uniform(*np.log(size_range))) * fx / z + 2.0
+        b = (float(c), float(r), size, z)
+        if _box_share(hand, b)[0] <= max_share:
+            out.append(presence_input(depth, b, bool(rng.random() < 0.5), fx))
+    return out
 
 
 def near_boxes(depth, ok, hand, fx: float, rng, st: PresenceSettings) -> list:
@@ -177,15 +182,7 @@ def near_boxes(depth, ok, hand, fx: float, rng, st: PresenceSettings) -> list:
     z_hand = float(np.median(depth[hand]))
     reach = st.near_reach * HAND_EXTENT_M * fx / z_hand
     near = np.flatnonzero((ok & ~hand & (distance_transform_edt(~hand) <= reach)).ravel())
-    out = []
-    for _ in range(st.near_boxes if len(near) else 0):
-        r, c = divmod(int(near[rng.integers(len(near))]), depth.shape[1])
-        z = float(depth[r, c])
-        size = BOX_GROW * HAND_EXTENT_M * np.exp(rng.uniform(*np.log(st.near_size))) * fx / z + 2.0
-        b = (float(c), float(r), size, z)
-        if _box_share(hand, b)[0] <= st.near_share:
-            out.append(presence_input(depth, b, bool(rng.random() < 0.5), fx))
-    return out
+    return boxes_on(near, st.near_boxes, st.near_size, st.near_share, depth, hand, fx, rng)
 
 
 def hand_less_scene(recipe: DataRecipe, rng):
